@@ -1,0 +1,1 @@
+//! Offline FEM calibration (see the crate manifest).

@@ -1,0 +1,139 @@
+//! The coarse haptic mesh: a triangle surface with per-vertex normals.
+
+use glam::DVec3;
+
+/// Why a mesh was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MeshError {
+    #[error("vertex {index} is not finite: {value:?}")]
+    NonFiniteVertex { index: usize, value: [f64; 3] },
+    #[error(
+        "triangle {triangle} refers to vertex {vertex}, but the mesh has {vertex_count} vertices"
+    )]
+    IndexOutOfRange {
+        triangle: usize,
+        vertex: u32,
+        vertex_count: usize,
+    },
+    #[error("the mesh has no triangles")]
+    Empty,
+}
+
+/// A triangle surface in the object's frame, with area-weighted vertex normals pointing out of
+/// the object.
+#[derive(Debug, Clone)]
+pub struct HapticMesh {
+    positions_m: Vec<DVec3>,
+    normals: Vec<DVec3>,
+    triangles: Vec<[u32; 3]>,
+}
+
+impl HapticMesh {
+    /// Validates the data and computes vertex normals from the triangles' winding
+    /// (counter-clockwise seen from outside).
+    pub fn new(positions_m: Vec<DVec3>, triangles: Vec<[u32; 3]>) -> Result<Self, MeshError> {
+        if triangles.is_empty() {
+            return Err(MeshError::Empty);
+        }
+        if let Some((index, p)) = positions_m.iter().enumerate().find(|(_, p)| !p.is_finite()) {
+            return Err(MeshError::NonFiniteVertex {
+                index,
+                value: p.to_array(),
+            });
+        }
+        for (t, tri) in triangles.iter().enumerate() {
+            if let Some(&v) = tri.iter().find(|&&v| v as usize >= positions_m.len()) {
+                return Err(MeshError::IndexOutOfRange {
+                    triangle: t,
+                    vertex: v,
+                    vertex_count: positions_m.len(),
+                });
+            }
+        }
+        let mut normals = vec![DVec3::ZERO; positions_m.len()];
+        for tri in &triangles {
+            let [a, b, c] = tri.map(|i| positions_m[i as usize]);
+            // Unnormalised cross product: weights each face by its area.
+            let n = (b - a).cross(c - a);
+            for &i in tri {
+                normals[i as usize] += n;
+            }
+        }
+        for n in &mut normals {
+            *n = n.normalize_or_zero();
+        }
+        Ok(Self {
+            positions_m,
+            normals,
+            triangles,
+        })
+    }
+
+    pub fn positions_m(&self) -> &[DVec3] {
+        &self.positions_m
+    }
+
+    pub fn normals(&self) -> &[DVec3] {
+        &self.normals
+    }
+
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// A flat square grid of `n × n` vertices in the y = 0 plane, normals +y, spanning
+    /// `size_m` on each side and centred on the origin: the surfaces of the paper's timing study
+    /// (Table 1), with 2(n−1)² triangles.
+    pub fn grid(n: usize, size_m: f64) -> Self {
+        let n = n.max(2);
+        let step = size_m / (n - 1) as f64;
+        let half = size_m / 2.0;
+        let mut positions = Vec::with_capacity(n * n);
+        for k in 0..n {
+            for i in 0..n {
+                positions.push(DVec3::new(
+                    i as f64 * step - half,
+                    0.0,
+                    k as f64 * step - half,
+                ));
+            }
+        }
+        let mut triangles = Vec::with_capacity(2 * (n - 1) * (n - 1));
+        for k in 0..n - 1 {
+            for i in 0..n - 1 {
+                let v = |i: usize, k: usize| (k * n + i) as u32;
+                // Counter-clockwise seen from +y.
+                triangles.push([v(i, k), v(i, k + 1), v(i + 1, k)]);
+                triangles.push([v(i + 1, k), v(i, k + 1), v(i + 1, k + 1)]);
+            }
+        }
+        Self::new(positions, triangles).expect("a grid is a valid mesh")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_has_paper_counts_and_up_normals() {
+        let g = HapticMesh::grid(40, 0.1);
+        assert_eq!(g.positions_m().len(), 1600);
+        assert_eq!(g.triangles().len(), 3042);
+        assert!(g.normals().iter().all(|n| (*n - DVec3::Y).length() < 1e-12));
+    }
+
+    #[test]
+    fn bad_meshes_are_refused() {
+        let nan = HapticMesh::new(
+            vec![DVec3::ZERO, DVec3::X, DVec3::new(f64::NAN, 0.0, 0.0)],
+            vec![[0, 1, 2]],
+        );
+        assert!(matches!(
+            nan,
+            Err(MeshError::NonFiniteVertex { index: 2, .. })
+        ));
+        let oob = HapticMesh::new(vec![DVec3::ZERO, DVec3::X, DVec3::Z], vec![[0, 1, 7]]);
+        assert!(oob.unwrap_err().to_string().contains("vertex 7"));
+    }
+}

@@ -1,0 +1,24 @@
+//! The shared vocabulary of the soft-object haptic simulator.
+//!
+//! Every other crate speaks in these types: the 1 kHz loop in `softhaptic-device` fills a
+//! [`ContactState`], the server turns it into wire messages, the calibration tool writes the
+//! tables, and the web viewer mirrors the deformation profile. Nothing here does I/O, spawns a
+//! thread or knows about tokio, so the real-time crate can depend on it freely.
+//!
+//! # Layout
+//! - [`material`]: linear-elastic constants (E, ν) validated on construction, and the derived
+//!   shear and plane-strain moduli.
+//! - [`tool`]: the rigid tool tips (sphere, cone) and the cone half-angle convention.
+//! - [`contact`]: poses, the per-tick [`ContactState`] and its [`ContactFlags`].
+//!
+//! # Conventions
+//! SI units everywhere, carried in the names (`depth_m`, `force_n`, `youngs_modulus_pa`).
+//! Frames are named too (`tip_in_world`). The world frame is right-handed with y up.
+
+pub mod contact;
+pub mod material;
+pub mod tool;
+
+pub use contact::{ContactFlags, ContactState, Pose};
+pub use material::{Material, MaterialError};
+pub use tool::{ToolError, ToolShape};

@@ -1,0 +1,1 @@
+//! The device-host server (see the crate manifest).

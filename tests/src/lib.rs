@@ -1,0 +1,1 @@
+//! Whole-system tests live under `tests/tests/`; this library holds their shared helpers.
