@@ -30,7 +30,8 @@ pub struct HapticMesh {
 
 impl HapticMesh {
     /// Validates the data and computes vertex normals from the triangles' winding
-    /// (counter-clockwise seen from outside).
+    /// (counter-clockwise seen from outside). A vertex whose faces cancel (or that no face
+    /// uses) gets a zero normal.
     pub fn new(positions_m: Vec<DVec3>, triangles: Vec<[u32; 3]>) -> Result<Self, MeshError> {
         if triangles.is_empty() {
             return Err(MeshError::Empty);
@@ -51,16 +52,27 @@ impl HapticMesh {
             }
         }
         let mut normals = vec![DVec3::ZERO; positions_m.len()];
+        // Sum of the face areas around each vertex, to tell a real normal from rounding noise.
+        let mut area_sums = vec![0.0f64; positions_m.len()];
         for tri in &triangles {
             let [a, b, c] = tri.map(|i| positions_m[i as usize]);
             // Unnormalised cross product: weights each face by its area.
             let n = (b - a).cross(c - a);
+            let area = n.length();
             for &i in tri {
                 normals[i as usize] += n;
+                area_sums[i as usize] += area;
             }
         }
-        for n in &mut normals {
-            *n = n.normalize_or_zero();
+        for (n, area_sum) in normals.iter_mut().zip(area_sums) {
+            // Faces that cancel (a two-sided sheet) leave a sum made of rounding errors whose
+            // direction means nothing: call such a normal zero, so the collision's documented
+            // fallback takes over instead of a random direction.
+            *n = if n.length() > 1e-9 * area_sum {
+                n.normalize_or_zero()
+            } else {
+                DVec3::ZERO
+            };
         }
         Ok(Self {
             positions_m,
@@ -112,6 +124,7 @@ impl HapticMesh {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)] // In tests a panic is the failure report.
 mod tests {
     use super::*;
 

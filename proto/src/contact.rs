@@ -119,6 +119,7 @@ impl Default for ContactState {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
 

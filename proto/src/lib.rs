@@ -10,15 +10,27 @@
 //!   shear and plane-strain moduli.
 //! - [`tool`]: the rigid tool tips (sphere, cone) and the cone half-angle convention.
 //! - [`contact`]: poses, the per-tick [`ContactState`] and its [`ContactFlags`].
+//! - [`calibration`]: the δ → R_d calibration table (JSON file format), its piecewise fit and
+//!   the analytical half-space table used when no FEM table exists.
+//! - [`deformation`]: the reference Bézier deformation profile the viewer mirrors (wire.md).
+//! - [`wire`]: the WebSocket messages between server and viewer, and their decoding.
+//! - [`record`]: the session-log records (one MCAP channel each, JSON schemas) and the replay
+//!   control messages.
 //!
 //! # Conventions
 //! SI units everywhere, carried in the names (`depth_m`, `force_n`, `youngs_modulus_pa`).
 //! Frames are named too (`tip_in_world`). The world frame is right-handed with y up.
 
+pub mod calibration;
 pub mod contact;
+pub mod deformation;
 pub mod material;
+pub mod record;
 pub mod tool;
+pub mod wire;
 
+pub use calibration::{CalibrationError, CalibrationSource, CalibrationTable};
 pub use contact::{ContactFlags, ContactState, Pose};
+pub use deformation::DeformationProfile;
 pub use material::{Material, MaterialError};
 pub use tool::{ToolError, ToolShape};

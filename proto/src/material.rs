@@ -94,6 +94,7 @@ impl Material {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
 

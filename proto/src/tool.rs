@@ -86,6 +86,7 @@ impl ToolShape {
 }
 
 #[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
 

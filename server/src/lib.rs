@@ -1,1 +1,18 @@
-//! The device-host server (see the crate manifest).
+//! The device-host server: loads a scene, runs the 1 kHz haptic loop on its own thread, streams
+//! 50 Hz contact frames to WebSocket viewers and serves the web viewer.
+//!
+//! # Layout
+//! - [`scene`]: scene files (TOML), their validation and loading (meshes, calibration table),
+//!   and the built-in default scene.
+//! - [`app`]: [`app::start`] builds the haptic world, spawns the loop, binds HTTP and WebSocket
+//!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of wire.md.
+//! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
+//!   why a slow viewer never delays anyone.
+//! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
+//! - [`session`]: recording sessions to MCAP files and reading them back.
+
+pub mod app;
+pub mod scene;
+pub mod session;
+pub mod stream;
+pub mod vectors;

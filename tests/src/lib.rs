@@ -1,1 +1,152 @@
-//! Whole-system tests live under `tests/tests/`; this library holds their shared helpers.
+//! Whole-system tests of the soft-object haptic simulator.
+//!
+//! # Layout
+//! - `tests/server_*.rs`: the real server (library [`start`](softhaptic_server::app::start) on
+//!   127.0.0.1:0, the real haptic loop thread and simulated device) spoken to by real WebSocket
+//!   and HTTP clients.
+//! - this library: the helpers those tests share ([`start_default`], [`Viewer`], [`http_get`]).
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use futures_util::{SinkExt, StreamExt};
+use softhaptic_proto::wire::{DecodeError, ServerMessage};
+use softhaptic_server::app::{self, RunningServer, ServerOptions};
+use softhaptic_server::scene::Scene;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio_tungstenite::tungstenite::Message;
+
+/// The server options every test starts from: port 0, no real-time request (tests share the
+/// machine), the source tree's web directory.
+pub fn test_options() -> ServerOptions {
+    let addr: SocketAddr = ([127, 0, 0, 1], 0).into();
+    let mut options = ServerOptions::new(addr, app::default_web_dir());
+    options.realtime = false;
+    options
+}
+
+/// Starts the built-in default scene with `options`.
+pub async fn start_default(options: ServerOptions) -> RunningServer {
+    let scene = Scene::builtin_default().expect("the built-in scene loads");
+    app::start(scene, options).await.expect("the server starts")
+}
+
+type Socket =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// A WebSocket viewer connected to a running server.
+pub struct Viewer {
+    pub socket: Socket,
+}
+
+impl Viewer {
+    pub async fn connect(addr: SocketAddr) -> Viewer {
+        let (socket, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/ws"))
+            .await
+            .expect("WebSocket connects");
+        Viewer { socket }
+    }
+
+    /// Connects over a socket whose receive buffer is `recv_buffer_bytes`, so that a viewer that
+    /// reads slowly fills it quickly.
+    pub async fn connect_with_small_buffer(addr: SocketAddr, recv_buffer_bytes: u32) -> Viewer {
+        let tcp = tokio::net::TcpSocket::new_v4().expect("socket");
+        tcp.set_recv_buffer_size(recv_buffer_bytes)
+            .expect("receive buffer size");
+        let stream = tcp.connect(addr).await.expect("TCP connects");
+        let (socket, _) = tokio_tungstenite::client_async(
+            format!("ws://{addr}/ws"),
+            tokio_tungstenite::MaybeTlsStream::Plain(stream),
+        )
+        .await
+        .expect("WebSocket handshake");
+        Viewer { socket }
+    }
+
+    /// The next text message decoded, `None` when the connection ended (close or error).
+    /// Panics after `timeout` without a message.
+    pub async fn next(&mut self, timeout: Duration) -> Option<Result<ServerMessage, DecodeError>> {
+        loop {
+            let message = tokio::time::timeout(timeout, self.socket.next())
+                .await
+                .expect("a message within the timeout");
+            match message {
+                Some(Ok(Message::Text(text))) => return Some(ServerMessage::decode(&text)),
+                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return None,
+                Some(Ok(_)) => continue,
+            }
+        }
+    }
+
+    /// The next message, which must decode.
+    pub async fn expect_message(&mut self, timeout: Duration) -> ServerMessage {
+        self.next(timeout)
+            .await
+            .expect("connection open")
+            .expect("message decodes")
+    }
+
+    pub async fn send_text(&mut self, text: &str) {
+        self.socket
+            .send(Message::text(text))
+            .await
+            .expect("send succeeds");
+    }
+}
+
+/// A plain HTTP/1.1 GET over a real TCP connection: status code and body.
+pub async fn http_get(addr: SocketAddr, path: &str) -> (u16, Vec<u8>) {
+    let mut stream = tokio::net::TcpStream::connect(addr)
+        .await
+        .expect("TCP connects");
+    let request = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+    stream
+        .write_all(request.as_bytes())
+        .await
+        .expect("request sent");
+    let mut response = Vec::new();
+    tokio::time::timeout(Duration::from_secs(20), stream.read_to_end(&mut response))
+        .await
+        .expect("response within 20 s")
+        .expect("response read");
+    let header_end = response
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .expect("a header block");
+    let head = String::from_utf8_lossy(&response[..header_end]).to_string();
+    let status: u16 = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .expect("a status code");
+    let body = response[header_end + 4..].to_vec();
+    let chunked = head
+        .to_ascii_lowercase()
+        .contains("transfer-encoding: chunked");
+    (status, if chunked { dechunk(&body) } else { body })
+}
+
+/// Decodes a chunked HTTP body.
+fn dechunk(mut body: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    loop {
+        let Some(line_end) = body.windows(2).position(|w| w == b"\r\n") else {
+            return out;
+        };
+        let size = usize::from_str_radix(
+            String::from_utf8_lossy(&body[..line_end])
+                .split(';')
+                .next()
+                .unwrap_or("0")
+                .trim(),
+            16,
+        )
+        .unwrap_or(0);
+        if size == 0 {
+            return out;
+        }
+        let start = line_end + 2;
+        out.extend_from_slice(&body[start..start + size]);
+        body = &body[start + size + 2..];
+    }
+}

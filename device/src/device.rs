@@ -1,0 +1,171 @@
+//! The haptic device abstraction: what a backend reports each tick and what it accepts back.
+//!
+//! A backend (the simulated PHANTOM in [`crate::sim`], a replayed session, a real device through
+//! its vendor library) implements [`HapticDevice`]. The loop calls [`HapticDevice::read`] then
+//! [`HapticDevice::command_force`] once per tick, so both must return within a few microseconds
+//! and must not allocate, lock or log: they run on the 1 kHz thread.
+
+use glam::DVec3;
+use softhaptic_proto::Pose;
+
+/// What a device can do safely. Every limit the force renderer enforces comes from here.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceLimits {
+    /// Human-readable model name, shown to viewers.
+    pub name: &'static str,
+    /// Largest force the device may be commanded, briefly (saturation bound).
+    pub peak_force_n: f64,
+    /// Force the motors sustain without overheating.
+    pub continuous_force_n: f64,
+    /// Largest virtual stiffness the device renders stably at 1 kHz (the stiffness cap).
+    pub max_stiffness_n_per_m: f64,
+    /// Largest virtual damping the device renders stably (bounds the configured damping).
+    pub damping_n_s_per_m: f64,
+    /// Radius of the reachable workspace around the device origin.
+    pub workspace_radius_m: f64,
+}
+
+impl DeviceLimits {
+    /// PHANTOM Desktop: peak force, stable stiffness, damping and workspace as CHAI3D's
+    /// `CPhantomDevices.cpp` uses them; continuous force from the datasheet (physics.md).
+    pub const PHANTOM_DESKTOP: DeviceLimits = DeviceLimits {
+        name: "PHANTOM Desktop",
+        peak_force_n: 7.9,
+        continuous_force_n: 1.75,
+        max_stiffness_n_per_m: 1000.0,
+        damping_n_s_per_m: 5.0,
+        workspace_radius_m: 0.10,
+    };
+
+    /// Touch (the PHANTOM Omni's successor): 3.3 N peak and 400 N/m as in physics.md;
+    /// 0.88 N continuous from the vendor datasheet; damping chosen with the stiffness' ratio to
+    /// the Desktop's (the Touch's lighter arm tolerates less); workspace 160 × 120 × 70 mm.
+    pub const TOUCH: DeviceLimits = DeviceLimits {
+        name: "Touch",
+        peak_force_n: 3.3,
+        continuous_force_n: 0.88,
+        max_stiffness_n_per_m: 400.0,
+        damping_n_s_per_m: 2.0,
+        workspace_radius_m: 0.075,
+    };
+
+    /// PHANTOM Omni: 3.3 N peak and 700 N/m as in physics.md; 0.88 N continuous from the
+    /// datasheet; 5 N·s/m damping as CHAI3D's older PHANTOM driver gives the Omni.
+    pub const OMNI: DeviceLimits = DeviceLimits {
+        name: "PHANTOM Omni",
+        peak_force_n: 3.3,
+        continuous_force_n: 0.88,
+        max_stiffness_n_per_m: 700.0,
+        damping_n_s_per_m: 5.0,
+        workspace_radius_m: 0.08,
+    };
+}
+
+/// One reading of the device, already mapped into the world frame by the backend.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceSample {
+    /// Device time of the reading, nanoseconds since the device was opened. Simulated and
+    /// replayed devices count it in fixed steps so that a replay is bit-identical.
+    pub time_ns: u64,
+    /// Pose of the tool frame (origin at the tip's proximal point, +y up the shaft).
+    pub tip_in_world: Pose,
+    /// Linear velocity of the tip, world frame.
+    pub tip_velocity_m_s: DVec3,
+    /// Button bits, bit 0 the primary stylus button.
+    pub buttons: u32,
+}
+
+impl DeviceSample {
+    /// True when every number in the sample is finite (NaN and ±∞ come from broken encoders
+    /// or a broken driver, and must never reach the force law).
+    pub fn is_finite(&self) -> bool {
+        self.tip_in_world.is_finite() && self.tip_velocity_m_s.is_finite()
+    }
+}
+
+/// Why a device could not be read or commanded. `Copy` and allocation-free: it is created on the
+/// 1 kHz thread.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum DeviceError {
+    /// The device is gone (cable pulled, driver closed).
+    #[error("haptic device disconnected")]
+    Disconnected,
+    /// The device did not answer within its servo period.
+    #[error("haptic device did not answer within its servo period")]
+    Timeout,
+    /// The device's amplifiers were disabled (e.g. the motors overheated or the safety switch
+    /// tripped), so it cannot render force.
+    #[error("haptic device force output is disabled")]
+    ForceDisabled,
+    /// The vendor library reported an error code.
+    #[error("haptic device driver error code {0}")]
+    Driver(i32),
+}
+
+/// A haptic device the 1 kHz loop drives. `Send` because the loop thread owns it.
+pub trait HapticDevice: Send {
+    /// The device's safe operating limits.
+    fn limits(&self) -> DeviceLimits;
+    /// Reads the latest pose, velocity and buttons. Called once per tick, before
+    /// [`HapticDevice::command_force`].
+    fn read(&mut self) -> Result<DeviceSample, DeviceError>;
+    /// Commands the force, world frame, to hold until the next command.
+    fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError>;
+}
+
+impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {
+    fn limits(&self) -> DeviceLimits {
+        (**self).limits()
+    }
+    fn read(&mut self) -> Result<DeviceSample, DeviceError> {
+        (**self).read()
+    }
+    fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        (**self).command_force(force_n)
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+
+    #[test]
+    fn limits_are_consistent() {
+        for l in [
+            DeviceLimits::PHANTOM_DESKTOP,
+            DeviceLimits::TOUCH,
+            DeviceLimits::OMNI,
+        ] {
+            assert!(l.continuous_force_n < l.peak_force_n, "{}", l.name);
+            assert!(l.max_stiffness_n_per_m > 0.0 && l.workspace_radius_m > 0.0);
+        }
+        assert_eq!(DeviceLimits::PHANTOM_DESKTOP.peak_force_n, 7.9);
+    }
+
+    #[test]
+    fn non_finite_samples_are_detected() {
+        let mut s = DeviceSample {
+            time_ns: 0,
+            tip_in_world: Pose::IDENTITY,
+            tip_velocity_m_s: DVec3::ZERO,
+            buttons: 0,
+        };
+        assert!(s.is_finite());
+        s.tip_velocity_m_s.y = f64::INFINITY;
+        assert!(!s.is_finite());
+        s.tip_velocity_m_s.y = 0.0;
+        s.tip_in_world.orientation.w = f64::NAN;
+        assert!(!s.is_finite());
+    }
+
+    #[test]
+    fn errors_name_the_cause() {
+        assert!(DeviceError::Driver(-7).to_string().contains("-7"));
+        assert!(
+            DeviceError::Disconnected
+                .to_string()
+                .contains("disconnected")
+        );
+    }
+}

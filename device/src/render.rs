@@ -1,0 +1,754 @@
+//! From a contact to the force sent to the device: contact law, damping, then every safety limit.
+//!
+//! The pipeline of one tick, in order (each limit that acts sets its [`ContactFlags`] bit):
+//! 1. contact law F(δ) ([`crate::law`]); past δ*, where the law's stiffness reaches the device's
+//!    stable stiffness K_max, render F(δ*) + K_max(δ − δ*) instead (`STIFFNESS_CAPPED`);
+//! 2. damping along the normal, F − b(v·n) (paper Fig. 9b), clamped so it never pulls the tool
+//!    into the object;
+//! 3. a linear ramp from zero when contact begins with a force that would jump, or when the
+//!    device comes back after a fault (`RAMPING`);
+//! 4. the passivity controller (`PASSIVITY_DAMPING`, see [`crate::passivity`]);
+//! 5. saturation at the device's peak force (`SATURATED`).
+//!
+//! Validity bounds of the model (`BEYOND_VALID_DEPTH`, `BEYOND_VALID_INCLINATION`) are reported,
+//! not enforced: the force stays continuous, and the viewer shows that it is extrapolated.
+
+use glam::DVec3;
+use softhaptic_proto::{ContactFlags, Material, ToolShape};
+
+use crate::device::DeviceLimits;
+use crate::law;
+use crate::passivity::PassivityObserver;
+
+/// How the force is rendered and which safety layers are on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderConfig {
+    /// Virtual damping b along the contact normal, N·s/m. Bounded by the device's
+    /// `damping_n_s_per_m` at render time.
+    pub damping_n_s_per_m: f64,
+    /// Replace the law beyond δ* by its tangent of slope K_max (physics.md, "Haptic stability").
+    /// Off only to study what happens without it.
+    pub stiffness_cap: bool,
+    /// Length of the force ramp after a fault or a jumping contact onset, nanoseconds.
+    pub ramp_ns: u64,
+    /// A contact that begins with a force above this is ramped in instead of stepped.
+    pub ramp_threshold_n: f64,
+    /// Run the passivity controller.
+    pub passivity: bool,
+    /// Depth beyond which the law is outside its validated range (flag only).
+    pub valid_depth_m: f64,
+    /// Angle between the tool axis and the contact normal beyond which the law is outside its
+    /// validated range (flag only).
+    pub valid_inclination_rad: f64,
+    /// A tip farther than this many workspace radii from the device origin (the world origin)
+    /// cannot be a real reading: it is treated as a device fault.
+    pub workspace_tolerance: f64,
+}
+
+impl RenderConfig {
+    /// The paper's validity limits for `tool`: within 7 % of the linear FEM up to 4.3 mm for
+    /// both tips (§4.3), inclination up to 22° for the sphere (eq. 7) and 9° for the cone (§3.2);
+    /// 1 N·s/m damping, 80 ms ramps, every safety layer on.
+    pub fn for_tool(tool: &ToolShape) -> Self {
+        let valid_depth_m = 4.3e-3;
+        let valid_inclination_deg: f64 = match tool {
+            ToolShape::Sphere { .. } => 22.0,
+            ToolShape::Cone { .. } => 9.0,
+        };
+        Self {
+            damping_n_s_per_m: 1.0,
+            stiffness_cap: true,
+            ramp_ns: 80_000_000,
+            ramp_threshold_n: 0.5,
+            passivity: true,
+            valid_depth_m,
+            valid_inclination_rad: valid_inclination_deg.to_radians(),
+            workspace_tolerance: 2.0,
+        }
+    }
+}
+
+/// The contact, in the world frame, as the renderer needs it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorldContact {
+    /// Indentation δ ≥ 0.
+    pub depth_m: f64,
+    /// Unit normal out of the object.
+    pub normal: DVec3,
+    /// True when the normal is a fallback (colliding normals cancelled).
+    pub degenerate_normal: bool,
+}
+
+/// The force of one tick and the flags of every limit that shaped it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderedForce {
+    pub force_n: DVec3,
+    pub flags: ContactFlags,
+}
+
+impl RenderedForce {
+    const ZERO: RenderedForce = RenderedForce {
+        force_n: DVec3::ZERO,
+        flags: ContactFlags::empty(),
+    };
+}
+
+/// The per-contact state of the force pipeline: ramp, passivity observer, previous tick.
+#[derive(Debug, Clone)]
+pub struct ForceRenderer {
+    tool: ToolShape,
+    material: Material,
+    config: RenderConfig,
+    limits: DeviceLimits,
+    /// δ* where the law's stiffness reaches K_max; computed once.
+    cap_depth_m: f64,
+    /// F(δ*), the start of the linear extension.
+    cap_force_n: f64,
+    /// Effective damping: the configured one bounded by the device's.
+    damping_n_s_per_m: f64,
+    observer: PassivityObserver,
+    /// The force commanded last tick (held by the device since) and where the tip was then: the
+    /// observer books their exact work when the next sample arrives.
+    previous_force_n: DVec3,
+    previous_position_m: Option<DVec3>,
+    ramp_start_ns: Option<u64>,
+    /// Ramp factor applied last tick, to credit the elastic energy the ramp restores.
+    previous_ramp_scale: f64,
+    resume_pending: bool,
+    was_in_contact: bool,
+    previous_time_ns: Option<u64>,
+}
+
+impl ForceRenderer {
+    pub fn new(
+        tool: ToolShape,
+        material: Material,
+        config: RenderConfig,
+        limits: DeviceLimits,
+    ) -> Self {
+        let cap_depth_m = law::depth_at_stiffness_m(&tool, &material, limits.max_stiffness_n_per_m);
+        let cap_force_n = law::contact_force_n(&tool, &material, cap_depth_m);
+        let damping = if config.damping_n_s_per_m.is_finite() {
+            config
+                .damping_n_s_per_m
+                .clamp(0.0, limits.damping_n_s_per_m.max(0.0))
+        } else {
+            0.0
+        };
+        Self {
+            tool,
+            material,
+            config,
+            limits,
+            cap_depth_m,
+            cap_force_n,
+            damping_n_s_per_m: damping,
+            observer: PassivityObserver::new(),
+            previous_force_n: DVec3::ZERO,
+            previous_position_m: None,
+            ramp_start_ns: None,
+            previous_ramp_scale: 1.0,
+            resume_pending: false,
+            was_in_contact: false,
+            previous_time_ns: None,
+        }
+    }
+
+    pub fn config(&self) -> &RenderConfig {
+        &self.config
+    }
+
+    pub fn limits(&self) -> &DeviceLimits {
+        &self.limits
+    }
+
+    /// δ* of the stiffness cap for this tool, material and device.
+    pub fn cap_depth_m(&self) -> f64 {
+        self.cap_depth_m
+    }
+
+    /// Energy the environment has absorbed in the current contact (passivity observer).
+    pub fn passivity_energy_j(&self) -> f64 {
+        self.observer.energy_j()
+    }
+
+    /// The elastic force magnitude at `depth_m`, with the stiffness cap when it is on; the flag
+    /// says whether the cap acted.
+    pub fn elastic_force_n(&self, depth_m: f64) -> (f64, bool) {
+        if self.config.stiffness_cap && depth_m > self.cap_depth_m {
+            let extension = (depth_m - self.cap_depth_m) * self.limits.max_stiffness_n_per_m;
+            (self.cap_force_n + extension, true)
+        } else {
+            (
+                law::contact_force_n(&self.tool, &self.material, depth_m),
+                false,
+            )
+        }
+    }
+
+    /// Elastic energy stored in the rendered contact at `depth_m`: ∫ F dδ of
+    /// [`ForceRenderer::elastic_force_n`] (Hertz F·δ/2.5, Sneddon F·δ/3, plus the capped
+    /// extension's trapezoid).
+    pub fn elastic_energy_j(&self, depth_m: f64) -> f64 {
+        let law_energy = |d: f64| {
+            let f = law::contact_force_n(&self.tool, &self.material, d);
+            let d = d.max(0.0);
+            match self.tool {
+                ToolShape::Sphere { .. } => f * d / 2.5,
+                ToolShape::Cone { .. } => f * d / 3.0,
+            }
+        };
+        if self.config.stiffness_cap && depth_m > self.cap_depth_m {
+            let extra = depth_m - self.cap_depth_m;
+            law_energy(self.cap_depth_m)
+                + self.cap_force_n * extra
+                + 0.5 * self.limits.max_stiffness_n_per_m * extra * extra
+        } else {
+            law_energy(depth_m)
+        }
+    }
+
+    /// The device failed or reported an impossible sample: zero force, and a ramp when it comes
+    /// back.
+    pub fn fault(&mut self) -> RenderedForce {
+        self.resume_pending = true;
+        self.ramp_start_ns = None;
+        self.was_in_contact = false;
+        self.previous_time_ns = None;
+        self.previous_force_n = DVec3::ZERO;
+        self.previous_position_m = None;
+        self.observer.reset();
+        RenderedForce {
+            force_n: DVec3::ZERO,
+            flags: ContactFlags::DEVICE_FAULT,
+        }
+    }
+
+    /// Renders one tick. `contact` is `None` out of contact; `position_m` and `velocity_m_s` are
+    /// the tip's; `tool_axis` is the tool's +y axis (tip toward shaft), all in the world frame;
+    /// `time_ns` is the sample's device time.
+    pub fn render(
+        &mut self,
+        contact: Option<&WorldContact>,
+        position_m: DVec3,
+        velocity_m_s: DVec3,
+        tool_axis: DVec3,
+        time_ns: u64,
+    ) -> RenderedForce {
+        // Book the work of last tick's force over the displacement the device really made.
+        if let Some(previous) = self.previous_position_m {
+            self.observer
+                .observe(self.previous_force_n, position_m - previous);
+        }
+        self.previous_position_m = Some(position_m);
+        let rendered = self.render_force(contact, velocity_m_s, tool_axis, time_ns);
+        self.previous_force_n = rendered.force_n;
+        rendered
+    }
+
+    fn render_force(
+        &mut self,
+        contact: Option<&WorldContact>,
+        velocity_m_s: DVec3,
+        tool_axis: DVec3,
+        time_ns: u64,
+    ) -> RenderedForce {
+        let period_s = match self.previous_time_ns {
+            Some(prev) if time_ns > prev => (time_ns - prev) as f64 * 1e-9,
+            _ => 0.0,
+        };
+        self.previous_time_ns = Some(time_ns);
+        if self.resume_pending {
+            self.resume_pending = false;
+            self.ramp_start_ns = Some(time_ns);
+            self.previous_ramp_scale = 0.0;
+        }
+
+        let Some(contact) = contact.filter(|c| c.depth_m.is_finite() && c.normal.is_finite())
+        else {
+            if self.was_in_contact {
+                self.observer.end_contact();
+            }
+            self.was_in_contact = false;
+            // No elastic energy is stored out of contact: a ramp still running restores none.
+            self.previous_ramp_scale = self.ramp_scale(time_ns);
+            return RenderedForce::ZERO;
+        };
+
+        let mut flags = ContactFlags::empty();
+        if contact.degenerate_normal {
+            flags |= ContactFlags::DEGENERATE_NORMAL;
+        }
+        // A normal that is not unit length would scale the force; renormalise, or fall back to
+        // the tool axis, which is the direction the tool presses along.
+        let normal = match contact.normal.try_normalize() {
+            Some(n) => n,
+            None => {
+                flags |= ContactFlags::DEGENERATE_NORMAL;
+                tool_axis.try_normalize().unwrap_or(DVec3::Y)
+            }
+        };
+        let depth_m = contact.depth_m.max(0.0);
+        if depth_m > self.config.valid_depth_m {
+            flags |= ContactFlags::BEYOND_VALID_DEPTH;
+        }
+        let cos_incl = tool_axis.try_normalize().map_or(1.0, |a| a.dot(normal));
+        if cos_incl.clamp(-1.0, 1.0).acos() > self.config.valid_inclination_rad {
+            flags |= ContactFlags::BEYOND_VALID_INCLINATION;
+        }
+
+        let (elastic_n, capped) = self.elastic_force_n(depth_m);
+        if capped {
+            flags |= ContactFlags::STIFFNESS_CAPPED;
+        }
+        let normal_speed_m_s = velocity_m_s.dot(normal);
+        let mut magnitude_n = (elastic_n - self.damping_n_s_per_m * normal_speed_m_s).max(0.0);
+        // Saturate the normal force here already: an uncapped law at an absurd depth can reach
+        // +∞, and ∞ · 0 would turn into NaN below.
+        let peak = self.limits.peak_force_n;
+        if magnitude_n > peak {
+            magnitude_n = peak;
+            flags |= ContactFlags::SATURATED;
+        }
+
+        // Contact onset: a force that would step from zero is ramped in.
+        if !self.was_in_contact
+            && self.ramp_start_ns.is_none()
+            && magnitude_n > self.config.ramp_threshold_n
+        {
+            self.ramp_start_ns = Some(time_ns);
+            self.previous_ramp_scale = 0.0;
+        }
+        self.was_in_contact = true;
+        let ramp_scale = self.ramp_scale(time_ns);
+        if ramp_scale < 1.0 {
+            magnitude_n *= ramp_scale;
+            flags |= ContactFlags::RAMPING;
+        }
+        // A ramp raises the force at a fixed depth: it restores the contact's elastic energy
+        // without the user doing that work. That energy is credited, so the controller does not
+        // fight the ramp, and only energy beyond it counts as created.
+        if ramp_scale > self.previous_ramp_scale {
+            self.observer
+                .credit((ramp_scale - self.previous_ramp_scale) * self.elastic_energy_j(depth_m));
+        }
+        self.previous_ramp_scale = ramp_scale;
+        let mut force_n = normal * magnitude_n;
+
+        if self.config.passivity {
+            let c = self.observer.correct(
+                force_n,
+                velocity_m_s,
+                period_s,
+                self.limits.damping_n_s_per_m,
+            );
+            if c.added_damping_n_s_per_m > 0.0 {
+                flags |= ContactFlags::PASSIVITY_DAMPING;
+                force_n = c.force_n;
+                // The controller damps every direction of motion but must not pull either.
+                let along = force_n.dot(normal);
+                if along < 0.0 {
+                    force_n -= along * normal;
+                }
+            }
+        }
+
+        // The controller's damping may add a tangential part: saturate the whole vector.
+        let size = force_n.length();
+        if size > peak {
+            force_n *= peak / size;
+            flags |= ContactFlags::SATURATED;
+        }
+        if !force_n.is_finite() {
+            // Unreachable with finite inputs (checked above); kept so that no arithmetic corner
+            // can ever command a non-finite force.
+            force_n = DVec3::ZERO;
+            flags |= ContactFlags::DEVICE_FAULT;
+        }
+        RenderedForce { force_n, flags }
+    }
+
+    /// Ramp factor in [0, 1] at `time_ns`; ends the ramp once it reaches 1.
+    fn ramp_scale(&mut self, time_ns: u64) -> f64 {
+        let Some(start) = self.ramp_start_ns else {
+            return 1.0;
+        };
+        let elapsed = time_ns.saturating_sub(start);
+        if self.config.ramp_ns == 0 || elapsed >= self.config.ramp_ns {
+            self.ramp_start_ns = None;
+            1.0
+        } else {
+            elapsed as f64 / self.config.ramp_ns as f64
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const MS: u64 = 1_000_000;
+
+    fn sphere() -> ToolShape {
+        ToolShape::sphere(0.01).unwrap()
+    }
+
+    fn renderer(material: Material, config: impl FnOnce(&mut RenderConfig)) -> ForceRenderer {
+        let mut c = RenderConfig::for_tool(&sphere());
+        config(&mut c);
+        ForceRenderer::new(sphere(), material, c, DeviceLimits::PHANTOM_DESKTOP)
+    }
+
+    fn contact(depth_m: f64) -> WorldContact {
+        WorldContact {
+            depth_m,
+            normal: DVec3::Y,
+            degenerate_normal: false,
+        }
+    }
+
+    /// Tip position of a contact at `depth_m` under a horizontal surface at y = 0.
+    fn at(depth_m: f64) -> DVec3 {
+        DVec3::new(0.0, -depth_m, 0.0)
+    }
+
+    /// Brings a renderer into a steady contact at `depth_m` (past any onset ramp).
+    fn settle(r: &mut ForceRenderer, depth_m: f64) -> u64 {
+        let mut t = 0;
+        for _ in 0..200 {
+            r.render(
+                Some(&contact(depth_m)),
+                at(depth_m),
+                DVec3::ZERO,
+                DVec3::Y,
+                t,
+            );
+            t += MS;
+        }
+        t
+    }
+
+    #[test]
+    fn soft_contact_renders_the_law_without_flags() {
+        let mut r = renderer(Material::PAPER_SOFT, |_| {});
+        let t = settle(&mut r, 0.002);
+        let f = r.render(Some(&contact(0.002)), at(0.002), DVec3::ZERO, DVec3::Y, t);
+        let expected = law::contact_force_n(&sphere(), &Material::PAPER_SOFT, 0.002);
+        assert!((f.force_n.y - expected).abs() < 1e-12);
+        assert_eq!(f.force_n.x, 0.0);
+        assert!(f.flags.is_empty(), "{:?}", f.flags);
+    }
+
+    #[test]
+    fn damping_opposes_normal_velocity_and_never_pulls() {
+        let mut r = renderer(Material::PAPER_SOFT, |c| c.passivity = false);
+        let t = settle(&mut r, 0.002);
+        let still = r
+            .render(Some(&contact(0.002)), at(0.002), DVec3::ZERO, DVec3::Y, t)
+            .force_n
+            .y;
+        let pressing = r
+            .render(
+                Some(&contact(0.002)),
+                at(0.002),
+                DVec3::NEG_Y * 0.1,
+                DVec3::Y,
+                t + MS,
+            )
+            .force_n
+            .y;
+        assert!(
+            (pressing - still - 0.1).abs() < 1e-9,
+            "b = 1 N·s/m at 0.1 m/s"
+        );
+        let leaving_fast = r.render(
+            Some(&contact(0.002)),
+            at(0.002),
+            DVec3::Y * 10.0,
+            DVec3::Y,
+            t + 2 * MS,
+        );
+        assert_eq!(leaving_fast.force_n, DVec3::ZERO);
+    }
+
+    #[test]
+    fn damping_is_bounded_by_the_device() {
+        let r = renderer(Material::PAPER_SOFT, |c| c.damping_n_s_per_m = 50.0);
+        assert_eq!(r.damping_n_s_per_m, 5.0);
+        let r = renderer(Material::PAPER_SOFT, |c| c.damping_n_s_per_m = f64::NAN);
+        assert_eq!(r.damping_n_s_per_m, 0.0);
+    }
+
+    #[test]
+    fn stiffness_cap_extends_linearly_beyond_cap_depth() {
+        let mut r = renderer(Material::PAPER_STIFF, |_| {});
+        let d_star = r.cap_depth_m();
+        assert!(d_star > 0.0 && d_star < 1e-4, "δ* = {d_star}");
+        let (below, capped_below) = r.elastic_force_n(d_star * 0.5);
+        assert!(!capped_below && below > 0.0);
+        let (f1, c1) = r.elastic_force_n(d_star + 1e-3);
+        let (f2, _) = r.elastic_force_n(d_star + 2e-3);
+        assert!(c1);
+        assert!((f2 - f1 - 1.0).abs() < 1e-9, "slope K_max = 1000 N/m");
+        // Continuous at δ*.
+        let (at_cap, _) = r.elastic_force_n(d_star);
+        let (just_past, _) = r.elastic_force_n(d_star * (1.0 + 1e-9));
+        assert!((just_past - at_cap).abs() < 1e-9);
+        let t = settle(&mut r, 0.003);
+        let f = r.render(Some(&contact(0.003)), at(0.003), DVec3::ZERO, DVec3::Y, t);
+        assert!(f.flags.contains(ContactFlags::STIFFNESS_CAPPED));
+        assert!(f.force_n.y < 3.1 && f.force_n.y > 2.9, "{}", f.force_n.y);
+    }
+
+    #[test]
+    fn without_cap_the_law_runs_unbounded_until_saturation() {
+        let mut r = renderer(Material::PAPER_STIFF, |c| c.stiffness_cap = false);
+        let t = settle(&mut r, 0.003);
+        let f = r.render(Some(&contact(0.003)), at(0.003), DVec3::ZERO, DVec3::Y, t);
+        assert!(!f.flags.contains(ContactFlags::STIFFNESS_CAPPED));
+        assert!(f.flags.contains(ContactFlags::SATURATED));
+        assert!((f.force_n.length() - 7.9).abs() < 1e-12);
+    }
+
+    #[test]
+    fn absurd_depth_without_cap_saturates_instead_of_failing() {
+        let mut r = renderer(Material::new(1e9, 0.4999).unwrap(), |c| {
+            c.stiffness_cap = false
+        });
+        let t = settle(&mut r, 1e200);
+        let f = r.render(Some(&contact(1e200)), at(1e200), DVec3::ZERO, DVec3::Y, t);
+        assert_eq!(f.force_n, DVec3::Y * 7.9);
+        assert!(f.flags.contains(ContactFlags::SATURATED));
+        assert!(!f.flags.contains(ContactFlags::DEVICE_FAULT));
+    }
+
+    #[test]
+    fn validity_limits_are_flagged() {
+        let mut r = renderer(Material::PAPER_SOFT, |_| {});
+        let t = settle(&mut r, 0.005);
+        let deep = r.render(Some(&contact(0.005)), at(0.005), DVec3::ZERO, DVec3::Y, t);
+        assert!(deep.flags.contains(ContactFlags::BEYOND_VALID_DEPTH));
+        let tilted_axis = DVec3::new(30f64.to_radians().sin(), 30f64.to_radians().cos(), 0.0);
+        let tilted = r.render(
+            Some(&contact(0.001)),
+            at(0.001),
+            DVec3::ZERO,
+            tilted_axis,
+            t + MS,
+        );
+        assert!(
+            tilted
+                .flags
+                .contains(ContactFlags::BEYOND_VALID_INCLINATION)
+        );
+        assert!(!tilted.flags.contains(ContactFlags::BEYOND_VALID_DEPTH));
+        let slight = DVec3::new(10f64.to_radians().sin(), 10f64.to_radians().cos(), 0.0);
+        let ok = r.render(
+            Some(&contact(0.001)),
+            at(0.001),
+            DVec3::ZERO,
+            slight,
+            t + 2 * MS,
+        );
+        assert!(!ok.flags.contains(ContactFlags::BEYOND_VALID_INCLINATION));
+    }
+
+    #[test]
+    fn degenerate_normal_is_flagged_and_force_stays_finite() {
+        let mut r = renderer(Material::PAPER_SOFT, |_| {});
+        let t = settle(&mut r, 0.001);
+        let fallback = WorldContact {
+            depth_m: 0.001,
+            normal: DVec3::Y,
+            degenerate_normal: true,
+        };
+        let f = r.render(Some(&fallback), at(0.001), DVec3::ZERO, DVec3::Y, t);
+        assert!(f.flags.contains(ContactFlags::DEGENERATE_NORMAL));
+        let zero_normal = WorldContact {
+            depth_m: 0.001,
+            normal: DVec3::ZERO,
+            degenerate_normal: false,
+        };
+        let f = r.render(Some(&zero_normal), at(0.001), DVec3::ZERO, DVec3::Y, t + MS);
+        assert!(f.flags.contains(ContactFlags::DEGENERATE_NORMAL));
+        assert!(f.force_n.is_finite() && f.force_n.y > 0.0);
+    }
+
+    #[test]
+    fn jumping_onset_is_ramped_not_stepped() {
+        let mut r = renderer(Material::PAPER_STIFF, |c| c.passivity = false);
+        r.render(None, DVec3::Y, DVec3::ZERO, DVec3::Y, 0);
+        // 1.5 MPa at 3 mm capped: ≈ 3 N would appear in one tick.
+        let mut previous = 0.0;
+        let mut max_step: f64 = 0.0;
+        let mut saw_ramp = false;
+        for k in 1..=120u64 {
+            let f = r.render(
+                Some(&contact(0.003)),
+                at(0.003),
+                DVec3::ZERO,
+                DVec3::Y,
+                k * MS,
+            );
+            saw_ramp |= f.flags.contains(ContactFlags::RAMPING);
+            max_step = max_step.max(f.force_n.y - previous);
+            previous = f.force_n.y;
+        }
+        assert!(saw_ramp);
+        assert!(max_step < 0.05, "largest step {max_step} N");
+        assert!(previous > 2.9, "ramp reaches the full force: {previous}");
+    }
+
+    #[test]
+    fn gentle_onset_is_not_ramped() {
+        let mut r = renderer(Material::PAPER_SOFT, |_| {});
+        r.render(None, DVec3::Y, DVec3::ZERO, DVec3::Y, 0);
+        let f = r.render(Some(&contact(1e-4)), at(1e-4), DVec3::ZERO, DVec3::Y, MS);
+        assert!(!f.flags.contains(ContactFlags::RAMPING));
+        assert!(f.force_n.y > 0.0);
+    }
+
+    #[test]
+    fn fault_gives_zero_force_then_a_ramp() {
+        let mut r = renderer(Material::PAPER_SOFT, |c| c.passivity = false);
+        let t = settle(&mut r, 0.003);
+        let steady = r
+            .render(Some(&contact(0.003)), at(0.003), DVec3::ZERO, DVec3::Y, t)
+            .force_n
+            .y;
+        let f = r.fault();
+        assert_eq!(f.force_n, DVec3::ZERO);
+        assert_eq!(f.flags, ContactFlags::DEVICE_FAULT);
+        let mut previous = 0.0;
+        for k in 1..=100u64 {
+            let f = r.render(
+                Some(&contact(0.003)),
+                at(0.003),
+                DVec3::ZERO,
+                DVec3::Y,
+                t + k * MS,
+            );
+            assert!(
+                f.force_n.y - previous <= steady / 80.0 + 1e-9,
+                "no spike at tick {k}"
+            );
+            if k < 80 {
+                assert!(f.flags.contains(ContactFlags::RAMPING), "tick {k}");
+            }
+            previous = f.force_n.y;
+        }
+        assert!((previous - steady).abs() < 1e-9);
+    }
+
+    /// Runs an undamped stiff contact in at constant speed and straight back out, the depth
+    /// always consistent with the position: the sample-and-hold alone creates energy.
+    fn in_and_out(passivity: bool) -> (ForceRenderer, bool) {
+        let mut r = renderer(Material::PAPER_STIFF, |c| {
+            c.damping_n_s_per_m = 0.0;
+            c.passivity = passivity;
+            c.ramp_threshold_n = f64::INFINITY;
+        });
+        let speed = 0.05;
+        let mut engaged = false;
+        let mut t = 0;
+        let mut depth: f64 = 0.0;
+        for k in 0..120 {
+            let v = if k < 60 { -speed } else { speed };
+            depth -= v * 1e-3;
+            t += MS;
+            let c = (depth > 0.0).then(|| contact(depth));
+            let f = r.render(c.as_ref(), at(depth), DVec3::Y * v, DVec3::Y, t);
+            engaged |= f.flags.contains(ContactFlags::PASSIVITY_DAMPING);
+        }
+        (r, engaged)
+    }
+
+    #[test]
+    fn passivity_controller_removes_the_energy_sample_and_hold_creates() {
+        let (without, engaged) = in_and_out(false);
+        assert!(!engaged);
+        // Still in contact at the last tick (depth ≈ 0): the observer shows the created energy.
+        assert!(
+            without.passivity_energy_j() < -5e-5,
+            "{}",
+            without.passivity_energy_j()
+        );
+        let (with, engaged) = in_and_out(true);
+        assert!(engaged);
+        // The controller removes most of it. What remains accrues in the last ticks before the
+        // tip leaves, where the spring force is too small to damp the motion without pulling.
+        assert!(
+            with.passivity_energy_j() > 0.35 * without.passivity_energy_j(),
+            "with {} J, without {} J",
+            with.passivity_energy_j(),
+            without.passivity_energy_j()
+        );
+    }
+
+    #[test]
+    fn elastic_energy_integrates_the_rendered_force() {
+        for (material, cap) in [
+            (Material::PAPER_SOFT, true),
+            (Material::PAPER_STIFF, true),
+            (Material::PAPER_STIFF, false),
+        ] {
+            let r = renderer(material, |c| c.stiffness_cap = cap);
+            let depth = 0.004;
+            let n = 20_000;
+            let h = depth / n as f64;
+            let numeric: f64 = (0..n)
+                .map(|i| r.elastic_force_n((i as f64 + 0.5) * h).0 * h)
+                .sum();
+            assert!((r.elastic_energy_j(depth) / numeric - 1.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn out_of_contact_is_zero() {
+        let mut r = renderer(Material::PAPER_SOFT, |_| {});
+        let f = r.render(None, DVec3::Y, DVec3::ONE, DVec3::Y, 0);
+        assert_eq!(f, RenderedForce::ZERO);
+        let nan = WorldContact {
+            depth_m: f64::NAN,
+            normal: DVec3::Y,
+            degenerate_normal: false,
+        };
+        assert_eq!(
+            r.render(Some(&nan), DVec3::ZERO, DVec3::ZERO, DVec3::Y, MS)
+                .force_n,
+            DVec3::ZERO
+        );
+    }
+
+    proptest! {
+        #[test]
+        fn force_is_finite_bounded_and_pushes(
+            e in 1.0f64..1e9, nu in 0.0f64..0.4999, depth in -0.01f64..0.05,
+            vx in -2.0f64..2.0, vy in -2.0f64..2.0, vz in -2.0f64..2.0,
+            nx in -1.0f64..1.0, ny in -1.0f64..1.0, nz in -1.0f64..1.0,
+            cap in any::<bool>(), passivity in any::<bool>(), in_contact in any::<bool>(),
+            ticks in 1usize..20,
+        ) {
+            let m = Material::new(e, nu).unwrap();
+            let mut c = RenderConfig::for_tool(&sphere());
+            c.stiffness_cap = cap;
+            c.passivity = passivity;
+            let mut r = ForceRenderer::new(sphere(), m, c, DeviceLimits::PHANTOM_DESKTOP);
+            let normal = DVec3::new(nx, ny, nz);
+            let v = DVec3::new(vx, vy, vz);
+            let wc = WorldContact { depth_m: depth, normal, degenerate_normal: false };
+            for k in 0..ticks as u64 {
+                let f = r.render(in_contact.then_some(&wc), v * (k as f64 * 1e-3), v, DVec3::Y, k * MS);
+                prop_assert!(f.force_n.is_finite());
+                prop_assert!(f.force_n.length() <= 7.9 * (1.0 + 1e-12));
+                if !in_contact {
+                    prop_assert_eq!(f.force_n, DVec3::ZERO);
+                } else if let Some(n) = normal.try_normalize() {
+                    prop_assert!(f.force_n.dot(n) >= -1e-12);
+                }
+            }
+        }
+    }
+}

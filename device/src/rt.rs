@@ -1,0 +1,295 @@
+//! Real-time plumbing for the loop thread: the monotonic clock, absolute-deadline sleeps, and the
+//! request for SCHED_FIFO and locked memory.
+//!
+//! Privileges: SCHED_FIFO needs `CAP_SYS_NICE` (or an `rtprio` entry in
+//! `/etc/security/limits.conf`, or root); `mlockall` needs `CAP_IPC_LOCK` or a large enough
+//! `RLIMIT_MEMLOCK`. Without them the loop still runs, at normal priority, and says so once at
+//! start ([`RealtimeStatus`]). On an idle machine that is usually good enough; under load the
+//! period error grows (the `loop-timing` report measures both).
+
+use std::fmt;
+
+/// SCHED_FIFO priority of the haptic thread: above most user threads and IRQ threads of lesser
+/// devices, below the kernel's own watchdogs (99).
+pub const LOOP_PRIORITY: i32 = 80;
+
+/// What the operating system granted when the loop thread asked for real-time treatment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RealtimeStatus {
+    /// Real-time scheduling was asked for at all.
+    pub requested: bool,
+    /// SCHED_FIFO priority obtained, or `None`.
+    pub fifo_priority: Option<i32>,
+    /// errno of the refused scheduling request.
+    pub fifo_errno: Option<i32>,
+    /// Memory locked with `mlockall` (current pages, and future ones when the memlock limit is
+    /// unlimited).
+    pub memory_locked: bool,
+    /// errno of the refused `mlockall`.
+    pub mlock_errno: Option<i32>,
+    /// The timer slack of the thread was lowered to 1 ns (non-real-time threads otherwise sleep
+    /// up to 50 µs past their deadline).
+    pub timer_slack_lowered: bool,
+}
+
+impl RealtimeStatus {
+    /// Both SCHED_FIFO and locked memory were granted.
+    pub fn granted(&self) -> bool {
+        self.fifo_priority.is_some() && self.memory_locked
+    }
+}
+
+impl fmt::Display for RealtimeStatus {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if !self.requested {
+            return write!(f, "real-time scheduling not requested; normal priority");
+        }
+        match (self.fifo_priority, self.fifo_errno) {
+            (Some(p), _) => write!(f, "SCHED_FIFO priority {p}")?,
+            (None, Some(e)) => write!(
+                f,
+                "SCHED_FIFO refused ({}; needs CAP_SYS_NICE or an rtprio limit), normal priority",
+                std::io::Error::from_raw_os_error(e)
+            )?,
+            (None, None) => write!(f, "SCHED_FIFO not attempted")?,
+        }
+        match (self.memory_locked, self.mlock_errno) {
+            (true, _) => write!(f, ", memory locked"),
+            (false, Some(e)) => write!(
+                f,
+                ", mlockall refused ({}; needs CAP_IPC_LOCK or RLIMIT_MEMLOCK)",
+                std::io::Error::from_raw_os_error(e)
+            ),
+            (false, None) => write!(f, ", memory not locked"),
+        }
+    }
+}
+
+fn errno() -> i32 {
+    std::io::Error::last_os_error().raw_os_error().unwrap_or(0)
+}
+
+/// CLOCK_MONOTONIC in nanoseconds.
+#[inline]
+pub fn now_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux, so the
+    // call cannot fail and fills `ts`.
+    unsafe {
+        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
+    }
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// Sleeps until CLOCK_MONOTONIC reaches `deadline_ns` (absolute, so lateness never accumulates),
+/// resuming after signals.
+#[inline]
+pub fn sleep_until_ns(deadline_ns: u64) {
+    let ts = libc::timespec {
+        tv_sec: (deadline_ns / 1_000_000_000) as libc::time_t,
+        tv_nsec: (deadline_ns % 1_000_000_000) as libc::c_long,
+    };
+    loop {
+        // SAFETY: `ts` is a valid timespec; with TIMER_ABSTIME the remaining-time pointer is
+        // unused and may be null.
+        let rc = unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            )
+        };
+        // clock_nanosleep returns the error number directly; EINTR means a signal arrived first.
+        if rc != libc::EINTR {
+            return;
+        }
+    }
+}
+
+/// Waits until `deadline_ns`: sleeps until `spin_ns` before it, then spins, so that the wake-up
+/// latency of the scheduler is absorbed by the sleep and the last stretch is exact. Returns how
+/// late the sleep woke past its wake-up time (`None` when there was no time left to sleep).
+#[inline]
+pub fn wait_until_ns(deadline_ns: u64, spin_ns: u64) -> Option<u64> {
+    let wake = deadline_ns.saturating_sub(spin_ns);
+    let overshoot = if now_ns() < wake {
+        sleep_until_ns(wake);
+        Some(now_ns().saturating_sub(wake))
+    } else {
+        None
+    };
+    while now_ns() < deadline_ns {
+        std::hint::spin_loop();
+    }
+    overshoot
+}
+
+/// How long before each deadline the loop stops sleeping and spins, adapted to the scheduler's
+/// wake-up latency on this machine.
+///
+/// A fixed spin is either wasteful (an idle real-time kernel wakes within a few µs) or too short
+/// (a loaded or virtualised one wakes 50–150 µs late at the 99th percentile). The budget jumps up
+/// at once to cover any late wake-up it sees (plus a margin, bounded by `max_ns`) and decays back
+/// toward `min_ns` with a time constant of about 1024 ticks, so it tracks the recent worst case
+/// at a CPU cost of `spin_ns / period` of one core.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SpinBudget {
+    spin_ns: u64,
+    min_ns: u64,
+    max_ns: u64,
+}
+
+impl SpinBudget {
+    /// Margin added above the latest late wake-up.
+    const MARGIN_NS: u64 = 10_000;
+
+    /// Starts at `max_ns`: the first second of a loop has not measured its machine yet.
+    pub fn new(min_ns: u64, max_ns: u64) -> Self {
+        let max_ns = max_ns.max(min_ns);
+        Self {
+            spin_ns: max_ns,
+            min_ns,
+            max_ns,
+        }
+    }
+
+    /// The current spin before a deadline.
+    pub fn spin_ns(&self) -> u64 {
+        self.spin_ns
+    }
+
+    /// Feeds how late the last sleep woke past its wake-up time.
+    pub fn observe(&mut self, overshoot_ns: u64) {
+        let needed = overshoot_ns.saturating_add(Self::MARGIN_NS);
+        if needed > self.spin_ns {
+            self.spin_ns = needed.min(self.max_ns);
+        } else {
+            self.spin_ns -= (self.spin_ns - self.min_ns) / 1024;
+        }
+    }
+}
+
+/// Asks, for the calling thread, for SCHED_FIFO at `priority` and a 1 ns timer slack, and locks
+/// the process's memory. Nothing is changed when `requested` is false except the timer slack.
+/// Never fails: what was refused is in the returned status.
+pub fn request_realtime(requested: bool, priority: i32) -> RealtimeStatus {
+    let mut status = RealtimeStatus {
+        requested,
+        ..RealtimeStatus::default()
+    };
+    // SAFETY: PR_SET_TIMERSLACK takes an unsigned long and affects only the calling thread.
+    status.timer_slack_lowered =
+        unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong) } == 0;
+    if !requested {
+        return status;
+    }
+    let param = libc::sched_param {
+        sched_priority: priority,
+    };
+    // SAFETY: `pthread_self()` is the calling thread, alive for the call; `param` is valid.
+    let rc = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) };
+    if rc == 0 {
+        status.fifo_priority = Some(priority);
+    } else {
+        status.fifo_errno = Some(rc);
+    }
+    // MCL_FUTURE makes every later mapping of the process count against RLIMIT_MEMLOCK; with a
+    // finite limit that could make an unrelated allocation in the server fail, so it is only
+    // asked for when the limit is unlimited.
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: `limit` is a valid, writable rlimit.
+    let unlimited = unsafe { libc::getrlimit(libc::RLIMIT_MEMLOCK, &mut limit) } == 0
+        && limit.rlim_cur == libc::RLIM_INFINITY;
+    let flags = if unlimited {
+        libc::MCL_CURRENT | libc::MCL_FUTURE
+    } else {
+        libc::MCL_CURRENT
+    };
+    // SAFETY: mlockall has no memory-safety preconditions.
+    if unsafe { libc::mlockall(flags) } == 0 {
+        status.memory_locked = true;
+    } else {
+        status.mlock_errno = Some(errno());
+    }
+    status
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clock_is_monotonic_and_sleep_reaches_its_deadline() {
+        let a = now_ns();
+        let deadline = a + 2_000_000;
+        wait_until_ns(deadline, 50_000);
+        let b = now_ns();
+        assert!(b >= deadline);
+        sleep_until_ns(a); // a deadline in the past returns at once
+        assert!(now_ns() >= b);
+    }
+
+    #[test]
+    fn spin_budget_follows_late_wake_ups_and_decays() {
+        let mut b = SpinBudget::new(20_000, 200_000);
+        assert_eq!(b.spin_ns(), 200_000);
+        for _ in 0..20_000 {
+            b.observe(3_000);
+        }
+        assert!(
+            b.spin_ns() < 22_000,
+            "decays toward the minimum: {}",
+            b.spin_ns()
+        );
+        b.observe(80_000);
+        assert_eq!(
+            b.spin_ns(),
+            90_000,
+            "covers a late wake-up at once, with margin"
+        );
+        b.observe(5_000_000);
+        assert_eq!(b.spin_ns(), 200_000, "bounded");
+        b.observe(1_000);
+        assert!(b.spin_ns() < 200_000 && b.spin_ns() > 190_000);
+    }
+
+    #[test]
+    fn status_explains_refusals() {
+        let refused = RealtimeStatus {
+            requested: true,
+            fifo_errno: Some(libc::EPERM),
+            mlock_errno: Some(libc::ENOMEM),
+            ..RealtimeStatus::default()
+        };
+        let text = refused.to_string();
+        assert!(text.contains("SCHED_FIFO refused") && text.contains("CAP_SYS_NICE"));
+        assert!(text.contains("mlockall refused"));
+        assert!(!refused.granted());
+        let granted = RealtimeStatus {
+            requested: true,
+            fifo_priority: Some(80),
+            memory_locked: true,
+            ..RealtimeStatus::default()
+        };
+        assert!(granted.granted() && granted.to_string().contains("priority 80"));
+        assert!(
+            RealtimeStatus::default()
+                .to_string()
+                .contains("not requested")
+        );
+    }
+
+    #[test]
+    fn unrequested_realtime_changes_no_policy() {
+        let s = request_realtime(false, LOOP_PRIORITY);
+        assert!(!s.requested && s.fifo_priority.is_none() && !s.memory_locked);
+    }
+}

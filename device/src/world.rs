@@ -1,0 +1,321 @@
+//! What one haptic tick computes, as a plain synchronous object.
+//!
+//! [`HapticWorld::step`] turns one device reading into one [`ContactState`]: fault guard,
+//! collision in the object's frame, force rendering with every safety limit. The loop thread
+//! calls it at 1 kHz; tests, replays and benches call it directly, with no thread and no clock,
+//! which is what makes a replay bit-identical (design.md, invariant 5).
+
+use glam::DVec3;
+use softhaptic_proto::{ContactFlags, ContactState, Material, Pose, ToolShape};
+
+use crate::collision::Collider;
+use crate::device::{DeviceError, DeviceLimits, DeviceSample};
+use crate::law;
+use crate::render::{ForceRenderer, RenderConfig, RenderedForce, WorldContact};
+
+/// One object, one tool, one device: everything a tick needs. Owns its collider, so it never
+/// shares memory with another thread.
+pub struct HapticWorld {
+    collider: Collider,
+    object_in_world: Pose,
+    tool: ToolShape,
+    material: Material,
+    renderer: ForceRenderer,
+    /// Ticks stepped so far (the next state's `tick`).
+    tick: u64,
+    /// The last valid reading: a faulted tick reports it rather than a NaN pose.
+    last_good: Option<DeviceSample>,
+}
+
+impl HapticWorld {
+    /// Builds the world. `object_in_world` places the collider's mesh; the device's origin is the
+    /// world origin (its workspace is checked around it).
+    pub fn new(
+        collider: Collider,
+        object_in_world: Pose,
+        tool: ToolShape,
+        material: Material,
+        render: RenderConfig,
+        limits: DeviceLimits,
+    ) -> Self {
+        Self {
+            collider,
+            object_in_world,
+            tool,
+            material,
+            renderer: ForceRenderer::new(tool, material, render, limits),
+            tick: 0,
+            last_good: None,
+        }
+    }
+
+    pub fn tool(&self) -> &ToolShape {
+        &self.tool
+    }
+
+    pub fn material(&self) -> &Material {
+        &self.material
+    }
+
+    pub fn limits(&self) -> &DeviceLimits {
+        self.renderer.limits()
+    }
+
+    pub fn render_config(&self) -> &RenderConfig {
+        self.renderer.config()
+    }
+
+    pub fn object_in_world(&self) -> &Pose {
+        &self.object_in_world
+    }
+
+    pub fn collider(&self) -> &Collider {
+        &self.collider
+    }
+
+    /// Depth δ* beyond which the stiffness cap (when on) linearises the law.
+    pub fn cap_depth_m(&self) -> f64 {
+        self.renderer.cap_depth_m()
+    }
+
+    /// The elastic force magnitude the renderer uses at `depth_m` (the law, or its capped
+    /// extension past δ*), before damping and the other limits.
+    pub fn elastic_force_n(&self, depth_m: f64) -> f64 {
+        self.renderer.elastic_force_n(depth_m).0
+    }
+
+    /// Energy the environment has absorbed in the current contact (passivity observer); negative
+    /// means the loop has created energy that the controller has not yet removed.
+    pub fn passivity_energy_j(&self) -> f64 {
+        self.renderer.passivity_energy_j()
+    }
+
+    /// Ticks stepped so far.
+    pub fn ticks(&self) -> u64 {
+        self.tick
+    }
+
+    /// One tick: from the device's reading (or its error) to the contact state whose `force_n`
+    /// must be commanded. Never panics, never allocates.
+    pub fn step(&mut self, sample: Result<DeviceSample, DeviceError>) -> ContactState {
+        let tick = self.tick;
+        self.tick += 1;
+        let sample = match sample {
+            Ok(s) if self.sample_is_plausible(&s) => s,
+            Ok(s) => {
+                // The time may still be meaningful when only the pose is broken.
+                let time_ns = s.time_ns;
+                return self.fault_state(tick, Some(time_ns));
+            }
+            Err(_) => return self.fault_state(tick, None),
+        };
+        self.last_good = Some(sample);
+
+        let o = &self.object_in_world;
+        let to_object = o.orientation.inverse();
+        let tip_in_object = Pose {
+            position_m: to_object * (sample.tip_in_world.position_m - o.position_m),
+            orientation: to_object * sample.tip_in_world.orientation,
+        };
+        let geometry = self.collider.query(&self.tool, &tip_in_object);
+        let contact = geometry.map(|g| WorldContact {
+            depth_m: g.depth_m,
+            normal: o.orientation * g.normal,
+            degenerate_normal: g.degenerate_normal,
+        });
+        let tool_axis = sample.tip_in_world.orientation * DVec3::Y;
+        let rendered = self.renderer.render(
+            contact.as_ref(),
+            sample.tip_in_world.position_m,
+            sample.tip_velocity_m_s,
+            tool_axis,
+            sample.time_ns,
+        );
+
+        let mut state = ContactState {
+            tick,
+            time_ns: sample.time_ns,
+            tip_in_world: sample.tip_in_world,
+            tip_velocity_m_s: sample.tip_velocity_m_s,
+            buttons: sample.buttons,
+            force_n: rendered.force_n,
+            flags: rendered.flags,
+            ..ContactState::IDLE
+        };
+        if let (Some(g), Some(c)) = (geometry, contact)
+            && c.depth_m.is_finite()
+        {
+            state.in_contact = true;
+            state.depth_m = g.depth_m.max(0.0);
+            state.normal = c.normal;
+            state.contact_point_m = o.transform_point(g.contact_point_m);
+            state.contact_radius_m = law::contact_radius_m(&self.tool, state.depth_m);
+        }
+        state
+    }
+
+    /// A reading is plausible when every number is finite and the tip is where a device of this
+    /// size can physically be.
+    fn sample_is_plausible(&self, s: &DeviceSample) -> bool {
+        let limits = self.renderer.limits();
+        let reach_m = limits.workspace_radius_m * self.renderer.config().workspace_tolerance;
+        s.is_finite() && s.tip_in_world.position_m.length() <= reach_m
+    }
+
+    fn fault_state(&mut self, tick: u64, time_ns: Option<u64>) -> ContactState {
+        let RenderedForce { force_n, flags } = self.renderer.fault();
+        let (tip_in_world, last_time_ns) = match self.last_good {
+            Some(s) => (s.tip_in_world, s.time_ns),
+            None => (Pose::IDENTITY, 0),
+        };
+        ContactState {
+            tick,
+            time_ns: time_ns.unwrap_or(last_time_ns),
+            tip_in_world,
+            force_n,
+            flags: flags | ContactFlags::DEVICE_FAULT,
+            ..ContactState::IDLE
+        }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use crate::collision::CollisionMode;
+    use crate::mesh::HapticMesh;
+    use glam::DQuat;
+
+    const MS: u64 = 1_000_000;
+
+    fn world(object_in_world: Pose) -> HapticWorld {
+        let tool = ToolShape::sphere(0.01).unwrap();
+        HapticWorld::new(
+            Collider::new(HapticMesh::grid(41, 0.04), CollisionMode::default()),
+            object_in_world,
+            tool,
+            Material::PAPER_SOFT,
+            RenderConfig::for_tool(&tool),
+            DeviceLimits::PHANTOM_DESKTOP,
+        )
+    }
+
+    fn sample_at(time_ns: u64, position_m: DVec3) -> DeviceSample {
+        DeviceSample {
+            time_ns,
+            tip_in_world: Pose::from_position(position_m),
+            tip_velocity_m_s: DVec3::ZERO,
+            buttons: 1,
+        }
+    }
+
+    #[test]
+    fn pressing_the_grid_gives_the_hertz_force_along_the_normal() {
+        let mut w = world(Pose::IDENTITY);
+        let mut s = ContactState::IDLE;
+        // 0.67 N at once is a jump: the onset is ramped over 80 ms first.
+        for k in 0..100 {
+            s = w.step(Ok(sample_at(k * MS, DVec3::new(0.0, -0.002, 0.0))));
+        }
+        assert!(s.in_contact);
+        assert!((s.depth_m - 0.002).abs() < 1e-12);
+        let expected = law::contact_force_n(w.tool(), w.material(), 0.002);
+        assert!((s.force_n.y - expected).abs() < 1e-9, "{:?}", s.force_n);
+        assert!((s.contact_radius_m - (0.01f64 * 0.002).sqrt()).abs() < 1e-12);
+        assert_eq!(s.tick, 99);
+        assert_eq!(s.buttons, 1);
+    }
+
+    #[test]
+    fn object_pose_maps_the_contact_into_the_world() {
+        // The grid stood up: its +y normal now points along world +x, at x = 0.05.
+        let placed = Pose {
+            position_m: DVec3::new(0.05, 0.0, 0.0),
+            orientation: DQuat::from_rotation_z(-std::f64::consts::FRAC_PI_2),
+        };
+        let mut w = world(placed);
+        let tip = Pose {
+            position_m: DVec3::new(0.05 - 0.001, 0.0, 0.0),
+            orientation: DQuat::from_rotation_z(-std::f64::consts::FRAC_PI_2),
+        };
+        let s = w.step(Ok(DeviceSample {
+            tip_in_world: tip,
+            ..sample_at(0, DVec3::ZERO)
+        }));
+        assert!(s.in_contact);
+        assert!((s.normal - DVec3::X).length() < 1e-9, "{:?}", s.normal);
+        assert!(s.force_n.x > 0.0 && s.force_n.y.abs() < 1e-9);
+        assert!((s.contact_point_m.x - 0.05).abs() < 1e-9);
+        assert!(!s.flags.contains(ContactFlags::BEYOND_VALID_INCLINATION));
+    }
+
+    #[test]
+    fn non_finite_and_out_of_workspace_samples_are_faults_with_zero_force() {
+        let mut w = world(Pose::IDENTITY);
+        w.step(Ok(sample_at(0, DVec3::new(0.0, -0.002, 0.0))));
+        let mut nan = sample_at(MS, DVec3::new(f64::NAN, -0.002, 0.0));
+        let s = w.step(Ok(nan));
+        assert_eq!(s.force_n, DVec3::ZERO);
+        assert!(s.flags.contains(ContactFlags::DEVICE_FAULT));
+        assert!(s.tip_in_world.is_finite(), "the last good pose is reported");
+        assert_eq!(s.time_ns, MS);
+        nan.tip_in_world.position_m = DVec3::new(0.0, -0.002, 0.0);
+        nan.tip_velocity_m_s = DVec3::new(0.0, f64::INFINITY, 0.0);
+        assert!(w.step(Ok(nan)).flags.contains(ContactFlags::DEVICE_FAULT));
+        let far = w.step(Ok(sample_at(2 * MS, DVec3::new(0.0, -0.002, 5.0))));
+        assert!(far.flags.contains(ContactFlags::DEVICE_FAULT));
+        assert_eq!(far.force_n, DVec3::ZERO);
+        let gone = w.step(Err(DeviceError::Disconnected));
+        assert!(gone.flags.contains(ContactFlags::DEVICE_FAULT) && !gone.in_contact);
+        assert_eq!(gone.force_n, DVec3::ZERO);
+    }
+
+    #[test]
+    fn recovery_after_a_fault_ramps_without_a_spike() {
+        let mut w = world(Pose::IDENTITY);
+        let p = DVec3::new(0.0, -0.003, 0.0);
+        let mut steady = 0.0;
+        for k in 0..100 {
+            steady = w.step(Ok(sample_at(k * MS, p))).force_n.y;
+        }
+        w.step(Err(DeviceError::Timeout));
+        let first = w.step(Ok(sample_at(101 * MS, p)));
+        assert!(first.flags.contains(ContactFlags::RAMPING));
+        assert!(
+            first.force_n.y < 0.05 * steady,
+            "{} vs {}",
+            first.force_n.y,
+            steady
+        );
+        let mut last = first.force_n.y;
+        for k in 102..300 {
+            let f = w.step(Ok(sample_at(k * MS, p))).force_n.y;
+            assert!(f + 1e-12 >= last && f - last < 0.02 * steady + 1e-12);
+            last = f;
+        }
+        assert!((last - steady).abs() < 1e-9);
+    }
+
+    #[test]
+    fn replay_is_bit_identical() {
+        let run = || {
+            let mut w = world(Pose::IDENTITY);
+            (0..300u64)
+                .map(|k| {
+                    let y = 0.004 * ((k as f64) * 0.03).sin() - 0.001;
+                    let mut s = sample_at(k * MS, DVec3::new(0.0, y, 0.0));
+                    s.tip_velocity_m_s.y = 0.12 * ((k as f64) * 0.03).cos();
+                    w.step(Ok(s)).force_n
+                })
+                .collect::<Vec<_>>()
+        };
+        let (a, b) = (run(), run());
+        assert!(
+            a.iter()
+                .zip(&b)
+                .all(|(x, y)| x.to_array().map(f64::to_bits) == y.to_array().map(f64::to_bits))
+        );
+        assert!(a.iter().any(|f| f.y > 0.1));
+    }
+}

@@ -1,0 +1,115 @@
+//! The 1 kHz path never allocates (design.md, invariant 1): counted with a global allocator,
+//! once for the synchronous tick and once for the running loop thread. One test per binary, so
+//! no other test's allocations are counted.
+
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use softhaptic_device::collision::{Collider, CollisionMode};
+use softhaptic_device::device::{DeviceLimits, HapticDevice};
+use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
+use softhaptic_device::liver;
+use softhaptic_device::render::RenderConfig;
+use softhaptic_device::sim::{HandScript, SimulatedPhantom};
+use softhaptic_device::world::HapticWorld;
+use softhaptic_proto::{Material, Pose, ToolShape};
+
+struct Counting;
+
+static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
+
+// SAFETY: forwards every call unchanged to the system allocator, only counting.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn setup(material: Material) -> (SimulatedPhantom, HapticWorld) {
+    let top = liver::top_contact();
+    let mut script = HandScript::press(top.point_m, top.normal, 0.015);
+    script.approach_s = 0.05;
+    script.press_s = 0.1;
+    script.slide_s = 0.2;
+    script.repeat = true;
+    let tool = ToolShape::sphere(0.01).unwrap();
+    let world = HapticWorld::new(
+        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
+        Pose::IDENTITY,
+        tool,
+        material,
+        RenderConfig::for_tool(&tool),
+        DeviceLimits::PHANTOM_DESKTOP,
+    );
+    (SimulatedPhantom::new(script), world)
+}
+
+#[test]
+fn ticks_do_not_allocate() {
+    // Synchronous: press, hold, slide, release, repeat, through every safety limit.
+    for material in [Material::PAPER_SOFT, Material::PAPER_STIFF] {
+        let (mut device, mut world) = setup(material);
+        let before = ALLOCATIONS.load(Ordering::Relaxed);
+        let mut touched = 0;
+        for _ in 0..3000 {
+            let state = world.step(device.read());
+            touched += state.in_contact as u32;
+            device.command_force(state.force_n).unwrap();
+        }
+        assert_eq!(ALLOCATIONS.load(Ordering::Relaxed), before);
+        assert!(touched > 500);
+    }
+
+    // The loop thread, with a tick ring: count only between two points of its steady state.
+    let (device, world) = setup(Material::PAPER_SOFT);
+    let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(16);
+    let haptic = HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            period_ns: 1_000_000,
+            realtime: false,
+            tick_sink: Some(producer),
+        },
+    )
+    .unwrap();
+    let wait_for_tick = |tick: u64| {
+        let give_up = Instant::now() + Duration::from_secs(30);
+        while haptic.latest_contact().tick < tick {
+            assert!(Instant::now() < give_up, "the loop does not advance");
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    };
+    wait_for_tick(50);
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let start_tick = haptic.latest_contact().tick;
+    let mut drained = 0;
+    while haptic.latest_contact().tick < start_tick + 300 {
+        while consumer.pop().is_ok() {
+            drained += 1;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let after = ALLOCATIONS.load(Ordering::Relaxed);
+    let stats = haptic.stop();
+    assert_eq!(after, before, "allocations while the loop ran");
+    assert!(drained > 0 && stats.ticks >= start_tick + 300);
+}

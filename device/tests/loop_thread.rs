@@ -1,0 +1,264 @@
+//! The real loop thread, briefly: spawn against the simulated PHANTOM pressing the liver, read
+//! the published contact and statistics from other threads, drain the tick ring, stop.
+
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used)]
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+
+use glam::DVec3;
+use softhaptic_device::collision::{Collider, CollisionMode};
+use softhaptic_device::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
+use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
+use softhaptic_device::liver;
+use softhaptic_device::render::RenderConfig;
+use softhaptic_device::sim::{HandScript, SimulatedPhantom};
+use softhaptic_device::world::HapticWorld;
+use softhaptic_proto::{Material, Pose, ToolShape};
+
+/// The simulated PHANTOM, reporting the magnitude of every force it is commanded.
+struct Watched {
+    inner: SimulatedPhantom,
+    last_force_bits: Arc<AtomicU64>,
+    commands: Arc<AtomicU64>,
+}
+
+impl HapticDevice for Watched {
+    fn limits(&self) -> DeviceLimits {
+        self.inner.limits()
+    }
+    fn read(&mut self) -> Result<DeviceSample, DeviceError> {
+        self.inner.read()
+    }
+    fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        self.last_force_bits
+            .store(force_n.length().to_bits(), Ordering::Relaxed);
+        self.commands.fetch_add(1, Ordering::Relaxed);
+        self.inner.command_force(force_n)
+    }
+}
+
+fn setup() -> (Watched, HapticWorld, Arc<AtomicU64>, Arc<AtomicU64>) {
+    let top = liver::top_contact();
+    let mut script = HandScript::press(top.point_m, top.normal, 0.01);
+    // In contact within 100 ms of device time, then a long hold.
+    script.approach_s = 0.05;
+    script.press_s = 0.05;
+    script.hold_s = 60.0;
+    let last_force_bits = Arc::new(AtomicU64::new(0));
+    let commands = Arc::new(AtomicU64::new(0));
+    let device = Watched {
+        inner: SimulatedPhantom::new(script),
+        last_force_bits: Arc::clone(&last_force_bits),
+        commands: Arc::clone(&commands),
+    };
+    let tool = ToolShape::sphere(0.01).unwrap();
+    let world = HapticWorld::new(
+        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
+        Pose::IDENTITY,
+        tool,
+        Material::PAPER_SOFT,
+        RenderConfig::for_tool(&tool),
+        DeviceLimits::PHANTOM_DESKTOP,
+    );
+    (device, world, last_force_bits, commands)
+}
+
+#[test]
+fn loop_runs_publishes_and_stops_with_zero_force() {
+    let (device, world, last_force_bits, commands) = setup();
+    // A small ring that the test drains only partly: some records arrive, some are dropped.
+    let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(64);
+    let haptic = HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            period_ns: 1_000_000,
+            realtime: false,
+            tick_sink: Some(producer),
+        },
+    )
+    .unwrap();
+    assert!(!haptic.realtime().requested);
+
+    // Wait for 150 ms of device time (the hand is pressing by then), however loaded the machine.
+    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    while haptic.latest_contact().time_ns < 150_000_000 {
+        assert!(
+            std::time::Instant::now() < give_up,
+            "the loop does not advance"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let early = haptic.latest_contact();
+    // Read the publication from another thread while the loop runs.
+    let reader = std::thread::scope(|s| {
+        s.spawn(|| {
+            let mut ticks = Vec::new();
+            for _ in 0..10 {
+                ticks.push(haptic.latest_contact().tick);
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            ticks
+        })
+        .join()
+        .unwrap()
+    });
+    assert!(reader.windows(2).all(|w| w[1] >= w[0]));
+    assert!(reader.last() > reader.first(), "{reader:?}");
+    let late = haptic.latest_contact();
+    assert!(late.tick > early.tick);
+    assert!(late.time_ns > early.time_ns);
+    assert!(late.in_contact, "the hand presses by now: {late:?}");
+    assert!(late.force_n.length() > 0.0);
+    let mid_stats = haptic.stats();
+    assert!(
+        mid_stats.ticks >= 100,
+        "published every 100 ticks: {mid_stats:?}"
+    );
+
+    let mut drained = 0;
+    while let Ok(record) = consumer.pop() {
+        assert!(record.sample.is_some() && !record.device_fault);
+        drained += 1;
+    }
+    assert_eq!(drained, 64);
+
+    let stats = haptic.stop();
+    println!("{stats:?}");
+    assert!(stats.ticks > late.tick, "{stats:?}");
+    assert!(stats.loop_rate_hz > 0.0 && stats.loop_rate_hz < 1100.0);
+    assert!(stats.dropped_tick_records > 0);
+    assert!(stats.compute_max_ns > 0 && stats.compute_p50_ns <= stats.compute_max_ns);
+    assert!(stats.period_error_p50_ns <= stats.period_error_max_ns);
+    assert!(!stats.realtime_granted);
+    assert_eq!(stats.device_faults, 0);
+    // The loop's last command released the device.
+    assert_eq!(f64::from_bits(last_force_bits.load(Ordering::Relaxed)), 0.0);
+    assert_eq!(commands.load(Ordering::Relaxed), stats.ticks + 1);
+}
+
+#[test]
+fn zero_period_is_refused() {
+    let (device, world, _, _) = setup();
+    let err = HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            period_ns: 0,
+            realtime: false,
+            tick_sink: None,
+        },
+    )
+    .err()
+    .unwrap();
+    assert!(matches!(err, LoopError::Period(0)));
+    assert!(err.to_string().contains("period_ns"));
+}
+
+#[test]
+fn dropping_the_loop_stops_the_thread() {
+    let (device, world, _, commands) = setup();
+    let haptic = HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            realtime: false,
+            ..LoopConfig::default()
+        },
+    )
+    .unwrap();
+    std::thread::sleep(Duration::from_millis(20));
+    drop(haptic);
+    let after_drop = commands.load(Ordering::Relaxed);
+    assert!(after_drop > 0);
+    std::thread::sleep(Duration::from_millis(20));
+    assert_eq!(commands.load(Ordering::Relaxed), after_drop);
+}
+
+/// A device whose every 50th read takes 2.5 ms, as a driver stalling on its bus would.
+struct Stalling {
+    inner: SimulatedPhantom,
+    reads: u64,
+    stalls: Arc<AtomicU64>,
+}
+
+impl HapticDevice for Stalling {
+    fn limits(&self) -> DeviceLimits {
+        self.inner.limits()
+    }
+    fn read(&mut self) -> Result<DeviceSample, DeviceError> {
+        self.reads += 1;
+        if self.reads.is_multiple_of(50) {
+            let until = std::time::Instant::now() + Duration::from_micros(2500);
+            while std::time::Instant::now() < until {
+                std::hint::spin_loop();
+            }
+            self.stalls.fetch_add(1, Ordering::Relaxed);
+        }
+        self.inner.read()
+    }
+    fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        self.inner.command_force(force_n)
+    }
+}
+
+#[test]
+fn stalls_are_counted_as_overruns() {
+    let (watched, world, _, _) = setup();
+    let stalls = Arc::new(AtomicU64::new(0));
+    let device = Stalling {
+        inner: watched.inner,
+        reads: 0,
+        stalls: Arc::clone(&stalls),
+    };
+    let haptic = HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            realtime: false,
+            ..LoopConfig::default()
+        },
+    )
+    .unwrap();
+    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    while stalls.load(Ordering::Relaxed) < 4 {
+        assert!(
+            std::time::Instant::now() < give_up,
+            "the loop does not advance"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let stats = haptic.stop();
+    let stalled = stalls.load(Ordering::Relaxed);
+    println!("{stalled} stalls: {stats:?}");
+    // Each 2.5 ms stall runs past at least two deadlines of a 1 ms loop.
+    assert!(stats.overruns >= 2 * stalled, "{stats:?}");
+    assert!(stats.compute_max_ns >= 2_500_000);
+}
+
+#[test]
+fn realtime_request_is_reported_consistently() {
+    let (device, world, _, _) = setup();
+    let haptic = HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            realtime: true,
+            ..LoopConfig::default()
+        },
+    )
+    .unwrap();
+    let status = haptic.realtime();
+    // Granted (root, CAP_SYS_NICE) or refused (an ordinary user): either way it is said.
+    println!("{status}");
+    assert!(status.requested);
+    assert_eq!(status.fifo_priority.is_some(), status.fifo_errno.is_none());
+    assert_eq!(status.memory_locked, status.mlock_errno.is_none());
+    std::thread::sleep(Duration::from_millis(30));
+    let stats = haptic.stop();
+    assert_eq!(stats.realtime_granted, status.granted());
+    assert!(stats.ticks > 0);
+}

@@ -1,0 +1,696 @@
+//! The session log: what a recording holds, channel by channel, and the replay controls.
+//!
+//! A session is recorded to one MCAP file with JSON-encoded messages and a JSON schema per channel,
+//! so that generic tools (Foxglove, `mcap cat`) can open it without this project's code:
+//!
+//! | topic | schema | when |
+//! |---|---|---|
+//! | [`topic::BUILD`] | [`BuildRecord`] | once, first: who wrote the file and in which format |
+//! | [`topic::SCENE`] | [`SceneRecord`] | once: the `scene` wire message and the scene definition |
+//! | [`topic::DEVICE`] | [`DeviceRecord`] | every haptic tick (1 kHz) |
+//! | [`topic::CONTACT`] | the `contact` wire message, verbatim | each 50 Hz frame as it was sent |
+//! | [`topic::STATS`] | [`RecordingStats`] | about once a second, and a final one at the end |
+//! | [`topic::LOOP_STATS`] | the `stats` wire message, verbatim | each 1 Hz stats message as sent |
+//!
+//! Every message's log time is the device time in nanoseconds since the loop started, so a
+//! recording's timeline is the device's and replay can pace itself on it.
+//!
+//! Floating-point fields that may be non-finite (a faulty device can report NaN) are written as
+//! JSON numbers when finite and as the strings `"NaN"`, `"inf"`, `"-inf"` otherwise, because JSON
+//! has no literal for them and a silent `null` would lose the fault. Finite numbers are written
+//! with the shortest representation that parses back to the same bits, which is what makes replay
+//! checks exact (the reader must parse with full precision, as serde_json's `float_roundtrip` does).
+
+use serde::{Deserialize, Serialize};
+
+use crate::wire::SceneMessage;
+
+/// Version of the session-log layout described here. A reader refuses files whose version is
+/// newer than its own, because it cannot know what a newer writer changed.
+pub const SESSION_FORMAT_VERSION: u32 = 1;
+
+/// The MCAP profile string written in the file header.
+pub const MCAP_PROFILE: &str = "softhaptic";
+
+/// Schema encoding and message encoding of every channel.
+pub const SCHEMA_ENCODING: &str = "jsonschema";
+/// Message encoding of every channel.
+pub const MESSAGE_ENCODING: &str = "json";
+
+/// The channel topics of a recording.
+pub mod topic {
+    /// One [`super::DeviceRecord`] per haptic tick.
+    pub const DEVICE: &str = "/device";
+    /// The 50 Hz `contact` wire messages, as sent to viewers.
+    pub const CONTACT: &str = "/contact";
+    /// The [`super::SceneRecord`].
+    pub const SCENE: &str = "/scene";
+    /// The [`super::BuildRecord`].
+    pub const BUILD: &str = "/build";
+    /// Periodic and final [`super::RecordingStats`].
+    pub const STATS: &str = "/stats";
+    /// The 1 Hz `stats` wire messages (loop timing), as sent to viewers.
+    pub const LOOP_STATS: &str = "/loop_stats";
+}
+
+/// The schema name of each channel (the MCAP schema record's `name`).
+pub mod schema_name {
+    pub const DEVICE: &str = "softhaptic.DeviceRecord";
+    pub const CONTACT: &str = "softhaptic.ContactMessage";
+    pub const SCENE: &str = "softhaptic.SceneRecord";
+    pub const BUILD: &str = "softhaptic.BuildRecord";
+    pub const STATS: &str = "softhaptic.RecordingStats";
+    pub const LOOP_STATS: &str = "softhaptic.StatsMessage";
+}
+
+/// One device sample as recorded (mirrors the device crate's sample; kept here so the file format
+/// does not change when the device crate's in-memory type does).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SampleRecord {
+    /// Device time of the sample, nanoseconds since the loop started.
+    pub time_ns: u64,
+    /// Tool-tip position in the world frame.
+    #[serde(with = "lossless_f64")]
+    pub tip_position_m: [f64; 3],
+    /// Tool-tip orientation in the world frame, quaternion `[x, y, z, w]`.
+    #[serde(with = "lossless_f64")]
+    pub tip_orientation: [f64; 4],
+    /// Tool-tip linear velocity in the world frame.
+    #[serde(with = "lossless_f64")]
+    pub tip_velocity_m_s: [f64; 3],
+    /// Device button bits.
+    pub buttons: u32,
+}
+
+/// One haptic tick: what the device reported and what the loop commanded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeviceRecord {
+    /// Tick counter since the loop started; a gap means ticks the recorder had to drop.
+    pub tick: u64,
+    /// Device time of the tick, nanoseconds since the loop started.
+    pub time_ns: u64,
+    /// The sample the device returned, or `None` when reading it failed.
+    pub sample: Option<SampleRecord>,
+    /// The loop flagged a device fault this tick (the read failed, or the sample was not finite).
+    pub device_fault: bool,
+    /// The device's error when the read failed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub device_error: Option<DeviceErrorRecord>,
+    /// Whether the tool touched the object.
+    pub in_contact: bool,
+    /// Indentation depth along the contact normal.
+    #[serde(with = "lossless_f64::scalar")]
+    pub depth_m: f64,
+    /// Force commanded to the device, world frame, after every safety limit.
+    #[serde(with = "lossless_f64")]
+    pub force_n: [f64; 3],
+    /// `ContactFlags` bits (see `proto::contact::ContactFlags`).
+    pub flags: u32,
+}
+
+/// Why a device read failed, as recorded (mirrors the device crate's `DeviceError`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum DeviceErrorRecord {
+    Disconnected,
+    Timeout,
+    ForceDisabled,
+    Driver { code: i32 },
+}
+
+/// The scene of the session: the `scene` wire message the viewers got, and the scene definition
+/// the haptic world was built from (so a replay check can rebuild the same world).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneRecord {
+    /// The `scene` wire message, exactly as sent to viewers.
+    pub message: SceneMessage,
+    /// The scene file's text (TOML), as the server loaded it: a replay check rebuilds the
+    /// haptic world from it.
+    pub scene_toml: String,
+    /// Where the scene file was (absolute), for files it names relative to itself; `None` for a
+    /// built-in scene.
+    pub scene_file: Option<String>,
+    /// Haptic loop period the session ran at.
+    pub period_ns: u64,
+}
+
+/// Who wrote a recording and in which formats.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BuildRecord {
+    /// [`SESSION_FORMAT_VERSION`] of the writer.
+    pub session_format_version: u32,
+    /// The wire protocol version of the messages on `/contact` and `/scene`.
+    pub protocol_version: u32,
+    /// Name and version of the program that wrote the file, e.g. `softhaptic 0.1.0`.
+    pub writer: String,
+    /// Git commit the writer was built from, when known at build time.
+    pub git_commit: Option<String>,
+    /// Session id, as in the `hello` message.
+    pub session_id: String,
+    /// Wall-clock start of the recording, nanoseconds since the Unix epoch.
+    pub started_unix_ns: u64,
+}
+
+/// The recorder's own accounting: how much was written and how much was lost.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordingStats {
+    /// Device ticks written so far.
+    pub ticks_recorded: u64,
+    /// Ticks the recorder never saw because its ring was full (gaps in the tick counter).
+    pub ticks_dropped: u64,
+    /// Contact frames written so far.
+    pub contact_frames_recorded: u64,
+    /// Contact frames dropped because the recorder's queue was full.
+    pub contact_frames_dropped: u64,
+    /// True on the last stats message, written when the recording was closed cleanly.
+    #[serde(rename = "final")]
+    pub is_final: bool,
+}
+
+/// What a viewer may ask of a replay (client → server, `"type":"replay_control"`).
+///
+/// `{"type":"replay_control","action":"pause"}`,
+/// `{"type":"replay_control","action":"play","speed":2.0}` (speed optional, kept when absent),
+/// `{"type":"replay_control","action":"seek","time_s":1.5}`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename = "replay_control")]
+pub struct ReplayControl {
+    pub action: ReplayAction,
+    /// Target time for `seek`, seconds from the recording's start.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_s: Option<f64>,
+    /// New playback speed (1.0 = real time), with any action.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub speed: Option<f64>,
+}
+
+/// The replay actions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReplayAction {
+    Pause,
+    Play,
+    Seek,
+}
+
+/// Why a replay control was refused.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum ReplayControlError {
+    #[error("replay_control: seek needs time_s")]
+    SeekWithoutTime,
+    #[error("replay_control: time_s must be finite and >= 0, got {0}")]
+    Time(f64),
+    #[error("replay_control: speed must be finite and in [0.01, 100], got {0}")]
+    Speed(f64),
+}
+
+impl ReplayControl {
+    /// Slowest and fastest replay speeds accepted.
+    pub const SPEED_RANGE: (f64, f64) = (0.01, 100.0);
+
+    /// Checks the fields that serde cannot: a seek has a time, times and speeds are sane.
+    pub fn validate(&self) -> Result<(), ReplayControlError> {
+        if self.action == ReplayAction::Seek && self.time_s.is_none() {
+            return Err(ReplayControlError::SeekWithoutTime);
+        }
+        if let Some(t) = self.time_s
+            && !(t.is_finite() && t >= 0.0)
+        {
+            return Err(ReplayControlError::Time(t));
+        }
+        if let Some(s) = self.speed
+            && !(s.is_finite() && (Self::SPEED_RANGE.0..=Self::SPEED_RANGE.1).contains(&s))
+        {
+            return Err(ReplayControlError::Speed(s));
+        }
+        Ok(())
+    }
+}
+
+/// Where a replay stands (server → viewer, `"type":"replay"`): sent once a second (paused or
+/// playing, so a viewer that connects learns the state within a second) and after every control.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename = "replay")]
+pub struct ReplayStatus {
+    /// Length of the recording, seconds of device time.
+    pub duration_s: f64,
+    /// Current position, seconds from the recording's start.
+    pub time_s: f64,
+    pub paused: bool,
+    pub speed: f64,
+    /// The recording's file name (no directories).
+    pub file: String,
+}
+
+/// Serde helpers for f64 fields that must survive JSON bit for bit, including NaN and infinities.
+pub mod lossless_f64 {
+    use serde::de::{self, SeqAccess, Visitor};
+    use serde::ser::SerializeTuple;
+    use serde::{Deserializer, Serializer};
+    use std::fmt;
+
+    fn write_one<S: SerializeTuple>(seq: &mut S, v: f64) -> Result<(), S::Error> {
+        if v.is_finite() {
+            seq.serialize_element(&v)
+        } else {
+            seq.serialize_element(non_finite_name(v))
+        }
+    }
+
+    fn non_finite_name(v: f64) -> &'static str {
+        if v.is_nan() {
+            "NaN"
+        } else if v > 0.0 {
+            "inf"
+        } else {
+            "-inf"
+        }
+    }
+
+    /// Serialises a fixed-size array of f64.
+    pub fn serialize<S: Serializer, const N: usize>(
+        v: &[f64; N],
+        serializer: S,
+    ) -> Result<S::Ok, S::Error> {
+        let mut seq = serializer.serialize_tuple(N)?;
+        for x in v {
+            write_one(&mut seq, *x)?;
+        }
+        seq.end()
+    }
+
+    /// Deserialises a fixed-size array of f64 written by [`serialize`].
+    pub fn deserialize<'de, D: Deserializer<'de>, const N: usize>(
+        deserializer: D,
+    ) -> Result<[f64; N], D::Error> {
+        struct ArrayVisitor<const N: usize>;
+        impl<'de, const N: usize> Visitor<'de> for ArrayVisitor<N> {
+            type Value = [f64; N];
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                write!(f, "an array of {N} numbers (or \"NaN\"/\"inf\"/\"-inf\")")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut out = [0.0; N];
+                for (i, slot) in out.iter_mut().enumerate() {
+                    *slot = seq
+                        .next_element::<Lossless>()?
+                        .ok_or_else(|| de::Error::invalid_length(i, &self))?
+                        .0;
+                }
+                if seq.next_element::<de::IgnoredAny>()?.is_some() {
+                    return Err(de::Error::invalid_length(N + 1, &self));
+                }
+                Ok(out)
+            }
+        }
+        deserializer.deserialize_seq(ArrayVisitor::<N>)
+    }
+
+    /// One f64, finite as a number, non-finite as a string.
+    struct Lossless(f64);
+
+    impl<'de> serde::Deserialize<'de> for Lossless {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            d.deserialize_any(OneVisitor).map(Lossless)
+        }
+    }
+
+    struct OneVisitor;
+    impl Visitor<'_> for OneVisitor {
+        type Value = f64;
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str("a number or one of \"NaN\", \"inf\", \"-inf\"")
+        }
+        fn visit_f64<E: de::Error>(self, v: f64) -> Result<f64, E> {
+            Ok(v)
+        }
+        fn visit_u64<E: de::Error>(self, v: u64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+        fn visit_i64<E: de::Error>(self, v: i64) -> Result<f64, E> {
+            Ok(v as f64)
+        }
+        fn visit_str<E: de::Error>(self, v: &str) -> Result<f64, E> {
+            match v {
+                "NaN" => Ok(f64::NAN),
+                "inf" => Ok(f64::INFINITY),
+                "-inf" => Ok(f64::NEG_INFINITY),
+                other => Err(E::invalid_value(de::Unexpected::Str(other), &self)),
+            }
+        }
+    }
+
+    /// The same for a single f64 field.
+    pub mod scalar {
+        use super::*;
+
+        pub fn serialize<S: Serializer>(v: &f64, serializer: S) -> Result<S::Ok, S::Error> {
+            if v.is_finite() {
+                serializer.serialize_f64(*v)
+            } else {
+                serializer.serialize_str(non_finite_name(*v))
+            }
+        }
+
+        pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+            deserializer.deserialize_any(OneVisitor)
+        }
+    }
+}
+
+/// JSON schemas (draft 2020-12) of every channel, for the MCAP schema records. Hand-written so that
+/// they carry descriptions and units, and kept flat (no `$ref`, no `oneOf`) so that viewers with
+/// partial JSON-schema support (Foxglove) read them; a test checks each against a serialised
+/// record.
+pub mod schema {
+    /// Schema of [`super::DeviceRecord`].
+    pub const DEVICE: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.DeviceRecord",
+  "description": "One 1 kHz haptic tick: the device sample and the force commanded. Non-finite numbers are the strings NaN, inf, -inf.",
+  "type": "object",
+  "properties": {
+    "tick": {"type": "integer", "minimum": 0, "description": "tick counter since the loop started"},
+    "time_ns": {"type": "integer", "minimum": 0, "description": "device time, ns since the loop started"},
+    "sample": {
+      "type": ["object", "null"],
+      "description": "the device sample, null when the read failed",
+      "properties": {
+        "time_ns": {"type": "integer", "minimum": 0},
+        "tip_position_m": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "world frame, metres"},
+        "tip_orientation": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 4, "maxItems": 4, "description": "quaternion [x,y,z,w], world frame"},
+        "tip_velocity_m_s": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "world frame, m/s"},
+        "buttons": {"type": "integer", "minimum": 0}
+      },
+      "required": ["time_ns", "tip_position_m", "tip_orientation", "tip_velocity_m_s", "buttons"]
+    },
+    "device_fault": {"type": "boolean"},
+    "device_error": {"type": "object", "description": "why the read failed", "properties": {
+      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver"]},
+      "code": {"type": "integer"}}, "required": ["kind"]},
+    "in_contact": {"type": "boolean"},
+    "depth_m": {"type": ["number", "string"], "description": "indentation depth, metres"},
+    "force_n": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "commanded force, world frame, newtons"},
+    "flags": {"type": "integer", "minimum": 0, "description": "ContactFlags bits: 1 beyond_valid_depth, 2 beyond_valid_inclination, 4 saturated, 8 stiffness_capped, 16 device_fault, 32 ramping, 64 passivity_damping, 128 degenerate_normal"}
+  },
+  "required": ["tick", "time_ns", "sample", "device_fault", "in_contact", "depth_m", "force_n", "flags"]
+}"##;
+
+    /// Schema of the `contact` wire message on `/contact`.
+    pub const CONTACT: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.ContactMessage",
+  "description": "The 50 Hz contact frame exactly as sent to viewers (protocol version 1).",
+  "type": "object",
+  "properties": {
+    "type": {"type": "string", "const": "contact"},
+    "seq": {"type": "integer", "minimum": 0},
+    "tick": {"type": "integer", "minimum": 0},
+    "time_ns": {"type": "integer", "minimum": 0},
+    "tip_in_world": {"type": "object", "properties": {
+      "position_m": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+      "orientation": {"type": "array", "items": {"type": "number"}, "minItems": 4, "maxItems": 4}}},
+    "in_contact": {"type": "boolean"},
+    "depth_m": {"type": "number"},
+    "normal": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+    "contact_point_m": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+    "contact_radius_m": {"type": "number"},
+    "deformed_radius_m": {"type": "number"},
+    "force_n": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
+    "flags": {"type": "array", "items": {"type": "string"}},
+    "dropped": {"type": "integer", "minimum": 0}
+  },
+  "required": ["type", "seq", "tick", "time_ns", "tip_in_world", "in_contact", "depth_m", "normal", "contact_point_m", "contact_radius_m", "deformed_radius_m", "force_n", "flags", "dropped"]
+}"##;
+
+    /// Schema of [`super::SceneRecord`].
+    pub const SCENE: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.SceneRecord",
+  "description": "The scene wire message sent to viewers, and the scene file the haptic world was built from.",
+  "type": "object",
+  "properties": {
+    "message": {"type": "object", "description": "the scene wire message"},
+    "scene_toml": {"type": "string", "description": "the scene file's text"},
+    "scene_file": {"type": ["string", "null"], "description": "absolute path of the scene file, null for a built-in scene"},
+    "period_ns": {"type": "integer", "minimum": 1, "description": "haptic loop period"}
+  },
+  "required": ["message", "scene_toml", "scene_file", "period_ns"]
+}"##;
+
+    /// Schema of [`super::BuildRecord`].
+    pub const BUILD: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.BuildRecord",
+  "description": "Who wrote this recording and in which formats.",
+  "type": "object",
+  "properties": {
+    "session_format_version": {"type": "integer", "minimum": 1},
+    "protocol_version": {"type": "integer", "minimum": 1},
+    "writer": {"type": "string"},
+    "git_commit": {"type": ["string", "null"]},
+    "session_id": {"type": "string"},
+    "started_unix_ns": {"type": "integer", "minimum": 0}
+  },
+  "required": ["session_format_version", "protocol_version", "writer", "git_commit", "session_id", "started_unix_ns"]
+}"##;
+
+    /// Schema of [`super::RecordingStats`].
+    pub const STATS: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.RecordingStats",
+  "description": "The recorder's accounting of what it wrote and what it lost.",
+  "type": "object",
+  "properties": {
+    "ticks_recorded": {"type": "integer", "minimum": 0},
+    "ticks_dropped": {"type": "integer", "minimum": 0},
+    "contact_frames_recorded": {"type": "integer", "minimum": 0},
+    "contact_frames_dropped": {"type": "integer", "minimum": 0},
+    "final": {"type": "boolean", "description": "true on the last message of a cleanly closed file"}
+  },
+  "required": ["ticks_recorded", "ticks_dropped", "contact_frames_recorded", "contact_frames_dropped", "final"]
+}"##;
+
+    /// Schema of the `stats` wire message on `/loop_stats`.
+    pub const LOOP_STATS: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.StatsMessage",
+  "description": "The 1 Hz loop timing message exactly as sent to viewers (protocol version 1).",
+  "type": "object",
+  "properties": {
+    "type": {"type": "string", "const": "stats"},
+    "loop_rate_hz": {"type": "number"},
+    "period_error_us": {"type": "object", "properties": {
+      "p50": {"type": "number"}, "p99": {"type": "number"}, "p999": {"type": "number"}, "max": {"type": "number"}}},
+    "overruns": {"type": "integer", "minimum": 0},
+    "compute_us": {"type": "object", "properties": {
+      "p50": {"type": "number"}, "p99": {"type": "number"}, "max": {"type": "number"}}},
+    "viewers": {"type": "integer", "minimum": 0},
+    "dropped_frames": {"type": "integer", "minimum": 0}
+  },
+  "required": ["type", "loop_rate_hz", "period_error_us", "overruns", "compute_us"]
+}"##;
+
+    /// `(topic, schema name, schema)` of every channel.
+    pub const ALL: [(&str, &str, &str); 6] = [
+        (super::topic::BUILD, super::schema_name::BUILD, BUILD),
+        (super::topic::SCENE, super::schema_name::SCENE, SCENE),
+        (super::topic::DEVICE, super::schema_name::DEVICE, DEVICE),
+        (super::topic::CONTACT, super::schema_name::CONTACT, CONTACT),
+        (super::topic::STATS, super::schema_name::STATS, STATS),
+        (
+            super::topic::LOOP_STATS,
+            super::schema_name::LOOP_STATS,
+            LOOP_STATS,
+        ),
+    ];
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use serde_json::Value;
+
+    fn sample_device_record() -> DeviceRecord {
+        DeviceRecord {
+            tick: 7,
+            time_ns: 7_000_000,
+            sample: Some(SampleRecord {
+                time_ns: 7_000_000,
+                tip_position_m: [0.1, -0.2, 1.0 / 3.0],
+                tip_orientation: [0.0, 0.0, 0.0, 1.0],
+                tip_velocity_m_s: [f64::NAN, f64::INFINITY, f64::NEG_INFINITY],
+                buttons: 1,
+            }),
+            device_fault: false,
+            device_error: None,
+            in_contact: true,
+            depth_m: 0.0012345678901234567,
+            force_n: [1e-300, -0.0, 7.9],
+            flags: 0b101,
+        }
+    }
+
+    #[test]
+    fn device_record_round_trips_bit_for_bit_including_non_finite() {
+        let r = sample_device_record();
+        let json = serde_json::to_string(&r).unwrap();
+        assert!(
+            json.contains("\"NaN\"") && json.contains("\"-inf\""),
+            "{json}"
+        );
+        let back: DeviceRecord = serde_json::from_str(&json).unwrap();
+        let a = r.sample.unwrap();
+        let b = back.sample.unwrap();
+        for (x, y) in a.tip_velocity_m_s.iter().zip(b.tip_velocity_m_s.iter()) {
+            assert!(x.is_nan() && y.is_nan() || x.to_bits() == y.to_bits());
+        }
+        for (x, y) in r.force_n.iter().zip(back.force_n.iter()) {
+            assert_eq!(x.to_bits(), y.to_bits());
+        }
+        assert_eq!(a.tip_position_m[2].to_bits(), b.tip_position_m[2].to_bits());
+        assert_eq!(r.depth_m.to_bits(), back.depth_m.to_bits());
+    }
+
+    #[test]
+    fn device_record_refuses_unknown_strings_and_wrong_lengths() {
+        let good = serde_json::to_value(sample_device_record()).unwrap();
+        let mut bad = good.clone();
+        bad["force_n"] = serde_json::json!([1.0, "lots", 2.0]);
+        let err = serde_json::from_value::<DeviceRecord>(bad).unwrap_err();
+        assert!(err.to_string().contains("lots"), "{err}");
+        let mut short = good;
+        short["force_n"] = serde_json::json!([1.0, 2.0]);
+        assert!(serde_json::from_value::<DeviceRecord>(short).is_err());
+    }
+
+    /// Each schema parses, and every field a serialised record has is a property its schema
+    /// declares, and every required property is present: the schemas cannot drift from the types.
+    #[test]
+    fn schemas_match_the_serialised_records() {
+        let scene_message = crate::wire::message_vectors()
+            .unwrap()
+            .into_iter()
+            .find_map(|v| match v {
+                crate::wire::MessageVector::Valid { json, .. } if json["type"] == "scene" => {
+                    match serde_json::from_value(json).unwrap() {
+                        crate::wire::ServerMessage::Scene(s) => Some(*s),
+                        _ => None,
+                    }
+                }
+                _ => None,
+            })
+            .unwrap();
+        let scene = serde_json::to_value(SceneRecord {
+            message: scene_message,
+            scene_toml: "[object]\nname = \"liver\"\n".into(),
+            scene_file: None,
+            period_ns: 1_000_000,
+        })
+        .unwrap();
+        let build = BuildRecord {
+            session_format_version: SESSION_FORMAT_VERSION,
+            protocol_version: 1,
+            writer: "softhaptic 0".into(),
+            git_commit: None,
+            session_id: "s".into(),
+            started_unix_ns: 1,
+        };
+        let mut faulty = sample_device_record();
+        faulty.device_error = Some(DeviceErrorRecord::Driver { code: -3 });
+        let cases: Vec<(&str, Value)> = vec![
+            (schema::DEVICE, serde_json::to_value(faulty).unwrap()),
+            (schema::SCENE, scene),
+            (schema::BUILD, serde_json::to_value(build).unwrap()),
+            (
+                schema::STATS,
+                serde_json::to_value(RecordingStats::default()).unwrap(),
+            ),
+        ];
+        for (schema, value) in cases {
+            let schema: Value = serde_json::from_str(schema).unwrap();
+            let props = schema["properties"].as_object().unwrap();
+            let obj = value.as_object().unwrap();
+            for key in obj.keys() {
+                assert!(
+                    props.contains_key(key),
+                    "{key} missing from {}",
+                    schema["title"]
+                );
+            }
+            for req in schema["required"].as_array().unwrap() {
+                assert!(
+                    obj.contains_key(req.as_str().unwrap()),
+                    "{req} not serialised"
+                );
+            }
+        }
+        // The wire messages recorded verbatim, against their schemas.
+        for v in crate::wire::message_vectors().unwrap() {
+            let crate::wire::MessageVector::Valid { json, .. } = v else {
+                continue;
+            };
+            let schema = match json["type"].as_str() {
+                Some("contact") => schema::CONTACT,
+                Some("stats") => schema::LOOP_STATS,
+                _ => continue,
+            };
+            let schema: Value = serde_json::from_str(schema).unwrap();
+            let props = schema["properties"].as_object().unwrap();
+            let obj = json.as_object().unwrap();
+            for key in obj.keys() {
+                assert!(
+                    props.contains_key(key),
+                    "{key} missing from {}",
+                    schema["title"]
+                );
+            }
+            for req in schema["required"].as_array().unwrap() {
+                assert!(
+                    obj.contains_key(req.as_str().unwrap()),
+                    "{req} not in {json}"
+                );
+            }
+            assert_eq!(schema["properties"]["type"]["const"], json["type"]);
+        }
+        // No schema uses references or alternatives.
+        for (_, _, text) in schema::ALL {
+            assert!(!text.contains("$ref") && !text.contains("oneOf"));
+        }
+    }
+
+    #[test]
+    fn replay_control_parses_and_validates() {
+        let c: ReplayControl =
+            serde_json::from_str(r#"{"type":"replay_control","action":"seek","time_s":1.5}"#)
+                .unwrap();
+        assert_eq!(c.action, ReplayAction::Seek);
+        assert_eq!(c.validate(), Ok(()));
+        let no_time: ReplayControl =
+            serde_json::from_str(r#"{"type":"replay_control","action":"seek"}"#).unwrap();
+        assert_eq!(no_time.validate(), Err(ReplayControlError::SeekWithoutTime));
+        let fast: ReplayControl =
+            serde_json::from_str(r#"{"type":"replay_control","action":"play","speed":1000}"#)
+                .unwrap();
+        assert_eq!(fast.validate(), Err(ReplayControlError::Speed(1000.0)));
+        assert!(
+            serde_json::from_str::<ReplayControl>(r#"{"type":"replay_control","action":"rewind"}"#)
+                .is_err()
+        );
+        let status = ReplayStatus {
+            duration_s: 3.0,
+            time_s: 1.0,
+            paused: true,
+            speed: 1.0,
+            file: "a.mcap".into(),
+        };
+        let v = serde_json::to_value(&status).unwrap();
+        assert_eq!(v["type"], "replay");
+    }
+}

@@ -1,0 +1,740 @@
+//! The WebSocket messages between the server and the viewer (wire.md).
+//!
+//! These are transport types: they exist to be encoded as JSON text frames, and they are built
+//! from the application types ([`ContactState`], [`CalibrationTable`], [`Material`],
+//! [`ToolShape`]) at the edge, never used inside the haptic loop. Every message is a JSON object
+//! whose `"type"` names it; vectors are `[x, y, z]` arrays and quaternions `[x, y, z, w]`, as glam
+//! serialises them.
+//!
+//! Decoding distinguishes three failures ([`DecodeError`]): text that is not a JSON object with a
+//! string `type` (malformed: the receiver closes that connection), a `type` it does not know
+//! (ignored and counted: a newer peer may send it), and a known type with wrong fields.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::calibration::CalibrationTable;
+use crate::contact::{ContactFlags, ContactState, Pose};
+use crate::material::Material;
+use crate::tool::ToolShape;
+
+/// The protocol version carried by `hello` and `scene`.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
+pub const SERVER_MESSAGE_TYPES: [&str; 4] = ["hello", "scene", "contact", "stats"];
+
+/// A message from the server to a viewer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ServerMessage {
+    /// First message on every connection.
+    Hello(Hello),
+    /// Second message on every connection: what is being simulated (large, hence boxed).
+    Scene(Box<SceneMessage>),
+    /// 50 Hz: the latest contact state.
+    Contact(ContactFrame),
+    /// 1 Hz: loop timing and stream health.
+    Stats(StatsMessage),
+}
+
+/// The role a connection plays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    /// Watches the session: receives scene, contact and stats, sends nothing that matters.
+    Viewer,
+}
+
+/// `hello`: the protocol version, this connection's id and role, and the server's name.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Hello {
+    pub protocol_version: u32,
+    pub session_id: String,
+    pub role: Role,
+    /// `"softhaptic <version>"`.
+    pub server: String,
+}
+
+/// The contact model the loop runs and its validity bounds (beyond them the contact frame's
+/// flags say so).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelInfo {
+    /// `"hertz"`, `"sneddon_cone"`, ...
+    pub name: String,
+    /// Depth beyond which the model is known to be inaccurate.
+    pub valid_depth_m: f64,
+    /// Tool inclination beyond which the model is known to be inaccurate.
+    pub valid_inclination_rad: f64,
+}
+
+/// A render mesh the viewer fetches from `url` (binary layout "SHM1", wire.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RenderMeshInfo {
+    pub name: String,
+    pub url: String,
+    pub vertex_count: u32,
+    pub object_in_world: Pose,
+}
+
+/// The haptic device's limits, for the viewer's gauges.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DeviceInfo {
+    pub name: String,
+    pub peak_force_n: f64,
+    pub continuous_force_n: f64,
+    pub max_stiffness_n_per_m: f64,
+    pub damping_n_s_per_m: f64,
+    pub workspace_radius_m: f64,
+}
+
+/// `scene`: the tool, the material, the model, the calibration table, the render meshes and the
+/// device. Also served as JSON at `GET /api/scene`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SceneMessage {
+    pub protocol_version: u32,
+    pub tool: ToolShape,
+    pub material: Material,
+    pub model: ModelInfo,
+    pub calibration: CalibrationTable,
+    pub render_meshes: Vec<RenderMeshInfo>,
+    pub device: DeviceInfo,
+}
+
+/// `contact`: one 50 Hz frame, everything the viewer needs to draw the deformation and the force.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ContactFrame {
+    /// +1 per frame the server produced; a gap tells the viewer it lost frames.
+    pub seq: u64,
+    /// The haptic tick the state comes from.
+    pub tick: u64,
+    /// Device time of that tick, nanoseconds since the loop started.
+    pub time_ns: u64,
+    pub tip_in_world: Pose,
+    pub in_contact: bool,
+    pub depth_m: f64,
+    /// Unit, world frame, pointing out of the object.
+    pub normal: DVec3,
+    pub contact_point_m: DVec3,
+    pub contact_radius_m: f64,
+    /// R_d from the scene's calibration table at `depth_m` (0 out of contact).
+    pub deformed_radius_m: f64,
+    pub force_n: DVec3,
+    /// Encoded as a list of snake_case names (see [`flag_name`]).
+    #[serde(with = "flag_list")]
+    pub flags: ContactFlags,
+    /// Frames this viewer lost so far because it read too slowly.
+    pub dropped: u64,
+}
+
+/// Zero for anything non-finite, so that a frame always encodes to valid JSON numbers (serde_json
+/// would write NaN as `null`, which no decoder accepts as a number).
+#[inline]
+fn finite_or_zero(x: f64) -> f64 {
+    if x.is_finite() { x } else { 0.0 }
+}
+
+#[inline]
+fn finite_vec_or_zero(v: DVec3) -> DVec3 {
+    DVec3::new(
+        finite_or_zero(v.x),
+        finite_or_zero(v.y),
+        finite_or_zero(v.z),
+    )
+}
+
+impl ContactFrame {
+    /// The frame for one haptic state. `deformed_radius_m` comes from the calibration table; it
+    /// and the contact radius are sent as 0 out of contact. Non-finite numbers are sent as 0
+    /// (the loop never publishes them, but the wire must stay valid JSON whatever happens).
+    pub fn from_state(
+        state: &ContactState,
+        seq: u64,
+        deformed_radius_m: f64,
+        dropped: u64,
+    ) -> Self {
+        let orientation = if state.tip_in_world.orientation.is_finite() {
+            state.tip_in_world.orientation
+        } else {
+            glam::DQuat::IDENTITY
+        };
+        let in_contact = state.in_contact;
+        ContactFrame {
+            seq,
+            tick: state.tick,
+            time_ns: state.time_ns,
+            tip_in_world: Pose {
+                position_m: finite_vec_or_zero(state.tip_in_world.position_m),
+                orientation,
+            },
+            in_contact,
+            depth_m: if in_contact {
+                finite_or_zero(state.depth_m)
+            } else {
+                0.0
+            },
+            normal: finite_vec_or_zero(state.normal),
+            contact_point_m: finite_vec_or_zero(state.contact_point_m),
+            contact_radius_m: if in_contact {
+                finite_or_zero(state.contact_radius_m)
+            } else {
+                0.0
+            },
+            deformed_radius_m: if in_contact {
+                finite_or_zero(deformed_radius_m)
+            } else {
+                0.0
+            },
+            force_n: finite_vec_or_zero(state.force_n),
+            flags: state.flags,
+            dropped,
+        }
+    }
+}
+
+/// Percentiles of a timing distribution, microseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PeriodErrorUs {
+    pub p50: f64,
+    pub p99: f64,
+    pub p999: f64,
+    pub max: f64,
+}
+
+/// Percentiles of the per-tick compute time, microseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ComputeUs {
+    pub p50: f64,
+    pub p99: f64,
+    pub max: f64,
+}
+
+/// `stats`: the loop's timing and the stream's health, once a second.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct StatsMessage {
+    pub loop_rate_hz: f64,
+    /// |actual − nominal| tick period.
+    pub period_error_us: PeriodErrorUs,
+    pub overruns: u64,
+    pub compute_us: ComputeUs,
+    pub viewers: u32,
+    /// Frames lost by all viewers together since the server started.
+    pub dropped_frames: u64,
+}
+
+/// The wire name of one flag bit, or `None` for a bit this protocol version does not name.
+pub fn flag_name(flag: ContactFlags) -> Option<&'static str> {
+    FLAG_NAMES
+        .iter()
+        .find(|(f, _)| *f == flag)
+        .map(|(_, name)| *name)
+}
+
+/// Every flag with its wire name, in the order wire.md lists them.
+pub const FLAG_NAMES: [(ContactFlags, &str); 8] = [
+    (ContactFlags::SATURATED, "saturated"),
+    (ContactFlags::STIFFNESS_CAPPED, "stiffness_capped"),
+    (ContactFlags::BEYOND_VALID_DEPTH, "beyond_valid_depth"),
+    (
+        ContactFlags::BEYOND_VALID_INCLINATION,
+        "beyond_valid_inclination",
+    ),
+    (ContactFlags::DEVICE_FAULT, "device_fault"),
+    (ContactFlags::RAMPING, "ramping"),
+    (ContactFlags::PASSIVITY_DAMPING, "passivity_damping"),
+    (ContactFlags::DEGENERATE_NORMAL, "degenerate_normal"),
+];
+
+/// The snake_case names of the set flags, in [`FLAG_NAMES`] order.
+pub fn flag_names(flags: ContactFlags) -> impl Iterator<Item = &'static str> {
+    FLAG_NAMES
+        .iter()
+        .filter(move |(f, _)| flags.contains(*f))
+        .map(|(_, name)| *name)
+}
+
+/// `ContactFlags` as a JSON list of names. An unknown name is a decoding error: flags change
+/// what the viewer shows, so a silent drop would hide a warning.
+mod flag_list {
+    use super::{ContactFlags, FLAG_NAMES, flag_names};
+    use serde::de::{Error, SeqAccess, Visitor};
+    use serde::ser::SerializeSeq;
+    use serde::{Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(flags: &ContactFlags, s: S) -> Result<S::Ok, S::Error> {
+        let mut seq = s.serialize_seq(Some(flags.iter().count()))?;
+        for name in flag_names(*flags) {
+            seq.serialize_element(name)?;
+        }
+        seq.end()
+    }
+
+    struct FlagVisitor;
+
+    impl<'de> Visitor<'de> for FlagVisitor {
+        type Value = ContactFlags;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a list of flag names")
+        }
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<ContactFlags, A::Error> {
+            let mut flags = ContactFlags::empty();
+            while let Some(name) = seq.next_element::<std::borrow::Cow<'de, str>>()? {
+                match FLAG_NAMES.iter().find(|(_, n)| *n == name) {
+                    Some((flag, _)) => flags |= *flag,
+                    None => {
+                        return Err(A::Error::custom(format_args!(
+                            "flags: unknown flag name {name:?}"
+                        )));
+                    }
+                }
+            }
+            Ok(flags)
+        }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<ContactFlags, D::Error> {
+        d.deserialize_seq(FlagVisitor)
+    }
+}
+
+/// Why a text frame could not be decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    /// Not JSON, not an object, or no string `"type"`: the sender is broken; close the link.
+    #[error("malformed message: {0}")]
+    Malformed(String),
+    /// A well-formed message of a type this side does not know: ignore it and count it.
+    #[error("unknown message type {0:?}")]
+    UnknownType(String),
+    /// A known type whose fields are wrong.
+    #[error("invalid {message_type} message: {reason}")]
+    Invalid {
+        message_type: String,
+        reason: String,
+    },
+}
+
+impl DecodeError {
+    /// True for [`DecodeError::UnknownType`], the one failure a receiver tolerates.
+    pub fn is_unknown_type(&self) -> bool {
+        matches!(self, DecodeError::UnknownType(_))
+    }
+}
+
+/// Just the `type` field; every other field is skipped without being stored.
+#[derive(Deserialize)]
+struct TypeProbe {
+    #[serde(rename = "type")]
+    message_type: String,
+}
+
+/// The `type` of a text frame, checking only that it is a JSON object with a string `type`.
+pub fn message_type(text: &str) -> Result<String, DecodeError> {
+    serde_json::from_str::<TypeProbe>(text)
+        .map(|p| p.message_type)
+        .map_err(|e| DecodeError::Malformed(e.to_string()))
+}
+
+impl ServerMessage {
+    /// The message's `type` name.
+    pub fn type_name(&self) -> &'static str {
+        match self {
+            ServerMessage::Hello(_) => "hello",
+            ServerMessage::Scene(_) => "scene",
+            ServerMessage::Contact(_) => "contact",
+            ServerMessage::Stats(_) => "stats",
+        }
+    }
+
+    /// Encodes as one JSON text frame.
+    pub fn encode(&self) -> Result<String, serde_json::Error> {
+        serde_json::to_string(self)
+    }
+
+    /// Decodes one JSON text frame; see [`DecodeError`] for the three ways it can fail.
+    pub fn decode(text: &str) -> Result<ServerMessage, DecodeError> {
+        let message_type = message_type(text)?;
+        if !SERVER_MESSAGE_TYPES.contains(&message_type.as_str()) {
+            return Err(DecodeError::UnknownType(message_type));
+        }
+        serde_json::from_str(text).map_err(|e| DecodeError::Invalid {
+            message_type,
+            reason: e.to_string(),
+        })
+    }
+}
+
+/// One entry of `proto/vectors/messages.json`: a message the viewer must decode (`json`), or raw
+/// text it must refuse (`raw`, `valid: false`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum MessageVector {
+    Valid {
+        name: String,
+        json: serde_json::Value,
+    },
+    Invalid {
+        name: String,
+        raw: String,
+        valid: bool,
+    },
+}
+
+/// The shared message vectors: every message type (a contact with every flag, one without any),
+/// an unknown type, and malformed frames. Deterministic, so the written file can be checked.
+pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
+    let hello = ServerMessage::Hello(Hello {
+        protocol_version: PROTOCOL_VERSION,
+        session_id: "3f2a9c1e".into(),
+        role: Role::Viewer,
+        server: "softhaptic 0.1.0".into(),
+    });
+    let tool = ToolShape::Sphere { radius_m: 0.01 };
+    let material = Material::PAPER_SOFT;
+    let scene = |tool: ToolShape, model: &str, valid_depth_m: f64, valid_inclination_rad: f64| {
+        let calibration =
+            CalibrationTable::half_space(tool, material, crate::calibration::PAPER_THRESHOLD_M)
+                .map_err(serde::ser::Error::custom)?;
+        Ok::<_, serde_json::Error>(ServerMessage::Scene(Box::new(SceneMessage {
+            protocol_version: PROTOCOL_VERSION,
+            tool,
+            material,
+            model: ModelInfo {
+                name: model.into(),
+                valid_depth_m,
+                valid_inclination_rad,
+            },
+            calibration,
+            render_meshes: vec![RenderMeshInfo {
+                name: "liver".into(),
+                url: "/meshes/liver.bin".into(),
+                vertex_count: 120_000,
+                object_in_world: Pose {
+                    position_m: DVec3::new(0.0, 0.0, 0.0),
+                    orientation: glam::DQuat::from_rotation_y(0.5),
+                },
+            }],
+            device: DeviceInfo {
+                name: "simulated PHANTOM Desktop".into(),
+                peak_force_n: 7.9,
+                continuous_force_n: 1.75,
+                max_stiffness_n_per_m: 1000.0,
+                damping_n_s_per_m: 5.0,
+                workspace_radius_m: 0.1,
+            },
+        })))
+    };
+    let pressing = ContactState {
+        tick: 12_345,
+        time_ns: 12_345_000_000,
+        tip_in_world: Pose {
+            position_m: DVec3::new(0.01, 0.047, -0.002),
+            orientation: glam::DQuat::from_rotation_z(0.2),
+        },
+        tip_velocity_m_s: DVec3::new(0.0, -0.01, 0.0),
+        buttons: 1,
+        in_contact: true,
+        depth_m: 0.003,
+        normal: DVec3::new(0.0, 1.0, 0.0),
+        contact_point_m: DVec3::new(0.01, 0.05, -0.002),
+        contact_radius_m: (0.01f64 * 0.003).sqrt(),
+        force_n: DVec3::new(0.0, 1.2, 0.0),
+        flags: ContactFlags::BEYOND_VALID_DEPTH | ContactFlags::RAMPING,
+    };
+    let all_flags = ContactState {
+        flags: ContactFlags::all(),
+        ..pressing
+    };
+    let free = ContactState {
+        tick: 42,
+        time_ns: 42_000_000,
+        ..ContactState::IDLE
+    };
+    let stats = ServerMessage::Stats(StatsMessage {
+        loop_rate_hz: 999.8,
+        period_error_us: PeriodErrorUs {
+            p50: 3.5,
+            p99: 21.0,
+            p999: 48.25,
+            max: 130.0,
+        },
+        overruns: 2,
+        compute_us: ComputeUs {
+            p50: 12.5,
+            p99: 40.0,
+            max: 95.0,
+        },
+        viewers: 3,
+        dropped_frames: 17,
+    });
+    let valid = [
+        ("hello", hello),
+        (
+            "scene_sphere",
+            scene(tool, "hertz", 0.0043, 22f64.to_radians())?,
+        ),
+        (
+            "scene_cone",
+            scene(
+                ToolShape::Cone {
+                    half_angle_rad: std::f64::consts::FRAC_PI_4,
+                    radius_m: 0.01,
+                },
+                "sneddon_cone",
+                0.006,
+                9f64.to_radians(),
+            )?,
+        ),
+        (
+            "contact_pressing",
+            ServerMessage::Contact(ContactFrame::from_state(&pressing, 7, 0.0146, 0)),
+        ),
+        (
+            "contact_every_flag",
+            ServerMessage::Contact(ContactFrame::from_state(&all_flags, 8, 0.0146, 3)),
+        ),
+        (
+            "contact_free",
+            ServerMessage::Contact(ContactFrame::from_state(&free, 9, 0.0, 0)),
+        ),
+        ("stats", stats),
+    ];
+    let mut out = Vec::new();
+    for (name, message) in valid {
+        out.push(MessageVector::Valid {
+            name: name.into(),
+            json: serde_json::to_value(&message)?,
+        });
+    }
+    let invalid = [
+        ("not_json", "contact seq=1"),
+        ("not_an_object", "[1, 2, 3]"),
+        ("no_type", r#"{"seq": 1}"#),
+        ("type_not_a_string", r#"{"type": 5}"#),
+        (
+            "contact_missing_fields",
+            r#"{"type":"contact","seq":1,"tick":1}"#,
+        ),
+        (
+            "contact_unknown_flag",
+            r#"{"type":"contact","seq":1,"tick":1,"time_ns":1000000,"tip_in_world":{"position_m":[0,0,0],"orientation":[0,0,0,1]},"in_contact":false,"depth_m":0,"normal":[0,1,0],"contact_point_m":[0,0,0],"contact_radius_m":0,"deformed_radius_m":0,"force_n":[0,0,0],"flags":["on_fire"],"dropped":0}"#,
+        ),
+        (
+            "contact_depth_is_text",
+            r#"{"type":"contact","seq":1,"tick":1,"time_ns":1000000,"tip_in_world":{"position_m":[0,0,0],"orientation":[0,0,0,1]},"in_contact":true,"depth_m":"deep","normal":[0,1,0],"contact_point_m":[0,0,0],"contact_radius_m":0,"deformed_radius_m":0,"force_n":[0,0,0],"flags":[],"dropped":0}"#,
+        ),
+    ];
+    for (name, raw) in invalid {
+        out.push(MessageVector::Invalid {
+            name: name.into(),
+            raw: raw.into(),
+            valid: false,
+        });
+    }
+    // Well-formed but of a type no viewer knows: to be ignored and counted, not refused.
+    out.push(MessageVector::Valid {
+        name: "unknown_type".into(),
+        json: serde_json::json!({"type": "telemetry_v2", "payload": [1, 2, 3]}),
+    });
+    Ok(out)
+}
+
+/// The shared test-vector files, as (file name under `proto/vectors/`, contents). Written by
+/// `softhaptic vectors write`, read by the viewer's tests, and compared with these contents by a
+/// test of this crate so that the files cannot drift from the code.
+pub fn vector_files() -> Result<Vec<(&'static str, String)>, serde_json::Error> {
+    let deformation = serde_json::to_string_pretty(&crate::deformation::deformation_vectors())?;
+    let messages = serde_json::to_string_pretty(&message_vectors()?)?;
+    Ok(vec![
+        ("deformation.json", deformation + "\n"),
+        ("messages.json", messages + "\n"),
+    ])
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+
+    fn round_trip(message: &ServerMessage) {
+        let text = message.encode().unwrap();
+        let back = ServerMessage::decode(&text).unwrap();
+        assert_eq!(&back, message, "{text}");
+        assert_eq!(message_type(&text).unwrap(), message.type_name());
+    }
+
+    #[test]
+    fn every_vector_message_round_trips() {
+        let mut decoded = std::collections::HashSet::new();
+        for v in message_vectors().unwrap() {
+            match v {
+                MessageVector::Valid { name, json } => {
+                    let text = json.to_string();
+                    match ServerMessage::decode(&text) {
+                        Ok(m) => {
+                            round_trip(&m);
+                            // Re-encoding gives the same JSON value (no field lost or added).
+                            assert_eq!(serde_json::to_value(&m).unwrap(), json, "{name}");
+                            decoded.insert(m.type_name());
+                        }
+                        Err(e) => {
+                            assert_eq!(name, "unknown_type");
+                            assert!(e.is_unknown_type(), "{e}");
+                        }
+                    }
+                }
+                MessageVector::Invalid { name, raw, valid } => {
+                    assert!(!valid);
+                    let err = ServerMessage::decode(&raw).unwrap_err();
+                    assert!(!err.is_unknown_type(), "{name}: {err}");
+                }
+            }
+        }
+        assert_eq!(decoded.len(), SERVER_MESSAGE_TYPES.len());
+    }
+
+    #[test]
+    fn hello_has_the_wire_layout() {
+        let text = ServerMessage::Hello(Hello {
+            protocol_version: PROTOCOL_VERSION,
+            session_id: "s1".into(),
+            role: Role::Viewer,
+            server: "softhaptic 0.1.0".into(),
+        })
+        .encode()
+        .unwrap();
+        assert_eq!(
+            text,
+            r#"{"type":"hello","protocol_version":1,"session_id":"s1","role":"viewer","server":"softhaptic 0.1.0"}"#
+        );
+    }
+
+    #[test]
+    fn contact_frame_has_the_wire_fields() {
+        let state = ContactState {
+            in_contact: true,
+            depth_m: 0.002,
+            contact_radius_m: 0.004,
+            flags: ContactFlags::SATURATED | ContactFlags::DEGENERATE_NORMAL,
+            ..ContactState::IDLE
+        };
+        let frame = ContactFrame::from_state(&state, 5, 0.02, 9);
+        let json = serde_json::to_value(ServerMessage::Contact(frame)).unwrap();
+        let keys: Vec<&str> = json
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(|k| k.as_str())
+            .collect();
+        for k in [
+            "type",
+            "seq",
+            "tick",
+            "time_ns",
+            "tip_in_world",
+            "in_contact",
+            "depth_m",
+            "normal",
+            "contact_point_m",
+            "contact_radius_m",
+            "deformed_radius_m",
+            "force_n",
+            "flags",
+            "dropped",
+        ] {
+            assert!(keys.contains(&k), "missing {k}");
+        }
+        assert_eq!(keys.len(), 14);
+        assert_eq!(
+            json["flags"],
+            serde_json::json!(["saturated", "degenerate_normal"])
+        );
+        assert_eq!(
+            json["tip_in_world"]["orientation"],
+            serde_json::json!([0.0, 0.0, 0.0, 1.0])
+        );
+        assert_eq!(json["normal"], serde_json::json!([0.0, 1.0, 0.0]));
+        assert_eq!(json["dropped"], 9);
+        assert_eq!(json["deformed_radius_m"], 0.02);
+    }
+
+    #[test]
+    fn every_flag_has_a_distinct_name() {
+        let mut all = ContactFlags::empty();
+        for (flag, name) in FLAG_NAMES {
+            assert_eq!(flag.bits().count_ones(), 1);
+            assert_eq!(flag_name(flag), Some(name));
+            all |= flag;
+        }
+        assert_eq!(all, ContactFlags::all(), "a flag has no wire name");
+        assert_eq!(flag_names(ContactFlags::all()).count(), 8);
+    }
+
+    #[test]
+    fn out_of_contact_and_non_finite_values_are_sent_as_zero() {
+        let state = ContactState {
+            in_contact: false,
+            depth_m: 0.01,
+            contact_radius_m: 0.01,
+            force_n: DVec3::new(f64::NAN, 1.0, f64::INFINITY),
+            ..ContactState::IDLE
+        };
+        let frame = ContactFrame::from_state(&state, 1, 0.05, 0);
+        assert_eq!(frame.depth_m, 0.0);
+        assert_eq!(frame.contact_radius_m, 0.0);
+        assert_eq!(frame.deformed_radius_m, 0.0);
+        assert_eq!(frame.force_n, DVec3::new(0.0, 1.0, 0.0));
+        let text = ServerMessage::Contact(frame).encode().unwrap();
+        assert!(!text.contains("null"));
+        assert!(ServerMessage::decode(&text).is_ok());
+    }
+
+    #[test]
+    fn decode_failures_are_distinguishable() {
+        assert!(matches!(
+            ServerMessage::decode(r#"{"type":"futuristic","x":1}"#),
+            Err(DecodeError::UnknownType(t)) if t == "futuristic"
+        ));
+        assert!(matches!(
+            ServerMessage::decode("{"),
+            Err(DecodeError::Malformed(_))
+        ));
+        assert!(matches!(
+            ServerMessage::decode(r#"{"type":["contact"]}"#),
+            Err(DecodeError::Malformed(_))
+        ));
+        let err = ServerMessage::decode(r#"{"type":"stats","loop_rate_hz":1000}"#).unwrap_err();
+        assert!(
+            matches!(&err, DecodeError::Invalid { message_type, .. } if message_type == "stats")
+        );
+        assert!(err.to_string().contains("period_error_us"), "{err}");
+    }
+
+    #[test]
+    fn vector_files_on_disk_match_the_code() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vectors");
+        for (name, contents) in vector_files().unwrap() {
+            let path = dir.join(name);
+            let on_disk = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+                panic!("{}: {e}; run `softhaptic vectors write`", path.display())
+            });
+            assert!(
+                on_disk == contents,
+                "{} differs from the code; run `softhaptic vectors write`",
+                path.display()
+            );
+        }
+    }
+
+    #[test]
+    fn scene_with_invalid_calibration_is_refused() {
+        let v = message_vectors().unwrap();
+        let MessageVector::Valid { json, .. } = &v[1] else {
+            panic!("second vector is the sphere scene")
+        };
+        let mut json = json.clone();
+        json["calibration"]["rows"][1]["depth_m"] = 0.0001.into();
+        let err = ServerMessage::decode(&json.to_string()).unwrap_err();
+        assert!(err.to_string().contains("rows[1].depth_m"), "{err}");
+    }
+}

@@ -1,0 +1,472 @@
+//! Starting and stopping the whole server: scene → haptic world → loop thread → HTTP and
+//! WebSocket.
+//!
+//! [`start`] builds everything from a loaded [`Scene`], binds the address and returns a
+//! [`RunningServer`] that knows its real address (port 0 is allowed) and shuts everything down
+//! in order: stop producing frames, close every viewer, stop the HTTP server, and finally stop
+//! the haptic loop (which commands zero force first).
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Router;
+use axum::body::Bytes;
+use axum::extract::ws::{Utf8Bytes, WebSocketUpgrade};
+use axum::extract::{Path as UrlPath, State};
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, get_service};
+use softhaptic_device::collision::Collider;
+use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
+use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
+use softhaptic_device::stats::LoopStats;
+use softhaptic_device::world::HapticWorld;
+use softhaptic_proto::ToolShape;
+use softhaptic_proto::wire::{
+    DeviceInfo, Hello, ModelInfo, PROTOCOL_VERSION, RenderMeshInfo, Role, SceneMessage,
+    ServerMessage,
+};
+use tokio::sync::{broadcast, watch};
+use tokio::task::JoinHandle;
+use tower_http::services::{ServeDir, ServeFile};
+
+use crate::scene::{DeviceKind, Scene};
+use crate::stream::{self, FRAME_BACKLOG, STATS_BACKLOG, StreamHub, ViewerLimits};
+
+/// The server's name in `hello`.
+pub const SERVER_NAME: &str = concat!("softhaptic ", env!("CARGO_PKG_VERSION"));
+
+/// Why the server could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ServerError {
+    #[error("could not listen on {addr}: {source}")]
+    Bind {
+        addr: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("haptic loop: {0}")]
+    Loop(#[from] LoopError),
+    #[error("could not encode the {what} message: {source}")]
+    Encode {
+        what: &'static str,
+        #[source]
+        source: serde_json::Error,
+    },
+}
+
+/// How to run the server.
+pub struct ServerOptions {
+    pub addr: SocketAddr,
+    /// The viewer's files (index.html, src/, node_modules/three).
+    pub web_dir: PathBuf,
+    /// Ask the OS for real-time scheduling of the haptic thread.
+    pub realtime: bool,
+    /// Contact frame period (20 ms: 50 Hz).
+    pub frame_period: Duration,
+    /// Stats period (1 s).
+    pub stats_period: Duration,
+    /// Per-viewer limits.
+    pub viewer_limits: ViewerLimits,
+    /// Kernel send buffer of each viewer's socket (inherited from the listening socket). `None`
+    /// keeps the OS default, which autotunes for throughput (the meshes are megabytes); a small
+    /// value bounds how stale a slow viewer's frames can be, and lets tests make a viewer that
+    /// stops reading block within a second.
+    pub send_buffer_bytes: Option<u32>,
+    /// Every tick record goes here (session log, or a test comparing forces); a full ring drops
+    /// records, never delays the loop.
+    pub tick_sink: Option<rtrb::Producer<TickRecord>>,
+}
+
+impl ServerOptions {
+    /// 50 Hz frames, 1 Hz stats, default viewer limits, real-time requested, no tick sink.
+    pub fn new(addr: SocketAddr, web_dir: PathBuf) -> Self {
+        Self {
+            addr,
+            web_dir,
+            realtime: true,
+            frame_period: Duration::from_millis(20),
+            stats_period: Duration::from_secs(1),
+            viewer_limits: ViewerLimits::default(),
+            send_buffer_bytes: None,
+            tick_sink: None,
+        }
+    }
+}
+
+/// A running server. Dropping it without [`RunningServer::shutdown`] still stops the haptic
+/// loop (its own drop does), but viewers are then cut rather than closed.
+pub struct RunningServer {
+    local_addr: SocketAddr,
+    shutdown_tx: watch::Sender<bool>,
+    http: JoinHandle<()>,
+    tasks: Vec<JoinHandle<()>>,
+    haptic_loop: Arc<HapticLoop>,
+    hub: Arc<StreamHub>,
+    scene_message: SceneMessage,
+}
+
+impl RunningServer {
+    /// The address actually bound.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// The viewer's URL.
+    pub fn viewer_url(&self) -> String {
+        format!("http://{}/", self.local_addr)
+    }
+
+    /// The scene as sent to viewers.
+    pub fn scene_message(&self) -> &SceneMessage {
+        &self.scene_message
+    }
+
+    /// The loop's latest timing summary.
+    pub fn loop_stats(&self) -> LoopStats {
+        self.haptic_loop.stats()
+    }
+
+    /// The stream hub: subscribe to its `frames` and `stats` to see what viewers are sent (the
+    /// session recorder does).
+    pub fn hub(&self) -> &Arc<StreamHub> {
+        &self.hub
+    }
+
+    /// The stream's counters (viewers, dropped frames, unknown messages...).
+    pub fn counters(&self) -> &stream::StreamCounters {
+        &self.hub.counters
+    }
+
+    /// Closes every viewer, stops the HTTP server and the haptic loop; returns the loop's final
+    /// statistics.
+    pub async fn shutdown(self) -> LoopStats {
+        // Receivers are alive as long as `hub` is; a send error cannot happen here.
+        let _ = self.shutdown_tx.send(true);
+        for task in self.tasks {
+            let _ = task.await;
+        }
+        // Viewer tasks see the flag and close; give them a moment, then stop accepting.
+        let _ = tokio::time::timeout(Duration::from_secs(5), self.http).await;
+        drop(self.hub);
+        let haptic_loop = self.haptic_loop;
+        // Every other holder (the frame and stats tasks) has finished, so this is the last one.
+        match Arc::try_unwrap(haptic_loop) {
+            Ok(l) => tokio::task::spawn_blocking(move || l.stop())
+                .await
+                .unwrap_or_default(),
+            Err(shared) => {
+                let stats = shared.stats();
+                drop(shared);
+                stats
+            }
+        }
+    }
+}
+
+/// The simulated hand's demonstration, repeated forever: approach, press, hold, slide, release
+/// at the scene's press site.
+fn hand_script(scene: &Scene) -> HandScript {
+    let pose = scene.object_in_world;
+    let (point, normal) = scene.press_site_in_object;
+    let mut script = HandScript::press(
+        pose.transform_point(point),
+        pose.orientation * normal,
+        scene.press_depth_m,
+    );
+    script.repeat = true;
+    script
+}
+
+/// The contact model's name on the wire.
+fn model_name(tool: &ToolShape) -> &'static str {
+    match tool {
+        ToolShape::Sphere { .. } => "hertz",
+        ToolShape::Cone { .. } => "sneddon_cone",
+    }
+}
+
+/// The `scene` message for a loaded scene.
+pub fn scene_message(scene: &Scene) -> SceneMessage {
+    let limits = scene.device_limits;
+    let device_name = match scene.device_kind {
+        DeviceKind::Simulated => format!("simulated {}", limits.name),
+    };
+    SceneMessage {
+        protocol_version: PROTOCOL_VERSION,
+        tool: scene.tool,
+        material: scene.material,
+        model: ModelInfo {
+            name: model_name(&scene.tool).into(),
+            valid_depth_m: scene.render.valid_depth_m,
+            valid_inclination_rad: scene.render.valid_inclination_rad,
+        },
+        calibration: scene.calibration.clone(),
+        render_meshes: vec![RenderMeshInfo {
+            name: scene.object_name.clone(),
+            url: format!("/meshes/{}.bin", scene.object_name),
+            vertex_count: scene.render_surface.positions_m.len() as u32,
+            object_in_world: scene.object_in_world,
+        }],
+        device: DeviceInfo {
+            name: device_name,
+            peak_force_n: limits.peak_force_n,
+            continuous_force_n: limits.continuous_force_n,
+            max_stiffness_n_per_m: limits.max_stiffness_n_per_m,
+            damping_n_s_per_m: limits.damping_n_s_per_m,
+            workspace_radius_m: limits.workspace_radius_m,
+        },
+    }
+}
+
+/// A per-run identifier for `hello`: random, from the standard library's hasher seed.
+fn new_session_id() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos())
+            .unwrap_or_default(),
+    );
+    h.write_u32(std::process::id());
+    format!("{:016x}", h.finish())
+}
+
+/// HTTP state: the pre-encoded scene and meshes, and the stream hub.
+#[derive(Clone)]
+struct AppState {
+    scene_json: Bytes,
+    meshes: Arc<HashMap<String, Bytes>>,
+    hub: Arc<StreamHub>,
+}
+
+/// Starts the haptic loop and the server for `scene`.
+pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer, ServerError> {
+    let message = scene_message(&scene);
+    let encode = |what: &'static str, m: ServerMessage| {
+        m.encode()
+            .map_err(|source| ServerError::Encode { what, source })
+    };
+    let scene_text = encode("scene", ServerMessage::Scene(Box::new(message.clone())))?;
+    let hello_text = encode(
+        "hello",
+        ServerMessage::Hello(Hello {
+            protocol_version: PROTOCOL_VERSION,
+            session_id: new_session_id(),
+            role: Role::Viewer,
+            server: SERVER_NAME.into(),
+        }),
+    )?;
+    let mut meshes = HashMap::new();
+    meshes.insert(
+        scene.object_name.clone(),
+        Bytes::from(scene.render_surface.to_shm1()),
+    );
+
+    let listener =
+        bind(options.addr, options.send_buffer_bytes).map_err(|source| ServerError::Bind {
+            addr: options.addr,
+            source,
+        })?;
+    let local_addr = listener.local_addr().map_err(|source| ServerError::Bind {
+        addr: options.addr,
+        source,
+    })?;
+
+    // The haptic side: world, simulated device, loop thread.
+    let world = HapticWorld::new(
+        Collider::new(scene.haptic_mesh.clone(), scene.collision),
+        scene.object_in_world,
+        scene.tool,
+        scene.material,
+        scene.render,
+        scene.device_limits,
+    );
+    let device = match scene.device_kind {
+        DeviceKind::Simulated => SimulatedPhantom::with_params(
+            hand_script(&scene),
+            SimParams {
+                limits: scene.device_limits,
+                ..SimParams::default()
+            },
+        ),
+    };
+    let haptic_loop = Arc::new(HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            period_ns: 1_000_000,
+            realtime: options.realtime,
+            tick_sink: options.tick_sink,
+        },
+    )?);
+
+    let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let (frames, _) = broadcast::channel(FRAME_BACKLOG);
+    let (stats, _) = broadcast::channel(STATS_BACKLOG);
+    let hub = Arc::new(StreamHub {
+        hello: Utf8Bytes::from(hello_text),
+        scene: Utf8Bytes::from(scene_text.clone()),
+        frames,
+        stats,
+        counters: Default::default(),
+        limits: options.viewer_limits,
+        shutdown: shutdown_rx.clone(),
+        replay_control: None,
+    });
+    let tasks = vec![
+        tokio::spawn(stream::frame_task(
+            Arc::clone(&haptic_loop),
+            scene.calibration.clone(),
+            Arc::clone(&hub),
+            options.frame_period,
+        )),
+        tokio::spawn(stream::stats_task(
+            Arc::clone(&haptic_loop),
+            Arc::clone(&hub),
+            options.stats_period,
+        )),
+    ];
+
+    let state = AppState {
+        // The same text as the WebSocket `scene` message (wire.md).
+        scene_json: Bytes::from(scene_text),
+        meshes: Arc::new(meshes),
+        hub: Arc::clone(&hub),
+    };
+    let app = router(&options.web_dir, state);
+    let mut http_shutdown = shutdown_rx;
+    let http = tokio::spawn(async move {
+        let served = axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                let _ = http_shutdown.wait_for(|stop| *stop).await;
+            })
+            .await;
+        if let Err(e) = served {
+            tracing::error!(error = %e, "HTTP server failed");
+        }
+    });
+
+    Ok(RunningServer {
+        local_addr,
+        shutdown_tx,
+        http,
+        tasks,
+        haptic_loop,
+        hub,
+        scene_message: message,
+    })
+}
+
+/// Binds the listening socket (address reuse on, so a restarted server gets its port back).
+fn bind(
+    addr: SocketAddr,
+    send_buffer_bytes: Option<u32>,
+) -> std::io::Result<tokio::net::TcpListener> {
+    let socket = if addr.is_ipv4() {
+        tokio::net::TcpSocket::new_v4()?
+    } else {
+        tokio::net::TcpSocket::new_v6()?
+    };
+    socket.set_reuseaddr(true)?;
+    if let Some(bytes) = send_buffer_bytes {
+        socket.set_send_buffer_size(bytes)?;
+    }
+    socket.bind(addr)?;
+    socket.listen(1024)
+}
+
+/// The routes of wire.md over an existing stream hub, for another source of frames than the
+/// haptic loop (a recording's replay).
+pub fn viewer_router(
+    web_dir: &Path,
+    scene_json: Bytes,
+    meshes: HashMap<String, Bytes>,
+    hub: Arc<StreamHub>,
+) -> Router {
+    router(
+        web_dir,
+        AppState {
+            scene_json,
+            meshes: Arc::new(meshes),
+            hub,
+        },
+    )
+}
+
+/// The routes of wire.md.
+fn router(web_dir: &Path, state: AppState) -> Router {
+    let three = web_dir.join("node_modules").join("three");
+    Router::new()
+        .route_service("/", get_service(ServeFile::new(web_dir.join("index.html"))))
+        .nest_service("/src", ServeDir::new(web_dir.join("src")))
+        .nest_service(
+            "/vendor/three/addons",
+            ServeDir::new(three.join("examples").join("jsm")),
+        )
+        .nest_service("/vendor/three", ServeDir::new(three.join("build")))
+        .route("/api/scene", get(api_scene))
+        .route("/meshes/{file}", get(mesh))
+        .route("/ws", get(ws))
+        .with_state(state)
+}
+
+async fn api_scene(State(state): State<AppState>) -> Response {
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        state.scene_json.clone(),
+    )
+        .into_response()
+}
+
+async fn mesh(State(state): State<AppState>, UrlPath(file): UrlPath<String>) -> Response {
+    let found = file
+        .strip_suffix(".bin")
+        .and_then(|name| state.meshes.get(name));
+    match found {
+        Some(bytes) => (
+            [(header::CONTENT_TYPE, "application/octet-stream")],
+            bytes.clone(),
+        )
+            .into_response(),
+        None => (StatusCode::NOT_FOUND, format!("no render mesh {file:?}")).into_response(),
+    }
+}
+
+async fn ws(State(state): State<AppState>, upgrade: WebSocketUpgrade) -> Response {
+    let limits = state.hub.limits;
+    let hub = state.hub;
+    upgrade
+        .max_message_size(limits.max_incoming_bytes)
+        .max_frame_size(limits.max_incoming_bytes)
+        // Bounds what one stalled viewer can make the server buffer: a frame or two.
+        .write_buffer_size(0)
+        .max_write_buffer_size(1 << 20)
+        .on_upgrade(move |socket| async move {
+            let end = stream::serve_viewer(socket, hub).await;
+            tracing::debug!(?end, "viewer left");
+        })
+}
+
+/// The viewer's directory when none is given: the first `web/` holding `index.html` found
+/// next to the working directory, next to the executable or above it, or in the source tree
+/// this binary was built from; the source tree's `web/` otherwise.
+pub fn default_web_dir() -> PathBuf {
+    let source_tree = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("web");
+    let mut candidates = Vec::new();
+    if let Ok(cwd) = std::env::current_dir() {
+        candidates.push(cwd.join("web"));
+    }
+    if let Ok(exe) = std::env::current_exe() {
+        candidates.extend(exe.ancestors().skip(1).map(|dir| dir.join("web")));
+    }
+    candidates.push(source_tree.clone());
+    candidates
+        .into_iter()
+        .find(|dir| dir.join("index.html").is_file())
+        .unwrap_or(source_tree)
+}

@@ -1,0 +1,173 @@
+//! `softhaptic`: the device-host server's command line.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+use softhaptic_server::app::{self, ServerOptions};
+use softhaptic_server::scene::Scene;
+use softhaptic_server::session;
+use softhaptic_server::vectors;
+
+/// Haptic simulator of soft objects: runs the 1 kHz force loop next to the device and streams the
+/// contact to web viewers. With no subcommand, `run`.
+#[derive(Parser, Debug)]
+#[command(name = "softhaptic", version, args_conflicts_with_subcommands = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Load a scene, start the haptic loop and serve the viewer (the default).
+    Run(RunArgs),
+    /// The shared test vectors of the viewer and the server (proto/vectors/*.json).
+    Vectors {
+        #[command(subcommand)]
+        action: VectorsAction,
+    },
+    /// Session recordings: info, export, check, replay, record-script.
+    #[command(flatten)]
+    Session(session::cli::SessionCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum VectorsAction {
+    /// Write the vector files from the reference code.
+    Write {
+        /// Only compare the files with the code; fail if they differ.
+        #[arg(long)]
+        check: bool,
+        /// Directory of the files [default: the source tree's proto/vectors].
+        #[arg(long)]
+        dir: Option<PathBuf>,
+    },
+}
+
+#[derive(Args, Debug, Clone)]
+struct RunArgs {
+    /// Scene file (TOML; see scenes/default.toml). Without it, the built-in default scene: the
+    /// procedural liver, a 10 mm sphere, E = 50 kPa, ν = 0.33, a simulated PHANTOM Desktop.
+    #[arg(long, value_name = "FILE")]
+    scene: Option<PathBuf>,
+    /// Address to serve the viewer and the WebSocket stream on; port 0 picks a free port.
+    #[arg(long, default_value = "127.0.0.1:8080", value_name = "HOST:PORT")]
+    addr: SocketAddr,
+    /// Directory of the web viewer (index.html, src/, node_modules/three) [default: the first
+    /// web/ with an index.html next to the working directory or the executable, else the
+    /// source tree's web/].
+    #[arg(long, value_name = "DIR")]
+    web_dir: Option<PathBuf>,
+    /// Do not ask for real-time scheduling (SCHED_FIFO, locked memory) for the haptic thread.
+    #[arg(long)]
+    no_realtime: bool,
+    #[command(flatten)]
+    record: session::cli::RecordArgs,
+}
+
+fn main() -> std::process::ExitCode {
+    match try_main() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            // The whole chain, one cause per line; no backtrace: these are user-facing errors.
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn try_main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    match cli.command {
+        None => run(cli.run),
+        Some(Command::Run(args)) => run(args),
+        Some(Command::Vectors {
+            action: VectorsAction::Write { check, dir },
+        }) => {
+            let dir = dir.unwrap_or_else(vectors::default_dir);
+            let files = vectors::write_or_check(&dir, check)?;
+            for f in files {
+                println!(
+                    "{} {}",
+                    if check { "up to date:" } else { "wrote" },
+                    f.display()
+                );
+            }
+            Ok(())
+        }
+        Some(Command::Session(command)) => session::cli::run(command),
+    }
+}
+
+fn run(args: RunArgs) -> anyhow::Result<()> {
+    // Refuse a bad scene before anything starts.
+    let scene = match &args.scene {
+        Some(path) => Scene::load(path)?,
+        None => Scene::builtin_default()?,
+    };
+    tracing::info!(
+        scene = %args.scene.as_deref().map(|p| p.display().to_string()).unwrap_or_else(|| "built-in default".into()),
+        object = %scene.object_name,
+        calibration = scene.calibration.source().as_str(),
+        "scene loaded"
+    );
+    let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
+    if !web_dir.join("index.html").is_file() {
+        tracing::warn!(dir = %web_dir.display(), "no index.html in the web directory; the viewer page will be missing");
+    }
+    let mut recording =
+        session::cli::LiveRecording::start(&args.record, &scene, args.scene.as_deref())?;
+    let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
+    runtime.block_on(async move {
+        let mut options = ServerOptions::new(args.addr, web_dir);
+        options.realtime = !args.no_realtime;
+        options.tick_sink = recording.as_mut().and_then(|r| r.take_tick_sink());
+        let server = app::start(scene, options).await?;
+        if let Some(r) = &recording {
+            r.attach(&server);
+            println!("recording: {}", r.path().display());
+        }
+        println!("viewer: {}", server.viewer_url());
+        shutdown_signal().await?;
+        tracing::info!("shutting down");
+        let stats = server.shutdown().await;
+        tracing::info!(
+            ticks = stats.ticks,
+            overruns = stats.overruns,
+            period_error_p99_us = stats.period_error_p99_ns as f64 * 1e-3,
+            "haptic loop stopped"
+        );
+        if let Some(r) = recording {
+            let (path, rec) = r.finish()?;
+            tracing::info!(
+                file = %path.display(),
+                ticks = rec.ticks_recorded,
+                ticks_dropped = rec.ticks_dropped,
+                contact_frames = rec.contact_frames_recorded,
+                "recording closed"
+            );
+        }
+        Ok(())
+    })
+}
+
+/// Resolves on Ctrl-C or SIGTERM.
+async fn shutdown_signal() -> anyhow::Result<()> {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("could not listen for SIGTERM")?;
+    tokio::select! {
+        r = tokio::signal::ctrl_c() => r.context("could not listen for Ctrl-C"),
+        _ = term.recv() => Ok(()),
+    }
+}

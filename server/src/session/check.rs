@@ -1,0 +1,222 @@
+//! The replay check: do the recorded device readings, fed through this build's haptic world, give
+//! the recorded forces bit for bit? (design.md, invariant 5.)
+//!
+//! The world is rebuilt from the scene file stored in the recording, the readings are played by a
+//! [`ReplayDevice`] (recorded errors included) through [`HapticWorld::step`] with no thread and no
+//! clock, and every commanded force is compared with the recorded one by its f64 bits. Scene
+//! overrides ([`CheckOverrides`]) exist so that a test can show that a deliberate change is caught
+//! and reported at its first tick.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use softhaptic_device::collision::Collider;
+use softhaptic_device::device::HapticDevice;
+use softhaptic_device::replay::ReplayDevice;
+use softhaptic_device::world::HapticWorld;
+
+use super::reader::Recording;
+use crate::scene::{Scene, SceneError};
+
+/// Changes to the recorded scene before the replay (a check with any of them is expected to fail
+/// when the change matters).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct CheckOverrides {
+    /// Replaces the scene's damping along the normal, N·s/m.
+    pub damping_n_s_per_m: Option<f64>,
+}
+
+/// Why a check could not run (as opposed to running and finding a difference).
+#[derive(Debug, thiserror::Error)]
+pub enum CheckError {
+    #[error("{path}: the recorded scene does not load: {source}")]
+    Scene {
+        path: PathBuf,
+        #[source]
+        source: Box<SceneError>,
+    },
+    #[error("{path}: --damping must be finite and >= 0, got {value}")]
+    Override { path: PathBuf, value: f64 },
+    #[error("{path}: the recording has no device ticks to check")]
+    Empty { path: PathBuf },
+    #[error(
+        "{path}: the recording starts at tick {first} instead of 0: the world's state before it is unknown"
+    )]
+    StartsLate { path: PathBuf, first: u64 },
+}
+
+/// The first tick whose replayed force differs from the recorded one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ForceDifference {
+    pub tick: u64,
+    pub time_ns: u64,
+    pub recorded_n: [f64; 3],
+    pub replayed_n: [f64; 3],
+}
+
+impl ForceDifference {
+    /// replayed − recorded.
+    pub fn difference_n(&self) -> DVec3 {
+        DVec3::from_array(self.replayed_n) - DVec3::from_array(self.recorded_n)
+    }
+}
+
+/// The outcome of a check.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckReport {
+    pub path: PathBuf,
+    /// Ticks replayed and compared.
+    pub ticks_compared: u64,
+    /// The first tick that differs, if any.
+    pub first_difference: Option<ForceDifference>,
+    /// Ticks whose force differs, in all.
+    pub differing_ticks: u64,
+    /// Where the recording has a gap (ticks the recorder dropped): the check stops there,
+    /// because the world's state past a missing reading cannot be reproduced.
+    pub stopped_at_gap: Option<(u64, u64)>,
+    /// Every replayed force, in tick order (for determinism tests).
+    pub replayed_n: Vec<[f64; 3]>,
+}
+
+impl CheckReport {
+    /// True when every compared force is identical and nothing was left unchecked.
+    pub fn passed(&self) -> bool {
+        self.first_difference.is_none() && self.stopped_at_gap.is_none()
+    }
+}
+
+impl fmt::Display for CheckReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let path = self.path.display();
+        match &self.first_difference {
+            None => write!(
+                f,
+                "{path}: {} ticks replayed, every force identical bit for bit",
+                self.ticks_compared
+            )?,
+            Some(d) => {
+                let diff = d.difference_n();
+                write!(
+                    f,
+                    "{path}: forces differ at tick {} (device time {:.3} s), first of {} differing ticks out of {}:\n  \
+                     recorded force_n = {:?}\n  replayed force_n = {:?}\n  difference       = {:?} (|Δ| = {:e} N)",
+                    d.tick,
+                    d.time_ns as f64 * 1e-9,
+                    self.differing_ticks,
+                    self.ticks_compared,
+                    d.recorded_n,
+                    d.replayed_n,
+                    diff.to_array(),
+                    diff.length(),
+                )?;
+            }
+        }
+        if let Some((after, next)) = self.stopped_at_gap {
+            write!(
+                f,
+                "\n{path}: stopped after tick {after}: the next recorded tick is {next} (ticks dropped by the recorder), so the rest cannot be checked"
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// The haptic world a scene describes (the same construction as the live server's).
+pub fn haptic_world(scene: &Scene) -> HapticWorld {
+    HapticWorld::new(
+        Collider::new(scene.haptic_mesh.clone(), scene.collision),
+        scene.object_in_world,
+        scene.tool,
+        scene.material,
+        scene.render,
+        scene.device_limits,
+    )
+}
+
+/// Loads the scene a recording was made with (from the scene text it stores).
+pub fn recorded_scene(recording: &Recording) -> Result<Scene, CheckError> {
+    let s = &recording.scene;
+    let (label, base) = match &s.scene_file {
+        Some(file) => {
+            let p = PathBuf::from(file);
+            let base = p.parent().map(Path::to_path_buf);
+            (p, base)
+        }
+        None => (
+            PathBuf::from(format!("<scene of {}>", recording.path.display())),
+            None,
+        ),
+    };
+    Scene::from_toml(&s.scene_toml, &label, base.as_deref()).map_err(|e| CheckError::Scene {
+        path: recording.path.clone(),
+        source: Box::new(e),
+    })
+}
+
+/// Replays `recording` and compares every force.
+pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckReport, CheckError> {
+    let path = recording.path.clone();
+    let mut scene = recorded_scene(recording)?;
+    if let Some(d) = overrides.damping_n_s_per_m {
+        if !(d.is_finite() && d >= 0.0) {
+            return Err(CheckError::Override { path, value: d });
+        }
+        scene.render.damping_n_s_per_m = d;
+    }
+    let records = &recording.device;
+    let Some(first) = records.first() else {
+        return Err(CheckError::Empty { path });
+    };
+    if first.tick != 0 {
+        return Err(CheckError::StartsLate {
+            path,
+            first: first.tick,
+        });
+    }
+    // Only the run of consecutive ticks from 0 can be reproduced.
+    let contiguous = records
+        .windows(2)
+        .position(|w| w[1].tick != w[0].tick + 1)
+        .map(|i| i + 1)
+        .unwrap_or(records.len());
+    let stopped_at_gap = (contiguous < records.len())
+        .then(|| (records[contiguous - 1].tick, records[contiguous].tick));
+    let records = &records[..contiguous];
+
+    let mut world = haptic_world(&scene);
+    let mut device = ReplayDevice::from_records(scene.device_limits, records);
+    let mut replayed_n = Vec::with_capacity(records.len());
+    let mut first_difference = None;
+    let mut differing_ticks = 0;
+    for rec in records {
+        let state = world.step(device.read());
+        // The replay device keeps it; it cannot fail.
+        let _ = device.command_force(state.force_n);
+        let replayed = state.force_n.to_array();
+        replayed_n.push(replayed);
+        let same = replayed
+            .iter()
+            .zip(rec.force_n.iter())
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        if !same {
+            differing_ticks += 1;
+            if first_difference.is_none() {
+                first_difference = Some(ForceDifference {
+                    tick: rec.tick,
+                    time_ns: rec.time_ns,
+                    recorded_n: rec.force_n,
+                    replayed_n: replayed,
+                });
+            }
+        }
+    }
+    Ok(CheckReport {
+        path,
+        ticks_compared: records.len() as u64,
+        first_difference,
+        differing_ticks,
+        stopped_at_gap,
+        replayed_n,
+    })
+}

@@ -1,0 +1,360 @@
+//! The session subcommands of `softhaptic`, and the recording of a live session.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::Context;
+use softhaptic_device::haptic_loop::TickRecord;
+use softhaptic_proto::record::{BuildRecord, RecordingStats, SESSION_FORMAT_VERSION, SceneRecord};
+use softhaptic_proto::wire::{PROTOCOL_VERSION, ServerMessage};
+use tokio::sync::broadcast;
+
+use super::check::{CheckOverrides, check};
+use super::reader::Recording;
+use super::replay::{self, ReplayOptions};
+use super::script::{ScriptName, record_script};
+use super::tools::{Info, export};
+use super::writer::{Recorder, StreamTap, recording_file_name};
+use crate::app::{RunningServer, SERVER_NAME, scene_message};
+use crate::scene::Scene;
+use crate::stream::{EncodedFrame, ViewerLimits};
+
+/// Ticks the loop → recorder ring holds: 4 s at 1 kHz, so the recorder thread may stall that long
+/// (a slow disk) before a tick is lost.
+pub const TICK_RING_CAPACITY: usize = 4096;
+
+/// Recording options of `softhaptic run`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RecordArgs {
+    /// Do not record the session.
+    #[arg(long)]
+    pub no_record: bool,
+    /// Directory of the session recordings (created if missing); one MCAP file per session,
+    /// named by its UTC start time and session id.
+    #[arg(long, default_value = "sessions", value_name = "DIR")]
+    pub record_dir: PathBuf,
+}
+
+/// The session subcommands.
+#[derive(clap::Subcommand, Debug, Clone)]
+pub enum SessionCommand {
+    /// What a recording holds: duration, ticks, losses, contacts, peak force, flags, and whether
+    /// the file is complete or was recovered from a truncated one.
+    Info {
+        /// The recording (.mcap).
+        file: PathBuf,
+    },
+    /// Write the device and contact channels of a recording as CSV (device.csv, contact.csv).
+    Export {
+        /// The recording (.mcap).
+        file: PathBuf,
+        /// Output directory (created).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+    },
+    /// Replay the recorded device readings through this build's haptic world and check that
+    /// every force is identical bit for bit; exits non-zero naming the first differing tick.
+    Check {
+        /// The recording (.mcap).
+        file: PathBuf,
+        /// Replace the scene's damping (N·s/m) for the replay: a deliberate change to test the
+        /// check itself.
+        #[arg(long, value_name = "N_S_PER_M")]
+        damping: Option<f64>,
+    },
+    /// Stream a recording to web viewers exactly as a live session, with pause, play and seek
+    /// from the viewer.
+    Replay {
+        /// The recording (.mcap).
+        file: PathBuf,
+        /// Playback speed (1.0 = real time).
+        #[arg(long, default_value_t = 1.0)]
+        speed: f64,
+        /// Start paused at the beginning.
+        #[arg(long)]
+        paused: bool,
+        /// Address to serve the viewer on; port 0 picks a free port.
+        #[arg(long, default_value = "127.0.0.1:8080", value_name = "HOST:PORT")]
+        addr: SocketAddr,
+        /// Directory of the web viewer [default: as for `run`].
+        #[arg(long, value_name = "DIR")]
+        web_dir: Option<PathBuf>,
+    },
+    /// Record a scripted session with the simulated device, tick by tick without a clock (the
+    /// test recordings of tests/sessions/).
+    ///
+    /// `--script NAME --out FILE` writes one; `--out DIR` without `--script` writes every script
+    /// as DIR/NAME.mcap (how tests/sessions/ is regenerated after a deliberate change of the
+    /// forces: `softhaptic record-script --out tests/sessions --replace`).
+    RecordScript {
+        /// The script; every script when omitted.
+        #[arg(long, value_enum)]
+        script: Option<ScriptName>,
+        /// The file to write (with --script) or the directory (without).
+        #[arg(long, value_name = "PATH")]
+        out: PathBuf,
+        /// Replace existing files (written beside and renamed over, so a failure leaves the old
+        /// file).
+        #[arg(long)]
+        replace: bool,
+    },
+    /// Measure what recording costs the 1 kHz loop: the loop's period error without and with
+    /// the recorder, the same time each, and the recording's size per minute.
+    RecordingOverhead {
+        /// Length of each run, seconds.
+        #[arg(long, default_value_t = 30.0)]
+        seconds: f64,
+        /// Do not ask for real-time scheduling for the loop thread.
+        #[arg(long)]
+        no_realtime: bool,
+        /// Where the measurement's recording is written.
+        #[arg(long, default_value = "sessions", value_name = "DIR")]
+        dir: PathBuf,
+    },
+}
+
+/// Runs a session subcommand.
+pub fn run(command: SessionCommand) -> anyhow::Result<()> {
+    match command {
+        SessionCommand::Info { file } => {
+            let recording = Recording::open(&file)?;
+            println!("{}", Info::of(&recording));
+            Ok(())
+        }
+        SessionCommand::Export { file, out } => {
+            let recording = Recording::open(&file)?;
+            if !recording.is_complete() {
+                eprintln!("{}", recording.recovery());
+            }
+            let (device, contact) = export(&recording, &out)?;
+            println!("wrote {}", device.display());
+            println!("wrote {}", contact.display());
+            Ok(())
+        }
+        SessionCommand::Check { file, damping } => {
+            let recording = Recording::open(&file)?;
+            if !recording.is_complete() {
+                eprintln!("{}", recording.recovery());
+            }
+            let report = check(
+                &recording,
+                CheckOverrides {
+                    damping_n_s_per_m: damping,
+                },
+            )?;
+            if report.passed() {
+                println!("{report}");
+                Ok(())
+            } else {
+                anyhow::bail!("replay check failed: {report}")
+            }
+        }
+        SessionCommand::Replay {
+            file,
+            speed,
+            paused,
+            addr,
+            web_dir,
+        } => {
+            let recording = Recording::open(&file)?;
+            if !recording.is_complete() {
+                eprintln!("{}", recording.recovery());
+            }
+            let options = ReplayOptions {
+                addr,
+                web_dir: web_dir.unwrap_or_else(crate::app::default_web_dir),
+                speed,
+                start_paused: paused,
+                viewer_limits: ViewerLimits::default(),
+            };
+            let runtime =
+                tokio::runtime::Runtime::new().context("could not start the async runtime")?;
+            runtime.block_on(async move {
+                let replay = replay::start(recording, options).await?;
+                println!("replay: {}", replay.viewer_url());
+                shutdown_signal().await?;
+                replay.shutdown().await;
+                Ok(())
+            })
+        }
+        SessionCommand::RecordScript {
+            script,
+            out,
+            replace,
+        } => {
+            let jobs: Vec<(ScriptName, PathBuf)> = match script {
+                Some(name) => vec![(name, out)],
+                None => ScriptName::ALL
+                    .iter()
+                    .map(|&name| (name, out.join(format!("{}.mcap", name.label()))))
+                    .collect(),
+            };
+            for (name, file) in jobs {
+                if let Some(dir) = file.parent().filter(|d| !d.as_os_str().is_empty()) {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("could not create {}", dir.display()))?;
+                }
+                let stats = if replace {
+                    let mut tmp = file.clone().into_os_string();
+                    tmp.push(".partial");
+                    let tmp = PathBuf::from(tmp);
+                    let _ = std::fs::remove_file(&tmp);
+                    let stats = record_script(name, &tmp)?;
+                    std::fs::rename(&tmp, &file).with_context(|| {
+                        format!("could not move {} to {}", tmp.display(), file.display())
+                    })?;
+                    stats
+                } else {
+                    record_script(name, &file)?
+                };
+                println!(
+                    "wrote {} ({} ticks, {} contact frames)",
+                    file.display(),
+                    stats.ticks_recorded,
+                    stats.contact_frames_recorded
+                );
+            }
+            Ok(())
+        }
+        SessionCommand::RecordingOverhead {
+            seconds,
+            no_realtime,
+            dir,
+        } => {
+            let report = super::overhead::measure(seconds, !no_realtime, &dir)?;
+            print!("{report}");
+            Ok(())
+        }
+    }
+}
+
+/// Resolves on Ctrl-C or SIGTERM.
+async fn shutdown_signal() -> anyhow::Result<()> {
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("could not listen for SIGTERM")?;
+    tokio::select! {
+        r = tokio::signal::ctrl_c() => r.context("could not listen for Ctrl-C"),
+        _ = term.recv() => Ok(()),
+    }
+}
+
+/// The recording of a live session: start it before the server (it hands the loop its ring),
+/// [`LiveRecording::attach`] it to the running server (to record what viewers are sent), and
+/// [`LiveRecording::finish`] it after the server has stopped.
+pub struct LiveRecording {
+    recorder: Recorder,
+    tick_sink: Option<rtrb::Producer<TickRecord>>,
+}
+
+impl LiveRecording {
+    /// Opens a new recording in `args.record_dir` for `scene` (loaded from `scene_file`, or the
+    /// built-in default when `None`); `None` with `--no-record`.
+    pub fn start(
+        args: &RecordArgs,
+        scene: &Scene,
+        scene_file: Option<&Path>,
+    ) -> anyhow::Result<Option<LiveRecording>> {
+        if args.no_record {
+            return Ok(None);
+        }
+        let dir = &args.record_dir;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("could not create the record directory {}", dir.display()))?;
+        let scene_toml = match scene_file {
+            Some(p) => std::fs::read_to_string(p)
+                .with_context(|| format!("could not read {} to record it", p.display()))?,
+            None => include_str!("../../../scenes/default.toml").to_owned(),
+        };
+        let scene_file = scene_file
+            .map(|p| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf()))
+            .map(|p| p.display().to_string());
+        let started_unix_ns = super::unix_now_ns();
+        let session_id = new_recording_id(started_unix_ns);
+        let build = BuildRecord {
+            session_format_version: SESSION_FORMAT_VERSION,
+            protocol_version: PROTOCOL_VERSION,
+            writer: SERVER_NAME.into(),
+            git_commit: super::git_commit(),
+            session_id: session_id.clone(),
+            started_unix_ns,
+        };
+        let scene_record = SceneRecord {
+            message: scene_message(scene),
+            scene_toml,
+            scene_file,
+            period_ns: 1_000_000,
+        };
+        let path = dir.join(recording_file_name(started_unix_ns, &session_id));
+        let (producer, consumer) = rtrb::RingBuffer::new(TICK_RING_CAPACITY);
+        let recorder = Recorder::start(&path, &build, &scene_record, consumer)?;
+        tracing::info!(file = %path.display(), "recording the session");
+        Ok(Some(LiveRecording {
+            recorder,
+            tick_sink: Some(producer),
+        }))
+    }
+
+    /// The ring the haptic loop pushes its ticks into (`ServerOptions::tick_sink`); once.
+    pub fn take_tick_sink(&mut self) -> Option<rtrb::Producer<TickRecord>> {
+        self.tick_sink.take()
+    }
+
+    /// The file being written.
+    pub fn path(&self) -> &Path {
+        self.recorder.path()
+    }
+
+    /// Records every contact frame and stats message the server sends its viewers, until the
+    /// server stops.
+    pub fn attach(&self, server: &RunningServer) {
+        let hub = server.hub();
+        tokio::spawn(record_stream(
+            hub.frames.subscribe(),
+            hub.stats.subscribe(),
+            self.recorder.stream_tap(),
+        ));
+    }
+
+    /// Closes the file (after the server, and so the loop, has stopped).
+    pub fn finish(self) -> anyhow::Result<(PathBuf, RecordingStats)> {
+        let path = self.recorder.path().to_path_buf();
+        let stats = self.recorder.finish()?;
+        Ok((path, stats))
+    }
+}
+
+/// A recording id: the start time in hex and the process id, enough to tell sessions apart.
+fn new_recording_id(started_unix_ns: u64) -> String {
+    format!("{:x}-{}", started_unix_ns / 1_000_000, std::process::id())
+}
+
+/// Forwards what viewers are sent to the recorder, as a viewer that never falls behind would
+/// see it; frames lost because this task lagged are counted as dropped.
+async fn record_stream(
+    mut frames: broadcast::Receiver<Arc<EncodedFrame>>,
+    mut stats: broadcast::Receiver<axum::extract::ws::Utf8Bytes>,
+    tap: StreamTap,
+) {
+    let mut stats_open = true;
+    loop {
+        tokio::select! {
+            frame = frames.recv() => match frame {
+                Ok(frame) => {
+                    let text = frame.text_for(0).to_string();
+                    match ServerMessage::decode(&text) {
+                        Ok(ServerMessage::Contact(c)) => tap.record_contact(c.time_ns, text),
+                        _ => tracing::error!("the frame broadcast carried a non-contact message"),
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(n)) => tap.count_lost_contacts(n),
+                Err(broadcast::error::RecvError::Closed) => return,
+            },
+            s = stats.recv(), if stats_open => match s {
+                Ok(text) => tap.record_loop_stats(text.to_string()),
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => stats_open = false,
+            },
+        }
+    }
+}

@@ -1,0 +1,423 @@
+//! Streaming a recording to viewers exactly as a live session (`softhaptic replay FILE`).
+//!
+//! The replay serves the same routes with the same code as the live server
+//! ([`crate::app::viewer_router`], [`crate::stream::serve_viewer`]); only the source of the
+//! frames differs: instead of the haptic loop, a player task walks the recorded `/contact` frames
+//! and `/loop_stats` messages on the recording's device-time axis, at `speed` times real time.
+//! Viewers send `replay_control` messages (pause, play, seek, speed) and receive `replay` status
+//! messages (duration, position, paused, speed) on connect, after each control and once a second.
+//!
+//! Frames keep their recorded content; only `seq` is renumbered (+1 per frame sent, across
+//! seeks), so a viewer's loss detection works as live, and `dropped` is the viewer's own count.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use axum::body::Bytes;
+use axum::extract::ws::Utf8Bytes;
+use softhaptic_proto::record::{ReplayAction, ReplayControl, ReplayStatus};
+use softhaptic_proto::wire::{Hello, PROTOCOL_VERSION, Role, ServerMessage};
+use tokio::sync::{broadcast, mpsc, watch};
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+
+use super::check::recorded_scene;
+use super::reader::{RecordedMessage, Recording};
+use crate::app::{SERVER_NAME, viewer_router};
+use crate::stream::{EncodedFrame, FRAME_BACKLOG, STATS_BACKLOG, StreamHub, ViewerLimits};
+
+/// How often the player sends a `replay` status while playing.
+const STATUS_PERIOD: Duration = Duration::from_secs(1);
+/// Controls that may wait for the player (a viewer cannot click faster than this matters).
+const CONTROL_QUEUE: usize = 32;
+
+/// How to serve a replay.
+#[derive(Debug, Clone)]
+pub struct ReplayOptions {
+    pub addr: SocketAddr,
+    pub web_dir: PathBuf,
+    /// Playback speed, 1.0 = real time.
+    pub speed: f64,
+    /// Start paused at the beginning (a viewer presses play).
+    pub start_paused: bool,
+    pub viewer_limits: ViewerLimits,
+}
+
+/// Why a replay could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("{path}: nothing to replay: the recording has no contact frames")]
+    Empty { path: PathBuf },
+    #[error("--speed must be finite and in [0.01, 100], got {0}")]
+    Speed(f64),
+    #[error(transparent)]
+    Check(#[from] super::check::CheckError),
+    #[error("could not listen on {addr}: {source}")]
+    Bind {
+        addr: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("could not encode the {what} message: {source}")]
+    Encode {
+        what: &'static str,
+        #[source]
+        source: serde_json::Error,
+    },
+}
+
+/// A replay being served.
+pub struct RunningReplay {
+    local_addr: SocketAddr,
+    shutdown_tx: watch::Sender<bool>,
+    http: JoinHandle<()>,
+    player: JoinHandle<()>,
+    hub: Arc<StreamHub>,
+}
+
+impl RunningReplay {
+    /// The address actually bound.
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// The viewer's URL.
+    pub fn viewer_url(&self) -> String {
+        format!("http://{}/", self.local_addr)
+    }
+
+    /// The stream's counters.
+    pub fn counters(&self) -> &crate::stream::StreamCounters {
+        &self.hub.counters
+    }
+
+    /// Closes every viewer and stops serving.
+    pub async fn shutdown(self) {
+        let _ = self.shutdown_tx.send(true);
+        let _ = self.player.await;
+        let _ = tokio::time::timeout(Duration::from_secs(5), self.http).await;
+    }
+}
+
+/// Starts serving `recording` to viewers.
+pub async fn start(
+    recording: Recording,
+    options: ReplayOptions,
+) -> Result<RunningReplay, ReplayError> {
+    let speed = options.speed;
+    if !(speed.is_finite()
+        && (ReplayControl::SPEED_RANGE.0..=ReplayControl::SPEED_RANGE.1).contains(&speed))
+    {
+        return Err(ReplayError::Speed(speed));
+    }
+    if recording.contacts.is_empty() {
+        return Err(ReplayError::Empty {
+            path: recording.path.clone(),
+        });
+    }
+    // The render mesh comes from the recorded scene file (the message only names its URL).
+    let scene = recorded_scene(&recording)?;
+    let mut meshes = HashMap::new();
+    meshes.insert(
+        scene.object_name.clone(),
+        Bytes::from(scene.render_surface.to_shm1()),
+    );
+    let message = recording.scene.message.clone();
+    let encode = |what: &'static str, m: ServerMessage| {
+        m.encode()
+            .map_err(|source| ReplayError::Encode { what, source })
+    };
+    let scene_text = encode("scene", ServerMessage::Scene(Box::new(message.clone())))?;
+    let scene_json = serde_json::to_vec(&message).map_err(|source| ReplayError::Encode {
+        what: "scene",
+        source,
+    })?;
+    let hello_text = encode(
+        "hello",
+        ServerMessage::Hello(Hello {
+            protocol_version: PROTOCOL_VERSION,
+            session_id: recording.build.session_id.clone(),
+            role: Role::Viewer,
+            server: SERVER_NAME.into(),
+        }),
+    )?;
+
+    let listener = tokio::net::TcpListener::bind(options.addr)
+        .await
+        .map_err(|source| ReplayError::Bind {
+            addr: options.addr,
+            source,
+        })?;
+    let local_addr = listener.local_addr().map_err(|source| ReplayError::Bind {
+        addr: options.addr,
+        source,
+    })?;
+
+    let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let (frames, _) = broadcast::channel(FRAME_BACKLOG);
+    let (stats, _) = broadcast::channel(STATS_BACKLOG);
+    let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
+    let hub = Arc::new(StreamHub {
+        hello: Utf8Bytes::from(hello_text),
+        scene: Utf8Bytes::from(scene_text),
+        frames,
+        stats,
+        counters: Default::default(),
+        limits: options.viewer_limits,
+        shutdown: shutdown_rx.clone(),
+        replay_control: Some(control_tx),
+    });
+    let player = Player::new(&recording, speed, options.start_paused);
+    let player = tokio::spawn(player.run(Arc::clone(&hub), control_rx));
+
+    let app = viewer_router(
+        &options.web_dir,
+        Bytes::from(scene_json),
+        meshes,
+        Arc::clone(&hub),
+    );
+    let mut http_shutdown = shutdown_rx;
+    let http = tokio::spawn(async move {
+        let served = axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                let _ = http_shutdown.wait_for(|stop| *stop).await;
+            })
+            .await;
+        if let Err(e) = served {
+            tracing::error!(error = %e, "HTTP server failed");
+        }
+    });
+    Ok(RunningReplay {
+        local_addr,
+        shutdown_tx,
+        http,
+        player,
+        hub,
+    })
+}
+
+/// The replay clock and cursor.
+struct Player {
+    contacts: Vec<RecordedMessage>,
+    loop_stats: Vec<RecordedMessage>,
+    /// Device time of the recording's first frame: replay time 0.
+    start_ns: u64,
+    duration_ns: u64,
+    file: String,
+    speed: f64,
+    paused: bool,
+    /// Replay position (ns from `start_ns`) at `anchor`.
+    anchor_pos_ns: u64,
+    anchor: Instant,
+    /// Next contact and stats message to send.
+    next_contact: usize,
+    next_stats: usize,
+    /// `seq` of the next frame sent.
+    seq: u64,
+}
+
+impl Player {
+    fn new(recording: &Recording, speed: f64, paused: bool) -> Self {
+        let start_ns = recording.contacts.first().map_or(0, |c| c.time_ns);
+        let end_ns = recording.contacts.last().map_or(0, |c| c.time_ns);
+        Self {
+            contacts: recording.contacts.clone(),
+            loop_stats: recording.loop_stats.clone(),
+            start_ns,
+            duration_ns: end_ns.saturating_sub(start_ns),
+            file: recording.file_name(),
+            speed,
+            paused,
+            anchor_pos_ns: 0,
+            anchor: Instant::now(),
+            next_contact: 0,
+            next_stats: 0,
+            seq: 0,
+        }
+    }
+
+    /// Replay position now.
+    fn position_ns(&self, now: Instant) -> u64 {
+        if self.paused {
+            return self.anchor_pos_ns;
+        }
+        let elapsed_ns = now.saturating_duration_since(self.anchor).as_nanos() as f64;
+        let pos = self.anchor_pos_ns as f64 + elapsed_ns * self.speed;
+        (pos as u64).min(self.duration_ns)
+    }
+
+    fn status(&self, now: Instant) -> ReplayStatus {
+        ReplayStatus {
+            duration_s: self.duration_ns as f64 * 1e-9,
+            time_s: self.position_ns(now) as f64 * 1e-9,
+            paused: self.paused,
+            speed: self.speed,
+            file: self.file.clone(),
+        }
+    }
+
+    fn apply(&mut self, control: ReplayControl, now: Instant) {
+        let pos = self.position_ns(now);
+        if let Some(speed) = control.speed {
+            self.speed = speed;
+        }
+        match control.action {
+            ReplayAction::Pause => {
+                self.anchor_pos_ns = pos;
+                self.paused = true;
+            }
+            ReplayAction::Play => {
+                // Play at the end starts over.
+                self.anchor_pos_ns = if pos >= self.duration_ns { 0 } else { pos };
+                if self.anchor_pos_ns == 0 {
+                    self.rewind_to(0);
+                }
+                self.paused = false;
+            }
+            ReplayAction::Seek => {
+                let target_ns = control
+                    .time_s
+                    .map_or(pos, |t| ((t * 1e9) as u64).min(self.duration_ns));
+                self.anchor_pos_ns = target_ns;
+                self.rewind_to(target_ns);
+            }
+        }
+        self.anchor = now;
+    }
+
+    /// Puts the cursors just before `pos_ns`, so that the frame at the new position is sent next.
+    fn rewind_to(&mut self, pos_ns: u64) {
+        let t = self.start_ns + pos_ns;
+        // The frame in effect at `t` (the last one at or before it) is sent at once.
+        self.next_contact = self
+            .contacts
+            .partition_point(|c| c.time_ns <= t)
+            .saturating_sub(1);
+        self.next_stats = self.loop_stats.partition_point(|s| s.time_ns < t);
+    }
+
+    /// Sends everything due at `pos_ns`, in order; when the player fell more than a viewer's
+    /// backlog behind (a stall, a high speed), only the newest [`FRAME_BACKLOG`] frames.
+    fn send_due(&mut self, hub: &StreamHub, pos_ns: u64) {
+        let t = self.start_ns + pos_ns;
+        let due_end = self.contacts.partition_point(|c| c.time_ns <= t);
+        let from = self.next_contact.max(due_end.saturating_sub(FRAME_BACKLOG));
+        for i in from..due_end {
+            let frame = self.contacts[i].clone();
+            self.send_frame(hub, &frame);
+        }
+        self.next_contact = self.next_contact.max(due_end);
+        while let Some(s) = self.loop_stats.get(self.next_stats) {
+            if s.time_ns > t {
+                break;
+            }
+            self.send_stats(hub, s);
+            self.next_stats += 1;
+        }
+    }
+
+    fn send_frame(&mut self, hub: &StreamHub, recorded: &RecordedMessage) {
+        // The reader checked every recorded frame decodes.
+        let Ok(ServerMessage::Contact(mut frame)) = ServerMessage::decode(&recorded.json) else {
+            return;
+        };
+        frame.seq = self.seq;
+        self.seq += 1;
+        match EncodedFrame::new(&frame) {
+            Ok(encoded) => {
+                let _ = hub.frames.send(Arc::new(encoded));
+                hub.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(e) => tracing::error!(error = %e, "could not encode a replayed frame"),
+        }
+    }
+
+    fn send_stats(&self, hub: &StreamHub, recorded: &RecordedMessage) {
+        let Ok(ServerMessage::Stats(mut stats)) = ServerMessage::decode(&recorded.json) else {
+            return;
+        };
+        // Viewer counts are the replay's own.
+        stats.viewers = hub.counters.viewers.load(Ordering::Relaxed);
+        stats.dropped_frames = hub.counters.dropped_frames.load(Ordering::Relaxed);
+        if let Ok(text) = ServerMessage::Stats(stats).encode() {
+            let _ = hub.stats.send(Utf8Bytes::from(text));
+        }
+    }
+
+    fn send_status(&self, hub: &StreamHub, now: Instant) {
+        match serde_json::to_string(&self.status(now)) {
+            // The stats channel carries every low-rate message to every viewer.
+            Ok(text) => {
+                let _ = hub.stats.send(Utf8Bytes::from(text));
+            }
+            Err(e) => tracing::error!(error = %e, "could not encode the replay status"),
+        }
+    }
+
+    /// The next instant something is due: the next frame or stats message, at the current speed.
+    fn next_due(&self, now: Instant) -> Option<Instant> {
+        if self.paused {
+            return None;
+        }
+        let pos = self.position_ns(now);
+        let next_t = [
+            self.contacts.get(self.next_contact).map(|c| c.time_ns),
+            self.loop_stats.get(self.next_stats).map(|s| s.time_ns),
+        ]
+        .into_iter()
+        .flatten()
+        .min()?;
+        let ahead_ns = next_t.saturating_sub(self.start_ns).saturating_sub(pos) as f64 / self.speed;
+        Some(now + Duration::from_nanos(ahead_ns as u64))
+    }
+
+    async fn run(mut self, hub: Arc<StreamHub>, mut controls: mpsc::Receiver<ReplayControl>) {
+        let mut shutdown = hub.shutdown.clone();
+        let mut status_tick = tokio::time::interval(STATUS_PERIOD);
+        status_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        self.anchor = Instant::now();
+        loop {
+            let now = Instant::now();
+            if !self.paused {
+                let pos = self.position_ns(now);
+                self.send_due(&hub, pos);
+                if pos >= self.duration_ns && self.next_contact >= self.contacts.len() {
+                    // The end: hold the last frame, paused, and say so.
+                    self.anchor_pos_ns = self.duration_ns;
+                    self.paused = true;
+                    self.send_status(&hub, now);
+                }
+            }
+            let wake = self.next_due(now).unwrap_or(now + STATUS_PERIOD);
+            tokio::select! {
+                _ = shutdown.changed() => return,
+                _ = tokio::time::sleep_until(wake) => {}
+                _ = status_tick.tick() => {
+                    // Also while paused: a viewer that just connected learns the replay's state
+                    // within a second.
+                    self.send_status(&hub, Instant::now());
+                }
+                control = controls.recv() => {
+                    let Some(control) = control else { return };
+                    let now = Instant::now();
+                    self.apply(control, now);
+                    if control.action == ReplayAction::Seek {
+                        // Show the frame at the new position even when paused.
+                        let pos = self.position_ns(now);
+                        let t = self.start_ns + pos;
+                        let at = self.contacts.partition_point(|c| c.time_ns <= t);
+                        if let Some(frame) = at.checked_sub(1).map(|i| self.contacts[i].clone()) {
+                            self.send_frame(&hub, &frame);
+                            self.next_contact = at;
+                        }
+                    }
+                    self.send_status(&hub, now);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,168 @@
+//! Scripted sessions: the simulated PHANTOM pressed by its simulated hand through a fixed script,
+//! stepped tick by tick with no thread and no wall clock, and recorded exactly as a live session
+//! is (`softhaptic record-script`). The same script and build always write the same bytes,
+//! which is what the recordings under `tests/sessions/` are.
+
+use std::path::Path;
+
+use softhaptic_device::device::{DeviceError, HapticDevice};
+use softhaptic_device::replay::device_record;
+use softhaptic_device::sim::{HandScript, SimFault, SimParams, SimulatedPhantom};
+use softhaptic_proto::record::{BuildRecord, RecordingStats, SceneRecord};
+use softhaptic_proto::wire::ContactFrame;
+
+use super::SessionError;
+use super::check::haptic_world;
+use super::writer::SessionWriter;
+use crate::app::scene_message;
+use crate::scene::{Scene, SceneError};
+use crate::stream::EncodedFrame;
+
+/// The built-in scene files the scripts use (the repository's `scenes/`).
+const DEFAULT_SCENE_TOML: &str = include_str!("../../../scenes/default.toml");
+const CONE_SCENE_TOML: &str = include_str!("../../../scenes/cone.toml");
+
+/// Haptic ticks per contact frame: 1 kHz loop, 50 Hz frames.
+const TICKS_PER_FRAME: u64 = 20;
+
+/// The scripted sessions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ScriptName {
+    /// The 10 mm sphere pressed into the liver, held, released (no slide).
+    SpherePress,
+    /// The 45° cone pressed into the liver, held, released.
+    ConePress,
+    /// The sphere pressed, then slid 10 mm along the surface, then released.
+    Slide,
+    /// The sphere pressed and held; the device disconnects for 200 ms in the middle of the hold.
+    FaultMidPress,
+}
+
+impl ScriptName {
+    /// Every script, in the order `record-script` writes them.
+    pub const ALL: [ScriptName; 4] = [
+        ScriptName::SpherePress,
+        ScriptName::ConePress,
+        ScriptName::Slide,
+        ScriptName::FaultMidPress,
+    ];
+
+    fn scene_toml(self) -> &'static str {
+        match self {
+            ScriptName::ConePress => CONE_SCENE_TOML,
+            _ => DEFAULT_SCENE_TOML,
+        }
+    }
+
+    /// The script's name on the command line, and its file name under tests/sessions/.
+    pub fn label(self) -> &'static str {
+        match self {
+            ScriptName::SpherePress => "sphere-press",
+            ScriptName::ConePress => "cone-press",
+            ScriptName::Slide => "slide",
+            ScriptName::FaultMidPress => "fault-mid-press",
+        }
+    }
+}
+
+/// Why a scripted recording failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ScriptError {
+    #[error("built-in scene of script {script}: {source}")]
+    Scene {
+        script: &'static str,
+        #[source]
+        source: Box<SceneError>,
+    },
+    #[error(transparent)]
+    Session(#[from] SessionError),
+    #[error("could not encode a contact frame: {0}")]
+    Encode(#[from] serde_json::Error),
+}
+
+/// The hand's script for `name` at the scene's press site.
+fn hand_script(name: ScriptName, scene: &Scene) -> HandScript {
+    let pose = scene.object_in_world;
+    let (point, normal) = scene.press_site_in_object;
+    let mut script = HandScript::press(
+        pose.transform_point(point),
+        pose.orientation * normal,
+        scene.press_depth_m,
+    );
+    script.repeat = false;
+    if name != ScriptName::Slide {
+        script.slide_distance_m = 0.0;
+        script.slide_s = 0.0;
+    }
+    script
+}
+
+/// Runs script `name` and records it to `out` (which must not exist). Returns the recorder's
+/// final accounting.
+pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, ScriptError> {
+    let label = format!("<built-in scene of script {}>", name.label());
+    let scene = Scene::from_toml(name.scene_toml(), Path::new(&label), None).map_err(|e| {
+        ScriptError::Scene {
+            script: name.label(),
+            source: Box::new(e),
+        }
+    })?;
+    let params = SimParams {
+        limits: scene.device_limits,
+        ..SimParams::default()
+    };
+    let script = hand_script(name, &scene);
+    let mut device = SimulatedPhantom::with_params(script, params);
+    if name == ScriptName::FaultMidPress {
+        let (hold_start_s, hold_end_s) = script.hold_window_s();
+        let middle_ns = ((hold_start_s + hold_end_s) * 0.5 * 1e9) as u64;
+        device.schedule_fault(
+            middle_ns - 100_000_000,
+            middle_ns + 100_000_000,
+            SimFault::Error(DeviceError::Disconnected),
+        );
+    }
+    let mut world = haptic_world(&scene);
+
+    let build = BuildRecord {
+        session_format_version: softhaptic_proto::record::SESSION_FORMAT_VERSION,
+        protocol_version: softhaptic_proto::wire::PROTOCOL_VERSION,
+        writer: crate::app::SERVER_NAME.into(),
+        git_commit: super::git_commit(),
+        session_id: format!("script-{}", name.label()),
+        // No wall clock in a scripted session: the same script and build write the same bytes,
+        // so a regenerated recording only changes when the forces do.
+        started_unix_ns: 0,
+    };
+    let scene_record = SceneRecord {
+        message: scene_message(&scene),
+        scene_toml: name.scene_toml().to_owned(),
+        scene_file: None,
+        period_ns: params.period_ns,
+    };
+    let mut writer = SessionWriter::create(out, &build, &scene_record)?;
+
+    // Half a second of rest after the script ends, so the release is complete in the file.
+    let duration_ns = ((script.duration_s() + 0.5) * 1e9) as u64;
+    let ticks = duration_ns / params.period_ns.max(1);
+    let mut seq = 0;
+    for k in 0..ticks {
+        let read = device.read();
+        let state = world.step(read);
+        // The simulated device accepts every command; a refusal would only mean zero force.
+        let _ = device.command_force(state.force_n);
+        writer.write_device(&device_record(&read, &state))?;
+        if k.is_multiple_of(TICKS_PER_FRAME) {
+            let deformed_radius_m = if state.in_contact {
+                scene.calibration.deformed_radius_m(state.depth_m)
+            } else {
+                0.0
+            };
+            let frame = ContactFrame::from_state(&state, seq, deformed_radius_m, 0);
+            let text = EncodedFrame::new(&frame)?.text_for(0);
+            writer.write_contact(state.time_ns, text.as_str())?;
+            seq += 1;
+        }
+    }
+    Ok(writer.finish()?)
+}

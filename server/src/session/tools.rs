@@ -1,0 +1,294 @@
+//! `softhaptic info` and `softhaptic export`: what a recording holds, and its channels as CSV.
+
+use std::fmt::{self, Write as _};
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use softhaptic_proto::ContactFlags;
+use softhaptic_proto::wire::{ServerMessage, flag_names};
+
+use super::SessionError;
+use super::reader::{Ending, Recording};
+
+/// The summary `softhaptic info` prints.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Info {
+    pub path: PathBuf,
+    pub file_len: u64,
+    pub writer: String,
+    pub git_commit: Option<String>,
+    pub session_id: String,
+    pub session_format_version: u32,
+    pub protocol_version: u32,
+    pub tool: String,
+    pub duration_s: f64,
+    pub ticks: u64,
+    /// Ticks missing from the file (gaps in the tick counter).
+    pub ticks_missing: u64,
+    /// Ticks the recorder reported dropped in its last stats record.
+    pub ticks_dropped_reported: Option<u64>,
+    pub contact_frames: u64,
+    pub contact_frames_dropped_reported: Option<u64>,
+    /// Ticks in contact with the object.
+    pub ticks_in_contact: u64,
+    /// Ticks flagged as device faults.
+    pub device_fault_ticks: u64,
+    /// Largest commanded force magnitude and its tick.
+    pub peak_force_n: f64,
+    pub peak_force_tick: Option<u64>,
+    /// Deepest indentation.
+    pub max_depth_m: f64,
+    /// Every flag seen on any tick, with how many ticks carried it.
+    pub flags_seen: Vec<(&'static str, u64)>,
+    pub ending: Ending,
+    pub recovery: String,
+}
+
+impl Info {
+    pub fn of(r: &Recording) -> Info {
+        let mut peak_force_n = 0.0;
+        let mut peak_force_tick = None;
+        let mut max_depth_m: f64 = 0.0;
+        let mut flag_counts = [0u64; 32];
+        let mut ticks_in_contact = 0;
+        let mut device_fault_ticks = 0;
+        for d in &r.device {
+            let f = glam::DVec3::from_array(d.force_n).length();
+            if f.is_finite() && (peak_force_tick.is_none() || f > peak_force_n) {
+                peak_force_n = f;
+                peak_force_tick = Some(d.tick);
+            }
+            if d.in_contact && d.depth_m.is_finite() {
+                max_depth_m = max_depth_m.max(d.depth_m);
+                ticks_in_contact += 1;
+            }
+            if d.device_fault {
+                device_fault_ticks += 1;
+            }
+            for (bit, count) in flag_counts.iter_mut().enumerate() {
+                if d.flags & (1 << bit) != 0 {
+                    *count += 1;
+                }
+            }
+        }
+        let flags_seen = flag_counts
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| **n > 0)
+            .map(|(bit, n)| {
+                let name = ContactFlags::from_bits(1 << bit)
+                    .and_then(|f| flag_names(f).next())
+                    .unwrap_or("unknown_bit");
+                (name, *n)
+            })
+            .collect();
+        let tool = serde_json::to_string(&r.scene.message.tool).unwrap_or_default();
+        Info {
+            path: r.path.clone(),
+            file_len: r.file_len,
+            writer: r.build.writer.clone(),
+            git_commit: r.build.git_commit.clone(),
+            session_id: r.build.session_id.clone(),
+            session_format_version: r.build.session_format_version,
+            protocol_version: r.build.protocol_version,
+            tool,
+            duration_s: r.duration_ns() as f64 * 1e-9,
+            ticks: r.device.len() as u64,
+            ticks_missing: r.missing_ticks(),
+            ticks_dropped_reported: r.last_stats.map(|s| s.ticks_dropped),
+            contact_frames: r.contacts.len() as u64,
+            contact_frames_dropped_reported: r.last_stats.map(|s| s.contact_frames_dropped),
+            ticks_in_contact,
+            device_fault_ticks,
+            peak_force_n,
+            peak_force_tick,
+            max_depth_m,
+            flags_seen,
+            ending: r.ending.clone(),
+            recovery: r.recovery().to_string(),
+        }
+    }
+}
+
+impl fmt::Display for Info {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let opt = |v: Option<u64>| v.map_or_else(|| "unknown".to_owned(), |n| n.to_string());
+        writeln!(
+            f,
+            "file:              {} ({} bytes)",
+            self.path.display(),
+            self.file_len
+        )?;
+        writeln!(
+            f,
+            "written by:        {} (commit {}), session {}",
+            self.writer,
+            self.git_commit.as_deref().unwrap_or("unknown"),
+            self.session_id
+        )?;
+        writeln!(
+            f,
+            "formats:           session log v{}, wire protocol v{}",
+            self.session_format_version, self.protocol_version
+        )?;
+        writeln!(f, "tool:              {}", self.tool)?;
+        writeln!(f, "duration:          {:.3} s", self.duration_s)?;
+        writeln!(
+            f,
+            "ticks:             {} recorded, {} missing (recorder reported {} dropped)",
+            self.ticks,
+            self.ticks_missing,
+            opt(self.ticks_dropped_reported)
+        )?;
+        writeln!(
+            f,
+            "contact frames:    {} recorded (recorder reported {} dropped)",
+            self.contact_frames,
+            opt(self.contact_frames_dropped_reported)
+        )?;
+        writeln!(
+            f,
+            "in contact:        {} ticks, max depth {:.3} mm",
+            self.ticks_in_contact,
+            self.max_depth_m * 1e3
+        )?;
+        match self.peak_force_tick {
+            Some(t) => writeln!(
+                f,
+                "peak force:        {:.4} N at tick {t}",
+                self.peak_force_n
+            )?,
+            None => writeln!(f, "peak force:        none")?,
+        }
+        writeln!(f, "device faults:     {} ticks", self.device_fault_ticks)?;
+        let mut flags = String::new();
+        for (name, n) in &self.flags_seen {
+            let _ = write!(flags, "{name} ({n} ticks) ");
+        }
+        writeln!(
+            f,
+            "flags seen:        {}",
+            if flags.is_empty() {
+                "none"
+            } else {
+                flags.trim_end()
+            }
+        )?;
+        let status = match &self.ending {
+            Ending::Complete => "complete".to_owned(),
+            Ending::Truncated { .. } => "TRUNCATED, recovered".to_owned(),
+        };
+        writeln!(f, "status:            {status}")?;
+        write!(f, "recovery:          {}", self.recovery)
+    }
+}
+
+/// Writes `device.csv` and `contact.csv` into `out_dir` (created); returns their paths.
+pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf), SessionError> {
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| SessionError::Io { path, source }
+    };
+    std::fs::create_dir_all(out_dir).map_err(io(out_dir))?;
+    let device_path = out_dir.join("device.csv");
+    let contact_path = out_dir.join("contact.csv");
+
+    let mut out = String::with_capacity(r.device.len() * 200);
+    out.push_str(
+        "tick,time_ns,sample_ok,tip_x_m,tip_y_m,tip_z_m,tip_qx,tip_qy,tip_qz,tip_qw,\
+         vel_x_m_s,vel_y_m_s,vel_z_m_s,buttons,device_fault,device_error,in_contact,depth_m,\
+         force_x_n,force_y_n,force_z_n,flags\n",
+    );
+    for d in &r.device {
+        let _ = write!(out, "{},{},", d.tick, d.time_ns);
+        match &d.sample {
+            Some(s) => {
+                let _ = write!(out, "true,");
+                for v in s
+                    .tip_position_m
+                    .iter()
+                    .chain(&s.tip_orientation)
+                    .chain(&s.tip_velocity_m_s)
+                {
+                    let _ = write!(out, "{v},");
+                }
+                let _ = write!(out, "{},", s.buttons);
+            }
+            None => out.push_str("false,,,,,,,,,,,,"),
+        }
+        let error = d
+            .device_error
+            .map(|e| serde_json::to_string(&e).unwrap_or_default())
+            .unwrap_or_default()
+            .replace('"', "")
+            .replace(',', ";");
+        let _ = write!(
+            out,
+            "{},{error},{},{},{},{},{},",
+            d.device_fault, d.in_contact, d.depth_m, d.force_n[0], d.force_n[1], d.force_n[2]
+        );
+        out.push_str(&flags_field(ContactFlags::from_bits_truncate(d.flags)));
+        out.push('\n');
+    }
+    write_file(&device_path, out.as_bytes())?;
+
+    let mut out = String::with_capacity(r.contacts.len() * 200);
+    out.push_str(
+        "log_time_ns,seq,tick,time_ns,tip_x_m,tip_y_m,tip_z_m,in_contact,depth_m,\
+         normal_x,normal_y,normal_z,contact_x_m,contact_y_m,contact_z_m,contact_radius_m,\
+         deformed_radius_m,force_x_n,force_y_n,force_z_n,flags,dropped\n",
+    );
+    for c in &r.contacts {
+        // The reader has checked every frame decodes as a contact message.
+        let Ok(ServerMessage::Contact(f)) = ServerMessage::decode(&c.json) else {
+            continue;
+        };
+        let p = f.tip_in_world.position_m;
+        let _ = write!(
+            out,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},",
+            c.time_ns,
+            f.seq,
+            f.tick,
+            f.time_ns,
+            p.x,
+            p.y,
+            p.z,
+            f.in_contact,
+            f.depth_m,
+            f.normal.x,
+            f.normal.y,
+            f.normal.z,
+            f.contact_point_m.x,
+            f.contact_point_m.y,
+            f.contact_point_m.z,
+            f.contact_radius_m,
+            f.deformed_radius_m,
+            f.force_n.x,
+            f.force_n.y,
+            f.force_n.z,
+        );
+        out.push_str(&flags_field(f.flags));
+        let _ = writeln!(out, ",{}", f.dropped);
+    }
+    write_file(&contact_path, out.as_bytes())?;
+    Ok((device_path, contact_path))
+}
+
+/// Flag names joined by `|` (no commas, so the field needs no quoting).
+fn flags_field(flags: ContactFlags) -> String {
+    flag_names(flags).collect::<Vec<_>>().join("|")
+}
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {
+    let mut f = std::fs::File::create(path).map_err(|source| SessionError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    f.write_all(bytes)
+        .and_then(|()| f.flush())
+        .map_err(|source| SessionError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+}

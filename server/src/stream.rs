@@ -1,0 +1,465 @@
+//! The 50 Hz contact stream and the 1 Hz stats, from the haptic loop to every WebSocket viewer.
+//!
+//! One task ([`frame_task`]) reads the loop's latest contact 50 times a second, adds R_d from
+//! the calibration table, encodes the frame once and broadcasts it; one task ([`stats_task`])
+//! does the same for the loop's timing once a second. Each viewer's connection task
+//! ([`serve_viewer`]) forwards what it receives to its socket.
+//!
+//! Why a slow viewer cannot delay anyone: the broadcast channel is bounded and never waits for a
+//! receiver; a receiver that falls [`FRAME_BACKLOG`] frames behind is told how many it lost,
+//! jumps to the newest frame, and its `dropped` count (reported in its next contact frame) grows.
+//! A viewer that stops reading altogether blocks only its own task in a socket send; its losses
+//! are counted when that send completes, and a send that waits longer than the send timeout
+//! closes the connection (`stalled_closes`).
+//! The haptic loop is never touched by any of this: the frame task only reads its wait-free
+//! publication.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::time::Duration;
+
+use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, close_code};
+use softhaptic_device::haptic_loop::HapticLoop;
+use softhaptic_device::stats::LoopStats;
+use softhaptic_proto::CalibrationTable;
+use softhaptic_proto::record::ReplayControl;
+use softhaptic_proto::wire::{
+    ComputeUs, ContactFrame, PeriodErrorUs, ServerMessage, StatsMessage, message_type,
+};
+use tokio::sync::{broadcast, watch};
+
+/// Frames a viewer may fall behind before it skips to the newest (80 ms at 50 Hz): enough to
+/// ride out a scheduling hiccup without loss, short enough that a lagging viewer shows the
+/// present.
+pub const FRAME_BACKLOG: usize = 4;
+/// Stats messages kept for a slow viewer (they are once a second; older ones are worthless).
+pub const STATS_BACKLOG: usize = 2;
+
+/// A contact frame encoded once for every viewer.
+///
+/// Every viewer with no lost frames gets `with_no_drops` (shared bytes, no copy). A viewer that
+/// lost frames needs its own `dropped` value, the frame's last field: it gets `prefix` (the JSON
+/// up to and including `"dropped":`) followed by its count and `}`.
+#[derive(Debug)]
+pub struct EncodedFrame {
+    pub seq: u64,
+    with_no_drops: Utf8Bytes,
+    prefix_len: usize,
+}
+
+/// The tail every encoded contact frame ends with when `dropped` is 0.
+const NO_DROPS_TAIL: &str = "\"dropped\":0}";
+
+impl EncodedFrame {
+    /// Encodes `frame` (its `dropped` is ignored and written as 0).
+    pub fn new(frame: &ContactFrame) -> Result<Self, serde_json::Error> {
+        let frame = ContactFrame {
+            dropped: 0,
+            ..*frame
+        };
+        let text = ServerMessage::Contact(frame).encode()?;
+        // `dropped` is the last field of `ContactFrame`, and serde writes fields in declaration
+        // order, so the text always ends with the tail (checked by a test); if a future field
+        // order broke that, fail loudly rather than send wrong counts.
+        if !text.ends_with(NO_DROPS_TAIL) {
+            return Err(serde::ser::Error::custom(
+                "contact frame does not end with its dropped field",
+            ));
+        }
+        let prefix_len = text.len() - 2;
+        Ok(Self {
+            seq: frame.seq,
+            with_no_drops: Utf8Bytes::from(text),
+            prefix_len,
+        })
+    }
+
+    /// The text for a viewer that has lost `dropped` frames so far.
+    pub fn text_for(&self, dropped: u64) -> Utf8Bytes {
+        if dropped == 0 {
+            return self.with_no_drops.clone();
+        }
+        let prefix = &self.with_no_drops.as_str()[..self.prefix_len];
+        let mut text = String::with_capacity(self.prefix_len + 21);
+        text.push_str(prefix);
+        text.push_str(&dropped.to_string());
+        text.push('}');
+        Utf8Bytes::from(text)
+    }
+}
+
+/// Limits of one viewer connection.
+#[derive(Debug, Clone, Copy)]
+pub struct ViewerLimits {
+    /// Largest incoming message; a bigger one closes the connection (the viewer sends nothing
+    /// large: this only bounds what a broken or hostile client can make the server buffer).
+    pub max_incoming_bytes: usize,
+    /// A send that does not complete in this time closes the connection: the peer stopped
+    /// reading, and holding its socket open serves nobody.
+    pub send_timeout: Duration,
+}
+
+impl Default for ViewerLimits {
+    fn default() -> Self {
+        Self {
+            max_incoming_bytes: 64 * 1024,
+            send_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Counters shared by the stream tasks and reported in `stats`.
+#[derive(Debug, Default)]
+pub struct StreamCounters {
+    pub viewers: AtomicU32,
+    /// Frames lost by all viewers together.
+    pub dropped_frames: AtomicU64,
+    /// Incoming messages of a type the server does not know (ignored).
+    pub unknown_messages: AtomicU64,
+    /// Connections closed because a message was malformed or too large.
+    pub malformed_closes: AtomicU64,
+    /// Contact frames produced.
+    pub frames_sent: AtomicU64,
+    /// Connections closed because a send did not complete within the send timeout (the viewer
+    /// stopped reading).
+    pub stalled_closes: AtomicU64,
+}
+
+/// What every viewer connection needs.
+pub struct StreamHub {
+    pub hello: Utf8Bytes,
+    pub scene: Utf8Bytes,
+    pub frames: broadcast::Sender<Arc<EncodedFrame>>,
+    pub stats: broadcast::Sender<Utf8Bytes>,
+    pub counters: StreamCounters,
+    pub limits: ViewerLimits,
+    pub shutdown: watch::Receiver<bool>,
+    /// Where viewers' `replay_control` messages go when the source is a recording (see
+    /// `session::replay`); `None` on a live session, where they are unknown messages.
+    pub replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
+}
+
+/// Counts a viewer for as long as its connection task lives.
+struct ViewerGuard<'a>(&'a StreamCounters);
+
+impl<'a> ViewerGuard<'a> {
+    fn new(counters: &'a StreamCounters) -> Self {
+        counters.viewers.fetch_add(1, Ordering::Relaxed);
+        Self(counters)
+    }
+}
+
+impl Drop for ViewerGuard<'_> {
+    fn drop(&mut self) {
+        self.0.viewers.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// Reads the loop's latest contact every `period` and broadcasts it, until shutdown.
+pub async fn frame_task(
+    haptic_loop: Arc<HapticLoop>,
+    calibration: CalibrationTable,
+    hub: Arc<StreamHub>,
+    period: Duration,
+) {
+    let mut shutdown = hub.shutdown.clone();
+    let mut interval = tokio::time::interval(period);
+    // After a stall, continue at the normal rate rather than bursting the missed frames.
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut seq: u64 = 0;
+    loop {
+        tokio::select! {
+            _ = interval.tick() => {}
+            _ = shutdown.changed() => break,
+        }
+        let state = haptic_loop.latest_contact();
+        let deformed_radius_m = if state.in_contact {
+            calibration.deformed_radius_m(state.depth_m)
+        } else {
+            0.0
+        };
+        let frame = ContactFrame::from_state(&state, seq, deformed_radius_m, 0);
+        match EncodedFrame::new(&frame) {
+            Ok(encoded) => {
+                // No receivers is not an error: frames are simply not needed.
+                let _ = hub.frames.send(Arc::new(encoded));
+                hub.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
+            }
+            Err(e) => tracing::error!(error = %e, seq, "could not encode a contact frame"),
+        }
+        seq += 1;
+    }
+}
+
+/// The `stats` message for the loop's current summary and the stream's counters.
+pub fn stats_message(loop_stats: &LoopStats, counters: &StreamCounters) -> StatsMessage {
+    let us = |ns: u64| ns as f64 * 1e-3;
+    StatsMessage {
+        loop_rate_hz: loop_stats.loop_rate_hz,
+        period_error_us: PeriodErrorUs {
+            p50: us(loop_stats.period_error_p50_ns),
+            p99: us(loop_stats.period_error_p99_ns),
+            p999: us(loop_stats.period_error_p999_ns),
+            max: us(loop_stats.period_error_max_ns),
+        },
+        overruns: loop_stats.overruns,
+        compute_us: ComputeUs {
+            p50: us(loop_stats.compute_p50_ns),
+            p99: us(loop_stats.compute_p99_ns),
+            max: us(loop_stats.compute_max_ns),
+        },
+        viewers: counters.viewers.load(Ordering::Relaxed),
+        dropped_frames: counters.dropped_frames.load(Ordering::Relaxed),
+    }
+}
+
+/// Broadcasts `stats` every `period`, until shutdown.
+pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, period: Duration) {
+    let mut shutdown = hub.shutdown.clone();
+    let mut interval = tokio::time::interval(period);
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    // The first tick fires at once; the loop has no statistics yet then.
+    interval.tick().await;
+    loop {
+        tokio::select! {
+            _ = interval.tick() => {}
+            _ = shutdown.changed() => break,
+        }
+        let message = stats_message(&haptic_loop.stats(), &hub.counters);
+        match ServerMessage::Stats(message).encode() {
+            Ok(text) => {
+                let _ = hub.stats.send(Utf8Bytes::from(text));
+            }
+            Err(e) => tracing::error!(error = %e, "could not encode stats"),
+        }
+    }
+}
+
+/// Why a viewer connection ended (logged at debug level; counted where it matters).
+#[derive(Debug, PartialEq, Eq)]
+pub enum ViewerEnd {
+    Closed,
+    Malformed,
+    SendFailed,
+    Shutdown,
+}
+
+/// Serves one viewer: `hello` and `scene`, then every contact frame and stats message, until
+/// the viewer leaves, misbehaves, stops reading, or the server shuts down.
+pub async fn serve_viewer(mut socket: WebSocket, hub: Arc<StreamHub>) -> ViewerEnd {
+    let _guard = ViewerGuard::new(&hub.counters);
+    // Subscribe before sending the greeting, so no frame produced meanwhile is missed.
+    let mut frames = hub.frames.subscribe();
+    let mut stats = hub.stats.subscribe();
+    let mut shutdown = hub.shutdown.clone();
+    let timeout = hub.limits.send_timeout;
+
+    for greeting in [&hub.hello, &hub.scene] {
+        if !send(
+            &mut socket,
+            Message::Text(greeting.clone()),
+            timeout,
+            &hub.counters,
+        )
+        .await
+        {
+            return ViewerEnd::SendFailed;
+        }
+    }
+
+    let mut dropped: u64 = 0;
+    loop {
+        if *shutdown.borrow() {
+            close(
+                &mut socket,
+                close_code::AWAY,
+                "server shutting down",
+                timeout,
+            )
+            .await;
+            return ViewerEnd::Shutdown;
+        }
+        tokio::select! {
+            changed = shutdown.changed() => {
+                // An error means the server was dropped without an orderly shutdown: leave too.
+                if changed.is_err() {
+                    close(&mut socket, close_code::AWAY, "server shutting down", timeout).await;
+                    return ViewerEnd::Shutdown;
+                }
+            }
+            incoming = socket.recv() => match incoming {
+                None | Some(Ok(Message::Close(_))) => return ViewerEnd::Closed,
+                Some(Err(e)) => {
+                    // Protocol violations and oversized messages end up here.
+                    tracing::debug!(error = %e, "viewer connection failed");
+                    hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
+                    close(&mut socket, close_code::SIZE, "invalid or oversized message", timeout)
+                        .await;
+                    return ViewerEnd::Malformed;
+                }
+                Some(Ok(Message::Text(text))) => match message_type(&text) {
+                    Ok(kind) if kind == "replay_control" && hub.replay_control.is_some() => {
+                        let control = serde_json::from_str::<ReplayControl>(&text)
+                            .map_err(|e| e.to_string())
+                            .and_then(|c| c.validate().map(|()| c).map_err(|e| e.to_string()));
+                        match (control, &hub.replay_control) {
+                            (Ok(c), Some(tx)) => {
+                                // A full queue means controls arrive faster than they matter.
+                                let _ = tx.try_send(c);
+                            }
+                            (Ok(_), None) => {}
+                            (Err(reason), _) => {
+                                tracing::debug!(reason, "invalid replay_control message");
+                                hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
+                                close(&mut socket, close_code::INVALID, "invalid replay_control message", timeout).await;
+                                return ViewerEnd::Malformed;
+                            }
+                        }
+                    }
+                    Ok(kind) => {
+                        // No viewer → server message is defined yet: every type is unknown.
+                        let n = hub.counters.unknown_messages.fetch_add(1, Ordering::Relaxed);
+                        if n == 0 {
+                            tracing::warn!(kind, "ignoring a viewer message of unknown type");
+                        } else {
+                            tracing::debug!(kind, "ignoring a viewer message of unknown type");
+                        }
+                    }
+                    Err(e) => {
+                        tracing::debug!(error = %e, "malformed viewer message");
+                        hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
+                        close(&mut socket, close_code::INVALID, "malformed message", timeout).await;
+                        return ViewerEnd::Malformed;
+                    }
+                },
+                Some(Ok(Message::Binary(_))) => {
+                    hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
+                    close(&mut socket, close_code::UNSUPPORTED, "binary messages are not accepted", timeout)
+                        .await;
+                    return ViewerEnd::Malformed;
+                }
+                // Pings are answered by the WebSocket layer.
+                Some(Ok(Message::Ping(_) | Message::Pong(_))) => {}
+            },
+            frame = frames.recv() => {
+                let frame = match frame {
+                    Ok(frame) => frame,
+                    Err(broadcast::error::RecvError::Lagged(lost)) => {
+                        // Fell FRAME_BACKLOG behind: skip to the newest frame.
+                        let mut lost = lost;
+                        let mut newest = None;
+                        loop {
+                            match frames.try_recv() {
+                                Ok(f) => {
+                                    if newest.replace(f).is_some() {
+                                        lost += 1;
+                                    }
+                                }
+                                Err(broadcast::error::TryRecvError::Lagged(n)) => lost += n,
+                                Err(_) => break,
+                            }
+                        }
+                        dropped += lost;
+                        hub.counters.dropped_frames.fetch_add(lost, Ordering::Relaxed);
+                        match newest {
+                            Some(f) => f,
+                            None => continue,
+                        }
+                    }
+                    Err(broadcast::error::RecvError::Closed) => return ViewerEnd::Shutdown,
+                };
+                if !send(&mut socket, Message::Text(frame.text_for(dropped)), timeout, &hub.counters).await {
+                    return ViewerEnd::SendFailed;
+                }
+            },
+            text = stats.recv() => {
+                if let Ok(text) = text
+                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
+                {
+                    return ViewerEnd::SendFailed;
+                }
+            },
+        }
+    }
+}
+
+/// Sends with a deadline; false when the connection is unusable. A send that times out is
+/// counted in `stalled_closes`.
+async fn send(
+    socket: &mut WebSocket,
+    message: Message,
+    timeout: Duration,
+    counters: &StreamCounters,
+) -> bool {
+    match tokio::time::timeout(timeout, socket.send(message)).await {
+        Ok(Ok(())) => true,
+        Ok(Err(_)) => false,
+        Err(_) => {
+            counters.stalled_closes.fetch_add(1, Ordering::Relaxed);
+            tracing::debug!("closing a viewer that stopped reading");
+            false
+        }
+    }
+}
+
+async fn close(socket: &mut WebSocket, code: u16, reason: &'static str, timeout: Duration) {
+    let frame = CloseFrame {
+        code,
+        reason: Utf8Bytes::from_static(reason),
+    };
+    // The peer may already be gone; nothing more to do either way.
+    let _ = tokio::time::timeout(timeout, socket.send(Message::Close(Some(frame)))).await;
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use softhaptic_proto::{ContactFlags, ContactState};
+
+    #[test]
+    fn per_viewer_dropped_counts_are_spliced_into_the_shared_text() {
+        let state = ContactState {
+            in_contact: true,
+            depth_m: 0.003,
+            flags: ContactFlags::SATURATED,
+            ..ContactState::IDLE
+        };
+        let encoded = EncodedFrame::new(&ContactFrame::from_state(&state, 42, 0.02, 0)).unwrap();
+        for dropped in [0, 1, 17, u64::MAX] {
+            let text = encoded.text_for(dropped);
+            match ServerMessage::decode(&text).unwrap() {
+                ServerMessage::Contact(f) => {
+                    assert_eq!(f.dropped, dropped);
+                    assert_eq!(f.seq, 42);
+                    assert_eq!(f.flags, ContactFlags::SATURATED);
+                }
+                other => panic!("{other:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn stats_convert_nanoseconds_to_microseconds() {
+        let stats = LoopStats {
+            loop_rate_hz: 999.5,
+            period_error_p50_ns: 2_500,
+            period_error_p99_ns: 20_000,
+            period_error_p999_ns: 48_000,
+            period_error_max_ns: 130_000,
+            overruns: 3,
+            compute_p50_ns: 12_000,
+            compute_p99_ns: 40_000,
+            compute_max_ns: 95_000,
+            ..LoopStats::default()
+        };
+        let counters = StreamCounters::default();
+        counters.viewers.store(2, Ordering::Relaxed);
+        counters.dropped_frames.store(7, Ordering::Relaxed);
+        let m = stats_message(&stats, &counters);
+        assert_eq!(m.period_error_us.p50, 2.5);
+        assert_eq!(m.period_error_us.max, 130.0);
+        assert_eq!(m.compute_us.p99, 40.0);
+        assert_eq!((m.viewers, m.dropped_frames, m.overruns), (2, 7, 3));
+    }
+}

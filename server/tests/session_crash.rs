@@ -1,0 +1,68 @@
+//! A server killed without warning leaves a recording that reads back: the real `softhaptic`
+//! binary records to a temporary directory, is SIGKILLed about 1.5 s into its session, and the
+//! file is read, its recovery described, and its recovered ticks replayed bit for bit.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use softhaptic_server::session::check::{CheckOverrides, check};
+use softhaptic_server::session::reader::{Ending, Recording};
+
+#[test]
+fn a_sigkilled_server_leaves_a_recording_that_recovers_its_ticks() {
+    let dir = std::env::temp_dir().join(format!("softhaptic-crash-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_softhaptic"))
+        .args(["--addr", "127.0.0.1:0", "--no-realtime", "--record-dir"])
+        .arg(&dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("the server starts");
+    let stdout = child.stdout.take().expect("stdout is piped");
+    let mut lines = BufReader::new(stdout).lines();
+    let mut recording: Option<PathBuf> = None;
+    let started = Instant::now();
+    // The server prints the recording's path, then the viewer's URL once it serves.
+    for line in lines.by_ref() {
+        let line = line.expect("stdout reads");
+        if let Some(p) = line.strip_prefix("recording: ") {
+            recording = Some(PathBuf::from(p));
+        }
+        if line.starts_with("viewer: ") {
+            break;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "server did not start"
+        );
+    }
+    let path = recording.expect("the server names its recording");
+    std::thread::sleep(Duration::from_millis(1500));
+    child.kill().expect("SIGKILL delivered");
+    let _ = child.wait();
+
+    let r = Recording::open(&path).expect("a killed server's recording still opens");
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        matches!(r.ending, Ending::Truncated { .. }),
+        "a killed server cannot have closed its file: {}",
+        r.recovery()
+    );
+    assert!(!r.device.is_empty(), "{}", r.recovery());
+    assert_eq!(r.device[0].tick, 0);
+    assert_eq!(r.missing_ticks(), 0);
+    let text = r.recovery().to_string();
+    assert!(
+        text.contains("truncated") && text.contains(&format!("recovered {} ticks", r.device.len())),
+        "{text}"
+    );
+    // What was recovered is exact: the same build replays it to the same forces.
+    let report = check(&r, CheckOverrides::default()).expect("the check runs");
+    assert!(report.passed(), "{report}");
+    assert_eq!(report.ticks_compared, r.device.len() as u64);
+}

@@ -1,0 +1,384 @@
+//! Session files on disk: what the writer and the recorder thread write reads back exactly,
+//! truncated files recover every complete chunk, and files that cannot be trusted (wrong magic,
+//! wrong schema, newer versions, invalid messages) are refused with a message naming the file and
+//! the cause, never a panic.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+use softhaptic_device::device::{DeviceError, DeviceSample};
+use softhaptic_device::haptic_loop::TickRecord;
+use softhaptic_proto::record::{
+    BuildRecord, DeviceRecord, MCAP_PROFILE, SESSION_FORMAT_VERSION, SceneRecord, topic,
+};
+use softhaptic_proto::wire::PROTOCOL_VERSION;
+use softhaptic_proto::{ContactFlags, ContactState, Pose};
+use softhaptic_server::app::scene_message;
+use softhaptic_server::scene::Scene;
+use softhaptic_server::session::SessionError;
+use softhaptic_server::session::reader::{Ending, Recording};
+use softhaptic_server::session::writer::{Recorder, SessionWriter};
+
+/// A fresh directory under the system's temporary directory, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(name: &str) -> TempDir {
+        let dir = std::env::temp_dir().join(format!(
+            "softhaptic-{name}-{}-{:?}",
+            std::process::id(),
+            std::thread::current().id()
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        TempDir(dir)
+    }
+    fn join(&self, file: &str) -> PathBuf {
+        self.0.join(file)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn sessions_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("tests")
+        .join("sessions")
+}
+
+fn build(format: u32, protocol: u32) -> BuildRecord {
+    BuildRecord {
+        session_format_version: format,
+        protocol_version: protocol,
+        writer: "softhaptic test".into(),
+        git_commit: None,
+        session_id: "test-session".into(),
+        started_unix_ns: 1,
+    }
+}
+
+fn scene_record() -> SceneRecord {
+    let text = include_str!("../../scenes/default.toml");
+    let scene = Scene::from_toml(text, Path::new("default.toml"), None).unwrap();
+    SceneRecord {
+        message: scene_message(&scene),
+        scene_toml: text.into(),
+        scene_file: None,
+        period_ns: 1_000_000,
+    }
+}
+
+fn sample(k: u64) -> DeviceSample {
+    DeviceSample {
+        time_ns: k * 1_000_000,
+        tip_in_world: Pose::from_position(DVec3::new(0.01, 0.07 - 1e-6 * k as f64, 1.0 / 3.0)),
+        tip_velocity_m_s: DVec3::new(0.0, -1e-3, 0.0),
+        buttons: 1,
+    }
+}
+
+fn tick(k: u64, fault: bool) -> TickRecord {
+    let sample = (!fault).then(|| sample(k));
+    TickRecord {
+        sample,
+        device_fault: fault,
+        contact: ContactState {
+            tick: k,
+            time_ns: k * 1_000_000,
+            in_contact: k.is_multiple_of(3),
+            depth_m: 1e-4 * k as f64,
+            force_n: DVec3::new(0.1 / 7.0, k as f64 / 3.0, -0.0),
+            flags: if fault {
+                ContactFlags::DEVICE_FAULT
+            } else {
+                ContactFlags::empty()
+            },
+            ..ContactState::IDLE
+        },
+    }
+}
+
+#[test]
+fn recorder_thread_writes_every_tick_of_the_ring_bit_for_bit_and_counts_gaps() {
+    let dir = TempDir::new("recorder");
+    let path = dir.join("run.mcap");
+    let (mut producer, consumer) = rtrb::RingBuffer::new(64);
+    let recorder = Recorder::start(&path, &build(1, 1), &scene_record(), consumer).unwrap();
+    let tap = recorder.stream_tap();
+    let mut pushed = Vec::new();
+    for k in 0..2500u64 {
+        // Ticks 1000..1010 never reach the ring: a gap the recorder must count.
+        if (1000..1010).contains(&k) {
+            continue;
+        }
+        let t = tick(k, k == 1500);
+        while producer.push(t).is_err() {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        pushed.push(t);
+        if k.is_multiple_of(20) {
+            tap.record_contact(
+                k * 1_000_000,
+                format!(
+                    r#"{{"type":"contact","seq":{},"tick":{k},"time_ns":{},"tip_in_world":{{"position_m":[0,0,0],"orientation":[0,0,0,1]}},"in_contact":false,"depth_m":0,"normal":[0,1,0],"contact_point_m":[0,0,0],"contact_radius_m":0,"deformed_radius_m":0,"force_n":[0,0,0],"flags":[],"dropped":0}}"#,
+                    k / 20,
+                    k * 1_000_000
+                ),
+            );
+        }
+    }
+    let stats = recorder.finish().unwrap();
+    assert_eq!(stats.ticks_recorded, 2490);
+    assert_eq!(stats.ticks_dropped, 10);
+    assert!(stats.is_final);
+
+    let r = Recording::open(&path).unwrap();
+    assert_eq!(r.ending, Ending::Complete, "{}", r.recovery());
+    assert_eq!(r.device.len(), pushed.len());
+    assert_eq!(r.missing_ticks(), 10);
+    assert_eq!(r.last_stats.unwrap().ticks_dropped, 10);
+    // Every 20th tick but 1000, which fell in the gap.
+    assert_eq!(r.contacts.len(), 124);
+    for (rec, t) in r.device.iter().zip(&pushed) {
+        assert_eq!(rec.tick, t.contact.tick);
+        for (a, b) in rec.force_n.iter().zip(t.contact.force_n.to_array()) {
+            assert_eq!(a.to_bits(), b.to_bits(), "tick {}", rec.tick);
+        }
+        match (&rec.sample, &t.sample) {
+            (Some(a), Some(b)) => {
+                for (x, y) in a
+                    .tip_position_m
+                    .iter()
+                    .zip(b.tip_in_world.position_m.to_array())
+                {
+                    assert_eq!(x.to_bits(), y.to_bits());
+                }
+            }
+            (None, None) => assert!(rec.device_fault),
+            other => panic!("sample mismatch at tick {}: {other:?}", rec.tick),
+        }
+    }
+    assert_eq!(r.build.session_id, "test-session");
+    assert_eq!(r.scene.message.tool, scene_record().message.tool);
+}
+
+/// Cut the slide recording at many lengths: every cut either recovers a prefix of the ticks (more
+/// for longer cuts, and everything before the last complete chunk), or is refused with a clear
+/// error when it ends before the scene. Never a panic.
+#[test]
+fn truncated_files_recover_complete_chunks_and_say_what_was_lost() {
+    let path = sessions_dir().join("slide.mcap");
+    let bytes = std::fs::read(&path).unwrap();
+    let full = Recording::from_bytes(&path, &bytes).unwrap();
+    assert!(full.is_complete());
+    let mut last_ticks = 0;
+    let mut recovered_some = 0;
+    for cut in (0..bytes.len()).step_by(4099).chain([bytes.len() - 1]) {
+        match Recording::from_bytes(&path, &bytes[..cut]) {
+            Ok(r) => {
+                assert!(!r.is_complete(), "cut at {cut} reads as complete");
+                assert!(r.device.len() >= last_ticks, "cut at {cut} recovered less");
+                last_ticks = r.device.len();
+                assert_eq!(&full.device[..r.device.len()], &r.device[..]);
+                let text = r.recovery().to_string();
+                assert!(
+                    text.contains("truncated") && text.contains("recovered"),
+                    "{text}"
+                );
+                if !r.device.is_empty() {
+                    recovered_some += 1;
+                }
+            }
+            Err(e) => {
+                let text = e.to_string();
+                assert!(text.contains("slide.mcap"), "{text}");
+                assert!(
+                    matches!(
+                        e,
+                        SessionError::NotMcap { .. } | SessionError::TruncatedBeforeStart { .. }
+                    ),
+                    "cut at {cut}: {text}"
+                );
+            }
+        }
+    }
+    assert!(
+        recovered_some > 40,
+        "only {recovered_some} cuts recovered ticks"
+    );
+    // One byte short of the end loses only the footer: every tick is still there.
+    assert_eq!(last_ticks, full.device.len());
+}
+
+#[test]
+fn a_file_that_is_not_mcap_is_refused_naming_its_first_bytes() {
+    let dir = TempDir::new("magic");
+    let path = dir.join("notes.mcap");
+    std::fs::write(&path, b"PK\x03\x04 this is a zip").unwrap();
+    let e = Recording::open(&path).unwrap_err();
+    let text = e.to_string();
+    assert!(
+        text.contains("notes.mcap") && text.contains("not an MCAP file"),
+        "{text}"
+    );
+    assert!(text.contains("50 4b 03 04"), "{text}");
+    let empty = dir.join("empty.mcap");
+    std::fs::write(&empty, b"").unwrap();
+    assert!(matches!(
+        Recording::open(&empty),
+        Err(SessionError::NotMcap { .. })
+    ));
+    let missing = dir.join("missing.mcap");
+    let e = Recording::open(&missing).unwrap_err();
+    assert!(e.to_string().contains("missing.mcap"), "{e}");
+}
+
+/// An MCAP file written with the plain library: `device_schema` for /device, one message.
+fn write_foreign(path: &Path, device_schema: &str, device_message: &[u8]) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut w = mcap::WriteOptions::new()
+        .profile(MCAP_PROFILE)
+        .create(file)
+        .unwrap();
+    let add = |w: &mut mcap::Writer<_>, topic: &str, schema: &str| {
+        let s = w.add_schema(schema, "jsonschema", b"{}").unwrap();
+        w.add_channel(s, topic, "json", &BTreeMap::new()).unwrap()
+    };
+    let build_ch = add(&mut w, topic::BUILD, "softhaptic.BuildRecord");
+    let device_ch = add(&mut w, topic::DEVICE, device_schema);
+    let header = |channel_id| mcap::records::MessageHeader {
+        channel_id,
+        sequence: 1,
+        log_time: 0,
+        publish_time: 0,
+    };
+    let b = serde_json::to_vec(&build(SESSION_FORMAT_VERSION, PROTOCOL_VERSION)).unwrap();
+    w.write_to_known_channel(&header(build_ch), &b).unwrap();
+    w.write_to_known_channel(&header(device_ch), device_message)
+        .unwrap();
+    w.finish().unwrap();
+}
+
+#[test]
+fn a_channel_with_another_schema_is_refused() {
+    let dir = TempDir::new("schema");
+    let path = dir.join("robot.mcap");
+    write_foreign(&path, "geometry_msgs/Pose", b"{}");
+    let e = Recording::open(&path).unwrap_err();
+    let text = e.to_string();
+    assert!(matches!(e, SessionError::WrongSchema { .. }), "{text}");
+    assert!(
+        text.contains("robot.mcap")
+            && text.contains("/device")
+            && text.contains("geometry_msgs/Pose"),
+        "{text}"
+    );
+}
+
+#[test]
+fn an_invalid_message_is_refused_naming_topic_and_sequence() {
+    let dir = TempDir::new("message");
+    let path = dir.join("bad.mcap");
+    write_foreign(&path, "softhaptic.DeviceRecord", br#"{"tick":"one"}"#);
+    let e = Recording::open(&path).unwrap_err();
+    let text = e.to_string();
+    assert!(matches!(e, SessionError::BadMessage { .. }), "{text}");
+    assert!(
+        text.contains("message 1 on /device") && text.contains("bad.mcap"),
+        "{text}"
+    );
+}
+
+#[test]
+fn newer_format_or_protocol_versions_are_refused() {
+    let dir = TempDir::new("version");
+    for (name, b, field) in [
+        (
+            "format.mcap",
+            build(SESSION_FORMAT_VERSION + 1, 1),
+            "session_format_version",
+        ),
+        (
+            "protocol.mcap",
+            build(1, PROTOCOL_VERSION + 1),
+            "protocol_version",
+        ),
+    ] {
+        let path = dir.join(name);
+        let w = SessionWriter::create(&path, &b, &scene_record()).unwrap();
+        w.finish().unwrap();
+        let e = Recording::open(&path).unwrap_err();
+        let text = e.to_string();
+        assert!(matches!(e, SessionError::NewerVersion { .. }), "{text}");
+        assert!(text.contains(field) && text.contains(name), "{text}");
+    }
+}
+
+#[test]
+fn the_writer_refuses_to_overwrite_a_recording() {
+    let dir = TempDir::new("overwrite");
+    let path = dir.join("a.mcap");
+    SessionWriter::create(&path, &build(1, 1), &scene_record())
+        .unwrap()
+        .finish()
+        .unwrap();
+    let e = SessionWriter::create(&path, &build(1, 1), &scene_record())
+        .err()
+        .expect("a second create fails");
+    assert!(e.to_string().contains("a.mcap"), "{e}");
+}
+
+#[test]
+fn device_errors_are_recorded_and_read_back() {
+    let dir = TempDir::new("errors");
+    let path = dir.join("e.mcap");
+    let mut w = SessionWriter::create(&path, &build(1, 1), &scene_record()).unwrap();
+    let state = ContactState {
+        flags: ContactFlags::DEVICE_FAULT,
+        ..ContactState::IDLE
+    };
+    let rec: DeviceRecord =
+        softhaptic_device::replay::device_record(&Err(DeviceError::Driver(-42)), &state);
+    w.write_device(&rec).unwrap();
+    w.finish().unwrap();
+    let r = Recording::open(&path).unwrap();
+    assert_eq!(r.device, vec![rec]);
+    assert_eq!(
+        softhaptic_device::replay::device_read(&r.device[0]),
+        Err(DeviceError::Driver(-42))
+    );
+}
+
+/// Damaged bytes anywhere (a bad disk, a bad copy) give a recording or an error, never a panic.
+#[test]
+fn corrupted_bytes_never_panic_the_reader() {
+    let path = sessions_dir().join("cone-press.mcap");
+    let bytes = std::fs::read(&path).unwrap();
+    // Refused, or read as cut short at the damage.
+    let mut refused = 0;
+    for (i, at) in (8..bytes.len()).step_by(bytes.len() / 60).enumerate() {
+        let mut damaged = bytes.clone();
+        damaged[at] ^= 0x5a ^ (i as u8);
+        match Recording::from_bytes(&path, &damaged) {
+            Ok(r) => {
+                assert!(r.device.len() <= 3000);
+                if !r.is_complete() {
+                    refused += 1;
+                }
+            }
+            Err(e) => {
+                assert!(e.to_string().contains("cone-press.mcap"), "{e}");
+                refused += 1;
+            }
+        }
+    }
+    assert!(refused > 0, "some damage must be detected");
+}

@@ -1,0 +1,208 @@
+//! Scene files on disk: the shipped scenes load, invalid ones are refused before anything starts
+//! with the file, the field and the reason.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::path::{Path, PathBuf};
+
+use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
+use softhaptic_proto::{CalibrationSource, CalibrationTable, Material, ToolShape};
+use softhaptic_server::scene::{Scene, SceneError};
+
+/// A fresh directory for one test's files.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("softhaptic-scene-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn repo_scenes() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("scenes")
+}
+
+const GOOD: &str = r#"
+[object]
+name = "liver"
+builtin = "liver"
+
+[material]
+youngs_modulus_pa = 50000.0
+poisson_ratio = 0.33
+
+[tool]
+shape = "sphere"
+radius_m = 0.01
+
+[calibration]
+table = "half_space"
+"#;
+
+/// Writes `text` as `scene.toml` in `dir` and loads it.
+fn load(dir: &Path, text: &str) -> Result<Scene, SceneError> {
+    let path = dir.join("scene.toml");
+    std::fs::write(&path, text).unwrap();
+    Scene::load(&path)
+}
+
+fn refused(dir: &Path, text: &str, expected: &[&str]) {
+    let err = load(dir, text)
+        .expect_err("the scene is refused")
+        .to_string();
+    let path = dir.join("scene.toml");
+    assert!(
+        err.contains(&path.display().to_string()),
+        "error names the file: {err}"
+    );
+    for e in expected {
+        assert!(err.contains(e), "expected {e:?} in: {err}");
+    }
+}
+
+#[test]
+fn shipped_scenes_load() {
+    let default = Scene::load(&repo_scenes().join("default.toml")).unwrap();
+    assert_eq!(default.tool, ToolShape::sphere(0.01).unwrap());
+    assert_eq!(default.material, Material::PAPER_SOFT);
+    let cone = Scene::load(&repo_scenes().join("cone.toml")).unwrap();
+    assert!(matches!(cone.tool, ToolShape::Cone { .. }));
+    assert!(matches!(cone.calibration.tool(), ToolShape::Cone { .. }));
+    assert_eq!(cone.calibration.source(), CalibrationSource::HalfSpace);
+}
+
+#[test]
+fn invalid_values_name_the_field_and_value() {
+    let dir = scratch("values");
+    load(&dir, GOOD).expect("the reference text is valid");
+    refused(
+        &dir,
+        &GOOD.replace("50000.0", "-5.0"),
+        &["youngs_modulus_pa", "-5", "line"],
+    );
+    refused(
+        &dir,
+        &GOOD.replace("0.33", "0.5"),
+        &["poisson_ratio", "0.5"],
+    );
+    refused(
+        &dir,
+        &GOOD.replace("radius_m = 0.01", "radius_m = -0.01"),
+        &["radius_m", "-0.01"],
+    );
+    refused(
+        &dir,
+        &GOOD.replace(
+            "shape = \"sphere\"\nradius_m = 0.01",
+            "shape = \"cone\"\nhalf_angle_rad = 2.0\nradius_m = 0.01",
+        ),
+        &["half_angle_rad", "2"],
+    );
+    refused(
+        &dir,
+        &GOOD.replace("radius_m = 0.01", "radius = 0.01"),
+        &["unknown field", "radius"],
+    );
+    refused(
+        &dir,
+        &GOOD.replace("[object]", "[object]\norientation = [0.0, 0.0, 0.0, 0.0]"),
+        &["object.orientation"],
+    );
+    refused(
+        &dir,
+        &format!("{GOOD}\n[device]\npress_depth_m = 0.5\n"),
+        &["device.press_depth_m", "0.5"],
+    );
+    refused(
+        &dir,
+        &format!("{GOOD}\n[haptics]\ncollision = \"telepathy\"\n"),
+        &["collision", "telepathy"],
+    );
+    refused(&dir, "[object\nname=", &["line 1"]);
+}
+
+#[test]
+fn meshes_with_nan_vertices_are_refused_with_file_and_index() {
+    let dir = scratch("obj");
+    std::fs::write(
+        dir.join("tetra.obj"),
+        "v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("broken.obj"),
+        "v 0 0 0\nv 0.05 0 0\nv nan 0.05 0\nv 0 0 0.05\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+    )
+    .unwrap();
+    let with_mesh = |file: &str| {
+        GOOD.replace(
+            "builtin = \"liver\"",
+            &format!("haptic_mesh = \"{file}\"\nposition_m = [0.0, 0.01, 0.0]"),
+        )
+    };
+    let scene = load(&dir, &with_mesh("tetra.obj")).expect("the tetrahedron loads");
+    assert_eq!(scene.haptic_mesh.positions_m().len(), 4);
+    assert_eq!(scene.render_surface.positions_m.len(), 4);
+    // The press site is the vertex highest in the world: (0, 0.05, 0).
+    assert_eq!(
+        scene.press_site_in_object.0,
+        glam::DVec3::new(0.0, 0.05, 0.0)
+    );
+
+    refused(
+        &dir,
+        &with_mesh("broken.obj"),
+        &["object.haptic_mesh", "broken.obj", "vertex 2", "not finite"],
+    );
+    refused(
+        &dir,
+        &with_mesh("missing.obj"),
+        &["object.haptic_mesh", "missing.obj"],
+    );
+    refused(
+        &dir,
+        &GOOD.replace("builtin = \"liver\"", ""),
+        &["object", "builtin"],
+    );
+}
+
+#[test]
+fn calibration_tables_are_validated() {
+    let dir = scratch("calibration");
+    let tool = ToolShape::sphere(0.01).unwrap();
+    let table =
+        CalibrationTable::half_space(tool, Material::PAPER_SOFT, PAPER_THRESHOLD_M).unwrap();
+    let mut json = serde_json::to_value(&table).unwrap();
+    std::fs::write(dir.join("good.json"), json.to_string()).unwrap();
+    let with_table = |file: &str| GOOD.replace("\"half_space\"", &format!("\"{file}\""));
+    let scene = load(&dir, &with_table("good.json")).expect("a valid table file loads");
+    assert_eq!(scene.calibration, table);
+
+    json["rows"][3]["depth_m"] = 0.0001.into();
+    std::fs::write(dir.join("unordered.json"), json.to_string()).unwrap();
+    refused(
+        &dir,
+        &with_table("unordered.json"),
+        &["calibration.table", "unordered.json", "rows[3].depth_m"],
+    );
+    refused(
+        &dir,
+        &with_table("absent.json"),
+        &["calibration.table", "absent.json"],
+    );
+
+    let cone = ToolShape::cone(0.785, 0.01).unwrap();
+    let other =
+        CalibrationTable::half_space(cone, Material::PAPER_SOFT, PAPER_THRESHOLD_M).unwrap();
+    std::fs::write(
+        dir.join("cone.json"),
+        serde_json::to_string(&other).unwrap(),
+    )
+    .unwrap();
+    refused(
+        &dir,
+        &with_table("cone.json"),
+        &["cone.json", "was made for tool"],
+    );
+}

@@ -1,0 +1,441 @@
+// The Bézier deformation profile of the seed paper's §3.3 and its application to a render mesh.
+//
+// `depression(...)` is the exact profile the wire contract defines (the Rust reference in
+// `proto` computes the same numbers; the shared vectors in proto/vectors/deformation.json keep the
+// two identical). `MeshDeformer` moves the vertices of a render mesh around a contact: it keeps a
+// uniform spatial grid over the rest positions so that a frame visits only the cells near the
+// contact, restores the vertices it moved the frame before, writes analytic normals for the moved
+// vertices, and allocates nothing after construction.
+
+/** Non-finite or negative inputs count as zero (profile step 1). */
+function sanitise(x) {
+  return Number.isFinite(x) && x > 0 ? x : 0;
+}
+
+/**
+ * The numeric form of a tool description (`{"shape":"sphere","radius_m"}` or
+ * `{"shape":"cone","half_angle_rad","radius_m"}`), without refusing anything: a tool that
+ * `toolError` would refuse is marked `valid: false` and deforms nothing, as in the Rust
+ * reference, so no input can produce NaN.
+ */
+export function toolShape(tool) {
+  const shape = tool && tool.shape === 'cone' ? 'cone' : 'sphere';
+  const radiusM = tool ? tool.radius_m : NaN;
+  const halfAngleRad = shape === 'cone' ? tool.half_angle_rad : 0;
+  const tanAlpha = shape === 'cone' ? Math.tan(halfAngleRad) : 0;
+  return { shape, radiusM, halfAngleRad, tanAlpha, valid: toolError(tool) === null };
+}
+
+/** Why a tool description cannot be used (field and value), or null when it can. */
+export function toolError(tool) {
+  if (tool === null || typeof tool !== 'object') return `tool must be an object, got ${JSON.stringify(tool)}`;
+  if (tool.shape !== 'sphere' && tool.shape !== 'cone') {
+    return `tool.shape must be "sphere" or "cone", got ${JSON.stringify(tool.shape)}`;
+  }
+  const radius = tool.radius_m;
+  if (!(typeof radius === 'number' && Number.isFinite(radius) && radius > 0)) {
+    return `tool.radius_m must be finite and > 0, got ${JSON.stringify(radius)}`;
+  }
+  if (tool.shape === 'cone') {
+    const alpha = tool.half_angle_rad;
+    if (!(typeof alpha === 'number' && Number.isFinite(alpha) && alpha > 0 && alpha < Math.PI / 2)) {
+      return `tool.half_angle_rad must be finite and in (0, π/2), got ${JSON.stringify(alpha)}`;
+    }
+  }
+  return null;
+}
+
+/** `toolShape` for a description that must be valid (a scene's tool); throws naming the field. */
+export function toolFromJson(tool) {
+  const error = toolError(tool);
+  if (error !== null) throw new Error(error);
+  return toolShape(tool);
+}
+
+/**
+ * Contact radius a of the closed-form laws: √(Rδ) for a sphere (Hertz), 2δ·tanα/π for a cone
+ * (Sneddon, α the half-angle between axis and flank).
+ */
+export function contactRadius(tool, depthM) {
+  const d = sanitise(depthM);
+  if (tool.shape === 'sphere') return Math.sqrt(tool.radiusM * d);
+  return (2 * d * tool.tanAlpha) / Math.PI;
+}
+
+/** Depth of the tool surface below its tip plane at radial distance r (profile step 2). */
+function toolHeight(tool, r) {
+  if (tool.shape === 'sphere') {
+    const R = tool.radiusM;
+    return R - Math.sqrt(Math.max(0, R * R - r * r));
+  }
+  return r / tool.tanAlpha;
+}
+
+/**
+ * The cross-section of the deformed surface for one contact: everything `depression` needs
+ * that does not depend on r. Computed once per frame, not once per vertex.
+ * Returns `out` (a plain object reused by the caller) so nothing is allocated per frame.
+ */
+export function profileSetup(tool, depthM, contactRadiusM, deformedRadiusM, out = {}) {
+  const delta = tool.valid ? sanitise(depthM) : 0;
+  const a = sanitise(contactRadiusM);
+  const rd = sanitise(deformedRadiusM);
+  out.tool = tool;
+  out.isSphere = tool.shape === 'sphere';
+  out.depthM = delta;
+  if (delta === 0) {
+    // Nothing is pressed: no region, nothing moves.
+    out.aEff = out.z0 = out.rdEff = out.r1 = out.A = out.B = 0;
+    return out;
+  }
+  const R = tool.radiusM;
+  // Step 2: the contact cannot be wider than the tool.
+  const aEff = Math.min(a, R);
+  // Step 3: depth of the rim of the contact circle, and a deformed region wide enough to hold
+  // the Bézier flank (so R_d ≤ a never leaves a step in the surface).
+  const z0 = Math.max(0, delta - toolHeight(tool, aEff));
+  const rdEff = Math.max(rd, aEff + z0);
+  // Step 4: P1 is where the tool's tangent at the rim meets the undeformed surface.
+  let slope;
+  if (tool.shape === 'sphere') {
+    const rest = R * R - aEff * aEff;
+    slope = rest > 0 ? aEff / Math.sqrt(rest) : Infinity;
+  } else {
+    slope = 1 / tool.tanAlpha;
+  }
+  let r1;
+  if (slope === Infinity || z0 === 0) r1 = aEff;
+  else if (slope === 0) r1 = rdEff;
+  else r1 = aEff + z0 / slope;
+  r1 = Math.min(Math.max(r1, aEff), rdEff);
+  if (!Number.isFinite(r1)) r1 = aEff;
+  out.aEff = aEff;
+  out.z0 = z0;
+  out.rdEff = rdEff;
+  out.r1 = r1;
+  out.A = aEff - 2 * r1 + rdEff;
+  out.B = 2 * (r1 - aEff);
+  return out;
+}
+
+/** Bézier parameter t ∈ [0,1] of the flank point at radial distance r (profile step 5). */
+function flankParameter(p, r) {
+  const C = p.aEff - r;
+  const q = p.B + Math.sqrt(Math.max(0, p.B * p.B - 4 * p.A * C));
+  let t = q > 0 ? (-2 * C) / q : (r - p.aEff) / (p.rdEff - p.aEff);
+  if (!(t >= 0)) t = 0; // also catches NaN from a zero-width flank
+  if (t > 1) t = 1;
+  return t;
+}
+
+/** Depression z(r) ≥ 0 for a profile prepared by `profileSetup`. */
+export function depressionAt(p, rRaw) {
+  const r = sanitise(rRaw);
+  if (p.depthM === 0) return 0;
+  if (r < p.aEff) return Math.max(0, p.depthM - toolHeight(p.tool, r));
+  if (r < p.rdEff) {
+    const s = 1 - flankParameter(p, r);
+    return s * s * p.z0;
+  }
+  return 0;
+}
+
+const scratchProfile = {};
+
+/**
+ * The wire contract's deformation profile: how far (m) the surface at radial distance r from
+ * the contact axis is pushed along −n. `tool` is the result of `toolFromJson`.
+ */
+export function depression(tool, depthM, contactRadiusM, deformedRadiusM, rM) {
+  profileSetup(tool, depthM, contactRadiusM, deformedRadiusM, scratchProfile);
+  return depressionAt(scratchProfile, rM);
+}
+
+/**
+ * Depression and normal in one pass (what `apply` needs per vertex), for a finite r ≥ 0:
+ * `out[0]` = z(r), the same number as `depressionAt`; `out[1]`, `out[2]` = the axial and radial
+ * components of the deformed surface's normal, which is ∝ out[1]·n + out[2]·e_r (e_r points away
+ * from the axis). Under the tool it is the tool surface's normal; on the flank it is
+ * perpendicular to the Bézier curve's tangent (dr/dt, −dz/dt), so shading is continuous at r = a
+ * and at r = R_d, where it turns back into the rest normal.
+ */
+function evaluateAt(p, r, out) {
+  if (r < p.aEff) {
+    if (p.isSphere) {
+      const R = p.tool.radiusM;
+      const root = Math.sqrt(Math.max(0, R * R - r * r));
+      const z = p.depthM - (R - root);
+      if (z > 0) {
+        out[0] = z;
+        out[1] = root;
+        out[2] = -r;
+        return out;
+      }
+    } else {
+      const z = p.depthM - r / p.tool.tanAlpha;
+      if (z > 0) {
+        out[0] = z;
+        out[1] = p.tool.tanAlpha;
+        out[2] = -1;
+        return out;
+      }
+    }
+    out[0] = 0;
+    out[1] = 1;
+    out[2] = 0;
+    return out;
+  }
+  if (r < p.rdEff) {
+    const t = flankParameter(p, r);
+    const s = 1 - t;
+    out[0] = s * s * p.z0;
+    const drdt = 2 * s * (p.r1 - p.aEff) + 2 * t * (p.rdEff - p.r1);
+    const dzdt = -2 * s * p.z0;
+    if (drdt === 0 && dzdt === 0) {
+      out[1] = 1;
+      out[2] = 0;
+    } else {
+      out[1] = drdt;
+      out[2] = dzdt;
+    }
+    return out;
+  }
+  out[0] = 0;
+  out[1] = 1;
+  out[2] = 0;
+  return out;
+}
+
+/**
+ * Deforms one render mesh in its object frame. Built once per mesh; `apply` is called each
+ * animation frame and allocates nothing.
+ */
+export class MeshDeformer {
+  /**
+   * @param {Float32Array} restPositions xyz per vertex, object frame (m); not modified.
+   * @param {Float32Array|null} restNormals unit xyz per vertex, or null when normals are not kept.
+   * @param {{cellSizeM?: number, maxCells?: number}} [options] grid cell edge (default: the
+   *   larger of 1/48 of the largest extent and what keeps the grid under `maxCells` cells).
+   */
+  constructor(restPositions, restNormals = null, options = {}) {
+    if (!(restPositions instanceof Float32Array) || restPositions.length % 3 !== 0) {
+      throw new Error('restPositions must be a Float32Array of xyz triples');
+    }
+    const n = restPositions.length / 3;
+    if (
+      restNormals !== null &&
+      (!(restNormals instanceof Float32Array) || restNormals.length !== restPositions.length)
+    ) {
+      throw new Error(`restNormals must be a Float32Array of ${restPositions.length} values`);
+    }
+    this.vertexCount = n;
+    this.restPositions = restPositions;
+    this.restNormals = restNormals;
+
+    let minX = Infinity,
+      minY = Infinity,
+      minZ = Infinity;
+    let maxX = -Infinity,
+      maxY = -Infinity,
+      maxZ = -Infinity;
+    for (let i = 0; i < n; i++) {
+      const x = restPositions[3 * i],
+        y = restPositions[3 * i + 1],
+        z = restPositions[3 * i + 2];
+      if (!(Number.isFinite(x) && Number.isFinite(y) && Number.isFinite(z))) {
+        throw new Error(`vertex ${i} has a non-finite position (${x}, ${y}, ${z})`);
+      }
+      if (x < minX) minX = x;
+      if (y < minY) minY = y;
+      if (z < minZ) minZ = z;
+      if (x > maxX) maxX = x;
+      if (y > maxY) maxY = y;
+      if (z > maxZ) maxZ = z;
+    }
+    if (n === 0) {
+      minX = minY = minZ = 0;
+      maxX = maxY = maxZ = 0;
+    }
+    const maxCells = options.maxCells ?? 1 << 20;
+    const extent = Math.max(maxX - minX, maxY - minY, maxZ - minZ, 1e-9);
+    let cell = options.cellSizeM ?? extent / 48;
+    const cellsFor = (h) =>
+      (Math.floor((maxX - minX) / h) + 1) * (Math.floor((maxY - minY) / h) + 1) * (Math.floor((maxZ - minZ) / h) + 1);
+    while (cellsFor(cell) > maxCells) cell *= 1.25;
+    this.cellSizeM = cell;
+    this.origin = [minX, minY, minZ];
+    this.dims = [
+      Math.floor((maxX - minX) / cell) + 1,
+      Math.floor((maxY - minY) / cell) + 1,
+      Math.floor((maxZ - minZ) / cell) + 1,
+    ];
+    const cellCount = this.dims[0] * this.dims[1] * this.dims[2];
+    // Compressed cell lists: the vertices of cell k are cellVertices[cellStart[k] .. cellStart[k+1]].
+    const cellOf = new Uint32Array(n);
+    this.cellStart = new Uint32Array(cellCount + 1);
+    for (let i = 0; i < n; i++) {
+      const k = this.#cellIndex(restPositions[3 * i], restPositions[3 * i + 1], restPositions[3 * i + 2]);
+      cellOf[i] = k;
+      this.cellStart[k + 1]++;
+    }
+    for (let k = 0; k < cellCount; k++) this.cellStart[k + 1] += this.cellStart[k];
+    const fill = this.cellStart.slice(0, cellCount);
+    this.cellVertices = new Uint32Array(n);
+    for (let i = 0; i < n; i++) this.cellVertices[fill[cellOf[i]]++] = i;
+
+    // Per-frame bookkeeping, preallocated: the vertices moved last frame (restored first), the
+    // vertices written this frame (moved now or restored), and a stamp to list each vertex once.
+    this.moved = new Uint32Array(n);
+    this.movedCount = 0;
+    this.touched = new Uint32Array(n);
+    this.touchedCount = 0;
+    this.stamp = new Uint32Array(n);
+    this.frame = 0;
+    this.profile = {};
+    this.evaluation = new Float64Array(3);
+    this.lastVisitedCells = 0;
+  }
+
+  #cellIndex(x, y, z) {
+    const [nx, ny, nz] = this.dims;
+    const h = this.cellSizeM;
+    const ix = Math.min(nx - 1, Math.max(0, Math.floor((x - this.origin[0]) / h)));
+    const iy = Math.min(ny - 1, Math.max(0, Math.floor((y - this.origin[1]) / h)));
+    const iz = Math.min(nz - 1, Math.max(0, Math.floor((z - this.origin[2]) / h)));
+    return (iz * ny + iy) * nx + ix;
+  }
+
+  #touch(i) {
+    if (this.stamp[i] !== this.frame) {
+      this.stamp[i] = this.frame;
+      this.touched[this.touchedCount++] = i;
+    }
+  }
+
+  /**
+   * Deforms `positionsOut` (and `normalsOut`, when given) for one contact, in the object frame.
+   *
+   * `contact`: `{inContact, depthM, contactRadiusM, deformedRadiusM, point: [x,y,z], normal:
+   * [x,y,z]}` with point and normal already in the mesh's object frame; `tool` from
+   * `toolFromJson`. Vertices moved by the previous call are first restored to rest. A vertex v
+   * moves by −n·z(r) when r < R_d_eff and |(v − c)·n| ≤ R_d_eff (the far side never moves).
+   *
+   * Returns the number of vertices written (moved or restored); their indices are
+   * `this.touched[0 .. count]`, for partial normal or buffer updates.
+   */
+  apply(positionsOut, normalsOut, contact, tool) {
+    const rest = this.restPositions;
+    const restN = this.restNormals;
+    this.frame = (this.frame + 1) >>> 0;
+    if (this.frame === 0) {
+      this.stamp.fill(0);
+      this.frame = 1;
+    }
+    this.touchedCount = 0;
+    for (let m = 0; m < this.movedCount; m++) {
+      const i = this.moved[m];
+      const j = 3 * i;
+      positionsOut[j] = rest[j];
+      positionsOut[j + 1] = rest[j + 1];
+      positionsOut[j + 2] = rest[j + 2];
+      if (normalsOut && restN) {
+        normalsOut[j] = restN[j];
+        normalsOut[j + 1] = restN[j + 1];
+        normalsOut[j + 2] = restN[j + 2];
+      }
+      this.#touch(i);
+    }
+    this.movedCount = 0;
+    this.lastVisitedCells = 0;
+    if (!contact || !contact.inContact) return this.touchedCount;
+
+    const p = profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM, this.profile);
+    if (p.depthM === 0) return this.touchedCount;
+    let nx = contact.normal[0],
+      ny = contact.normal[1],
+      nz = contact.normal[2];
+    const nLen = Math.sqrt(nx * nx + ny * ny + nz * nz);
+    if (!(nLen > 0 && Number.isFinite(nLen))) return this.touchedCount;
+    nx /= nLen;
+    ny /= nLen;
+    nz /= nLen;
+    const cx = contact.point[0],
+      cy = contact.point[1],
+      cz = contact.point[2];
+    if (!(Number.isFinite(cx) && Number.isFinite(cy) && Number.isFinite(cz))) return this.touchedCount;
+
+    const reach = p.rdEff;
+    const reach2 = reach * reach;
+    // Every vertex that may move lies within √2·R_d_eff of c (r < R_d_eff and |axial| ≤ R_d_eff).
+    const box = reach * Math.SQRT2;
+    const h = this.cellSizeM;
+    const dims = this.dims;
+    const dx = dims[0],
+      dy = dims[1],
+      dz = dims[2];
+    const ix0 = Math.max(0, Math.floor((cx - box - this.origin[0]) / h));
+    const iy0 = Math.max(0, Math.floor((cy - box - this.origin[1]) / h));
+    const iz0 = Math.max(0, Math.floor((cz - box - this.origin[2]) / h));
+    const ix1 = Math.min(dx - 1, Math.floor((cx + box - this.origin[0]) / h));
+    const iy1 = Math.min(dy - 1, Math.floor((cy + box - this.origin[1]) / h));
+    const iz1 = Math.min(dz - 1, Math.floor((cz + box - this.origin[2]) / h));
+    const ev = this.evaluation;
+    const cellStart = this.cellStart;
+    const cellVertices = this.cellVertices;
+    for (let iz = iz0; iz <= iz1; iz++) {
+      for (let iy = iy0; iy <= iy1; iy++) {
+        const row = (iz * dy + iy) * dx;
+        for (let ix = ix0; ix <= ix1; ix++) {
+          const k = row + ix;
+          this.lastVisitedCells++;
+          const end = cellStart[k + 1];
+          for (let s = cellStart[k]; s < end; s++) {
+            const i = cellVertices[s];
+            const j = 3 * i;
+            const vx = rest[j] - cx,
+              vy = rest[j + 1] - cy,
+              vz = rest[j + 2] - cz;
+            const axial = vx * nx + vy * ny + vz * nz;
+            if (axial > reach || axial < -reach) continue;
+            const ex = vx - axial * nx,
+              ey = vy - axial * ny,
+              ez = vz - axial * nz;
+            const r2 = ex * ex + ey * ey + ez * ez;
+            if (r2 >= reach2) continue;
+            const r = Math.sqrt(r2);
+            evaluateAt(p, r, ev);
+            const z = ev[0];
+            if (!(z > 0)) continue;
+            positionsOut[j] = rest[j] - nx * z;
+            positionsOut[j + 1] = rest[j + 1] - ny * z;
+            positionsOut[j + 2] = rest[j + 2] - nz * z;
+            if (normalsOut && restN) {
+              // Analytic normal: the profile's (axial, radial) components applied to the rest
+              // normal and the radial direction, so curved objects keep their own shading.
+              let ox, oy, oz;
+              if (r > 0) {
+                const inv = 1 / r;
+                ox = restN[j] * ev[1] + ex * inv * ev[2];
+                oy = restN[j + 1] * ev[1] + ey * inv * ev[2];
+                oz = restN[j + 2] * ev[1] + ez * inv * ev[2];
+              } else {
+                ox = restN[j];
+                oy = restN[j + 1];
+                oz = restN[j + 2];
+              }
+              const len = Math.sqrt(ox * ox + oy * oy + oz * oz);
+              if (len > 0) {
+                normalsOut[j] = ox / len;
+                normalsOut[j + 1] = oy / len;
+                normalsOut[j + 2] = oz / len;
+              }
+            }
+            this.moved[this.movedCount++] = i;
+            this.#touch(i);
+          }
+        }
+      }
+    }
+    return this.touchedCount;
+  }
+}

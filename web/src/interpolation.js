@@ -1,0 +1,301 @@
+// A playout buffer for the 50 Hz contact frames.
+//
+// Frames arrive over the network with jitter, at 50 Hz, while the screen refreshes at 60 Hz or
+// more. Drawing each frame as it arrives would stutter; instead the viewer draws the state at a
+// fixed delay behind the device's clock ("playout delay", 50 ms = 2.5 frame periods by default)
+// and interpolates between the two frames around that instant.
+//
+// The device clock is estimated from the frames' `time_ns` and their local arrival times: over
+// the last few frames (200 ms), the one that arrived earliest relative to its stamp sets the
+// offset between the clocks. A window rather than an all-time maximum, because the device clock
+// may run at another rate than the browser's (a loaded host ticks late and its device time falls
+// behind); the render time never moves backwards, so a falling offset slows the playout down for
+// a moment instead of replaying.
+//
+// Storage is a fixed ring of numbers; pushing and sampling allocate nothing.
+
+import { CONTACT_FLAGS } from './protocol.js';
+
+// Layout of one frame in the ring.
+const T = 0; // device time, ms
+const SEQ = 1;
+const IN_CONTACT = 2;
+const DEPTH = 3;
+const A = 4; // contact radius
+const RD = 5; // deformed radius
+const NORMAL = 6; // 3
+const POINT = 9; // 3
+const POS = 12; // 3
+const QUAT = 15; // 4, [x,y,z,w]
+const FORCE = 19; // 3
+const FLAGS = 22; // bit i = CONTACT_FLAGS[i]
+const ARRIVAL = 23; // local ms
+const CLOCK = 24; // device ms − local arrival ms
+const STRIDE = 25;
+
+/** Bitmask of a frame's flag names, bit i for `CONTACT_FLAGS[i]`. */
+export function flagBits(flags) {
+  let bits = 0;
+  for (let i = 0; i < flags.length; i++) {
+    const k = CONTACT_FLAGS.indexOf(flags[i]);
+    if (k >= 0) bits |= 1 << k;
+  }
+  return bits;
+}
+
+/** The interpolated state the viewer draws; one instance, rewritten by `sample`. */
+export class RenderedContact {
+  constructor() {
+    this.valid = false;
+    this.deviceTimeMs = 0;
+    this.seq = 0;
+    this.inContact = false;
+    this.depthM = 0;
+    this.contactRadiusM = 0;
+    this.deformedRadiusM = 0;
+    this.normal = new Float64Array([0, 1, 0]);
+    this.point = new Float64Array(3);
+    this.position = new Float64Array(3);
+    this.orientation = new Float64Array([0, 0, 0, 1]);
+    this.force = new Float64Array(3);
+    this.forceMagnitudeN = 0;
+    this.flags = 0;
+    /** How far the render time is past the newest frame (ms); > 0 means frames are late. */
+    this.lateMs = 0;
+    /** True when the newest frame is older than the buffer's `staleAfterMs`. */
+    this.stale = true;
+  }
+}
+
+function lerp(a, b, s) {
+  return a + (b - a) * s;
+}
+
+/** Contact frames by device time: `push` each on arrival, `sample` once per animation frame. */
+export class PlayoutBuffer {
+  /**
+   * @param {{capacity?: number, delayMs?: number, maxGapMs?: number, staleAfterMs?: number,
+   *   clockWindow?: number}} [options]
+   *   `delayMs`: how far behind the estimated device time to draw (40–60 ms suits 50 Hz);
+   *   `maxGapMs`: two frames further apart than this are not interpolated (the older one is held);
+   *   `staleAfterMs`: past the newest frame by more than this, the state is marked stale;
+   *   `clockWindow`: how many recent frames the clock offset is taken from.
+   */
+  constructor({ capacity = 64, delayMs = 50, maxGapMs = 250, staleAfterMs = 250, clockWindow = 10 } = {}) {
+    this.capacity = capacity;
+    this.delayMs = delayMs;
+    this.maxGapMs = maxGapMs;
+    this.staleAfterMs = staleAfterMs;
+    this.clockWindow = Math.max(1, Math.min(clockWindow, capacity));
+    this.data = new Float64Array(capacity * STRIDE);
+    this.head = 0; // index of the next write
+    this.count = 0;
+    this.offsetMs = 0; // device ms − local ms
+    this.lastRenderMs = -Infinity;
+    /** Times the device clock went backwards (server or device restarted) and the buffer reset. */
+    this.resets = 0;
+    this.duplicates = 0;
+  }
+
+  /** Forgets every frame (new session, reconnection, device clock reset). */
+  reset() {
+    this.head = 0;
+    this.count = 0;
+    this.lastRenderMs = -Infinity;
+  }
+
+  #slot(k) {
+    // k = 0 is the oldest frame.
+    return ((this.head - this.count + k + this.capacity) % this.capacity) * STRIDE;
+  }
+
+  /** Device time (ms) of the newest frame, or NaN when empty. */
+  newestTimeMs() {
+    return this.count === 0 ? NaN : this.data[this.#slot(this.count - 1) + T];
+  }
+
+  /** Number of frames that arrived in the last `windowMs` before `nowMs` (received rate). */
+  arrivalsSince(nowMs, windowMs = 1000) {
+    let n = 0;
+    for (let k = this.count - 1; k >= 0; k--) {
+      if (this.data[this.#slot(k) + ARRIVAL] < nowMs - windowMs) break;
+      n++;
+    }
+    return n;
+  }
+
+  /** Adds a validated `contact` message that arrived at local time `arrivalMs`. */
+  push(m, arrivalMs) {
+    const t = m.time_ns / 1e6;
+    if (this.count > 0) {
+      const newest = this.newestTimeMs();
+      if (t < newest) {
+        // The device clock restarted: older frames describe another run.
+        this.resets++;
+        this.reset();
+      } else if (t === newest) {
+        this.duplicates++;
+        return;
+      }
+    }
+    const d = this.data;
+    const o = this.head * STRIDE;
+    d[o + T] = t;
+    d[o + SEQ] = m.seq;
+    d[o + IN_CONTACT] = m.in_contact ? 1 : 0;
+    d[o + DEPTH] = m.depth_m;
+    d[o + A] = m.contact_radius_m;
+    d[o + RD] = m.deformed_radius_m;
+    for (let i = 0; i < 3; i++) {
+      d[o + NORMAL + i] = m.normal[i];
+      d[o + POINT + i] = m.contact_point_m[i];
+      d[o + POS + i] = m.tip_in_world.position_m[i];
+      d[o + FORCE + i] = m.force_n[i];
+    }
+    for (let i = 0; i < 4; i++) d[o + QUAT + i] = m.tip_in_world.orientation[i];
+    d[o + FLAGS] = flagBits(m.flags);
+    d[o + ARRIVAL] = arrivalMs;
+    d[o + CLOCK] = t - arrivalMs;
+    this.head = (this.head + 1) % this.capacity;
+    if (this.count < this.capacity) this.count++;
+    // The least-delayed recent frame sets the clock offset.
+    let offset = -Infinity;
+    const n = Math.min(this.count, this.clockWindow);
+    for (let k = this.count - n; k < this.count; k++) offset = Math.max(offset, d[this.#slot(k) + CLOCK]);
+    this.offsetMs = offset;
+  }
+
+  /** The device time the viewer draws at local time `nowMs`. */
+  renderTimeMs(nowMs) {
+    return nowMs + this.offsetMs - this.delayMs;
+  }
+
+  /** Writes the state to draw at local time `nowMs` into `out` (a `RenderedContact`). */
+  sample(nowMs, out) {
+    if (this.count === 0) {
+      out.valid = false;
+      out.inContact = false;
+      out.stale = true;
+      return out;
+    }
+    const d = this.data;
+    // Monotonic: when the offset falls (device clock slower than ours), hold instead of replaying.
+    const t = Math.max(this.renderTimeMs(nowMs), this.lastRenderMs);
+    this.lastRenderMs = t;
+    const newest = this.#slot(this.count - 1);
+    const oldest = this.#slot(0);
+    let a;
+    let b;
+    let s;
+    if (t >= d[newest + T]) {
+      a = b = newest;
+      s = 0;
+    } else if (t <= d[oldest + T]) {
+      a = b = oldest;
+      s = 0;
+    } else {
+      // Newest first: the render time is normally within the last few frames.
+      let k = this.count - 2;
+      while (k > 0 && d[this.#slot(k) + T] > t) k--;
+      a = this.#slot(k);
+      b = this.#slot(k + 1);
+      const span = d[b + T] - d[a + T];
+      s = span > this.maxGapMs ? 0 : (t - d[a + T]) / span;
+    }
+    this.#blend(a, b, s, out);
+    out.valid = true;
+    out.deviceTimeMs = s === 0 ? d[a + T] : t;
+    out.lateMs = t - d[newest + T];
+    out.stale = out.lateMs > this.staleAfterMs;
+    return out;
+  }
+
+  #blend(a, b, s, out) {
+    const d = this.data;
+    const ca = d[a + IN_CONTACT] === 1;
+    const cb = d[b + IN_CONTACT] === 1;
+    const near = s < 0.5 ? a : b;
+    out.seq = d[near + SEQ];
+    out.flags = d[near + FLAGS];
+    for (let i = 0; i < 3; i++) {
+      out.position[i] = lerp(d[a + POS + i], d[b + POS + i], s);
+      out.force[i] = lerp(d[a + FORCE + i], d[b + FORCE + i], s);
+    }
+    out.forceMagnitudeN = Math.hypot(out.force[0], out.force[1], out.force[2]);
+    slerp(d, a + QUAT, b + QUAT, s, out.orientation);
+
+    // Contact geometry: between two frames in contact everything blends; across the start or
+    // end of a contact, the geometry is the in-contact frame's and the depth (and contact
+    // radius) blend toward zero, so the dimple grows and vanishes smoothly.
+    const depthA = ca ? d[a + DEPTH] : 0;
+    const depthB = cb ? d[b + DEPTH] : 0;
+    const radA = ca ? d[a + A] : 0;
+    const radB = cb ? d[b + A] : 0;
+    out.depthM = lerp(depthA, depthB, s);
+    out.contactRadiusM = lerp(radA, radB, s);
+    out.inContact = (ca || cb) && out.depthM > 0;
+    const g0 = ca ? a : b;
+    const g1 = cb ? b : a;
+    const sg = ca && cb ? s : 0;
+    out.deformedRadiusM = lerp(d[g0 + RD], d[g1 + RD], sg);
+    for (let i = 0; i < 3; i++) out.point[i] = lerp(d[g0 + POINT + i], d[g1 + POINT + i], sg);
+    const nx = lerp(d[g0 + NORMAL], d[g1 + NORMAL], sg);
+    const ny = lerp(d[g0 + NORMAL + 1], d[g1 + NORMAL + 1], sg);
+    const nz = lerp(d[g0 + NORMAL + 2], d[g1 + NORMAL + 2], sg);
+    const len = Math.sqrt(nx * nx + ny * ny + nz * nz);
+    if (len > 1e-12) {
+      out.normal[0] = nx / len;
+      out.normal[1] = ny / len;
+      out.normal[2] = nz / len;
+    } else {
+      // Opposite normals cancel half way: keep the nearer frame's.
+      out.normal[0] = d[near + NORMAL];
+      out.normal[1] = d[near + NORMAL + 1];
+      out.normal[2] = d[near + NORMAL + 2];
+    }
+  }
+}
+
+/**
+ * Spherical interpolation between quaternions stored at `d[i..i+4]` and `d[j..j+4]` ([x,y,z,w]),
+ * along the shorter arc, written normalised into `out`.
+ */
+export function slerp(d, i, j, s, out) {
+  let bx = d[j],
+    by = d[j + 1],
+    bz = d[j + 2],
+    bw = d[j + 3];
+  const ax = d[i],
+    ay = d[i + 1],
+    az = d[i + 2],
+    aw = d[i + 3];
+  let cos = ax * bx + ay * by + az * bz + aw * bw;
+  if (cos < 0) {
+    cos = -cos;
+    bx = -bx;
+    by = -by;
+    bz = -bz;
+    bw = -bw;
+  }
+  let wa;
+  let wb;
+  if (cos > 0.9995) {
+    wa = 1 - s;
+    wb = s;
+  } else {
+    const theta = Math.acos(cos);
+    const sin = Math.sin(theta);
+    wa = Math.sin((1 - s) * theta) / sin;
+    wb = Math.sin(s * theta) / sin;
+  }
+  const x = wa * ax + wb * bx;
+  const y = wa * ay + wb * by;
+  const z = wa * az + wb * bz;
+  const w = wa * aw + wb * bw;
+  const n = Math.sqrt(x * x + y * y + z * z + w * w) || 1;
+  out[0] = x / n;
+  out[1] = y / n;
+  out[2] = z / n;
+  out[3] = w / n;
+  return out;
+}

@@ -1,0 +1,704 @@
+// The viewer: connects to the server that served this page, loads the scene and its render
+// meshes, and each animation frame draws the interpolated contact: tool pose, the mesh bent by
+// the Bézier profile (paper §3.3), the deformed-region ring, the force arrow and plot.
+//
+// Reading order: `init()` builds everything once; `onMessage()` takes the server's messages;
+// `animate()` runs per screen refresh and allocates nothing; `exposeTestHook()` is what the
+// browser tests read.
+
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+import { MeshDeformer, depressionAt, profileSetup, toolFromJson } from './deformation.js';
+import { ForcePlot } from './forceplot.js';
+import { PlayoutBuffer, RenderedContact } from './interpolation.js';
+import { parseRenderMesh } from './mesh.js';
+import { CONTACT_FLAGS, ViewerConnection, validateMessage, webSocketUrl } from './protocol.js';
+
+/** Flags that mean the force is not what the model says (shown in red rather than amber). */
+const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal']);
+const PLAYOUT_DELAY_MS = 50;
+const TIMING_SAMPLES = 120;
+
+const dom = {};
+const view = {
+  renderer: null,
+  scene: null,
+  camera: null,
+  controls: null,
+  toolGroup: null,
+  ring: null,
+  arrow: null,
+  objectsGroup: null,
+};
+const state = {
+  sceneJson: null,
+  sceneKey: '',
+  tool: null,
+  meshes: [], // {name, positions, normals, rest, deformer, geometry, mesh, objectPosition, objectInverse}
+  sessionId: null,
+  lastStats: null,
+  loadError: null,
+  sceneLoads: 0,
+  contactFrames: 0,
+  /** While paused the view keeps drawing the last interpolated contact (inspection, tests). */
+  paused: false,
+};
+const buffer = new PlayoutBuffer({ delayMs: PLAYOUT_DELAY_MS });
+const rendered = new RenderedContact();
+const timings = {
+  ms: new Float64Array(TIMING_SAMPLES),
+  sorted: new Float64Array(TIMING_SAMPLES),
+  count: 0,
+  head: 0,
+  moved: 0,
+};
+const frameTimes = { ms: new Float64Array(128), head: 0, count: 0 };
+let plot = null;
+let connection = null;
+
+// Scratch objects reused every frame.
+const scratch = {
+  contact: {
+    inContact: false,
+    depthM: 0,
+    contactRadiusM: 0,
+    deformedRadiusM: 0,
+    point: new Float64Array(3),
+    normal: new Float64Array(3),
+  },
+  v: new THREE.Vector3(),
+  n: new THREE.Vector3(),
+  q: new THREE.Quaternion(),
+  up: new THREE.Vector3(0, 1, 0),
+  profile: {},
+};
+
+function init() {
+  for (const id of [
+    'view',
+    'webgl-message',
+    'conn-state',
+    'contact-state',
+    'conn-error',
+    'v-depth',
+    'v-rd',
+    'v-force',
+    'v-model',
+    'flags',
+    's-rate',
+    's-jitter',
+    's-compute',
+    's-overruns',
+    's-viewers',
+    'w-rx',
+    'w-fps',
+    'w-deform',
+    'w-moved',
+    'w-delay',
+    'force-plot',
+  ]) {
+    dom[id] = document.getElementById(id);
+  }
+  dom.flagChips = CONTACT_FLAGS.map((name) => {
+    const chip = document.createElement('span');
+    chip.className = 'flag';
+    chip.textContent = name.replaceAll('_', ' ');
+    chip.title = name;
+    dom.flags.appendChild(chip);
+    return chip;
+  });
+  dom['w-delay'].textContent = `${PLAYOUT_DELAY_MS} ms`;
+  plot = new ForcePlot(dom['force-plot'], { pixelRatio: Math.min(window.devicePixelRatio || 1, 2) });
+
+  initThree();
+  exposeTestHook();
+
+  connection = new ViewerConnection({
+    url: webSocketUrl(window.location),
+    onMessage,
+    onStateChange: showConnectionState,
+  });
+  connection.start();
+  loadSceneOverHttp();
+  if (view.renderer) view.renderer.setAnimationLoop(animate);
+  else
+    requestAnimationFrame(function loop(t) {
+      animate(t);
+      requestAnimationFrame(loop);
+    });
+  window.addEventListener('resize', onWindowResize);
+  setInterval(updatePanels, 250);
+}
+
+/** Creates the WebGL renderer and the static scene; without WebGL, says so and goes on. */
+function initThree() {
+  view.scene = new THREE.Scene();
+  view.scene.background = new THREE.Color(0x14171c);
+  view.camera = new THREE.PerspectiveCamera(40, window.innerWidth / window.innerHeight, 0.001, 10);
+  view.camera.position.set(0.18, 0.16, 0.26);
+
+  view.scene.add(new THREE.HemisphereLight(0xdde6ff, 0x2a2018, 1.2));
+  const key = new THREE.DirectionalLight(0xffffff, 2.2);
+  key.position.set(0.3, 0.6, 0.4);
+  view.scene.add(key);
+  const rim = new THREE.DirectionalLight(0x88aaff, 0.8);
+  rim.position.set(-0.4, 0.2, -0.3);
+  view.scene.add(rim);
+
+  const grid = new THREE.GridHelper(0.4, 20, 0x3a4250, 0x262c36);
+  grid.position.y = -0.08;
+  view.scene.add(grid);
+
+  view.objectsGroup = new THREE.Group();
+  view.scene.add(view.objectsGroup);
+
+  // The deformed-region ring: a thin unit annulus in the xz plane, scaled to R_d and turned to
+  // the contact normal each frame. Drawn over the surface so the dimple cannot hide it.
+  const ringGeometry = new THREE.RingGeometry(0.965, 1, 128, 1);
+  ringGeometry.rotateX(-Math.PI / 2);
+  view.ring = new THREE.Mesh(
+    ringGeometry,
+    new THREE.MeshBasicMaterial({
+      color: 0xffa657,
+      side: THREE.DoubleSide,
+      depthTest: false,
+      transparent: true,
+      opacity: 0.95,
+    }),
+  );
+  view.ring.renderOrder = 2;
+  view.ring.visible = false;
+  view.scene.add(view.ring);
+
+  view.arrow = new THREE.ArrowHelper(new THREE.Vector3(0, 1, 0), new THREE.Vector3(), 0.02, 0x58a6ff, 0.008, 0.005);
+  view.arrow.visible = false;
+  // The arrow starts at the tip, inside the tool: draw it through the tool.
+  for (const part of [view.arrow.line, view.arrow.cone]) {
+    part.material.depthTest = false;
+    part.material.transparent = true;
+    part.renderOrder = 3;
+  }
+  view.scene.add(view.arrow);
+
+  try {
+    // On a software rasteriser (SwiftShader, llvmpipe: no GPU) multisampling costs more than the
+    // mesh itself; drop it there and keep the frame rate.
+    view.gpuName = webglRendererName();
+    view.software = /swiftshader|llvmpipe|softpipe|software/i.test(view.gpuName ?? '');
+    const renderer = new THREE.WebGLRenderer({ antialias: !view.software });
+    renderer.setPixelRatio(Math.min(window.devicePixelRatio, view.software ? 1 : 2));
+    renderer.setSize(window.innerWidth, window.innerHeight);
+    dom.view.appendChild(renderer.domElement);
+    view.renderer = renderer;
+    view.controls = new OrbitControls(view.camera, renderer.domElement);
+    view.controls.target.set(0, 0, 0);
+    view.controls.enableDamping = true;
+  } catch (e) {
+    view.renderer = null;
+    dom['webgl-message'].hidden = false;
+    console.warn(`softhaptic: WebGL unavailable (${e.message}); drawing panels only`);
+  }
+}
+
+/** The WebGL implementation's name, or null when WebGL is unavailable. */
+function webglRendererName() {
+  const gl = document.createElement('canvas').getContext('webgl2');
+  if (!gl) return null;
+  const info = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+  gl.getExtension('WEBGL_lose_context')?.loseContext();
+  return name;
+}
+
+function onWindowResize() {
+  plot.resize();
+  if (!view.renderer) return;
+  view.camera.aspect = window.innerWidth / window.innerHeight;
+  view.camera.updateProjectionMatrix();
+  view.renderer.setSize(window.innerWidth, window.innerHeight);
+}
+
+async function loadSceneOverHttp() {
+  try {
+    const response = await fetch('/api/scene');
+    if (!response.ok) throw new Error(`GET /api/scene answered ${response.status}`);
+    const scene = validateMessage({ type: 'scene', ...(await response.json()) });
+    await applyScene(scene);
+  } catch (e) {
+    // The WebSocket's scene message will try again.
+    state.loadError = `scene: ${e.message}`;
+    console.warn(`softhaptic: ${state.loadError}`);
+  }
+}
+
+/** Builds the tool and loads the render meshes of a scene, once per distinct scene. */
+async function applyScene(scene) {
+  // The same scene arrives twice (GET /api/scene and the WebSocket); load it once.
+  const key = JSON.stringify(scene, (k, v) => (k === 'type' ? undefined : v));
+  if (key === state.sceneKey) return;
+  state.sceneKey = key;
+  state.sceneJson = scene;
+  state.tool = toolFromJson(scene.tool);
+  plot.setPeakForce(scene.device.peak_force_n);
+  dom['v-model'].textContent = `${scene.model.name}, E ${formatPa(scene.material.youngs_modulus_pa)}`;
+  buildTool(scene.tool);
+
+  for (const m of state.meshes) {
+    view.objectsGroup.remove(m.mesh);
+    m.geometry.dispose();
+  }
+  state.meshes = [];
+  let loaded;
+  try {
+    loaded = await Promise.all(
+      scene.render_meshes.map(async (desc) => {
+        const response = await fetch(desc.url);
+        if (!response.ok) throw new Error(`GET ${desc.url} answered ${response.status}`);
+        return { desc, data: parseRenderMesh(await response.arrayBuffer(), desc.name, desc.vertex_count) };
+      }),
+    );
+  } catch (e) {
+    // Let the next scene message (e.g. after a reconnection) try again.
+    if (state.sceneKey === key) state.sceneKey = '';
+    throw e;
+  }
+  if (key !== state.sceneKey) return; // a newer scene arrived while loading
+  for (const { desc, data } of loaded) state.meshes.push(buildMesh(desc, data));
+  state.loadError = null;
+  state.sceneLoads++;
+  frameCamera();
+}
+
+function buildTool(tool) {
+  if (view.toolGroup) {
+    view.scene.remove(view.toolGroup);
+    view.toolGroup.traverse((o) => o.geometry?.dispose());
+  }
+  const group = new THREE.Group();
+  const material = new THREE.MeshStandardMaterial({ color: 0xc9d1d9, metalness: 0.6, roughness: 0.3 });
+  const R = tool.radius_m;
+  let tipLength;
+  if (tool.shape === 'sphere') {
+    // The tool frame's origin is the tip: the bottom of the sphere.
+    const ball = new THREE.Mesh(new THREE.SphereGeometry(R, 48, 24), material);
+    ball.position.y = R;
+    group.add(ball);
+    tipLength = R;
+  } else {
+    const height = R / Math.tan(tool.half_angle_rad);
+    const cone = new THREE.Mesh(new THREE.ConeGeometry(R, height, 48, 1, false), material);
+    cone.rotation.x = Math.PI; // apex down, at the origin
+    cone.position.y = height / 2;
+    group.add(cone);
+    tipLength = height;
+  }
+  const shaftLength = 0.12;
+  const shaft = new THREE.Mesh(
+    new THREE.CylinderGeometry(R * 0.35, R * 0.35, shaftLength, 24),
+    new THREE.MeshStandardMaterial({ color: 0x6e7681, metalness: 0.4, roughness: 0.5 }),
+  );
+  shaft.position.y = tipLength + shaftLength / 2;
+  group.add(shaft);
+  view.toolGroup = group;
+  view.scene.add(group);
+}
+
+function buildMesh(desc, data) {
+  const positions = Float32Array.from(data.positions);
+  const normals = Float32Array.from(data.normals);
+  const geometry = new THREE.BufferGeometry();
+  const positionAttr = new THREE.BufferAttribute(positions, 3);
+  const normalAttr = new THREE.BufferAttribute(normals, 3);
+  positionAttr.setUsage(THREE.DynamicDrawUsage);
+  normalAttr.setUsage(THREE.DynamicDrawUsage);
+  geometry.setAttribute('position', positionAttr);
+  geometry.setAttribute('normal', normalAttr);
+  geometry.setIndex(new THREE.BufferAttribute(data.indices, 1));
+  geometry.computeBoundingSphere();
+  // The dimple stays inside the rest bounds grown by the deepest press; skip per-frame bounds.
+  geometry.boundingSphere.radius *= 1.2;
+  const mesh = new THREE.Mesh(
+    geometry,
+    new THREE.MeshStandardMaterial({ color: 0xd98c8c, roughness: 0.55, metalness: 0.0 }),
+  );
+  const [px, py, pz] = desc.object_in_world.position_m;
+  const [qx, qy, qz, qw] = desc.object_in_world.orientation;
+  mesh.position.set(px, py, pz);
+  mesh.quaternion.set(qx, qy, qz, qw).normalize();
+  view.objectsGroup.add(mesh);
+  return {
+    name: desc.name,
+    positions,
+    normals,
+    positionAttr,
+    normalAttr,
+    rest: data.positions,
+    restNormals: data.normals,
+    deformer: new MeshDeformer(data.positions, data.normals),
+    geometry,
+    mesh,
+    range: { start: 0, count: 0 },
+    objectPosition: new THREE.Vector3(px, py, pz),
+    objectInverse: mesh.quaternion.clone().invert(),
+  };
+}
+
+/** Points the camera at the loaded meshes. */
+function frameCamera() {
+  const box = new THREE.Box3();
+  for (const m of state.meshes) box.expandByObject(m.mesh);
+  if (box.isEmpty()) return;
+  const centre = box.getCenter(new THREE.Vector3());
+  const size = box.getSize(new THREE.Vector3()).length();
+  view.camera.position.set(centre.x + size * 0.55, centre.y + size * 0.5, centre.z + size * 0.85);
+  view.camera.near = size / 200;
+  view.camera.far = size * 20;
+  view.camera.updateProjectionMatrix();
+  if (view.controls) {
+    view.controls.target.copy(centre);
+    view.controls.update();
+  }
+}
+
+function onMessage(message, receivedAtMs) {
+  switch (message.type) {
+    case 'hello':
+      if (state.sessionId !== null && state.sessionId !== message.session_id) {
+        buffer.reset();
+        plot.reset();
+      }
+      state.sessionId = message.session_id;
+      break;
+    case 'scene':
+      applyScene(message).catch((e) => {
+        state.loadError = `scene: ${e.message}`;
+        console.warn(`softhaptic: ${state.loadError}`);
+      });
+      break;
+    case 'contact':
+      state.contactFrames++;
+      buffer.push(message, receivedAtMs);
+      plot.push(message.time_ns / 1e6, Math.hypot(message.force_n[0], message.force_n[1], message.force_n[2]));
+      break;
+    case 'stats':
+      state.lastStats = message;
+      break;
+    default:
+      break;
+  }
+}
+
+/** One screen refresh: interpolate, deform, draw. Allocates nothing. */
+function animate(nowMs) {
+  frameTimes.ms[frameTimes.head] = nowMs;
+  frameTimes.head = (frameTimes.head + 1) % frameTimes.ms.length;
+  if (frameTimes.count < frameTimes.ms.length) frameTimes.count++;
+
+  if (!state.paused) {
+    buffer.sample(performance.now(), rendered);
+    deformMeshes();
+  }
+  placeToolAndMarkers();
+  plot.draw();
+  if (view.renderer) {
+    view.controls.update();
+    view.renderer.render(view.scene, view.camera);
+  }
+}
+
+function deformMeshes() {
+  if (!state.tool || state.meshes.length === 0) return;
+  const c = scratch.contact;
+  c.inContact = rendered.valid && rendered.inContact;
+  c.depthM = rendered.depthM;
+  c.contactRadiusM = rendered.contactRadiusM;
+  c.deformedRadiusM = rendered.deformedRadiusM;
+  const t0 = performance.now();
+  let moved = 0;
+  let touchedAny = false;
+  for (let k = 0; k < state.meshes.length; k++) {
+    const m = state.meshes[k];
+    if (c.inContact) {
+      // World → object frame: p_obj = q⁻¹(p − t), n_obj = q⁻¹ n.
+      scratch.v
+        .set(rendered.point[0], rendered.point[1], rendered.point[2])
+        .sub(m.objectPosition)
+        .applyQuaternion(m.objectInverse);
+      scratch.n.set(rendered.normal[0], rendered.normal[1], rendered.normal[2]).applyQuaternion(m.objectInverse);
+      c.point[0] = scratch.v.x;
+      c.point[1] = scratch.v.y;
+      c.point[2] = scratch.v.z;
+      c.normal[0] = scratch.n.x;
+      c.normal[1] = scratch.n.y;
+      c.normal[2] = scratch.n.z;
+    }
+    const touched = m.deformer.apply(m.positions, m.normals, c, state.tool);
+    moved += m.deformer.movedCount;
+    if (touched > 0) {
+      // Upload only the span of vertex indices written this frame (moved or restored).
+      const list = m.deformer.touched;
+      let lo = list[0];
+      let hi = list[0];
+      for (let j = 1; j < touched; j++) {
+        const i = list[j];
+        if (i < lo) lo = i;
+        else if (i > hi) hi = i;
+      }
+      m.range.start = 3 * lo;
+      m.range.count = 3 * (hi - lo + 1);
+      // three.js empties updateRanges after each upload; the same range object is pushed back.
+      m.positionAttr.updateRanges.length = 0;
+      m.positionAttr.updateRanges.push(m.range);
+      m.normalAttr.updateRanges.length = 0;
+      m.normalAttr.updateRanges.push(m.range);
+      m.positionAttr.needsUpdate = true;
+      m.normalAttr.needsUpdate = true;
+      touchedAny = true;
+    }
+  }
+  if (c.inContact || touchedAny) {
+    timings.ms[timings.head] = performance.now() - t0;
+    timings.head = (timings.head + 1) % TIMING_SAMPLES;
+    if (timings.count < TIMING_SAMPLES) timings.count++;
+  }
+  timings.moved = moved;
+}
+
+function placeToolAndMarkers() {
+  if (!view.toolGroup || !rendered.valid) return;
+  view.toolGroup.position.set(rendered.position[0], rendered.position[1], rendered.position[2]);
+  view.toolGroup.quaternion.set(
+    rendered.orientation[0],
+    rendered.orientation[1],
+    rendered.orientation[2],
+    rendered.orientation[3],
+  );
+
+  const inContact = rendered.inContact && state.tool !== null;
+  view.ring.visible = inContact;
+  if (inContact) {
+    const p = profileSetup(
+      state.tool,
+      rendered.depthM,
+      rendered.contactRadiusM,
+      rendered.deformedRadiusM,
+      scratch.profile,
+    );
+    scratch.n.set(rendered.normal[0], rendered.normal[1], rendered.normal[2]);
+    view.ring.position.set(rendered.point[0], rendered.point[1], rendered.point[2]);
+    view.ring.quaternion.setFromUnitVectors(scratch.up, scratch.n);
+    view.ring.scale.setScalar(Math.max(p.rdEff, 1e-6));
+  }
+  const f = rendered.forceMagnitudeN;
+  view.arrow.visible = f > 1e-3;
+  if (view.arrow.visible) {
+    scratch.v.set(rendered.force[0] / f, rendered.force[1] / f, rendered.force[2] / f);
+    view.arrow.position.set(rendered.position[0], rendered.position[1], rendered.position[2]);
+    view.arrow.setDirection(scratch.v);
+    // 1 cm per newton, so the arrow reads as a force scale next to a 1 cm tool.
+    view.arrow.setLength(0.01 * f + 0.004, 0.006, 0.004);
+  }
+}
+
+// ----- panels (4 Hz; text only changes when a value does) -----
+
+function setText(el, text) {
+  if (el.textContent !== text) el.textContent = text;
+}
+
+function setBadge(el, text, kind) {
+  setText(el, text);
+  const cls = `badge ${kind}`;
+  if (el.className !== cls) el.className = cls;
+}
+
+function showConnectionState(s, detail) {
+  const kind = s === 'open' ? 'ok' : s === 'reconnecting' ? 'bad' : 'warn';
+  const text = s === 'reconnecting' && detail ? `reconnecting in ${(detail.delayMs / 1000).toFixed(1)} s` : s;
+  setBadge(dom['conn-state'], text, kind);
+}
+
+function formatPa(pa) {
+  if (pa >= 1e9) return `${(pa / 1e9).toPrecision(3)} GPa`;
+  if (pa >= 1e6) return `${(pa / 1e6).toPrecision(3)} MPa`;
+  if (pa >= 1e3) return `${(pa / 1e3).toPrecision(3)} kPa`;
+  return `${pa.toPrecision(3)} Pa`;
+}
+
+/** A duration given in µs, in µs below 10 ms and in ms above, so the panel stays narrow. */
+function formatUs(us) {
+  if (us >= 10000) return `${(us / 1000).toFixed(0)} ms`;
+  if (us >= 100) return `${us.toFixed(0)} µs`;
+  return `${us.toFixed(1)} µs`;
+}
+
+function median(t) {
+  if (t.count === 0) return NaN;
+  const sorted = t.sorted.subarray(0, t.count);
+  sorted.set(t.ms.subarray(0, t.count));
+  sorted.sort();
+  return sorted[t.count >> 1];
+}
+
+function fps() {
+  if (frameTimes.count < 2) return 0;
+  const n = frameTimes.ms.length;
+  const newest = frameTimes.ms[(frameTimes.head - 1 + n) % n];
+  const oldest = frameTimes.ms[(frameTimes.head - frameTimes.count + n) % n];
+  return newest > oldest ? ((frameTimes.count - 1) * 1000) / (newest - oldest) : 0;
+}
+
+function updatePanels() {
+  const error = connection.lastError ?? state.loadError;
+  setText(dom['conn-error'], error ?? '');
+  if (!rendered.valid) setBadge(dom['contact-state'], 'no data', '');
+  else if (rendered.stale) setBadge(dom['contact-state'], 'stale', 'warn');
+  else if (rendered.inContact) setBadge(dom['contact-state'], 'in contact', 'active');
+  else setBadge(dom['contact-state'], 'free', 'ok');
+  if (rendered.valid) {
+    setText(dom['v-depth'], `${(rendered.depthM * 1e3).toFixed(2)} mm`);
+    setText(dom['v-rd'], rendered.inContact ? `${(rendered.deformedRadiusM * 1e3).toFixed(1)} mm` : '—');
+    setText(dom['v-force'], `${rendered.forceMagnitudeN.toFixed(2)} N`);
+  }
+  for (let i = 0; i < CONTACT_FLAGS.length; i++) {
+    const on = rendered.valid && (rendered.flags & (1 << i)) !== 0;
+    const cls = on ? (SEVERE_FLAGS.has(CONTACT_FLAGS[i]) ? 'flag on severe' : 'flag on') : 'flag';
+    if (dom.flagChips[i].className !== cls) dom.flagChips[i].className = cls;
+  }
+  const s = state.lastStats;
+  if (s) {
+    setText(dom['s-rate'], `${s.loop_rate_hz.toFixed(1)} Hz`);
+    setText(dom['s-jitter'], `${formatUs(s.period_error_us.p99)}, ${formatUs(s.period_error_us.max)}`);
+    setText(dom['s-compute'], formatUs(s.compute_us.p99));
+    setText(dom['s-overruns'], String(s.overruns));
+    setText(dom['s-viewers'], `${s.viewers} / ${s.dropped_frames}`);
+  }
+  setText(dom['w-rx'], `${buffer.arrivalsSince(performance.now())} /s`);
+  const gl = view.renderer === null ? ' (no WebGL)' : view.software ? ' (software GL)' : '';
+  setText(dom['w-fps'], `${fps().toFixed(0)} fps${gl}`);
+  const med = median(timings);
+  setText(dom['w-deform'], Number.isNaN(med) ? '—' : `${med.toFixed(2)} ms`);
+  setText(dom['w-moved'], String(timings.moved));
+}
+
+// ----- test hook -----
+
+function flagNames(bits) {
+  return CONTACT_FLAGS.filter((_, i) => (bits & (1 << i)) !== 0);
+}
+
+/**
+ * `window.__softhaptic`: what the browser tests read. Every function returns plain data, so a
+ * test can take a consistent snapshot of one rendered frame inside a single `page.evaluate`.
+ */
+function exposeTestHook() {
+  window.__softhaptic = {
+    ready: () => state.meshes.length > 0 && state.tool !== null,
+    webgl: () => view.renderer !== null,
+    gpu: () => ({ name: view.gpuName ?? null, software: Boolean(view.software) }),
+    scene: () => state.sceneJson,
+    sceneLoads: () => state.sceneLoads,
+    connection: () => ({
+      state: connection.state,
+      stats: { ...connection.stats },
+      lastError: connection.lastError,
+      sessionId: state.sessionId,
+    }),
+    /** The interpolated contact the last animation frame drew. */
+    contact: () => ({
+      valid: rendered.valid,
+      stale: rendered.stale,
+      deviceTimeMs: rendered.deviceTimeMs,
+      seq: rendered.seq,
+      inContact: rendered.inContact,
+      depthM: rendered.depthM,
+      contactRadiusM: rendered.contactRadiusM,
+      deformedRadiusM: rendered.deformedRadiusM,
+      normal: [...rendered.normal],
+      point: [...rendered.point],
+      position: [...rendered.position],
+      orientation: [...rendered.orientation],
+      force: [...rendered.force],
+      forceMagnitudeN: rendered.forceMagnitudeN,
+      flags: flagNames(rendered.flags),
+    }),
+    vertexCount: (mesh = 0) => state.meshes[mesh]?.deformer.vertexCount ?? 0,
+    /** Rest and current position of vertex i in the world frame, and how far it moved (m). */
+    vertex: (i, mesh = 0) => {
+      const m = state.meshes[mesh];
+      const rest = new THREE.Vector3()
+        .fromArray(m.rest, 3 * i)
+        .applyQuaternion(m.mesh.quaternion)
+        .add(m.objectPosition);
+      const now = new THREE.Vector3()
+        .fromArray(m.positions, 3 * i)
+        .applyQuaternion(m.mesh.quaternion)
+        .add(m.objectPosition);
+      return { rest: rest.toArray(), now: now.toArray(), displacementM: rest.distanceTo(now) };
+    },
+    vertexDisplacement: (i, mesh = 0) => window.__softhaptic.vertex(i, mesh).displacementM,
+    /** Index of the render vertex whose rest position is nearest the world point (x, y, z). */
+    findVertexNear: (x, y, z, mesh = 0) => {
+      const m = state.meshes[mesh];
+      const p = new THREE.Vector3(x, y, z).sub(m.objectPosition).applyQuaternion(m.objectInverse);
+      let best = -1;
+      let bestD = Infinity;
+      for (let i = 0; i < m.deformer.vertexCount; i++) {
+        const d = (m.rest[3 * i] - p.x) ** 2 + (m.rest[3 * i + 1] - p.y) ** 2 + (m.rest[3 * i + 2] - p.z) ** 2;
+        if (d < bestD) [best, bestD] = [i, d];
+      }
+      return { index: best, distanceM: Math.sqrt(bestD) };
+    },
+    /** Vertices currently displaced from rest (index, world rest position, displacement). */
+    movedVertices: (mesh = 0) => {
+      const m = state.meshes[mesh];
+      const out = [];
+      for (let k = 0; k < m.deformer.movedCount; k++) out.push(m.deformer.moved[k]);
+      return out;
+    },
+    /** The deformation profile evaluated for the rendered contact at radial distance r. */
+    profileAt: (r) =>
+      state.tool
+        ? depressionAt(profileSetup(state.tool, rendered.depthM, rendered.contactRadiusM, rendered.deformedRadiusM), r)
+        : 0,
+    deformationTimings: () => ({
+      samplesMs: Array.from(timings.ms.subarray(0, timings.count)),
+      medianMs: median(timings),
+      movedVertices: timings.moved,
+    }),
+    forcePlotSamples: () => {
+      const out = [];
+      plot.forEachVisible((t, f) => out.push({ timeMs: t, forceN: f }));
+      return out;
+    },
+    peakForceN: () => plot.peakForceN,
+    fps,
+    framesReceivedPerSecond: () => buffer.arrivalsSince(performance.now()),
+    /** Contact frames received since the page loaded. */
+    contactFrames: () => state.contactFrames,
+    lastStats: () => state.lastStats,
+    /** Freezes (true) or resumes (false) the drawn contact; frames keep arriving meanwhile. */
+    pause: (paused) => {
+      state.paused = Boolean(paused);
+    },
+    /** Stops (false) or restarts (true) the animation loop, so a benchmark has the CPU alone. */
+    animation: (on) => {
+      if (view.renderer) view.renderer.setAnimationLoop(on ? animate : null);
+    },
+    /**
+     * Moves the camera to look at a world point from `distanceM` away, `elevationRad` above the
+     * horizontal (screenshots; a low camera shows the dimple's profile beside the tool).
+     */
+    focusCamera: (point, distanceM, elevationRad = 0.6) => {
+      const h = distanceM * Math.cos(elevationRad);
+      view.camera.position.set(point[0] + h * 0.6, point[1] + distanceM * Math.sin(elevationRad), point[2] + h * 0.8);
+      if (view.controls) {
+        view.controls.target.set(point[0], point[1], point[2]);
+        view.controls.update();
+      }
+    },
+  };
+}
+
+init();

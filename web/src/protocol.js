@@ -1,0 +1,396 @@
+// The viewer's side of the WebSocket protocol: decoding and validating the server's messages,
+// the socket URL, and a connection that reconnects with exponential backoff and jitter.
+//
+// Messages keep their wire names (snake_case, SI units in the names) so that what the viewer
+// reads can be compared with the contract line by line. A message that breaks the contract is
+// an error naming the field and the value; the connection that sent it is closed and opened
+// again. An unknown message type is ignored and counted, so a newer server can add messages.
+
+import { toolFromJson } from './deformation.js';
+
+/** The protocol version this viewer speaks; `hello` and `scene` must carry it. */
+export const PROTOCOL_VERSION = 1;
+
+/** The contact flags the contract defines, in its snake_case spelling. */
+export const CONTACT_FLAGS = Object.freeze([
+  'saturated',
+  'stiffness_capped',
+  'beyond_valid_depth',
+  'beyond_valid_inclination',
+  'device_fault',
+  'ramping',
+  'passivity_damping',
+  'degenerate_normal',
+]);
+
+/** A message that breaks the contract; `field` is its dotted path. */
+export class ProtocolError extends Error {
+  constructor(field, message) {
+    super(`${field}: ${message}`);
+    this.name = 'ProtocolError';
+    this.field = field;
+  }
+}
+
+function show(value) {
+  const s = JSON.stringify(value);
+  if (s === undefined) return String(value);
+  return s.length > 80 ? `${s.slice(0, 77)}...` : s;
+}
+
+function object(value, field) {
+  if (value === null || typeof value !== 'object' || Array.isArray(value)) {
+    throw new ProtocolError(field, `expected an object, got ${show(value)}`);
+  }
+  return value;
+}
+
+function finite(value, field) {
+  if (typeof value !== 'number' || !Number.isFinite(value)) {
+    throw new ProtocolError(field, `expected a finite number, got ${show(value)}`);
+  }
+  return value;
+}
+
+function nonNegative(value, field) {
+  if (finite(value, field) < 0) throw new ProtocolError(field, `expected a number ≥ 0, got ${show(value)}`);
+  return value;
+}
+
+function positive(value, field) {
+  if (!(finite(value, field) > 0)) throw new ProtocolError(field, `expected a number > 0, got ${show(value)}`);
+  return value;
+}
+
+/** A u64 on the wire; JSON numbers beyond 2^53 lose precision but stay ordered. */
+function count(value, field) {
+  if (typeof value !== 'number' || !Number.isInteger(value) || value < 0) {
+    throw new ProtocolError(field, `expected a non-negative integer, got ${show(value)}`);
+  }
+  return value;
+}
+
+function string(value, field) {
+  if (typeof value !== 'string') throw new ProtocolError(field, `expected a string, got ${show(value)}`);
+  return value;
+}
+
+function boolean(value, field) {
+  if (typeof value !== 'boolean') throw new ProtocolError(field, `expected true or false, got ${show(value)}`);
+  return value;
+}
+
+function vector(value, length, field) {
+  if (!Array.isArray(value) || value.length !== length) {
+    throw new ProtocolError(field, `expected an array of ${length} numbers, got ${show(value)}`);
+  }
+  for (let i = 0; i < length; i++) finite(value[i], `${field}[${i}]`);
+  return value;
+}
+
+function pose(value, field) {
+  object(value, field);
+  vector(value.position_m, 3, `${field}.position_m`);
+  const q = vector(value.orientation, 4, `${field}.orientation`);
+  const norm = Math.hypot(q[0], q[1], q[2], q[3]);
+  if (!(Math.abs(norm - 1) < 1e-3)) {
+    throw new ProtocolError(
+      `${field}.orientation`,
+      `expected a unit quaternion [x,y,z,w], got ${show(q)} (norm ${norm})`,
+    );
+  }
+  return value;
+}
+
+function version(value, field) {
+  if (value !== PROTOCOL_VERSION) {
+    throw new ProtocolError(field, `this viewer speaks protocol ${PROTOCOL_VERSION}, the server sent ${show(value)}`);
+  }
+  return value;
+}
+
+function validateHello(m) {
+  version(m.protocol_version, 'hello.protocol_version');
+  string(m.session_id, 'hello.session_id');
+  string(m.role, 'hello.role');
+  string(m.server, 'hello.server');
+  return m;
+}
+
+function validateCalibration(c, field) {
+  object(c, field);
+  if (c.format !== 'softhaptic-calibration') {
+    throw new ProtocolError(`${field}.format`, `expected "softhaptic-calibration", got ${show(c.format)}`);
+  }
+  count(c.version, `${field}.version`);
+  string(c.source, `${field}.source`);
+  nonNegative(c.threshold_m, `${field}.threshold_m`);
+  if (!Array.isArray(c.rows)) throw new ProtocolError(`${field}.rows`, `expected an array, got ${show(c.rows)}`);
+  c.rows.forEach((row, i) => {
+    object(row, `${field}.rows[${i}]`);
+    nonNegative(row.depth_m, `${field}.rows[${i}].depth_m`);
+    nonNegative(row.deformed_radius_m, `${field}.rows[${i}].deformed_radius_m`);
+  });
+  const fit = object(c.fit, `${field}.fit`);
+  nonNegative(fit.breakpoint_m, `${field}.fit.breakpoint_m`);
+  vector(fit.linear, 2, `${field}.fit.linear`);
+  vector(fit.quadratic, 3, `${field}.fit.quadratic`);
+  return c;
+}
+
+function validateScene(m) {
+  version(m.protocol_version, 'scene.protocol_version');
+  try {
+    toolFromJson(m.tool);
+  } catch (e) {
+    throw new ProtocolError('scene.tool', e.message);
+  }
+  const material = object(m.material, 'scene.material');
+  positive(material.youngs_modulus_pa, 'scene.material.youngs_modulus_pa');
+  const nu = finite(material.poisson_ratio, 'scene.material.poisson_ratio');
+  if (!(nu >= 0 && nu < 0.5))
+    throw new ProtocolError('scene.material.poisson_ratio', `expected a value in [0, 0.5), got ${nu}`);
+  const model = object(m.model, 'scene.model');
+  string(model.name, 'scene.model.name');
+  nonNegative(model.valid_depth_m, 'scene.model.valid_depth_m');
+  nonNegative(model.valid_inclination_rad, 'scene.model.valid_inclination_rad');
+  validateCalibration(m.calibration, 'scene.calibration');
+  if (!Array.isArray(m.render_meshes)) {
+    throw new ProtocolError('scene.render_meshes', `expected an array, got ${show(m.render_meshes)}`);
+  }
+  m.render_meshes.forEach((mesh, i) => {
+    const f = `scene.render_meshes[${i}]`;
+    object(mesh, f);
+    string(mesh.name, `${f}.name`);
+    string(mesh.url, `${f}.url`);
+    count(mesh.vertex_count, `${f}.vertex_count`);
+    pose(mesh.object_in_world, `${f}.object_in_world`);
+  });
+  const device = object(m.device, 'scene.device');
+  string(device.name, 'scene.device.name');
+  positive(device.peak_force_n, 'scene.device.peak_force_n');
+  positive(device.continuous_force_n, 'scene.device.continuous_force_n');
+  positive(device.max_stiffness_n_per_m, 'scene.device.max_stiffness_n_per_m');
+  nonNegative(device.damping_n_s_per_m, 'scene.device.damping_n_s_per_m');
+  positive(device.workspace_radius_m, 'scene.device.workspace_radius_m');
+  return m;
+}
+
+function validateContact(m) {
+  count(m.seq, 'contact.seq');
+  count(m.tick, 'contact.tick');
+  count(m.time_ns, 'contact.time_ns');
+  pose(m.tip_in_world, 'contact.tip_in_world');
+  boolean(m.in_contact, 'contact.in_contact');
+  nonNegative(m.depth_m, 'contact.depth_m');
+  vector(m.normal, 3, 'contact.normal');
+  vector(m.contact_point_m, 3, 'contact.contact_point_m');
+  nonNegative(m.contact_radius_m, 'contact.contact_radius_m');
+  nonNegative(m.deformed_radius_m, 'contact.deformed_radius_m');
+  vector(m.force_n, 3, 'contact.force_n');
+  if (!Array.isArray(m.flags)) throw new ProtocolError('contact.flags', `expected an array, got ${show(m.flags)}`);
+  m.flags.forEach((flag, i) => {
+    if (!CONTACT_FLAGS.includes(flag)) {
+      throw new ProtocolError(`contact.flags[${i}]`, `unknown flag ${show(flag)} (known: ${CONTACT_FLAGS.join(', ')})`);
+    }
+  });
+  count(m.dropped, 'contact.dropped');
+  return m;
+}
+
+function validateStats(m) {
+  finite(m.loop_rate_hz, 'stats.loop_rate_hz');
+  const period = object(m.period_error_us, 'stats.period_error_us');
+  for (const k of ['p50', 'p99', 'p999', 'max']) finite(period[k], `stats.period_error_us.${k}`);
+  count(m.overruns, 'stats.overruns');
+  const compute = object(m.compute_us, 'stats.compute_us');
+  for (const k of ['p50', 'p99', 'max']) finite(compute[k], `stats.compute_us.${k}`);
+  count(m.viewers, 'stats.viewers');
+  count(m.dropped_frames, 'stats.dropped_frames');
+  return m;
+}
+
+const VALIDATORS = { hello: validateHello, scene: validateScene, contact: validateContact, stats: validateStats };
+
+/**
+ * Validates an already parsed message. Returns it (known type) or `null` (unknown type, to be
+ * ignored and counted); throws `ProtocolError` for a message that breaks the contract.
+ */
+export function validateMessage(message) {
+  object(message, 'message');
+  const type = string(message.type, 'message.type');
+  const validate = VALIDATORS[type];
+  if (!validate) return null;
+  return validate(message);
+}
+
+/**
+ * Decodes one WebSocket text frame: `{kind: 'message', message}` for a known type,
+ * `{kind: 'unknown', type}` for an unknown one; throws `ProtocolError` when the frame is not
+ * JSON or breaks the contract.
+ */
+export function decodeMessage(text) {
+  if (typeof text !== 'string') throw new ProtocolError('frame', 'expected a text frame');
+  let parsed;
+  try {
+    parsed = JSON.parse(text);
+  } catch (e) {
+    throw new ProtocolError('frame', `not JSON (${e.message}): ${show(text)}`);
+  }
+  const message = validateMessage(parsed);
+  if (message === null) return { kind: 'unknown', type: parsed.type };
+  return { kind: 'message', message };
+}
+
+/** The WebSocket URL of the server that served the page (wire contract), query passed through. */
+export function webSocketUrl(location) {
+  const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
+  return `${scheme}//${location.host}/ws${location.search ?? ''}`;
+}
+
+/**
+ * Delay before reconnection attempt `attempt` (0-based): exponential growth capped at `maxMs`,
+ * with "equal jitter" (half fixed, half random) so that many viewers of a restarted server do
+ * not all knock at the same instant, while none retries immediately.
+ */
+export function backoffDelayMs(attempt, random, { initialMs = 250, maxMs = 8000, factor = 2 } = {}) {
+  const ceiling = Math.min(maxMs, initialMs * Math.pow(factor, Math.max(0, attempt)));
+  return ceiling / 2 + random() * (ceiling / 2);
+}
+
+/**
+ * One viewer's connection to the server. States: `idle` → `connecting` → `open` →
+ * (`reconnecting` → `connecting` ...) and `stopped` after `stop()`.
+ *
+ * Decoded messages go to `onMessage(message, receivedAtMs)`; state changes to
+ * `onStateChange(state, detail)`. Everything outside the browser (socket class, timers, clock,
+ * random numbers) can be injected, so the behaviour is tested without waiting.
+ */
+export class ViewerConnection {
+  constructor({
+    url,
+    onMessage = () => {},
+    onStateChange = () => {},
+    WebSocketImpl = globalThis.WebSocket,
+    setTimer = (fn, ms) => setTimeout(fn, ms),
+    clearTimer = (id) => clearTimeout(id),
+    now = () => performance.now(),
+    random = Math.random,
+    backoff = {},
+    warn = (...args) => console.warn(...args),
+  }) {
+    this.url = url;
+    this.onMessage = onMessage;
+    this.onStateChange = onStateChange;
+    this.WebSocketImpl = WebSocketImpl;
+    this.setTimer = setTimer;
+    this.clearTimer = clearTimer;
+    this.now = now;
+    this.random = random;
+    this.backoff = backoff;
+    this.warn = warn;
+    this.state = 'idle';
+    this.socket = null;
+    this.timer = null;
+    this.attempt = 0;
+    /** Counters shown by the viewer and read by tests. */
+    this.stats = { messages: 0, unknown: 0, malformed: 0, connects: 0, reconnects: 0 };
+    this.lastError = null;
+    this.nextRetryMs = 0;
+  }
+
+  #setState(state, detail = null) {
+    if (this.state === state) return;
+    this.state = state;
+    this.onStateChange(state, detail);
+  }
+
+  /** Opens the first connection. */
+  start() {
+    if (this.state !== 'idle' && this.state !== 'stopped') return;
+    this.attempt = 0;
+    this.#open();
+  }
+
+  /** Closes the connection for good (no reconnection). */
+  stop() {
+    if (this.timer !== null) this.clearTimer(this.timer);
+    this.timer = null;
+    const socket = this.socket;
+    this.socket = null;
+    this.#setState('stopped');
+    if (socket) socket.close(1000, 'viewer closed');
+  }
+
+  #open() {
+    this.timer = null;
+    this.#setState('connecting');
+    let socket;
+    try {
+      socket = new this.WebSocketImpl(this.url);
+    } catch (e) {
+      this.lastError = `cannot open ${this.url}: ${e.message}`;
+      this.#scheduleReconnect();
+      return;
+    }
+    this.socket = socket;
+    socket.onopen = () => {
+      if (this.socket !== socket) return;
+      this.stats.connects++;
+      this.#setState('open');
+    };
+    socket.onmessage = (event) => this.#receive(socket, event.data);
+    socket.onerror = () => {
+      if (this.socket === socket) this.lastError = `WebSocket error on ${this.url}`;
+    };
+    socket.onclose = (event) => {
+      if (this.socket !== socket) return;
+      this.socket = null;
+      if (event && event.code !== 1000 && event.code !== 1005 && !this.lastError) {
+        this.lastError = `connection closed (code ${event.code}${event.reason ? `: ${event.reason}` : ''})`;
+      }
+      this.#scheduleReconnect();
+    };
+  }
+
+  #receive(socket, data) {
+    if (this.socket !== socket) return;
+    const receivedAtMs = this.now();
+    let decoded;
+    try {
+      decoded = decodeMessage(data);
+    } catch (e) {
+      // A malformed message closes this connection only; the viewer connects again.
+      this.stats.malformed++;
+      this.lastError = `malformed message: ${e.message}`;
+      this.warn(`softhaptic: ${this.lastError}`);
+      this.socket = null;
+      socket.close(1007, 'malformed message');
+      this.#scheduleReconnect();
+      return;
+    }
+    this.stats.messages++;
+    if (decoded.kind === 'unknown') {
+      this.stats.unknown++;
+      if (this.stats.unknown <= 5)
+        this.warn(`softhaptic: ignoring message of unknown type ${JSON.stringify(decoded.type)}`);
+      return;
+    }
+    if (decoded.message.type === 'hello') {
+      // A server that greets us is healthy: the next outage starts from the shortest delay.
+      this.attempt = 0;
+      this.lastError = null;
+    }
+    this.onMessage(decoded.message, receivedAtMs);
+  }
+
+  #scheduleReconnect() {
+    if (this.state === 'stopped') return;
+    const delay = backoffDelayMs(this.attempt, this.random, this.backoff);
+    this.attempt++;
+    this.stats.reconnects++;
+    this.nextRetryMs = this.now() + delay;
+    this.#setState('reconnecting', { delayMs: delay, error: this.lastError });
+    this.timer = this.setTimer(() => this.#open(), delay);
+  }
+}

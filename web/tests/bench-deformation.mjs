@@ -1,0 +1,159 @@
+// Measures the viewer's deformation update in Chromium, beside the paper's Table 1.
+//
+//   npm run bench   (builds and starts the server, debug profile; BENCH_RELEASE=1 for release,
+//                    SOFTHAPTIC_URL to use a server that is already running)
+//
+// For flat square grids of the paper's sizes (40² … 100² vertices) and for the scene's render
+// mesh, times MeshDeformer.apply (restore the previous dimple, move the new one, analytic
+// normals) over a press that slides a little each update, and prints the median. Then lets the
+// live page run and reports its frame rate, the frames it receives per second, and the median
+// deformation time it measured while drawing. Nothing here is asserted: it is a measurement.
+import os from 'node:os';
+
+import { launchBrowser } from './browser.mjs';
+import { startServer } from './server.mjs';
+
+const PAPER_TABLE_1 = [
+  // vertices, mean ms, sd ms (He & Choi, Table 1: computation time per step)
+  [1600, 0.154, 0.014],
+  [2500, 0.231, 0.012],
+  [3600, 0.325, 0.014],
+  [4900, 0.426, 0.013],
+  [6400, 0.551, 0.012],
+  [8100, 0.696, 0.025],
+  [10000, 0.856, 0.016],
+];
+const UPDATES = Number(process.env.BENCH_UPDATES ?? 400);
+const LIVE_SECONDS = Number(process.env.BENCH_LIVE_SECONDS ?? 8);
+
+/** Runs inside the page: times `updates` deformation updates on a grid or the render mesh. */
+async function timeInPage({ kind, side, updates }) {
+  const { MeshDeformer, contactRadius, toolFromJson } = await import('/src/deformation.js');
+  const { flatGrid, parseRenderMesh } = await import('/src/mesh.js');
+  const scene = await (await fetch('/api/scene')).json();
+  const tool = toolFromJson(scene.tool);
+  let mesh;
+  let centre;
+  let normal;
+  if (kind === 'grid') {
+    // A 100 mm square, the size of the paper's calibration block's top face.
+    mesh = flatGrid(side, 0.1);
+    centre = [0, 0, 0];
+    normal = [0, 1, 0];
+  } else {
+    const desc = scene.render_meshes[0];
+    mesh = parseRenderMesh(await (await fetch(desc.url)).arrayBuffer(), desc.name);
+    // Press where the mesh is highest, along that vertex's normal.
+    let top = 0;
+    for (let i = 1; i < mesh.positions.length / 3; i++)
+      if (mesh.positions[3 * i + 1] > mesh.positions[3 * top + 1]) top = i;
+    centre = Array.from(mesh.positions.subarray(3 * top, 3 * top + 3));
+    normal = Array.from(mesh.normals.subarray(3 * top, 3 * top + 3));
+  }
+  const deformer = new MeshDeformer(mesh.positions, mesh.normals);
+  const positions = Float32Array.from(mesh.positions);
+  const normals = Float32Array.from(mesh.normals);
+  // A 4 mm press (the paper's valid depth for a 10 mm sphere is 4.3 mm), R_d = 20 mm.
+  const depthM = 0.004;
+  const contact = {
+    inContact: true,
+    depthM,
+    contactRadiusM: contactRadius(tool, depthM),
+    deformedRadiusM: 0.02,
+    point: [0, 0, 0],
+    normal,
+  };
+  // performance.now() is coarsened to 0.1 ms in a page, so updates are timed in batches of 10
+  // and the median is taken over the batch means.
+  const batch = 10;
+  const batches = Math.max(1, Math.floor(updates / batch));
+  const means = new Float64Array(batches);
+  let moved = 0;
+  let k = 0;
+  const step = () => {
+    // Slide ±1 mm so each update restores the last dimple and moves a new one.
+    contact.point[0] = centre[0] + 0.001 * Math.sin(k * 0.3);
+    contact.point[1] = centre[1];
+    contact.point[2] = centre[2] + 0.001 * Math.cos(k * 0.3);
+    k++;
+    deformer.apply(positions, normals, contact, tool);
+  };
+  for (let w = 0; w < 50; w++) step(); // warm-up: let the JIT compile apply()
+  for (let b = 0; b < batches; b++) {
+    const t0 = performance.now();
+    for (let j = 0; j < batch; j++) step();
+    means[b] = (performance.now() - t0) / batch;
+    moved = deformer.movedCount;
+  }
+  const sorted = Float64Array.from(means).sort();
+  const meanMs = means.reduce((a, b) => a + b, 0) / batches;
+  return { vertices: deformer.vertexCount, medianMs: sorted[batches >> 1], meanMs, moved };
+}
+
+const server = await startServer({
+  release: Boolean(process.env.BENCH_RELEASE),
+  extraArgs: ['--no-realtime', '--no-record'],
+});
+const browser = await launchBrowser();
+try {
+  const page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
+  page.on('pageerror', (e) => console.error(`page error: ${e.message}`));
+  await page.goto(server.url);
+  await page.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 60000 });
+  await page.evaluate(() => window.__softhaptic.animation(false)); // the live view must not compete
+
+  const load = os
+    .loadavg()
+    .map((x) => x.toFixed(1))
+    .join(' ');
+  console.log(`Host: ${os.cpus().length} CPUs (${os.cpus()[0]?.model ?? 'unknown'}), load average ${load}`);
+  console.log(`Deformation update in Chromium (${UPDATES} updates each; 4 mm sphere press, R_d = 20 mm)`);
+  console.log('');
+  console.log('| vertices | moved | median ms | mean ms | paper Table 1 mean ms (SD) |');
+  console.log('|---:|---:|---:|---:|---:|');
+  for (const [vertices, paperMs, paperSd] of PAPER_TABLE_1) {
+    const side = Math.round(Math.sqrt(vertices));
+    const r = await page.evaluate(timeInPage, { kind: 'grid', side, updates: UPDATES });
+    console.log(
+      `| ${r.vertices} | ${r.moved} | ${r.medianMs.toFixed(3)} | ${r.meanMs.toFixed(3)} | ${paperMs.toFixed(3)} (${paperSd.toFixed(3)}) |`,
+    );
+  }
+  // The dense worst case: 100 000 vertices on the same 100 mm square (1 vertex per 0.1 mm²).
+  const dense = await page.evaluate(timeInPage, { kind: 'grid', side: 317, updates: UPDATES });
+  console.log(
+    `| ${dense.vertices} (grid) | ${dense.moved} | ${dense.medianMs.toFixed(3)} | ${dense.meanMs.toFixed(3)} | — |`,
+  );
+  const r = await page.evaluate(timeInPage, { kind: 'render', side: 0, updates: UPDATES });
+  console.log(`| ${r.vertices} (render mesh) | ${r.moved} | ${r.medianMs.toFixed(3)} | ${r.meanMs.toFixed(3)} | — |`);
+  console.log('');
+  console.log('The paper reports the computation time per step of its whole simulator on an Intel Core');
+  console.log("i7-2600 at 3.4 GHz; these times are the viewer's deformation update alone, in JavaScript,");
+  console.log('in Chromium on this host (the median is over batches of 10 updates, performance.now() is');
+  console.log('coarsened to 0.1 ms in a page).');
+
+  await page.evaluate(() => window.__softhaptic.animation(true));
+  await page.waitForTimeout(1000);
+  const start = await page.evaluate(() => ({ frames: window.__softhaptic.contactFrames(), at: performance.now() }));
+  await page.waitForTimeout(LIVE_SECONDS * 1000);
+  const end = await page.evaluate(() => ({ frames: window.__softhaptic.contactFrames(), at: performance.now() }));
+  const receivedPerSecond = ((end.frames - start.frames) * 1000) / (end.at - start.at);
+  const live = await page.evaluate(() => ({
+    gpu: window.__softhaptic.gpu(),
+    fps: window.__softhaptic.fps(),
+    deform: window.__softhaptic.deformationTimings(),
+    webgl: window.__softhaptic.webgl(),
+    vertices: window.__softhaptic.vertexCount(),
+  }));
+  console.log('');
+  console.log(
+    `Live viewer after ${LIVE_SECONDS} s (headless Chromium, WebGL: ${live.webgl ? live.gpu.name : 'unavailable'}, ${live.vertices}-vertex mesh):`,
+  );
+  console.log(`  frame rate            ${live.fps.toFixed(1)} fps`);
+  console.log(`  contact frames / s    ${receivedPerSecond.toFixed(1)} (server sends 50)`);
+  console.log(
+    `  deformation median    ${Number.isNaN(live.deform.medianMs) || live.deform.medianMs === null ? '—' : `${live.deform.medianMs.toFixed(3)} ms`} (${live.deform.samplesMs.length} frames in contact)`,
+  );
+} finally {
+  await browser.close();
+  await server.stop();
+}

@@ -1,0 +1,334 @@
+// The deformation profile against the shared vectors written by the Rust reference, against
+// the wire contract's definition, and MeshDeformer on real grids.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { readFileSync } from 'node:fs';
+import { fileURLToPath } from 'node:url';
+
+import {
+  MeshDeformer,
+  contactRadius,
+  depression,
+  depressionAt,
+  profileSetup,
+  toolFromJson,
+  toolShape,
+} from '../src/deformation.js';
+import { flatGrid } from '../src/mesh.js';
+
+const VECTORS = fileURLToPath(new URL('../../proto/vectors/deformation.json', import.meta.url));
+const MM = 1e-3;
+const sphere = toolFromJson({ shape: 'sphere', radius_m: 10 * MM });
+const cone = toolFromJson({ shape: 'cone', half_angle_rad: Math.PI / 4, radius_m: 10 * MM });
+
+/** Equal within 1e-9 relative (and 1e-15 m absolute for values that should be zero). */
+function close(actual, expected, what) {
+  const tol = 1e-9 * Math.abs(expected) + 1e-15;
+  assert.ok(Math.abs(actual - expected) <= tol, `${what}: got ${actual}, expected ${expected}`);
+}
+
+/** JSON cannot carry NaN or ±∞; the vectors may spell them as strings. */
+function num(x) {
+  if (x === 'NaN' || x === 'nan') return NaN;
+  if (x === 'inf' || x === 'Infinity' || x === '+inf') return Infinity;
+  if (x === '-inf' || x === '-Infinity') return -Infinity;
+  return x;
+}
+
+test('profile equals the Rust reference on every shared vector', () => {
+  const vectors = JSON.parse(readFileSync(VECTORS, 'utf8'));
+  const list = Array.isArray(vectors) ? vectors : vectors.vectors;
+  assert.ok(Array.isArray(list) && list.length >= 10, 'the vector file holds a list of cases');
+  for (const [i, v] of list.entries()) {
+    const z = depression(
+      toolShape(v.tool),
+      num(v.depth_m),
+      num(v.contact_radius_m),
+      num(v.deformed_radius_m),
+      num(v.r_m),
+    );
+    close(z, num(v.depression_m), `vector ${i} ${JSON.stringify(v)}`);
+  }
+});
+
+test('centre of the contact is pressed by the full depth', () => {
+  for (const d of [1e-9, 0.5 * MM, 3 * MM, 9 * MM]) {
+    close(depression(sphere, d, contactRadius(sphere, d), 30 * MM, 0), d, `sphere δ=${d}`);
+    close(depression(cone, d, contactRadius(cone, d), 30 * MM, 0), d, `cone δ=${d}`);
+  }
+});
+
+test('inside the contact the surface follows the tool', () => {
+  const d = 4 * MM;
+  const a = contactRadius(sphere, d);
+  close(a, Math.sqrt(10 * MM * d), 'Hertz contact radius');
+  for (let k = 0; k < 20; k++) {
+    const r = (a * k) / 20;
+    const expected = d - (10 * MM - Math.sqrt((10 * MM) ** 2 - r * r));
+    close(depression(sphere, d, a, 30 * MM, r), expected, `sphere r=${r}`);
+  }
+  const ac = contactRadius(cone, d);
+  close(ac, (2 * d) / Math.PI, 'Sneddon contact radius at 45°');
+  for (let k = 0; k < 20; k++) {
+    const r = (ac * k) / 20;
+    close(depression(cone, d, ac, 30 * MM, r), d - r, `cone r=${r}`);
+  }
+});
+
+test('flank lies on the quadratic Bézier through P0, P1, P2', () => {
+  const d = 4 * MM;
+  const a = contactRadius(sphere, d);
+  const R = 10 * MM;
+  const rd = 30 * MM;
+  const p = profileSetup(sphere, d, a, rd);
+  const z0 = d - (R - Math.sqrt(R * R - a * a));
+  const slope = a / Math.sqrt(R * R - a * a);
+  close(p.z0, z0, 'z0');
+  close(p.r1, a + z0 / slope, 'r1 where the tool tangent meets the surface');
+  for (let k = 0; k <= 10; k++) {
+    const t = k / 10;
+    const r = (1 - t) ** 2 * a + 2 * t * (1 - t) * p.r1 + t * t * rd;
+    const z = (1 - t) ** 2 * z0;
+    assert.ok(Math.abs(depressionAt(p, r) - z) < 1e-12, `t=${t}`);
+  }
+  // Leaves P0 along the tool's tangent.
+  const h = 1e-9;
+  const slopeOut = (depressionAt(p, a) - depressionAt(p, a + h)) / h;
+  assert.ok(Math.abs(slopeOut / slope - 1) < 1e-3, `slope ${slopeOut} vs tool ${slope}`);
+});
+
+test('nothing moves at or beyond the deformed radius', () => {
+  const d = 4 * MM;
+  for (const r of [30 * MM, 30.0001 * MM, 1, 1e300]) {
+    assert.equal(depression(sphere, d, contactRadius(sphere, d), 30 * MM, r), 0);
+  }
+  assert.ok(depression(sphere, d, contactRadius(sphere, d), 30 * MM, 29.9 * MM) > 0);
+});
+
+test('degenerate inputs have the contract answers', () => {
+  for (const d of [0, -1, NaN, Infinity]) assert.equal(depression(sphere, d, 1 * MM, 20 * MM, 0), 0, `δ=${d}`);
+  const d = 2 * MM;
+  const a = contactRadius(sphere, d);
+  // NaN or negative r behaves as r = 0.
+  assert.equal(depression(sphere, d, a, 20 * MM, NaN), depression(sphere, d, a, 20 * MM, 0));
+  assert.equal(depression(sphere, d, a, 20 * MM, -5), depression(sphere, d, a, 20 * MM, 0));
+  // Zero contact radius: horizontal tool slope, r1 = R_d.
+  const p = profileSetup(sphere, d, 0, 20 * MM);
+  assert.equal(p.r1, 20 * MM);
+  assert.equal(depressionAt(p, 0), d);
+  // R_d inside the contact is lifted to a_eff + z0.
+  const q = profileSetup(sphere, 4 * MM, contactRadius(sphere, 4 * MM), 0.1 * MM);
+  close(q.rdEff, q.aEff + q.z0, 'R_d_eff');
+  // Contact wider than the tool: a_eff = R, vertical tangent, r1 = a_eff.
+  const w = profileSetup(sphere, 15 * MM, contactRadius(sphere, 15 * MM), 60 * MM);
+  assert.equal(w.aEff, 10 * MM);
+  close(w.z0, 5 * MM, 'z0 past the tool radius');
+  assert.equal(w.r1, 10 * MM);
+  // An invalid tool deforms nothing.
+  assert.equal(depression(toolShape({ shape: 'sphere', radius_m: -1 }), d, a, 20 * MM, 0), 0);
+  assert.throws(() => toolFromJson({ shape: 'cone', half_angle_rad: Math.PI / 2, radius_m: 0.01 }), /half_angle_rad/);
+});
+
+test('profile is finite, bounded by δ, monotone and continuous over a sweep of inputs', () => {
+  for (const tool of [sphere, cone]) {
+    for (const dmm of [0.01, 0.5, 2, 4.3, 7, 12]) {
+      for (const rdmm of [0, 1, 5, 20, 60]) {
+        const d = dmm * MM;
+        const p = profileSetup(tool, d, contactRadius(tool, d), rdmm * MM);
+        const n = 4000;
+        const rMax = p.rdEff * 1.2;
+        const step = rMax / n;
+        // No step exceeds what the steepest slope allows: the tool's at the contact rim, or
+        // the flank's at P0, z0 / (r1 − a) (the flank's slope only decreases toward R_d).
+        const rim = tool.shape === 'sphere' ? p.aEff / Math.sqrt((10 * MM) ** 2 - p.aEff ** 2) : 1 / tool.tanAlpha;
+        const maxSlope = Math.max(rim, p.r1 > p.aEff ? p.z0 / (p.r1 - p.aEff) : 0);
+        let prev = depressionAt(p, 0);
+        for (let k = 1; k <= n; k++) {
+          const z = depressionAt(p, (rMax * k) / n);
+          assert.ok(Number.isFinite(z) && z >= 0 && z <= d, `${tool.shape} δ=${dmm}mm R_d=${rdmm}mm`);
+          assert.ok(z <= prev + 1e-15, 'monotone in r');
+          if (Number.isFinite(maxSlope)) {
+            assert.ok(prev - z <= maxSlope * step * 1.01 + 1e-15, `jump at r=${(rMax * k) / n}, δ=${dmm}mm`);
+          }
+          prev = z;
+        }
+      }
+    }
+  }
+});
+
+/** Brute-force reference: which vertices move and where, straight from the contract. */
+function bruteForce(rest, contact, tool) {
+  const p = profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM);
+  const [nx, ny, nz] = contact.normal;
+  const out = new Map();
+  for (let i = 0; i < rest.length / 3; i++) {
+    const vx = rest[3 * i] - contact.point[0];
+    const vy = rest[3 * i + 1] - contact.point[1];
+    const vz = rest[3 * i + 2] - contact.point[2];
+    const ax = vx * nx + vy * ny + vz * nz;
+    if (Math.abs(ax) > p.rdEff) continue;
+    const r = Math.hypot(vx - ax * nx, vy - ax * ny, vz - ax * nz);
+    const z = depressionAt(p, r);
+    if (z > 0) out.set(i, z);
+  }
+  return out;
+}
+
+function pressAt(x, z, depthM, rdM, normal = [0, 1, 0]) {
+  return {
+    inContact: true,
+    depthM,
+    contactRadiusM: contactRadius(sphere, depthM),
+    deformedRadiusM: rdM,
+    point: [x, 0, z],
+    normal,
+  };
+}
+
+test('applyDeformation moves exactly the vertices within R_d, by the profile', () => {
+  const grid = flatGrid(100, 0.2);
+  const out = Float32Array.from(grid.positions);
+  const normals = Float32Array.from(grid.normals);
+  const deformer = new MeshDeformer(grid.positions, grid.normals, { cellSizeM: 0.004 });
+  const contact = pressAt(0.013, -0.021, 3 * MM, 18 * MM);
+  deformer.apply(out, normals, contact, sphere);
+  const expected = bruteForce(grid.positions, contact, sphere);
+  assert.ok(expected.size > 50, `a press moves many vertices (${expected.size})`);
+  assert.equal(deformer.movedCount, expected.size);
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    const dy = grid.positions[3 * i + 1] - out[3 * i + 1];
+    const z = expected.get(i) ?? 0;
+    assert.ok(Math.abs(dy - z) < 1e-7, `vertex ${i}: moved ${dy}, profile ${z}`);
+    assert.equal(out[3 * i], grid.positions[3 * i], 'a flat press moves along −n only');
+    if (z === 0) assert.equal(out[3 * i + 1], grid.positions[3 * i + 1], `vertex ${i} outside R_d moved`);
+  }
+  // The vertex nearest the axis sinks by about δ.
+  let best = 0;
+  let bestR = Infinity;
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    const r = Math.hypot(grid.positions[3 * i] - 0.013, grid.positions[3 * i + 2] + 0.021);
+    if (r < bestR) [best, bestR] = [i, r];
+  }
+  const sunk = grid.positions[3 * best + 1] - out[3 * best + 1];
+  assert.ok(Math.abs(sunk - depression(sphere, 3 * MM, contactRadius(sphere, 3 * MM), 18 * MM, bestR)) < 1e-7);
+  assert.ok(sunk > 0.9 * 3 * MM, `vertex under the tool sank ${sunk}`);
+  // Normals of moved vertices stay unit and tilt toward the axis on the flank.
+  for (const i of expected.keys()) {
+    const len = Math.hypot(normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]);
+    assert.ok(Math.abs(len - 1) < 1e-5);
+  }
+});
+
+test('the previous dimple is restored when the contact moves or ends', () => {
+  const grid = flatGrid(60, 0.1);
+  const out = Float32Array.from(grid.positions);
+  const normals = Float32Array.from(grid.normals);
+  const deformer = new MeshDeformer(grid.positions, grid.normals);
+  deformer.apply(out, normals, pressAt(-0.02, 0, 4 * MM, 15 * MM), sphere);
+  const first = deformer.movedCount;
+  assert.ok(first > 0);
+  const touched = deformer.apply(out, normals, pressAt(0.02, 0, 4 * MM, 15 * MM), sphere);
+  assert.equal(touched, first + deformer.movedCount, 'disjoint dimples: restored + moved are both listed');
+  const expected = bruteForce(grid.positions, pressAt(0.02, 0, 4 * MM, 15 * MM), sphere);
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    const dy = grid.positions[3 * i + 1] - out[3 * i + 1];
+    assert.ok(Math.abs(dy - (expected.get(i) ?? 0)) < 1e-7, `vertex ${i}`);
+  }
+  deformer.apply(out, normals, { inContact: false }, sphere);
+  assert.deepEqual(out, grid.positions, 'out of contact, every vertex is back at rest');
+  assert.deepEqual(normals, grid.normals, 'and so is every normal');
+  assert.equal(deformer.movedCount, 0);
+});
+
+test('the far side of a thin object never moves', () => {
+  // Two parallel sheets 30 mm apart; pressing the top one with R_d = 20 mm must not pull the
+  // bottom sheet, whose vertices lie within R_d of the axis but farther than R_d along it (the
+  // contract moves a vertex only when |(v − c)·n| ≤ R_d_eff).
+  const top = flatGrid(40, 0.1);
+  const n = top.positions.length / 3;
+  const rest = new Float32Array(n * 6);
+  rest.set(top.positions);
+  for (let i = 0; i < n; i++) {
+    rest[3 * (n + i)] = top.positions[3 * i];
+    rest[3 * (n + i) + 1] = -0.03; // 30 mm below: beyond R_d along the axis
+    rest[3 * (n + i) + 2] = top.positions[3 * i + 2];
+  }
+  const out = Float32Array.from(rest);
+  const deformer = new MeshDeformer(rest, null);
+  deformer.apply(out, null, pressAt(0, 0, 5 * MM, 20 * MM), sphere);
+  assert.ok(deformer.movedCount > 0);
+  for (let i = n; i < 2 * n; i++) assert.equal(out[3 * i + 1], rest[3 * i + 1], `bottom vertex ${i - n}`);
+});
+
+test('a tilted contact on a scattered cloud matches the brute-force rule', () => {
+  // Deterministic pseudo-random cloud, to exercise every grid cell boundary.
+  let seed = 12345;
+  const rand = () => (seed = (seed * 1103515245 + 12345) >>> 0) / 2 ** 32;
+  const count = 20000;
+  const rest = new Float32Array(count * 3);
+  for (let i = 0; i < rest.length; i++) rest[i] = (rand() - 0.5) * 0.1;
+  const out = Float32Array.from(rest);
+  const deformer = new MeshDeformer(rest, null, { cellSizeM: 0.0037 });
+  const len = Math.hypot(0.3, 1, -0.2);
+  const contact = {
+    inContact: true,
+    depthM: 3 * MM,
+    contactRadiusM: 2 * MM,
+    deformedRadiusM: 12 * MM,
+    point: [0.01, 0.0, -0.005],
+    normal: [0.3 / len, 1 / len, -0.2 / len],
+  };
+  deformer.apply(out, null, contact, cone);
+  const expected = bruteForce(rest, contact, cone);
+  assert.equal(deformer.movedCount, expected.size);
+  for (const [i, z] of expected) {
+    const moved = Math.hypot(
+      out[3 * i] - rest[3 * i],
+      out[3 * i + 1] - rest[3 * i + 1],
+      out[3 * i + 2] - rest[3 * i + 2],
+    );
+    assert.ok(Math.abs(moved - z) < 1e-7, `vertex ${i}`);
+  }
+});
+
+test('non-finite contacts and meshes are handled without NaN', () => {
+  const grid = flatGrid(20, 0.05);
+  const out = Float32Array.from(grid.positions);
+  const deformer = new MeshDeformer(grid.positions, grid.normals);
+  deformer.apply(out, null, { ...pressAt(0, 0, 2 * MM, 10 * MM), normal: [0, 0, 0] }, sphere);
+  deformer.apply(out, null, { ...pressAt(0, 0, 2 * MM, 10 * MM), point: [NaN, 0, 0] }, sphere);
+  deformer.apply(out, null, pressAt(0, 0, NaN, 10 * MM), sphere);
+  assert.deepEqual(out, grid.positions);
+  const bad = Float32Array.from(grid.positions);
+  bad[7] = NaN;
+  assert.throws(() => new MeshDeformer(bad), /vertex 2 has a non-finite position/);
+});
+
+test('moved vertices get the normal of the deformed surface', () => {
+  // On a flat sheet the deformed surface is y = −z(r); its normal is ∝ n + z′(r)·e_r.
+  const grid = flatGrid(120, 0.1);
+  const out = Float32Array.from(grid.positions);
+  const normals = Float32Array.from(grid.normals);
+  const deformer = new MeshDeformer(grid.positions, grid.normals);
+  const contact = pressAt(0.0011, -0.0007, 4 * MM, 20 * MM);
+  deformer.apply(out, normals, contact, sphere);
+  const p = profileSetup(sphere, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM);
+  let checked = 0;
+  for (let k = 0; k < deformer.movedCount; k++) {
+    const i = deformer.moved[k];
+    const ex = grid.positions[3 * i] - contact.point[0];
+    const ez = grid.positions[3 * i + 2] - contact.point[2];
+    const r = Math.hypot(ex, ez);
+    const h = 1e-7;
+    if (r < 2 * h || Math.abs(r - p.aEff) < 2 * h || r > p.rdEff - 2 * h) continue; // kinks
+    const slope = (depressionAt(p, r + h) - depressionAt(p, r - h)) / (2 * h);
+    const len = Math.hypot(1, slope);
+    const expected = [(slope * ex) / r / len, 1 / len, (slope * ez) / r / len];
+    const got = [normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]];
+    const err = Math.hypot(got[0] - expected[0], got[1] - expected[1], got[2] - expected[2]);
+    assert.ok(err < 1e-4, `vertex ${i} at r=${r}: normal ${got}, expected ${expected}`);
+    checked++;
+  }
+  assert.ok(checked > 100, `${checked} normals checked`);
+});

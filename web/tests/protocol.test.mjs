@@ -1,0 +1,245 @@
+// Message decoding against the shared vectors and the wire contract; the WebSocket URL; the
+// connection's reconnection with backoff, driven by a scripted socket and mocked timers.
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+import { readFileSync } from 'node:fs';
+import { fileURLToPath } from 'node:url';
+
+import { ProtocolError, ViewerConnection, backoffDelayMs, decodeMessage, webSocketUrl } from '../src/protocol.js';
+import { contact, hello, scene, stats } from './fixtures.mjs';
+
+const VECTORS = fileURLToPath(new URL('../../proto/vectors/messages.json', import.meta.url));
+
+test('every shared message vector decodes or is refused as the Rust side says', () => {
+  const vectors = JSON.parse(readFileSync(VECTORS, 'utf8'));
+  const list = Array.isArray(vectors) ? vectors : vectors.vectors;
+  assert.ok(Array.isArray(list) && list.length > 0);
+  const seen = new Set();
+  for (const v of list) {
+    if (v.valid === false) {
+      assert.throws(() => decodeMessage(v.raw), ProtocolError, `${v.name} must be refused`);
+      continue;
+    }
+    const text = v.raw ?? JSON.stringify(v.json);
+    const decoded = decodeMessage(text);
+    const type = (v.json ?? JSON.parse(v.raw)).type;
+    if (decoded.kind === 'unknown') {
+      assert.ok(!['hello', 'scene', 'contact', 'stats'].includes(type), `${v.name}`);
+    } else {
+      assert.equal(decoded.message.type, type, v.name);
+      seen.add(type);
+    }
+  }
+  for (const type of ['hello', 'scene', 'contact', 'stats']) assert.ok(seen.has(type), `vectors cover ${type}`);
+});
+
+test('the four message types of the contract decode', () => {
+  for (const m of [hello, scene, contact(), stats]) {
+    const decoded = decodeMessage(JSON.stringify(m));
+    assert.equal(decoded.kind, 'message');
+    assert.deepEqual(decoded.message, m);
+  }
+  const cone = { ...scene, tool: { shape: 'cone', half_angle_rad: 0.785, radius_m: 0.01 } };
+  assert.equal(decodeMessage(JSON.stringify(cone)).message.tool.shape, 'cone');
+});
+
+test('an unknown type is reported as unknown, not as an error', () => {
+  assert.deepEqual(decodeMessage('{"type":"telemetry","x":1}'), { kind: 'unknown', type: 'telemetry' });
+});
+
+test('malformed messages are refused with the field and the value', () => {
+  const cases = [
+    ['not json', /frame: not JSON/],
+    ['[1,2]', /message: expected an object/],
+    ['{"seq":1}', /message.type: expected a string/],
+    [JSON.stringify({ ...hello, protocol_version: 2 }), /hello.protocol_version: .*protocol 1.*2/],
+    [JSON.stringify(contact({ depth_m: -0.001 })), /contact.depth_m: expected a number ≥ 0, got -0.001/],
+    [JSON.stringify(contact({ depth_m: 'deep' })), /contact.depth_m: expected a finite number, got "deep"/],
+    [JSON.stringify(contact({ normal: [0, 1] })), /contact.normal: expected an array of 3 numbers/],
+    [JSON.stringify(contact({ normal: [0, null, 0] })), /contact.normal\[1\]/],
+    [JSON.stringify(contact({ flags: ['melting'] })), /contact.flags\[0\]: unknown flag "melting"/],
+    [JSON.stringify(contact({ seq: -1 })), /contact.seq: expected a non-negative integer/],
+    [JSON.stringify(contact({ seq: 1.5 })), /contact.seq/],
+    [JSON.stringify(contact({ in_contact: 1 })), /contact.in_contact: expected true or false/],
+    [
+      JSON.stringify(contact({ tip_in_world: { position_m: [0, 0, 0], orientation: [0, 0, 0, 2] } })),
+      /contact.tip_in_world.orientation: expected a unit quaternion/,
+    ],
+    [JSON.stringify({ ...scene, tool: { shape: 'cube', radius_m: 0.01 } }), /scene.tool: tool.shape/],
+    [JSON.stringify({ ...scene, material: { youngs_modulus_pa: -5, poisson_ratio: 0.3 } }), /youngs_modulus_pa/],
+    [JSON.stringify({ ...scene, material: { youngs_modulus_pa: 5, poisson_ratio: 0.5 } }), /poisson_ratio/],
+    [JSON.stringify({ ...scene, render_meshes: [{ name: 'x' }] }), /scene.render_meshes\[0\].url/],
+    [JSON.stringify({ ...scene, calibration: { ...scene.calibration, format: 'csv' } }), /scene.calibration.format/],
+    [JSON.stringify({ ...stats, period_error_us: { p50: 1 } }), /stats.period_error_us.p99/],
+  ];
+  for (const [text, pattern] of cases) {
+    assert.throws(
+      () => decodeMessage(text),
+      (e) => e instanceof ProtocolError && pattern.test(e.message),
+      text,
+    );
+  }
+});
+
+test('the WebSocket URL follows the page, query included', () => {
+  assert.equal(webSocketUrl({ protocol: 'http:', host: '127.0.0.1:8080', search: '' }), 'ws://127.0.0.1:8080/ws');
+  assert.equal(
+    webSocketUrl({ protocol: 'https:', host: 'sim.example:443', search: '?token=abc' }),
+    'wss://sim.example:443/ws?token=abc',
+  );
+});
+
+test('backoff grows exponentially to its cap, with jitter within [half, full]', () => {
+  const opts = { initialMs: 250, maxMs: 8000, factor: 2 };
+  assert.equal(
+    backoffDelayMs(0, () => 0, opts),
+    125,
+  );
+  assert.equal(
+    backoffDelayMs(0, () => 1, opts),
+    250,
+  );
+  assert.equal(
+    backoffDelayMs(3, () => 1, opts),
+    2000,
+  );
+  assert.equal(
+    backoffDelayMs(10, () => 1, opts),
+    8000,
+  );
+  assert.equal(
+    backoffDelayMs(10, () => 0, opts),
+    4000,
+  );
+});
+
+/** A scripted WebSocket: the test opens, feeds and closes it. */
+class FakeSocket {
+  static instances = [];
+  constructor(url) {
+    this.url = url;
+    this.closed = null;
+    FakeSocket.instances.push(this);
+  }
+  close(code, reason) {
+    this.closed = { code, reason };
+  }
+  serverOpen() {
+    this.onopen?.({});
+  }
+  serverSend(message) {
+    this.onmessage?.({ data: typeof message === 'string' ? message : JSON.stringify(message) });
+  }
+  serverClose(code = 1006) {
+    this.onclose?.({ code, reason: '' });
+  }
+}
+
+function connection(extra = {}) {
+  FakeSocket.instances = [];
+  const received = [];
+  const states = [];
+  const warnings = [];
+  const conn = new ViewerConnection({
+    url: 'ws://host/ws',
+    WebSocketImpl: FakeSocket,
+    onMessage: (m) => received.push(m),
+    onStateChange: (s) => states.push(s),
+    random: () => 0.5,
+    now: () => 0,
+    warn: (w) => warnings.push(w),
+    ...extra,
+  });
+  return { conn, received, states, warnings };
+}
+
+test('connection delivers messages, counts unknown ones, and reconnects after a malformed one', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  const { conn, received, states, warnings } = connection();
+  conn.start();
+  const s1 = FakeSocket.instances[0];
+  assert.equal(s1.url, 'ws://host/ws');
+  s1.serverOpen();
+  s1.serverSend(hello);
+  s1.serverSend(contact());
+  s1.serverSend({ type: 'future_thing' });
+  assert.deepEqual(
+    received.map((m) => m.type),
+    ['hello', 'contact'],
+  );
+  assert.equal(conn.stats.unknown, 1);
+  assert.match(warnings[0], /unknown type "future_thing"/);
+  s1.serverSend(contact({ depth_m: NaN })); // serialises as null: malformed
+  assert.deepEqual(s1.closed, { code: 1007, reason: 'malformed message' });
+  assert.equal(conn.stats.malformed, 1);
+  assert.match(conn.lastError, /contact.depth_m/);
+  assert.equal(conn.state, 'reconnecting');
+  // Messages from the closed socket are ignored.
+  s1.serverSend(contact());
+  assert.equal(received.length, 2);
+  // First retry after 0.75 × 250 ms (random 0.5, equal jitter).
+  t.mock.timers.tick(187);
+  assert.equal(FakeSocket.instances.length, 1);
+  t.mock.timers.tick(1);
+  assert.equal(FakeSocket.instances.length, 2);
+  FakeSocket.instances[1].serverOpen();
+  assert.deepEqual(states, ['connecting', 'open', 'reconnecting', 'connecting', 'open']);
+  conn.stop();
+  assert.equal(FakeSocket.instances[1].closed.code, 1000);
+  assert.equal(conn.state, 'stopped');
+});
+
+test('repeated failures back off exponentially and a hello resets the backoff', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  const { conn } = connection({ random: () => 1 });
+  conn.start();
+  const delays = [];
+  let last = 0;
+  for (let k = 0; k < 6; k++) {
+    FakeSocket.instances.at(-1).serverClose(1006);
+    // Find when the next socket appears.
+    let waited = 0;
+    while (FakeSocket.instances.length === last + 1) {
+      t.mock.timers.tick(1);
+      waited++;
+      assert.ok(waited < 20000, 'a retry happens');
+    }
+    last++;
+    delays.push(waited);
+  }
+  assert.deepEqual(delays, [250, 500, 1000, 2000, 4000, 8000]);
+  assert.match(conn.lastError, /code 1006/);
+  const s = FakeSocket.instances.at(-1);
+  s.serverOpen();
+  s.serverSend(hello);
+  assert.equal(conn.lastError, null);
+  s.serverClose(1006);
+  let waited = 0;
+  const before = FakeSocket.instances.length;
+  while (FakeSocket.instances.length === before) {
+    t.mock.timers.tick(1);
+    waited++;
+  }
+  assert.equal(waited, 250, 'after a healthy session the first retry is quick again');
+  conn.stop();
+  t.mock.timers.tick(100000);
+  assert.equal(FakeSocket.instances.length, before + 1, 'no retry after stop');
+});
+
+test('a socket constructor that throws is retried like a failed connection', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  let calls = 0;
+  class Throwing {
+    constructor() {
+      calls++;
+      throw new Error('bad url');
+    }
+  }
+  const { conn } = connection({ WebSocketImpl: Throwing });
+  conn.start();
+  assert.equal(conn.state, 'reconnecting');
+  assert.match(conn.lastError, /bad url/);
+  t.mock.timers.tick(250);
+  assert.equal(calls, 2);
+  conn.stop();
+});

@@ -1,0 +1,74 @@
+// Starting the real device-host server for the browser tests and the benchmark.
+//
+// `startServer()` builds the `softhaptic` binary with cargo (debug profile unless told
+// otherwise), runs it on a free local port and resolves with the viewer URL it prints
+// ("viewer: http://HOST:PORT/"). SOFTHAPTIC_URL points the tests at a server that is already
+// running instead; SOFTHAPTIC_BIN at a binary that is already built.
+import { spawn, spawnSync } from 'node:child_process';
+import { existsSync } from 'node:fs';
+import path from 'node:path';
+import { fileURLToPath } from 'node:url';
+
+export const REPO = fileURLToPath(new URL('../../', import.meta.url));
+
+function targetDir() {
+  return process.env.CARGO_TARGET_DIR ? path.resolve(REPO, process.env.CARGO_TARGET_DIR) : path.join(REPO, 'target');
+}
+
+const built = new Map();
+
+/** Builds the server binary (once per process and profile) and returns its path. */
+export function buildServer({ release = false } = {}) {
+  if (process.env.SOFTHAPTIC_BIN) return process.env.SOFTHAPTIC_BIN;
+  if (built.has(release)) return built.get(release);
+  const args = ['build', '-p', 'softhaptic-server', '--bin', 'softhaptic'];
+  if (release) args.push('--release');
+  const result = spawnSync('cargo', args, { cwd: REPO, stdio: ['ignore', 'inherit', 'inherit'] });
+  if (result.error) throw new Error(`cannot run cargo: ${result.error.message}`);
+  if (result.status !== 0) throw new Error(`cargo ${args.join(' ')} failed with status ${result.status}`);
+  const bin = path.join(targetDir(), release ? 'release' : 'debug', 'softhaptic');
+  if (!existsSync(bin)) throw new Error(`cargo built, but ${bin} does not exist`);
+  built.set(release, bin);
+  return bin;
+}
+
+/**
+ * Runs the server and resolves with `{url, stop, output}` once it prints its viewer URL.
+ * `extraArgs` are passed through (e.g. a scene); `addr` defaults to a free local port.
+ */
+export async function startServer({ release = false, extraArgs = [], addr = '127.0.0.1:0', timeoutMs = 60000 } = {}) {
+  if (process.env.SOFTHAPTIC_URL) {
+    return { url: process.env.SOFTHAPTIC_URL, stop: async () => {}, output: () => '' };
+  }
+  const bin = buildServer({ release });
+  const child = spawn(bin, ['--addr', addr, ...extraArgs], { cwd: REPO, stdio: ['ignore', 'pipe', 'pipe'] });
+  let output = '';
+  const url = await new Promise((resolve, reject) => {
+    const timer = setTimeout(
+      () => reject(new Error(`server printed no viewer URL within ${timeoutMs} ms:\n${output}`)),
+      timeoutMs,
+    );
+    const onData = (chunk) => {
+      output += chunk.toString();
+      const m = /viewer: (http:\/\/\S+)/.exec(output);
+      if (m) {
+        clearTimeout(timer);
+        resolve(m[1].endsWith('/') ? m[1] : `${m[1]}/`);
+      }
+    };
+    child.stdout.on('data', onData);
+    child.stderr.on('data', onData);
+    child.on('exit', (code, signal) => {
+      clearTimeout(timer);
+      reject(new Error(`server exited (code ${code}, signal ${signal}) before printing its URL:\n${output}`));
+    });
+  });
+  const stop = () =>
+    new Promise((resolve) => {
+      if (child.exitCode !== null || child.signalCode !== null) return resolve();
+      child.once('exit', () => resolve());
+      child.kill('SIGTERM');
+      setTimeout(() => child.kill('SIGKILL'), 5000).unref();
+    });
+  return { url, stop, output: () => output, child };
+}
