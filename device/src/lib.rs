@@ -6,6 +6,8 @@
 //! # Layout
 //! - [`law`]: the closed-form contact laws (Hertz sphere, Sneddon cone), contact radius and
 //!   stiffness, as pure functions of depth.
+//! - [`model`]: [`ForceModel`](model::ForceModel), the paper's law times the corrections a scene
+//!   turns on (curvature, layer thickness, exact sphere, hyperelastic fit, inclination).
 //! - [`mesh`]: the coarse haptic mesh and the flat grids of the paper's timing study.
 //! - [`collision`]: tool-tip collision with the haptic mesh (paper §4.1).
 //! - [`shape`]: the tool tip as a solid: implicit inside test, bounding box, support point.
@@ -28,6 +30,7 @@ pub mod haptic_loop;
 pub mod law;
 pub mod liver;
 pub mod mesh;
+pub mod model;
 pub mod passivity;
 pub mod render;
 pub mod replay;

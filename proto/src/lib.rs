@@ -8,6 +8,8 @@
 //! # Layout
 //! - [`material`]: linear-elastic constants (E, ν) validated on construction, and the derived
 //!   shear and plane-strain moduli.
+//! - [`model`]: which contact model and corrections a scene object uses, and the measured
+//!   validity limits of each model (file format of the calibration's `model_limits.json`).
 //! - [`tool`]: the rigid tool tips (sphere, cone) and the cone half-angle convention.
 //! - [`contact`]: poses, the per-tick [`ContactState`] and its [`ContactFlags`].
 //! - [`calibration`]: the δ → R_d calibration table (JSON file format), its piecewise fit and
@@ -25,6 +27,7 @@ pub mod calibration;
 pub mod contact;
 pub mod deformation;
 pub mod material;
+pub mod model;
 pub mod record;
 pub mod tool;
 pub mod wire;
@@ -33,4 +36,5 @@ pub use calibration::{CalibrationError, CalibrationSource, CalibrationTable};
 pub use contact::{ContactFlags, ContactState, Pose};
 pub use deformation::DeformationProfile;
 pub use material::{Material, MaterialError};
+pub use model::{LayerSpec, ModelError, ModelLimitsFile, ModelSpec};
 pub use tool::{ToolError, ToolShape};

@@ -1,0 +1,271 @@
+//! Which contact model a scene object uses, and how far each model has been measured to hold.
+//!
+//! The paper's laws (Hertz for a sphere, Sneddon for a cone) assume a flat elastic half-space
+//! pressed perpendicularly by a paraboloid, in small strain. A [`ModelSpec`] switches on the
+//! corrections of physics.md ("Corrections that go past the paper") one by one, so a scene pays
+//! only for what its objects need (design.md, invariant 6). The runtime evaluates them in
+//! `softhaptic_device::model`; the offline calibration measures each against the FEM and writes
+//! a [`ModelLimitsFile`] of the depths where each combination stays within 7 % of it.
+
+use serde::{Deserialize, Serialize};
+
+use crate::ToolShape;
+
+/// Why a model description was refused; names the field and the value.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ModelError {
+    #[error("thickness.thickness_m must be finite and > 0, got {0}")]
+    Thickness(f64),
+    #[error("exact_sphere applies to a sphere tool only; this tool is a cone")]
+    ExactSphereOnCone,
+    #[error(
+        "thickness.bonded = false has no published law for a cone (only the bonded layer of \
+         Garcia & Garcia 2018); set bonded = true or remove the thickness correction"
+    )]
+    UnbondedCone,
+}
+
+/// A layer of finite thickness resting on a rigid base (Dimitriadis et al. 2002 for a sphere,
+/// Garcia & Garcia 2018 for a cone).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LayerSpec {
+    /// Thickness h of the elastic layer above the rigid base, metres.
+    pub thickness_m: f64,
+    /// True when the layer is glued to the base (no slip); false when it slides on it.
+    pub bonded: bool,
+}
+
+/// The contact model of one scene object: the paper's law of its tool, and the corrections that
+/// apply. Every field defaults to off, which is the paper's law exactly.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelSpec {
+    /// Sneddon's exact sphere instead of Hertz's paraboloid (sphere tools only).
+    pub exact_sphere: bool,
+    /// The object's local curvature at the contact, taken from the haptic mesh (effective radius
+    /// for a sphere, the derived law for a cone).
+    pub curvature: bool,
+    /// The object is a layer of this thickness on a rigid base.
+    pub thickness: Option<LayerSpec>,
+    /// Large-strain (neo-Hookean) stiffening, fitted to the project's own neo-Hookean FEM.
+    pub hyperelastic: bool,
+    /// The force along the contact normal when the tool axis is inclined to it.
+    pub inclination: bool,
+}
+
+impl ModelSpec {
+    /// The paper's law with no correction.
+    pub const PAPER: ModelSpec = ModelSpec {
+        exact_sphere: false,
+        curvature: false,
+        thickness: None,
+        hyperelastic: false,
+        inclination: false,
+    };
+
+    /// Checks the fields against the tool they will be used with.
+    pub fn validate(&self, tool: &ToolShape) -> Result<(), ModelError> {
+        if let Some(layer) = self.thickness {
+            if !(layer.thickness_m.is_finite() && layer.thickness_m > 0.0) {
+                return Err(ModelError::Thickness(layer.thickness_m));
+            }
+            if matches!(tool, ToolShape::Cone { .. }) && !layer.bonded {
+                return Err(ModelError::UnbondedCone);
+            }
+        }
+        if self.exact_sphere && matches!(tool, ToolShape::Cone { .. }) {
+            return Err(ModelError::ExactSphereOnCone);
+        }
+        Ok(())
+    }
+
+    /// True when no correction is on.
+    pub fn is_paper(&self) -> bool {
+        *self == ModelSpec::PAPER
+    }
+
+    /// The corrections that are on, by their scene-file names, in a fixed order.
+    pub fn corrections(&self) -> Vec<&'static str> {
+        let mut names = Vec::new();
+        if self.exact_sphere {
+            names.push("exact_sphere");
+        }
+        if self.curvature {
+            names.push("curvature");
+        }
+        match self.thickness {
+            Some(LayerSpec { bonded: true, .. }) => names.push("thickness_bonded"),
+            Some(LayerSpec { bonded: false, .. }) => names.push("thickness_unbonded"),
+            None => {}
+        }
+        if self.hyperelastic {
+            names.push("hyperelastic");
+        }
+        if self.inclination {
+            names.push("inclination");
+        }
+        names
+    }
+
+    /// A human-readable name, e.g. "Hertz + exact sphere + bonded layer 30 mm + neo-Hookean fit".
+    pub fn label(&self, tool: &ToolShape) -> String {
+        let mut label = String::from(match tool {
+            ToolShape::Sphere { .. } => "Hertz",
+            ToolShape::Cone { .. } => "Sneddon cone",
+        });
+        if self.exact_sphere {
+            label.push_str(" + exact sphere");
+        }
+        if self.curvature {
+            label.push_str(" + curvature");
+        }
+        if let Some(layer) = self.thickness {
+            let kind = if layer.bonded { "bonded" } else { "sliding" };
+            label.push_str(&format!(
+                " + {kind} layer {:.0} mm",
+                layer.thickness_m * 1e3
+            ));
+        }
+        if self.hyperelastic {
+            label.push_str(" + neo-Hookean fit");
+        }
+        if self.inclination {
+            label.push_str(" + inclination");
+        }
+        label
+    }
+}
+
+/// Which tool a measured limit belongs to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ToolKind {
+    Sphere,
+    Cone,
+}
+
+impl ToolKind {
+    pub fn of(tool: &ToolShape) -> Self {
+        match tool {
+            ToolShape::Sphere { .. } => ToolKind::Sphere,
+            ToolShape::Cone { .. } => ToolKind::Cone,
+        }
+    }
+}
+
+/// How far one model was measured to stay within the threshold of the neo-Hookean FEM.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeasuredLimit {
+    pub tool: ToolKind,
+    pub model: ModelSpec,
+    /// Depth up to which the model stays within the threshold: the first crossing, or the deepest
+    /// depth measured when it never crosses (`crossed` false).
+    pub valid_depth_m: f64,
+    /// Whether the error crossed the threshold within the measured depths.
+    pub crossed: bool,
+    /// Largest angle between tool axis and contact normal within the threshold, when measured.
+    pub valid_inclination_rad: Option<f64>,
+    /// The experiment the figure comes from (tool size, block, FEM law and mesh).
+    pub reference: String,
+}
+
+/// The file `softhaptic-calibrate speed-accuracy` writes (`scenes/calibration/model_limits.json`)
+/// and scenes load to set the validity flags of their active model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelLimitsFile {
+    /// Format version; 1.
+    pub version: u32,
+    /// The error threshold the limits are measured at, percent of the largest reference force
+    /// (the paper's eq. 9 uses 7).
+    pub threshold_percent: f64,
+    pub limits: Vec<MeasuredLimit>,
+}
+
+impl ModelLimitsFile {
+    pub const VERSION: u32 = 1;
+
+    /// The measured limit of exactly this tool kind and model, if it was measured.
+    pub fn lookup(&self, tool: &ToolShape, spec: &ModelSpec) -> Option<&MeasuredLimit> {
+        let kind = ToolKind::of(tool);
+        self.limits
+            .iter()
+            .find(|l| l.tool == kind && l.model == *spec)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_paper_law() {
+        let spec: ModelSpec = serde_json::from_str("{}").unwrap();
+        assert!(spec.is_paper());
+        assert!(spec.corrections().is_empty());
+        assert_eq!(spec.label(&ToolShape::Sphere { radius_m: 0.006 }), "Hertz");
+    }
+
+    #[test]
+    fn invalid_combinations_name_the_field() {
+        let cone = ToolShape::Cone {
+            half_angle_rad: 0.7,
+            radius_m: 0.01,
+        };
+        let sphere = ToolShape::Sphere { radius_m: 0.006 };
+        let mut spec = ModelSpec {
+            thickness: Some(LayerSpec {
+                thickness_m: -1.0,
+                bonded: true,
+            }),
+            ..ModelSpec::PAPER
+        };
+        let err = spec.validate(&sphere).unwrap_err().to_string();
+        assert!(err.contains("thickness_m") && err.contains("-1"), "{err}");
+        spec.thickness = Some(LayerSpec {
+            thickness_m: 0.03,
+            bonded: false,
+        });
+        assert!(spec.validate(&sphere).is_ok());
+        assert_eq!(spec.validate(&cone), Err(ModelError::UnbondedCone));
+        let exact = ModelSpec {
+            exact_sphere: true,
+            ..ModelSpec::PAPER
+        };
+        assert_eq!(exact.validate(&cone), Err(ModelError::ExactSphereOnCone));
+        assert!(serde_json::from_str::<ModelSpec>(r#"{"exact":true}"#).is_err());
+    }
+
+    #[test]
+    fn lookup_matches_tool_and_model_exactly() {
+        let best = ModelSpec {
+            exact_sphere: true,
+            hyperelastic: true,
+            ..ModelSpec::PAPER
+        };
+        let file = ModelLimitsFile {
+            version: 1,
+            threshold_percent: 7.0,
+            limits: vec![MeasuredLimit {
+                tool: ToolKind::Sphere,
+                model: best,
+                valid_depth_m: 0.006,
+                crossed: false,
+                valid_inclination_rad: None,
+                reference: "test".into(),
+            }],
+        };
+        let text = serde_json::to_string(&file).unwrap();
+        let back: ModelLimitsFile = serde_json::from_str(&text).unwrap();
+        let sphere = ToolShape::Sphere { radius_m: 0.006 };
+        assert!(back.lookup(&sphere, &best).is_some());
+        assert!(back.lookup(&sphere, &ModelSpec::PAPER).is_none());
+        let cone = ToolShape::Cone {
+            half_angle_rad: 0.7,
+            radius_m: 0.01,
+        };
+        assert!(back.lookup(&cone, &best).is_none());
+    }
+}
