@@ -12,9 +12,10 @@ run: rust-tools web-deps
 
 test: lint test-rust test-web
 
-lint: rust-tools
+lint: rust-tools web-deps
 	$(CARGO) fmt --all -- --check
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	cd web && npm run lint && npm run format:check
 
 test-rust: rust-tools
 	$(CARGO) test --workspace

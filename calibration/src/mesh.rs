@@ -80,6 +80,10 @@ pub struct TetMesh {
     pub profile_nodes: Vec<u32>,
     /// The modelled part of the object.
     pub symmetry: Symmetry,
+    /// Node counts (nx, ny, nz) of the structured grid the mesh came from, node (i, j, k) being
+    /// number i + nx (j + ny k): what the fill-reducing ordering of the factorisation dissects
+    /// (`crate::sparse`). `None` for a mesh without that structure.
+    pub grid_nodes: Option<[usize; 3]>,
 }
 
 /// Errors in mesh parameters.
@@ -474,6 +478,7 @@ impl Grid {
             contact_candidates,
             profile_nodes,
             symmetry,
+            grid_nodes: Some([self.nx, self.ny, self.nz]),
         }
     }
 }

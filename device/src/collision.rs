@@ -24,6 +24,14 @@
 //!   continuously on the surface, so a mesh coarser than the tip is not felt (no zero between
 //!   vertices, no jump when a vertex enters the tip, no bump while sliding on a flat mesh).
 //!
+//! # Local curvature
+//! When the scene's contact model uses the object's curvature, [`Collider::with_curvature`]
+//! estimates it once per vertex ([`crate::curvature`]) and every contact then carries
+//! [`ContactGeometry::curvature_1_per_m`]: in continuous mode the vertex values of the triangle
+//! under the contact blended by the contact point's barycentric weights (the blend the normal
+//! uses, so the curvature moves continuously as the tool slides), in paper mode the mean over
+//! the colliding vertices. Without it the field is zero and nothing is computed.
+//!
 //! # Inside and outside
 //! The side of the surface a point is on is the sign of (q − p) · n, n the Phong normal at the
 //! closest point p. Inside a face this is the face's own side whenever the three vertex normals
@@ -82,6 +90,9 @@ pub struct ContactGeometry {
     pub degenerate_normal: bool,
     /// True when the measured depth exceeded the tip's height and was clamped to it.
     pub depth_clamped: bool,
+    /// Mean curvature of the surface at the contact, 1/m, positive where convex; zero unless
+    /// the collider was built [`Collider::with_curvature`].
+    pub curvature_1_per_m: f64,
 }
 
 /// The point of the mesh surface closest to a query point.
@@ -96,6 +107,8 @@ pub struct SurfacePoint {
     pub signed_distance_m: f64,
     /// Index of the triangle that holds the point.
     pub triangle: u32,
+    /// The point's barycentric weights on the triangle's vertices, in the triangle's order.
+    pub barycentric: DVec3,
 }
 
 /// Collision queries against one haptic mesh.
@@ -117,6 +130,9 @@ pub struct Collider {
     /// Padding (m) added to every f32 box, triangle and query alike: covers f32 rounding of the
     /// coordinates (relative 6e-8) with a wide safety factor.
     pad_m: f64,
+    /// Mean curvature per vertex (1/m), or empty when the scene's model does not use it: only
+    /// [`Collider::with_curvature`] computes it.
+    vertex_curvature_1_per_m: Vec<f64>,
 }
 
 impl Collider {
@@ -151,7 +167,29 @@ impl Collider {
             depth,
             stamp: 0,
             pad_m,
+            vertex_curvature_1_per_m: Vec::new(),
         }
+    }
+
+    /// Estimates the mesh's curvature at every vertex ([`crate::curvature`]) so that contacts
+    /// report it. Costs O(E log E) once, E the edge count; a collider that already has it is
+    /// returned as is.
+    pub fn with_curvature(mut self) -> Self {
+        if self.vertex_curvature_1_per_m.is_empty() {
+            self.vertex_curvature_1_per_m =
+                crate::curvature::vertex_mean_curvatures_1_per_m(&self.mesh);
+        }
+        self
+    }
+
+    /// True when contacts report the surface's curvature.
+    pub fn has_curvature(&self) -> bool {
+        !self.vertex_curvature_1_per_m.is_empty()
+    }
+
+    /// The per-vertex mean curvature (1/m), empty unless built [`Collider::with_curvature`].
+    pub fn vertex_curvatures_1_per_m(&self) -> &[f64] {
+        &self.vertex_curvature_1_per_m
     }
 
     pub fn mesh(&self) -> &HapticMesh {
@@ -205,6 +243,7 @@ impl Collider {
         let inverse: DQuat = pose.orientation.inverse();
         let mut sum_p = DVec3::ZERO;
         let mut sum_n = DVec3::ZERO;
+        let mut sum_curvature = 0.0;
         let mut count = 0usize;
         // The closure borrows the mesh and the stamps, the traversal borrows the tree and the
         // stack: disjoint fields, so split them before traversing.
@@ -214,6 +253,7 @@ impl Collider {
             stack,
             vertex_stamps,
             stamp,
+            vertex_curvature_1_per_m,
             ..
         } = self;
         traverse_overlap(bvh, stack, &query_box, |triangle| {
@@ -227,6 +267,7 @@ impl Collider {
                 if shape::contains_local(tool, inverse * (p - pose.position_m)) {
                     sum_p += p;
                     sum_n += mesh.normals()[v];
+                    sum_curvature += vertex_curvature_1_per_m.get(v).copied().unwrap_or(0.0);
                     count += 1;
                 }
             }
@@ -249,6 +290,7 @@ impl Collider {
             contact_point_m: centre,
             degenerate_normal,
             depth_clamped: raw_depth_m > max_depth_m,
+            curvature_1_per_m: sum_curvature / count as f64,
         })
     }
 
@@ -287,7 +329,21 @@ impl Collider {
             contact_point_m,
             degenerate_normal,
             depth_clamped: raw_depth_m > max_depth_m,
+            curvature_1_per_m: self.curvature_at(&surface),
         })
+    }
+
+    /// The mesh's curvature at a surface point: its triangle's vertex values blended by its
+    /// barycentric weights; zero without [`Collider::with_curvature`].
+    #[inline]
+    fn curvature_at(&self, surface: &SurfacePoint) -> f64 {
+        let k = &self.vertex_curvature_1_per_m;
+        if k.is_empty() {
+            return 0.0;
+        }
+        let [a, b, c] = self.mesh.triangles()[surface.triangle as usize];
+        let w = surface.barycentric;
+        w.x * k[a as usize] + w.y * k[b as usize] + w.z * k[c as usize]
     }
 
     /// The surface point closest to `point_m` (object frame) within `max_distance_m`, or `None`
@@ -370,6 +426,7 @@ impl Collider {
             normal,
             signed_distance_m,
             triangle,
+            barycentric: bary,
         })
     }
 }
@@ -588,6 +645,46 @@ mod tests {
         }
         assert_eq!(collider.stack.capacity(), capacity);
         assert!(collider.tree_depth() >= 2);
+    }
+
+    #[test]
+    fn contacts_report_the_curvature_only_when_asked() {
+        // A 10 mm sphere pressed 2 mm into a ball of R0 = 50 mm from several directions: in
+        // both modes the contact's curvature is 1/R0 (the estimate is exact on a sphere; the
+        // blend and the mean of equal values stay within rounding).
+        let r0 = 0.05;
+        let tool = ToolShape::sphere(0.01).unwrap();
+        for mode in [CollisionMode::Continuous, CollisionMode::PaperVertices] {
+            let mut plain = Collider::new(HapticMesh::sphere(r0, 4).unwrap(), mode);
+            let mut curved =
+                Collider::new(HapticMesh::sphere(r0, 4).unwrap(), mode).with_curvature();
+            assert!(!plain.has_curvature() && curved.has_curvature());
+            for k in 0..20 {
+                let a = k as f64 * 0.7;
+                let direction = DVec3::new(a.cos(), 0.3 * a.sin(), a.sin()).normalize();
+                // The tool frame's origin is the tip, its +y axis the shaft: press along −direction.
+                let pose = Pose {
+                    position_m: direction * (r0 - 0.002),
+                    orientation: DQuat::from_rotation_arc(DVec3::Y, direction),
+                };
+                let g = curved.query(&tool, &pose).unwrap();
+                assert!(
+                    (g.curvature_1_per_m * r0 - 1.0).abs() < 1e-9,
+                    "{mode:?}: {g:?}"
+                );
+                assert_eq!(plain.query(&tool, &pose).unwrap().curvature_1_per_m, 0.0);
+            }
+        }
+        // A flat grid: zero either way.
+        let mut grid =
+            Collider::new(HapticMesh::grid(21, 0.1), CollisionMode::Continuous).with_curvature();
+        let g = grid
+            .query(
+                &tool,
+                &Pose::from_position(DVec3::new(0.003, -0.002, 0.001)),
+            )
+            .unwrap();
+        assert!(g.curvature_1_per_m.abs() < 1e-9);
     }
 
     #[test]

@@ -15,8 +15,13 @@ pub struct DeviceLimits {
     pub name: &'static str,
     /// Largest force the device may be commanded, briefly (saturation bound).
     pub peak_force_n: f64,
-    /// Force the motors sustain without overheating.
+    /// Force the motors sustain without overheating (the RMS force at which the windings settle
+    /// at their temperature limit).
     pub continuous_force_n: f64,
+    /// Time constant of the first-order heating model of the motors that
+    /// [`ContinuousForceLimiter`](crate::thermal::ContinuousForceLimiter) uses to hold the RMS
+    /// force at `continuous_force_n` (see [`crate::thermal`] for the choice).
+    pub thermal_time_constant_s: f64,
     /// Largest virtual stiffness the device renders stably at 1 kHz (the stiffness cap).
     pub max_stiffness_n_per_m: f64,
     /// Largest virtual damping the device renders stably (bounds the configured damping).
@@ -32,6 +37,7 @@ impl DeviceLimits {
         name: "PHANTOM Desktop",
         peak_force_n: 7.9,
         continuous_force_n: 1.75,
+        thermal_time_constant_s: crate::thermal::MOTOR_TIME_CONSTANT_S,
         max_stiffness_n_per_m: 1000.0,
         damping_n_s_per_m: 5.0,
         workspace_radius_m: 0.10,
@@ -44,6 +50,7 @@ impl DeviceLimits {
         name: "Touch",
         peak_force_n: 3.3,
         continuous_force_n: 0.88,
+        thermal_time_constant_s: crate::thermal::MOTOR_TIME_CONSTANT_S,
         max_stiffness_n_per_m: 400.0,
         damping_n_s_per_m: 2.0,
         workspace_radius_m: 0.075,
@@ -55,6 +62,7 @@ impl DeviceLimits {
         name: "PHANTOM Omni",
         peak_force_n: 3.3,
         continuous_force_n: 0.88,
+        thermal_time_constant_s: crate::thermal::MOTOR_TIME_CONSTANT_S,
         max_stiffness_n_per_m: 700.0,
         damping_n_s_per_m: 5.0,
         workspace_radius_m: 0.08,
@@ -139,6 +147,7 @@ mod tests {
         ] {
             assert!(l.continuous_force_n < l.peak_force_n, "{}", l.name);
             assert!(l.max_stiffness_n_per_m > 0.0 && l.workspace_radius_m > 0.0);
+            assert!(l.thermal_time_constant_s > 0.0, "{}", l.name);
         }
         assert_eq!(DeviceLimits::PHANTOM_DESKTOP.peak_force_n, 7.9);
     }

@@ -6,6 +6,10 @@
 //! records its timing. The thread owns everything it touches; other threads see its results only
 //! through wait-free publications ([`SeqCell`]), so no reader can ever delay the force
 //! (design.md, invariant 1). Per tick it never allocates, locks, logs or does I/O.
+//!
+//! Before the first tick the thread allocates its timing state, prefaults its stack, binds itself
+//! to a CPU and asks for SCHED_FIFO and locked memory ([`rt::request_realtime`]); what the machine
+//! still does to the period (and what no thread setting can prevent) is in [`crate::rt`].
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering, fence};
@@ -15,7 +19,7 @@ use glam::{DQuat, DVec3};
 use softhaptic_proto::{ContactFlags, ContactState, Pose};
 
 use crate::device::{DeviceSample, HapticDevice};
-use crate::rt::{self, RealtimeStatus};
+use crate::rt::{self, CpuChoice, RealtimeStatus};
 use crate::stats::{Histogram, LoopStats};
 use crate::world::HapticWorld;
 
@@ -201,13 +205,25 @@ pub struct HapticLoop {
 }
 
 impl HapticLoop {
-    /// Starts the loop thread. Returns once the thread has asked for real-time treatment, so the
+    /// Starts the loop thread, bound to the last CPU when real-time scheduling is requested
+    /// ([`CpuChoice::Auto`]). Returns once the thread has asked for real-time treatment, so the
     /// caller learns what was granted ([`HapticLoop::realtime`]) before the first tick; a refusal
     /// is logged here, once, as a warning.
     pub fn spawn(
         device: Box<dyn HapticDevice>,
         world: HapticWorld,
         config: LoopConfig,
+    ) -> Result<HapticLoop, LoopError> {
+        Self::spawn_on(device, world, config, CpuChoice::Auto)
+    }
+
+    /// [`HapticLoop::spawn`], with the loop thread bound to the CPU `cpu` says (a refused
+    /// binding is reported in [`HapticLoop::realtime`] and the loop runs unbound).
+    pub fn spawn_on(
+        device: Box<dyn HapticDevice>,
+        world: HapticWorld,
+        config: LoopConfig,
+        cpu: CpuChoice,
     ) -> Result<HapticLoop, LoopError> {
         if config.period_ns == 0 {
             return Err(LoopError::Period(0));
@@ -222,11 +238,15 @@ impl HapticLoop {
         let thread_shared = Arc::clone(&shared);
         let thread = std::thread::Builder::new()
             .name("haptic-loop".into())
+            .stack_size(rt::LOOP_STACK_BYTES)
             .spawn(move || {
-                let status = rt::request_realtime(config.realtime, rt::LOOP_PRIORITY);
+                // Allocated before the real-time request, so that mlockall locks it too; this is
+                // the one allocation of the thread.
+                let timing = Box::new(Timing::new(config.period_ns));
+                let status = rt::request_realtime(config.realtime, rt::LOOP_PRIORITY, cpu);
                 // The spawner may have given up waiting; the loop runs either way.
                 let _ = started_tx.send(status);
-                run(device, world, config, &thread_shared, status)
+                run(device, world, config, &thread_shared, status, timing)
             })
             .map_err(LoopError::Spawn)?;
         let realtime = started_rx.recv().map_err(|_| LoopError::StartLost)?;
@@ -300,6 +320,22 @@ struct Timing {
 }
 
 impl Timing {
+    /// Fresh state for a loop of period `period_ns`; its clock starts in [`run`].
+    fn new(period_ns: u64) -> Self {
+        Self {
+            period_error: Histogram::new(),
+            compute: Histogram::new(),
+            ticks: 0,
+            overruns: 0,
+            dropped: 0,
+            device_faults: 0,
+            command_errors: 0,
+            start_ns: 0,
+            realtime_granted: false,
+            spin: rt::SpinBudget::new(SPIN_MIN_NS, SPIN_MAX_NS.min(period_ns / 2)),
+        }
+    }
+
     fn summary(&self, now_ns: u64) -> LoopStats {
         let elapsed_s = now_ns.saturating_sub(self.start_ns) as f64 * 1e-9;
         LoopStats {
@@ -346,21 +382,11 @@ fn run(
     mut config: LoopConfig,
     shared: &Shared,
     status: RealtimeStatus,
+    // Boxed so the two 9 kB histograms are not on the thread's stack.
+    mut timing: Box<Timing>,
 ) -> LoopStats {
-    // Boxed so the two 9 kB histograms are not on the thread's stack; this is the one allocation
-    // of the thread, before the first tick.
-    let mut timing = Box::new(Timing {
-        period_error: Histogram::new(),
-        compute: Histogram::new(),
-        ticks: 0,
-        overruns: 0,
-        dropped: 0,
-        device_faults: 0,
-        command_errors: 0,
-        start_ns: rt::now_ns(),
-        realtime_granted: status.granted(),
-        spin: rt::SpinBudget::new(SPIN_MIN_NS, SPIN_MAX_NS.min(config.period_ns / 2)),
-    });
+    timing.start_ns = rt::now_ns();
+    timing.realtime_granted = status.granted();
     let period = config.period_ns;
     let mut deadline = timing.start_ns + period;
     while !shared.stop.load(Ordering::Acquire) {

@@ -7,17 +7,26 @@
 //! - [`law`]: the closed-form contact laws (Hertz sphere, Sneddon cone), contact radius and
 //!   stiffness, as pure functions of depth.
 //! - [`model`]: [`ForceModel`](model::ForceModel), the paper's law times the corrections a scene
-//!   turns on (curvature, layer thickness, exact sphere, hyperelastic fit, inclination).
-//! - [`mesh`]: the coarse haptic mesh and the flat grids of the paper's timing study.
-//! - [`collision`]: tool-tip collision with the haptic mesh (paper §4.1).
+//!   turns on (curvature, layer thickness, exact sphere, hyperelastic fit, inclination), fed the
+//!   [`LocalGeometry`](model::LocalGeometry) of the contact.
+//! - [`mesh`]: the coarse haptic mesh, the flat grids of the paper's timing study and the
+//!   spheres of its curvature study.
+//! - [`curvature`]: the mesh's mean curvature per vertex, estimated once for a model that uses it.
+//! - [`collision`]: tool-tip collision with the haptic mesh (paper §4.1); each contact carries
+//!   the surface's curvature when the collider was built with it.
 //! - [`shape`]: the tool tip as a solid: implicit inside test, bounding box, support point.
 //! - [`liver`]: the procedural liver-like organ, as a coarse haptic mesh and a fine render surface.
 //! - [`device`]: the [`HapticDevice`](device::HapticDevice) trait, device limits, samples, errors.
 //! - [`sim`]: a simulated PHANTOM Desktop moved by a scripted hand (mass–spring–damper).
-//! - [`render`]: contact law + damping, then the safety layer (stiffness cap, ramp, passivity,
-//!   saturation, fault guard) with a flag for every limit that acts.
+//! - [`render`]: the scene's contact model at the contact's geometry (curvature, the tool's
+//!   inclination) + damping, then the safety layer (stiffness cap at the model's δ*, ramp,
+//!   passivity, saturation, fault guard) with a flag for every limit that acts, and the validity
+//!   flags at the active model's limits.
 //! - [`passivity`]: the passivity observer and controller (Hannaford & Ryu 2002).
-//! - [`world`]: [`HapticWorld`](world::HapticWorld), one tick as a synchronous function.
+//! - [`thermal`]: [`ContinuousForceLimiter`](thermal::ContinuousForceLimiter), a model of the
+//!   motors' heating that holds the RMS force at the device's continuous rating.
+//! - [`world`]: [`HapticWorld`](world::HapticWorld), one tick as a synchronous function; built
+//!   with the scene's [`ForceModel`](model::ForceModel) (or the paper's law).
 //! - [`haptic_loop`]: the 1 kHz thread and its wait-free publication of the latest contact.
 //! - [`stats`]: fixed-size timing histograms and the loop's [`LoopStats`](stats::LoopStats).
 //! - [`rt`]: monotonic clock, absolute-deadline sleep, SCHED_FIFO and mlockall requests.
@@ -25,6 +34,7 @@
 //!   device, and the exact conversions between device samples and session-log records.
 
 pub mod collision;
+pub mod curvature;
 pub mod device;
 pub mod haptic_loop;
 pub mod law;
@@ -38,4 +48,5 @@ pub mod rt;
 pub mod shape;
 pub mod sim;
 pub mod stats;
+pub mod thermal;
 pub mod world;

@@ -19,11 +19,9 @@
 //! y·g(y), the vertical shear y + s(x, z)) is a diffeomorphism of space that keeps orientation,
 //! so the counter-clockwise outward winding of the icosphere stays outward.
 
-use std::collections::HashMap;
-
 use glam::DVec3;
 
-use crate::mesh::HapticMesh;
+use crate::mesh::{HapticMesh, unit_icosphere};
 
 /// Icosphere subdivision level of the haptic mesh: 10·4⁵ + 2 = 10 242 vertices.
 pub const HAPTIC_SUBDIVISIONS: u32 = 5;
@@ -52,7 +50,7 @@ pub fn vertex_count(subdivisions: u32) -> usize {
 /// The organ's surface sampled on an icosphere of the given subdivision level (clamped to
 /// [`MAX_SUBDIVISIONS`]): positions in metres and counter-clockwise-outward triangles.
 pub fn surface(subdivisions: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let (directions, triangles) = icosphere(subdivisions.min(MAX_SUBDIVISIONS));
+    let (directions, triangles) = unit_icosphere(subdivisions.min(MAX_SUBDIVISIONS));
     let positions = directions.into_iter().map(surface_point).collect();
     (positions, triangles)
 }
@@ -122,78 +120,6 @@ fn smooth_normal(direction: DVec3) -> DVec3 {
     let du = at(t1 * h) - at(-t1 * h);
     let dv = at(t2 * h) - at(-t2 * h);
     du.cross(dv).normalize_or(DVec3::Y)
-}
-
-/// Unit icosphere: subdivision keeps the coarser level's vertices first and appends each edge's
-/// midpoint once (pushed out to the sphere), so levels nest exactly.
-fn icosphere(subdivisions: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut vertices: Vec<DVec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
-    .collect();
-    let mut triangles: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    // Make every face counter-clockwise seen from outside, whatever the table's convention.
-    for tri in &mut triangles {
-        let [a, b, c] = tri.map(|i| vertices[i as usize]);
-        if (b - a).cross(c - a).dot(a + b + c) < 0.0 {
-            tri.swap(1, 2);
-        }
-    }
-    for _ in 0..subdivisions {
-        let mut midpoints: HashMap<(u32, u32), u32> = HashMap::with_capacity(triangles.len() * 3);
-        let mut finer = Vec::with_capacity(triangles.len() * 4);
-        for &[a, b, c] in &triangles {
-            let mut midpoint = |i: u32, j: u32| -> u32 {
-                let key = (i.min(j), i.max(j));
-                *midpoints.entry(key).or_insert_with(|| {
-                    let m = (vertices[i as usize] + vertices[j as usize]).normalize();
-                    vertices.push(m);
-                    (vertices.len() - 1) as u32
-                })
-            };
-            let ab = midpoint(a, b);
-            let bc = midpoint(b, c);
-            let ca = midpoint(c, a);
-            finer.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        triangles = finer;
-    }
-    (vertices, triangles)
 }
 
 #[cfg(test)]

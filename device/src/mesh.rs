@@ -1,4 +1,7 @@
-//! The coarse haptic mesh: a triangle surface with per-vertex normals.
+//! The coarse haptic mesh: a triangle surface with per-vertex normals, and the test surfaces
+//! built from code (the flat grids of the paper's timing study, spheres of the curvature study).
+
+use std::collections::HashMap;
 
 use glam::DVec3;
 
@@ -121,6 +124,90 @@ impl HapticMesh {
         }
         Self::new(positions, triangles).expect("a grid is a valid mesh")
     }
+
+    /// A sphere of radius `radius_m` centred on the origin: an icosphere of `subdivisions`
+    /// levels (clamped to 7, 163 842 vertices), outward normals. The objects of the paper's
+    /// curvature study (§3.2) and the reference surface of the curvature estimate. A
+    /// non-finite radius is refused like any non-finite vertex.
+    pub fn sphere(radius_m: f64, subdivisions: u32) -> Result<Self, MeshError> {
+        let (directions, triangles) = unit_icosphere(subdivisions.min(7));
+        let positions = directions.into_iter().map(|u| u * radius_m).collect();
+        Self::new(positions, triangles)
+    }
+}
+
+/// Unit icosphere (directions and counter-clockwise-outward triangles, 10·4ᵏ + 2 vertices):
+/// subdivision keeps the coarser level's vertices first and appends each edge's midpoint once
+/// (pushed out to the sphere), so levels nest exactly. The caller bounds `subdivisions`: the
+/// vertex count grows as 4ᵏ.
+pub fn unit_icosphere(subdivisions: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut vertices: Vec<DVec3> = [
+        (-1.0, t, 0.0),
+        (1.0, t, 0.0),
+        (-1.0, -t, 0.0),
+        (1.0, -t, 0.0),
+        (0.0, -1.0, t),
+        (0.0, 1.0, t),
+        (0.0, -1.0, -t),
+        (0.0, 1.0, -t),
+        (t, 0.0, -1.0),
+        (t, 0.0, 1.0),
+        (-t, 0.0, -1.0),
+        (-t, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
+    .collect();
+    let mut triangles: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    // Make every face counter-clockwise seen from outside, whatever the table's convention.
+    for tri in &mut triangles {
+        let [a, b, c] = tri.map(|i| vertices[i as usize]);
+        if (b - a).cross(c - a).dot(a + b + c) < 0.0 {
+            tri.swap(1, 2);
+        }
+    }
+    for _ in 0..subdivisions {
+        let mut midpoints: HashMap<(u32, u32), u32> = HashMap::with_capacity(triangles.len() * 3);
+        let mut finer = Vec::with_capacity(triangles.len() * 4);
+        for &[a, b, c] in &triangles {
+            let mut midpoint = |i: u32, j: u32| -> u32 {
+                let key = (i.min(j), i.max(j));
+                *midpoints.entry(key).or_insert_with(|| {
+                    let m = (vertices[i as usize] + vertices[j as usize]).normalize();
+                    vertices.push(m);
+                    (vertices.len() - 1) as u32
+                })
+            };
+            let ab = midpoint(a, b);
+            let bc = midpoint(b, c);
+            let ca = midpoint(c, a);
+            finer.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        triangles = finer;
+    }
+    (vertices, triangles)
 }
 
 #[cfg(test)]

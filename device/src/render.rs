@@ -1,8 +1,10 @@
 //! From a contact to the force sent to the device: contact law, damping, then every safety limit.
 //!
 //! The pipeline of one tick, in order (each limit that acts sets its [`ContactFlags`] bit):
-//! 1. contact law F(δ) ([`crate::law`]); past δ*, where the law's stiffness reaches the device's
-//!    stable stiffness K_max, render F(δ*) + K_max(δ − δ*) instead (`STIFFNESS_CAPPED`);
+//! 1. the scene's contact model F(δ; geometry) ([`ForceModel`]: the paper's law, or the law with
+//!    the corrections the scene turns on, fed the local curvature from the collision and the
+//!    tool's inclination); past δ*, where its stiffness reaches the device's stable stiffness
+//!    K_max, render F(δ*) + K_max(δ − δ*) instead (`STIFFNESS_CAPPED`);
 //! 2. damping along the normal, F − b(v·n) (paper Fig. 9b), clamped so it never pulls the tool
 //!    into the object;
 //! 3. a linear ramp from zero when contact begins with a force that would jump, or when the
@@ -11,14 +13,34 @@
 //! 5. saturation at the device's peak force (`SATURATED`).
 //!
 //! Validity bounds of the model (`BEYOND_VALID_DEPTH`, `BEYOND_VALID_INCLINATION`) are reported,
-//! not enforced: the force stays continuous, and the viewer shows that it is extrapolated.
+//! not enforced: the force stays continuous, and the viewer shows that it is extrapolated. The
+//! scene sets them to the measured limits of its model ([`softhaptic_proto::ValidityLimits`]).
+//!
+//! # The stiffness cap of a model that depends on the geometry
+//! For the paper's law δ* is closed form and computed once. A corrected model finds it by
+//! bisection (about a microsecond), once at construction when the force does not depend on the
+//! geometry; when it does (curvature, a tilted cone), δ* is cached with the geometry it was
+//! found for and found again only when the geometry has moved by more than
+//! [`CAP_CURVATURE_TOLERANCE`] or [`CAP_INCLINATION_TOLERANCE_RAD`]. The rendered force stays
+//! continuous in depth whatever δ* is (F(δ*) is evaluated with the current geometry), and a
+//! slightly stale δ* only moves the point where the tangent takes over a little: the model's
+//! slope there differs from K_max by about half the curvature tolerance (0.05 %), and when δ*
+//! is found again the force changes to second order in its shift. Deterministic: the cache
+//! evolves with the samples alone, so a replay finds δ* again at the same ticks.
 
 use glam::DVec3;
 use softhaptic_proto::{ContactFlags, Material, ToolShape};
 
 use crate::device::DeviceLimits;
-use crate::law;
+use crate::model::{ForceModel, LocalGeometry};
 use crate::passivity::PassivityObserver;
+
+/// δ* is found again when the curvature has changed by more than this fraction of the tool's
+/// curvature 1/R (the effective radius then moves by about as much, and δ* with it).
+pub const CAP_CURVATURE_TOLERANCE: f64 = 1e-3;
+
+/// δ* is found again when the cone's inclination has changed by more than this, radians.
+pub const CAP_INCLINATION_TOLERANCE_RAD: f64 = 1e-3;
 
 /// How the force is rendered and which safety layers are on.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -50,21 +72,23 @@ impl RenderConfig {
     /// both tips (§4.3), inclination up to 22° for the sphere (eq. 7) and 9° for the cone (§3.2);
     /// 1 N·s/m damping, 80 ms ramps, every safety layer on.
     pub fn for_tool(tool: &ToolShape) -> Self {
-        let valid_depth_m = 4.3e-3;
-        let valid_inclination_deg: f64 = match tool {
-            ToolShape::Sphere { .. } => 22.0,
-            ToolShape::Cone { .. } => 9.0,
-        };
         Self {
             damping_n_s_per_m: 1.0,
             stiffness_cap: true,
             ramp_ns: 80_000_000,
             ramp_threshold_n: 0.5,
             passivity: true,
-            valid_depth_m,
-            valid_inclination_rad: valid_inclination_deg.to_radians(),
+            valid_depth_m: softhaptic_proto::model::PAPER_VALID_DEPTH_M,
+            valid_inclination_rad: softhaptic_proto::model::paper_valid_inclination_rad(tool),
             workspace_tolerance: 2.0,
         }
+    }
+
+    /// [`RenderConfig::for_tool`] with the validity limits of the active model.
+    pub fn with_limits(mut self, limits: &softhaptic_proto::ValidityLimits) -> Self {
+        self.valid_depth_m = limits.valid_depth_m;
+        self.valid_inclination_rad = limits.valid_inclination_rad;
+        self
     }
 }
 
@@ -77,6 +101,9 @@ pub struct WorldContact {
     pub normal: DVec3,
     /// True when the normal is a fallback (colliding normals cancelled).
     pub degenerate_normal: bool,
+    /// Mean curvature of the object's surface at the contact, 1/m, positive where convex (zero
+    /// when the collision does not measure it).
+    pub curvature_1_per_m: f64,
 }
 
 /// The force of one tick and the flags of every limit that shaped it.
@@ -93,16 +120,21 @@ impl RenderedForce {
     };
 }
 
-/// The per-contact state of the force pipeline: ramp, passivity observer, previous tick.
+/// The per-contact state of the force pipeline: contact model, stiffness cap, ramp, passivity
+/// observer, previous tick.
 #[derive(Debug, Clone)]
 pub struct ForceRenderer {
-    tool: ToolShape,
-    material: Material,
+    model: ForceModel,
     config: RenderConfig,
     limits: DeviceLimits,
-    /// δ* where the law's stiffness reaches K_max; computed once.
+    /// The geometry the model is evaluated at: the last contact's, with the parts the model
+    /// does not use set to zero (so they can never move δ*). Flat before the first contact.
+    geometry: LocalGeometry,
+    /// δ* where the model's stiffness reaches K_max, for `cap_geometry`.
     cap_depth_m: f64,
-    /// F(δ*), the start of the linear extension.
+    /// The geometry δ* was found for.
+    cap_geometry: LocalGeometry,
+    /// F(δ*) at `geometry`, the start of the linear extension.
     cap_force_n: f64,
     /// Effective damping: the configured one bounded by the device's.
     damping_n_s_per_m: f64,
@@ -120,14 +152,21 @@ pub struct ForceRenderer {
 }
 
 impl ForceRenderer {
+    /// A renderer of the paper's law for `tool` on `material`.
     pub fn new(
         tool: ToolShape,
         material: Material,
         config: RenderConfig,
         limits: DeviceLimits,
     ) -> Self {
-        let cap_depth_m = law::depth_at_stiffness_m(&tool, &material, limits.max_stiffness_n_per_m);
-        let cap_force_n = law::contact_force_n(&tool, &material, cap_depth_m);
+        Self::with_model(ForceModel::paper(tool, material), config, limits)
+    }
+
+    /// A renderer of `model` (the scene's contact model).
+    pub fn with_model(model: ForceModel, config: RenderConfig, limits: DeviceLimits) -> Self {
+        let geometry = LocalGeometry::FLAT;
+        let cap_depth_m = model.depth_at_stiffness_m(limits.max_stiffness_n_per_m, &geometry);
+        let cap_force_n = model.force_n(cap_depth_m, &geometry);
         let damping = if config.damping_n_s_per_m.is_finite() {
             config
                 .damping_n_s_per_m
@@ -136,11 +175,12 @@ impl ForceRenderer {
             0.0
         };
         Self {
-            tool,
-            material,
+            model,
             config,
             limits,
+            geometry,
             cap_depth_m,
+            cap_geometry: geometry,
             cap_force_n,
             damping_n_s_per_m: damping,
             observer: PassivityObserver::new(),
@@ -162,9 +202,68 @@ impl ForceRenderer {
         &self.limits
     }
 
-    /// δ* of the stiffness cap for this tool, material and device.
+    /// The contact model the renderer evaluates.
+    pub fn model(&self) -> &ForceModel {
+        &self.model
+    }
+
+    pub fn tool(&self) -> &ToolShape {
+        self.model.tool()
+    }
+
+    pub fn material(&self) -> &Material {
+        self.model.material()
+    }
+
+    /// The local geometry the model is evaluated at (the last contact's; flat before any).
+    pub fn geometry(&self) -> &LocalGeometry {
+        &self.geometry
+    }
+
+    /// δ* of the stiffness cap for this model, device and the current geometry.
     pub fn cap_depth_m(&self) -> f64 {
         self.cap_depth_m
+    }
+
+    /// Sets the local geometry the model is evaluated at from a contact's curvature and the
+    /// tool's inclination; finds δ* again when the geometry has moved past the tolerances
+    /// (module docs). Non-finite inputs count as flat and perpendicular.
+    pub fn set_geometry(&mut self, curvature_1_per_m: f64, inclination_rad: f64) {
+        if !self.model.uses_geometry() {
+            return;
+        }
+        let spec = self.model.spec();
+        let finite = |x: f64| if x.is_finite() { x } else { 0.0 };
+        let geometry = LocalGeometry {
+            curvature_1_per_m: if spec.curvature {
+                finite(curvature_1_per_m)
+            } else {
+                0.0
+            },
+            inclination_rad: if spec.inclination && matches!(self.tool(), ToolShape::Cone { .. }) {
+                finite(inclination_rad)
+            } else {
+                0.0
+            },
+        };
+        let curvature_moved = (geometry.curvature_1_per_m - self.cap_geometry.curvature_1_per_m)
+            .abs()
+            * self.tool().radius_m()
+            > CAP_CURVATURE_TOLERANCE;
+        let inclination_moved = (geometry.inclination_rad - self.cap_geometry.inclination_rad)
+            .abs()
+            > CAP_INCLINATION_TOLERANCE_RAD;
+        let cap_moved = curvature_moved || inclination_moved;
+        if cap_moved {
+            self.cap_depth_m = self
+                .model
+                .depth_at_stiffness_m(self.limits.max_stiffness_n_per_m, &geometry);
+            self.cap_geometry = geometry;
+        }
+        if cap_moved || geometry != self.geometry {
+            self.geometry = geometry;
+            self.cap_force_n = self.model.force_n(self.cap_depth_m, &geometry);
+        }
     }
 
     /// Energy the environment has absorbed in the current contact (passivity observer).
@@ -172,39 +271,28 @@ impl ForceRenderer {
         self.observer.energy_j()
     }
 
-    /// The elastic force magnitude at `depth_m`, with the stiffness cap when it is on; the flag
-    /// says whether the cap acted.
+    /// The elastic force magnitude at `depth_m` and the current geometry, with the stiffness
+    /// cap when it is on; the flag says whether the cap acted.
     pub fn elastic_force_n(&self, depth_m: f64) -> (f64, bool) {
         if self.config.stiffness_cap && depth_m > self.cap_depth_m {
             let extension = (depth_m - self.cap_depth_m) * self.limits.max_stiffness_n_per_m;
             (self.cap_force_n + extension, true)
         } else {
-            (
-                law::contact_force_n(&self.tool, &self.material, depth_m),
-                false,
-            )
+            (self.model.force_n(depth_m, &self.geometry), false)
         }
     }
 
     /// Elastic energy stored in the rendered contact at `depth_m`: ∫ F dδ of
-    /// [`ForceRenderer::elastic_force_n`] (Hertz F·δ/2.5, Sneddon F·δ/3, plus the capped
+    /// [`ForceRenderer::elastic_force_n`] (the model's [`ForceModel::energy_j`], plus the capped
     /// extension's trapezoid).
     pub fn elastic_energy_j(&self, depth_m: f64) -> f64 {
-        let law_energy = |d: f64| {
-            let f = law::contact_force_n(&self.tool, &self.material, d);
-            let d = d.max(0.0);
-            match self.tool {
-                ToolShape::Sphere { .. } => f * d / 2.5,
-                ToolShape::Cone { .. } => f * d / 3.0,
-            }
-        };
         if self.config.stiffness_cap && depth_m > self.cap_depth_m {
             let extra = depth_m - self.cap_depth_m;
-            law_energy(self.cap_depth_m)
+            self.model.energy_j(self.cap_depth_m, &self.geometry)
                 + self.cap_force_n * extra
                 + 0.5 * self.limits.max_stiffness_n_per_m * extra * extra
         } else {
-            law_energy(depth_m)
+            self.model.energy_j(depth_m, &self.geometry)
         }
     }
 
@@ -293,9 +381,11 @@ impl ForceRenderer {
             flags |= ContactFlags::BEYOND_VALID_DEPTH;
         }
         let cos_incl = tool_axis.try_normalize().map_or(1.0, |a| a.dot(normal));
-        if cos_incl.clamp(-1.0, 1.0).acos() > self.config.valid_inclination_rad {
+        let inclination_rad = cos_incl.clamp(-1.0, 1.0).acos();
+        if inclination_rad > self.config.valid_inclination_rad {
             flags |= ContactFlags::BEYOND_VALID_INCLINATION;
         }
+        self.set_geometry(contact.curvature_1_per_m, inclination_rad);
 
         let (elastic_n, capped) = self.elastic_force_n(depth_m);
         if capped {
@@ -387,6 +477,7 @@ impl ForceRenderer {
 #[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
+    use crate::law;
     use proptest::prelude::*;
 
     const MS: u64 = 1_000_000;
@@ -406,6 +497,7 @@ mod tests {
             depth_m,
             normal: DVec3::Y,
             degenerate_normal: false,
+            curvature_1_per_m: 0.0,
         }
     }
 
@@ -563,6 +655,7 @@ mod tests {
             depth_m: 0.001,
             normal: DVec3::Y,
             degenerate_normal: true,
+            curvature_1_per_m: 0.0,
         };
         let f = r.render(Some(&fallback), at(0.001), DVec3::ZERO, DVec3::Y, t);
         assert!(f.flags.contains(ContactFlags::DEGENERATE_NORMAL));
@@ -570,6 +663,7 @@ mod tests {
             depth_m: 0.001,
             normal: DVec3::ZERO,
             degenerate_normal: false,
+            curvature_1_per_m: 0.0,
         };
         let f = r.render(Some(&zero_normal), at(0.001), DVec3::ZERO, DVec3::Y, t + MS);
         assert!(f.flags.contains(ContactFlags::DEGENERATE_NORMAL));
@@ -705,6 +799,154 @@ mod tests {
         }
     }
 
+    /// A renderer of a corrected model (curvature + exact sphere) on the stiff material, whose
+    /// stiffness reaches K_max within a few micrometres, so the cap acts.
+    fn corrected_renderer() -> ForceRenderer {
+        let spec = softhaptic_proto::ModelSpec {
+            exact_sphere: true,
+            curvature: true,
+            ..softhaptic_proto::ModelSpec::PAPER
+        };
+        let model = ForceModel::new(sphere(), Material::PAPER_STIFF, spec).unwrap();
+        ForceRenderer::with_model(
+            model,
+            RenderConfig::for_tool(&sphere()),
+            DeviceLimits::PHANTOM_DESKTOP,
+        )
+    }
+
+    #[test]
+    fn a_corrected_model_is_rendered_with_its_own_cap_continuous_in_depth() {
+        let mut r = corrected_renderer();
+        let k_max = DeviceLimits::PHANTOM_DESKTOP.max_stiffness_n_per_m;
+        for curvature in [0.0, 20.0, -40.0] {
+            r.set_geometry(curvature, 0.0);
+            let g = *r.geometry();
+            assert_eq!(g.curvature_1_per_m, curvature);
+            let model = r.model().clone();
+            let star = r.cap_depth_m();
+            assert_eq!(star, model.depth_at_stiffness_m(k_max, &g));
+            assert!((model.stiffness_n_per_m(star, &g) / k_max - 1.0).abs() < 1e-3);
+            let (below, capped) = r.elastic_force_n(0.5 * star);
+            assert!(!capped);
+            assert_eq!(below, model.force_n(0.5 * star, &g));
+            let (at, _) = r.elastic_force_n(star);
+            let (past, capped) = r.elastic_force_n(star * (1.0 + 1e-9));
+            assert!(capped && (past - at).abs() < 1e-9, "{at} → {past}");
+            // The energy integrates the rendered force, across the cap.
+            let depth = 4.0 * star;
+            let n = 20_000;
+            let h = depth / n as f64;
+            let numeric: f64 = (0..n)
+                .map(|i| r.elastic_force_n((i as f64 + 0.5) * h).0 * h)
+                .sum();
+            assert!(
+                (r.elastic_energy_j(depth) / numeric - 1.0).abs() < 1e-5,
+                "κ = {curvature}"
+            );
+        }
+        // Curvature softens the contact, so the stiffness reaches K_max deeper.
+        r.set_geometry(0.0, 0.0);
+        let flat = r.cap_depth_m();
+        r.set_geometry(50.0, 0.0);
+        assert!(r.cap_depth_m() > flat);
+    }
+
+    #[test]
+    fn the_cap_is_found_again_only_when_the_geometry_moves() {
+        let mut r = corrected_renderer();
+        r.set_geometry(20.0, 0.0);
+        let star = r.cap_depth_m();
+        // Within the tolerance (|Δκ| R ≤ 1e-3): δ* is kept, but F(δ*) follows the geometry.
+        r.set_geometry(20.05, 0.0);
+        assert_eq!(r.cap_depth_m(), star);
+        assert_eq!(r.geometry().curvature_1_per_m, 20.05);
+        let f_star = r.model().force_n(star, r.geometry());
+        let (past, capped) = r.elastic_force_n(star * (1.0 + 1e-9));
+        assert!(
+            capped && (past / f_star - 1.0).abs() < 1e-6,
+            "{past} vs {f_star}"
+        );
+        // Past it: found again.
+        r.set_geometry(20.2, 0.0);
+        assert_ne!(r.cap_depth_m(), star);
+        // Inclination does not move a sphere's model: it is not even recorded.
+        r.set_geometry(20.2, 0.4);
+        assert_eq!(r.geometry().inclination_rad, 0.0);
+        // Non-finite input counts as flat.
+        r.set_geometry(f64::NAN, f64::INFINITY);
+        assert_eq!(*r.geometry(), LocalGeometry::FLAT);
+        // The paper's law ignores the geometry altogether.
+        let mut paper = renderer(Material::PAPER_STIFF, |_| {});
+        let star = paper.cap_depth_m();
+        paper.set_geometry(50.0, 0.3);
+        assert_eq!(*paper.geometry(), LocalGeometry::FLAT);
+        assert_eq!(paper.cap_depth_m(), star);
+    }
+
+    #[test]
+    fn the_renderer_evaluates_the_tilted_cone_at_the_tools_inclination() {
+        let cone = ToolShape::cone(std::f64::consts::FRAC_PI_4, 0.01).unwrap();
+        let spec = softhaptic_proto::ModelSpec {
+            inclination: true,
+            ..softhaptic_proto::ModelSpec::PAPER
+        };
+        let model = ForceModel::new(cone, Material::PAPER_SOFT, spec).unwrap();
+        let mut config = RenderConfig::for_tool(&cone);
+        config.passivity = false;
+        let mut r = ForceRenderer::with_model(model.clone(), config, DeviceLimits::PHANTOM_DESKTOP);
+        let tilt = 0.3f64;
+        let axis = DVec3::new(tilt.sin(), tilt.cos(), 0.0);
+        let mut f = RenderedForce::ZERO;
+        for k in 0..200 {
+            f = r.render(Some(&contact(0.003)), at(0.003), DVec3::ZERO, axis, k * MS);
+        }
+        let g = LocalGeometry {
+            curvature_1_per_m: 0.0,
+            inclination_rad: tilt,
+        };
+        assert!((r.geometry().inclination_rad - tilt).abs() < 1e-12);
+        assert!((f.force_n.y / model.force_n(0.003, &g) - 1.0).abs() < 1e-9);
+        assert!(f.force_n.y > model.force_n(0.003, &LocalGeometry::FLAT));
+        // 0.3 rad is past the paper's 9° for the cone.
+        assert!(f.flags.contains(ContactFlags::BEYOND_VALID_INCLINATION));
+    }
+
+    #[test]
+    fn validity_flags_follow_the_configured_limits() {
+        // A measured limit of 1 mm and 5°: flagged past them, not before.
+        let limits = softhaptic_proto::ValidityLimits {
+            valid_depth_m: 0.001,
+            valid_inclination_rad: 5f64.to_radians(),
+            source: "test".into(),
+        };
+        let mut r = renderer(Material::PAPER_SOFT, |c| *c = c.with_limits(&limits));
+        let t = settle(&mut r, 0.0009);
+        let shallow = r.render(Some(&contact(0.0009)), at(0.0009), DVec3::ZERO, DVec3::Y, t);
+        assert!(!shallow.flags.contains(ContactFlags::BEYOND_VALID_DEPTH));
+        let deeper = r.render(
+            Some(&contact(0.0011)),
+            at(0.0011),
+            DVec3::ZERO,
+            DVec3::Y,
+            t + MS,
+        );
+        assert!(deeper.flags.contains(ContactFlags::BEYOND_VALID_DEPTH));
+        let six = DVec3::new(6f64.to_radians().sin(), 6f64.to_radians().cos(), 0.0);
+        let tilted = r.render(
+            Some(&contact(0.0009)),
+            at(0.0009),
+            DVec3::ZERO,
+            six,
+            t + 2 * MS,
+        );
+        assert!(
+            tilted
+                .flags
+                .contains(ContactFlags::BEYOND_VALID_INCLINATION)
+        );
+    }
+
     #[test]
     fn out_of_contact_is_zero() {
         let mut r = renderer(Material::PAPER_SOFT, |_| {});
@@ -714,6 +956,7 @@ mod tests {
             depth_m: f64::NAN,
             normal: DVec3::Y,
             degenerate_normal: false,
+            curvature_1_per_m: 0.0,
         };
         assert_eq!(
             r.render(Some(&nan), DVec3::ZERO, DVec3::ZERO, DVec3::Y, MS)
@@ -738,7 +981,7 @@ mod tests {
             let mut r = ForceRenderer::new(sphere(), m, c, DeviceLimits::PHANTOM_DESKTOP);
             let normal = DVec3::new(nx, ny, nz);
             let v = DVec3::new(vx, vy, vz);
-            let wc = WorldContact { depth_m: depth, normal, degenerate_normal: false };
+            let wc = WorldContact { depth_m: depth, normal, degenerate_normal: false, curvature_1_per_m: 0.0 };
             for k in 0..ticks as u64 {
                 let f = r.render(in_contact.then_some(&wc), v * (k as f64 * 1e-3), v, DVec3::Y, k * MS);
                 prop_assert!(f.force_n.is_finite());

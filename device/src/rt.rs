@@ -1,17 +1,58 @@
 //! Real-time plumbing for the loop thread: the monotonic clock, absolute-deadline sleeps, and the
-//! request for SCHED_FIFO and locked memory.
+//! request for SCHED_FIFO, locked memory, a CPU of its own and a prefaulted stack.
 //!
 //! Privileges: SCHED_FIFO needs `CAP_SYS_NICE` (or an `rtprio` entry in
 //! `/etc/security/limits.conf`, or root); `mlockall` needs `CAP_IPC_LOCK` or a large enough
-//! `RLIMIT_MEMLOCK`. Without them the loop still runs, at normal priority, and says so once at
-//! start ([`RealtimeStatus`]). On an idle machine that is usually good enough; under load the
-//! period error grows (the `loop-timing` report measures both).
+//! `RLIMIT_MEMLOCK`. Binding the thread to one CPU needs no privilege (only that the CPU is in
+//! the process's affinity mask). Without them the loop still runs, at normal priority, and says
+//! so once at start ([`RealtimeStatus`]). On an idle machine that is usually good enough; under
+//! load the period error grows (the `loop-timing` report measures both).
+//!
+//! # What SCHED_FIFO cannot do
+//! A real-time thread preempts any ordinary thread at once only if the kernel may preempt that
+//! thread wherever it is. A kernel built or booted with `preempt=none` or `preempt=voluntary` lets
+//! a thread in a long system call (writing a large file, unmapping a large heap) keep its CPU
+//! until the call reaches a rescheduling point, which can take milliseconds: the loop's timer
+//! fires on time, the loop is woken on time, and it runs only when the call ends. No setting of
+//! the thread helps; the remedy is the machine's: boot with `preempt=full` (kernels built with
+//! `PREEMPT_DYNAMIC`) or run a `PREEMPT_RT` kernel, and keep other work off the loop's CPU
+//! (`isolcpus=`, a cpuset). Virtual machines add the host's own scheduling of their virtual
+//! CPUs, which no guest setting reaches.
 
 use std::fmt;
 
 /// SCHED_FIFO priority of the haptic thread: above most user threads and IRQ threads of lesser
 /// devices, below the kernel's own watchdogs (99).
 pub const LOOP_PRIORITY: i32 = 80;
+
+/// Stack the loop thread is given, bytes. Set explicitly (not left to `RUST_MIN_STACK`) because
+/// [`prefault_stack`] touches [`PREFAULT_STACK_BYTES`] of it.
+pub const LOOP_STACK_BYTES: usize = 2 << 20;
+
+/// How much of the loop thread's stack is touched before the first tick: far more than one tick
+/// uses (collision and force are a few kB of frames), so no tick meets an unmapped stack page.
+pub const PREFAULT_STACK_BYTES: usize = 256 << 10;
+
+/// Which CPU the loop thread is bound to.
+///
+/// Bound, the thread never migrates (a migration costs a cold cache and, on a busy machine, a
+/// wait for the new CPU), and its timer, its wake-up and its work stay on one CPU. The last CPU
+/// is chosen by default because the first one usually carries the housekeeping other work is
+/// started on; on a machine where device interrupts land on the last CPU, another choice may
+/// measure better (`loop-timing --cpu`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CpuChoice {
+    /// [`CpuChoice::Last`] when real-time scheduling is requested, [`CpuChoice::Unpinned`]
+    /// otherwise (tests and ordinary runs leave the scheduler free).
+    #[default]
+    Auto,
+    /// Leave the thread free to run on any CPU of the process.
+    Unpinned,
+    /// The highest-numbered CPU of the process's affinity mask.
+    Last,
+    /// This CPU (it must be in the process's affinity mask).
+    Index(usize),
+}
 
 /// What the operating system granted when the loop thread asked for real-time treatment.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -30,6 +71,13 @@ pub struct RealtimeStatus {
     /// The timer slack of the thread was lowered to 1 ns (non-real-time threads otherwise sleep
     /// up to 50 µs past their deadline).
     pub timer_slack_lowered: bool,
+    /// The CPU the thread is bound to, or `None` (not asked, or refused).
+    pub cpu: Option<usize>,
+    /// errno of the refused binding to a CPU.
+    pub cpu_errno: Option<i32>,
+    /// The kernel's id of the loop thread (for `chrt -p`, `taskset -p`, `perf -t`, and
+    /// `/proc/self/task/<id>`).
+    pub os_thread_id: i32,
 }
 
 impl RealtimeStatus {
@@ -41,26 +89,36 @@ impl RealtimeStatus {
 
 impl fmt::Display for RealtimeStatus {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if !self.requested {
-            return write!(f, "real-time scheduling not requested; normal priority");
+        if self.requested {
+            match (self.fifo_priority, self.fifo_errno) {
+                (Some(p), _) => write!(f, "SCHED_FIFO priority {p}")?,
+                (None, Some(e)) => write!(
+                    f,
+                    "SCHED_FIFO refused ({}; needs CAP_SYS_NICE or an rtprio limit), normal priority",
+                    std::io::Error::from_raw_os_error(e)
+                )?,
+                (None, None) => write!(f, "SCHED_FIFO not attempted")?,
+            }
+            match (self.memory_locked, self.mlock_errno) {
+                (true, _) => write!(f, ", memory locked")?,
+                (false, Some(e)) => write!(
+                    f,
+                    ", mlockall refused ({}; needs CAP_IPC_LOCK or RLIMIT_MEMLOCK)",
+                    std::io::Error::from_raw_os_error(e)
+                )?,
+                (false, None) => write!(f, ", memory not locked")?,
+            }
+        } else {
+            write!(f, "real-time scheduling not requested; normal priority")?;
         }
-        match (self.fifo_priority, self.fifo_errno) {
-            (Some(p), _) => write!(f, "SCHED_FIFO priority {p}")?,
+        match (self.cpu, self.cpu_errno) {
+            (Some(cpu), _) => write!(f, ", bound to CPU {cpu}"),
             (None, Some(e)) => write!(
                 f,
-                "SCHED_FIFO refused ({}; needs CAP_SYS_NICE or an rtprio limit), normal priority",
-                std::io::Error::from_raw_os_error(e)
-            )?,
-            (None, None) => write!(f, "SCHED_FIFO not attempted")?,
-        }
-        match (self.memory_locked, self.mlock_errno) {
-            (true, _) => write!(f, ", memory locked"),
-            (false, Some(e)) => write!(
-                f,
-                ", mlockall refused ({}; needs CAP_IPC_LOCK or RLIMIT_MEMLOCK)",
+                ", binding to a CPU refused ({})",
                 std::io::Error::from_raw_os_error(e)
             ),
-            (false, None) => write!(f, ", memory not locked"),
+            (None, None) => Ok(()),
         }
     }
 }
@@ -173,17 +231,87 @@ impl SpinBudget {
     }
 }
 
-/// Asks, for the calling thread, for SCHED_FIFO at `priority` and a 1 ns timer slack, and locks
-/// the process's memory. Nothing is changed when `requested` is false except the timer slack.
-/// Never fails: what was refused is in the returned status.
-pub fn request_realtime(requested: bool, priority: i32) -> RealtimeStatus {
+/// The highest-numbered CPU the calling thread may run on.
+fn last_allowed_cpu() -> Result<usize, i32> {
+    // SAFETY: cpu_set_t is a plain bit array, valid when zeroed.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    // SAFETY: `set` is valid and writable for the size passed; pid 0 is the calling thread.
+    if unsafe { libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) } != 0
+    {
+        return Err(errno());
+    }
+    let setsize = libc::CPU_SETSIZE as usize;
+    // SAFETY: every index is below CPU_SETSIZE, inside the set.
+    (0..setsize)
+        .rev()
+        .find(|&cpu| unsafe { libc::CPU_ISSET(cpu, &set) })
+        .ok_or(libc::EINVAL)
+}
+
+/// Binds the calling thread to `cpu`.
+fn bind_to_cpu(cpu: usize) -> Result<(), i32> {
+    if cpu >= libc::CPU_SETSIZE as usize {
+        return Err(libc::EINVAL);
+    }
+    // SAFETY: cpu_set_t is a plain bit array, valid when zeroed.
+    let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
+    // SAFETY: `cpu` is below CPU_SETSIZE (checked above), inside the set.
+    unsafe { libc::CPU_SET(cpu, &mut set) };
+    // SAFETY: `set` is valid for the size passed; pid 0 is the calling thread.
+    if unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } != 0 {
+        return Err(errno());
+    }
+    Ok(())
+}
+
+/// Binds the calling thread as `choice` says; returns the CPU, or the errno of the refusal.
+fn apply_cpu_choice(choice: CpuChoice, realtime_requested: bool) -> (Option<usize>, Option<i32>) {
+    let cpu = match choice {
+        CpuChoice::Unpinned => return (None, None),
+        CpuChoice::Auto if !realtime_requested => return (None, None),
+        CpuChoice::Auto | CpuChoice::Last => match last_allowed_cpu() {
+            Ok(cpu) => cpu,
+            Err(e) => return (None, Some(e)),
+        },
+        CpuChoice::Index(cpu) => cpu,
+    };
+    match bind_to_cpu(cpu) {
+        Ok(()) => (Some(cpu), None),
+        Err(e) => (None, Some(e)),
+    }
+}
+
+/// Touches [`PREFAULT_STACK_BYTES`] of the calling thread's stack, below this frame, so that the
+/// pages the loop's deepest tick reaches are mapped before the first tick (`mlockall`, when
+/// granted, maps and locks them too; without it this still spares the first ticks the faults).
+/// The thread's stack must be larger than that ([`LOOP_STACK_BYTES`]).
+#[inline(never)]
+pub fn prefault_stack() {
+    let mut probe = [0u8; PREFAULT_STACK_BYTES];
+    for page in probe.chunks_mut(4096) {
+        page[0] = 1;
+    }
+    // Keeps the writes: the optimiser may not assume nobody reads them.
+    std::hint::black_box(&mut probe);
+}
+
+/// Prepares the calling thread to run the loop: prefaults its stack, lowers its timer slack to
+/// 1 ns, binds it to a CPU (`cpu`), and when `requested` asks for SCHED_FIFO at `priority` and
+/// locks the process's memory. Call it after the loop's state is allocated, so that
+/// `mlockall(MCL_CURRENT)` locks that state too. Never fails: what was refused is in the
+/// returned status.
+pub fn request_realtime(requested: bool, priority: i32, cpu: CpuChoice) -> RealtimeStatus {
+    prefault_stack();
     let mut status = RealtimeStatus {
         requested,
+        // SAFETY: gettid has no preconditions.
+        os_thread_id: unsafe { libc::gettid() },
         ..RealtimeStatus::default()
     };
     // SAFETY: PR_SET_TIMERSLACK takes an unsigned long and affects only the calling thread.
     status.timer_slack_lowered =
         unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong) } == 0;
+    (status.cpu, status.cpu_errno) = apply_cpu_choice(cpu, requested);
     if !requested {
         return status;
     }
@@ -199,7 +327,8 @@ pub fn request_realtime(requested: bool, priority: i32) -> RealtimeStatus {
     }
     // MCL_FUTURE makes every later mapping of the process count against RLIMIT_MEMLOCK; with a
     // finite limit that could make an unrelated allocation in the server fail, so it is only
-    // asked for when the limit is unlimited.
+    // asked for when the limit is unlimited. The loop needs only MCL_CURRENT: everything it
+    // touches is allocated before this call.
     let mut limit = libc::rlimit {
         rlim_cur: 0,
         rlim_max: 0,
@@ -289,7 +418,45 @@ mod tests {
 
     #[test]
     fn unrequested_realtime_changes_no_policy() {
-        let s = request_realtime(false, LOOP_PRIORITY);
+        let s = std::thread::spawn(|| request_realtime(false, LOOP_PRIORITY, CpuChoice::Auto))
+            .join()
+            .unwrap();
         assert!(!s.requested && s.fifo_priority.is_none() && !s.memory_locked);
+        assert!(s.cpu.is_none() && s.cpu_errno.is_none(), "{s:?}");
+        assert!(s.os_thread_id > 0);
+    }
+
+    #[test]
+    fn threads_are_bound_to_the_cpu_asked_for_or_say_why_not() {
+        // In a thread of its own: binding is per thread and must not leak into other tests.
+        let (status, now_on) = std::thread::spawn(|| {
+            let s = request_realtime(false, LOOP_PRIORITY, CpuChoice::Last);
+            // SAFETY: sched_getcpu has no preconditions.
+            (s, unsafe { libc::sched_getcpu() })
+        })
+        .join()
+        .unwrap();
+        let last = last_allowed_cpu().unwrap();
+        assert_eq!(status.cpu, Some(last), "{status}");
+        assert_eq!(now_on, last as i32);
+        assert!(status.to_string().contains(&format!("bound to CPU {last}")));
+
+        let refused = std::thread::spawn(|| {
+            request_realtime(
+                false,
+                LOOP_PRIORITY,
+                CpuChoice::Index(libc::CPU_SETSIZE as usize),
+            )
+        })
+        .join()
+        .unwrap();
+        assert_eq!((refused.cpu, refused.cpu_errno), (None, Some(libc::EINVAL)));
+        assert!(refused.to_string().contains("binding to a CPU refused"));
+
+        let free =
+            std::thread::spawn(|| request_realtime(false, LOOP_PRIORITY, CpuChoice::Unpinned))
+                .join()
+                .unwrap();
+        assert!(free.cpu.is_none() && free.cpu_errno.is_none());
     }
 }

@@ -1,7 +1,8 @@
 //! What one haptic tick computes, as a plain synchronous object.
 //!
 //! [`HapticWorld::step`] turns one device reading into one [`ContactState`]: fault guard,
-//! collision in the object's frame, force rendering with every safety limit. The loop thread
+//! collision in the object's frame (with the surface's local curvature when the scene's contact
+//! model uses it), force rendering with every safety limit. The loop thread
 //! calls it at 1 kHz; tests, replays and benches call it directly, with no thread and no clock,
 //! which is what makes a replay bit-identical (design.md, invariant 5).
 
@@ -11,6 +12,7 @@ use softhaptic_proto::{ContactFlags, ContactState, Material, Pose, ToolShape};
 use crate::collision::Collider;
 use crate::device::{DeviceError, DeviceLimits, DeviceSample};
 use crate::law;
+use crate::model::{ForceModel, LocalGeometry};
 use crate::render::{ForceRenderer, RenderConfig, RenderedForce, WorldContact};
 
 /// One object, one tool, one device: everything a tick needs. Owns its collider, so it never
@@ -18,8 +20,6 @@ use crate::render::{ForceRenderer, RenderConfig, RenderedForce, WorldContact};
 pub struct HapticWorld {
     collider: Collider,
     object_in_world: Pose,
-    tool: ToolShape,
-    material: Material,
     renderer: ForceRenderer,
     /// Ticks stepped so far (the next state's `tick`).
     tick: u64,
@@ -28,8 +28,9 @@ pub struct HapticWorld {
 }
 
 impl HapticWorld {
-    /// Builds the world. `object_in_world` places the collider's mesh; the device's origin is the
-    /// world origin (its workspace is checked around it).
+    /// Builds the world with the paper's law for `tool` on `material`. `object_in_world` places
+    /// the collider's mesh; the device's origin is the world origin (its workspace is checked
+    /// around it).
     pub fn new(
         collider: Collider,
         object_in_world: Pose,
@@ -38,23 +39,55 @@ impl HapticWorld {
         render: RenderConfig,
         limits: DeviceLimits,
     ) -> Self {
+        Self::with_model(
+            collider,
+            object_in_world,
+            ForceModel::paper(tool, material),
+            render,
+            limits,
+        )
+    }
+
+    /// Builds the world with the scene's contact model. When the model uses the object's
+    /// curvature and the collider does not measure it yet, the curvature is estimated here, once
+    /// (design.md invariant 6: only a model that asks for it pays for it).
+    pub fn with_model(
+        collider: Collider,
+        object_in_world: Pose,
+        model: ForceModel,
+        render: RenderConfig,
+        limits: DeviceLimits,
+    ) -> Self {
+        let collider = if model.spec().curvature {
+            collider.with_curvature()
+        } else {
+            collider
+        };
         Self {
             collider,
             object_in_world,
-            tool,
-            material,
-            renderer: ForceRenderer::new(tool, material, render, limits),
+            renderer: ForceRenderer::with_model(model, render, limits),
             tick: 0,
             last_good: None,
         }
     }
 
     pub fn tool(&self) -> &ToolShape {
-        &self.tool
+        self.renderer.tool()
     }
 
     pub fn material(&self) -> &Material {
-        &self.material
+        self.renderer.material()
+    }
+
+    /// The contact model the world renders.
+    pub fn model(&self) -> &ForceModel {
+        self.renderer.model()
+    }
+
+    /// The local geometry the model was last evaluated at.
+    pub fn geometry(&self) -> &LocalGeometry {
+        self.renderer.geometry()
     }
 
     pub fn limits(&self) -> &DeviceLimits {
@@ -73,13 +106,14 @@ impl HapticWorld {
         &self.collider
     }
 
-    /// Depth δ* beyond which the stiffness cap (when on) linearises the law.
+    /// Depth δ* beyond which the stiffness cap (when on) linearises the law, at the current
+    /// geometry.
     pub fn cap_depth_m(&self) -> f64 {
         self.renderer.cap_depth_m()
     }
 
-    /// The elastic force magnitude the renderer uses at `depth_m` (the law, or its capped
-    /// extension past δ*), before damping and the other limits.
+    /// The elastic force magnitude the renderer uses at `depth_m` and the current geometry (the
+    /// model, or its capped extension past δ*), before damping and the other limits.
     pub fn elastic_force_n(&self, depth_m: f64) -> f64 {
         self.renderer.elastic_force_n(depth_m).0
     }
@@ -117,11 +151,13 @@ impl HapticWorld {
             position_m: to_object * (sample.tip_in_world.position_m - o.position_m),
             orientation: to_object * sample.tip_in_world.orientation,
         };
-        let geometry = self.collider.query(&self.tool, &tip_in_object);
+        let tool = *self.renderer.tool();
+        let geometry = self.collider.query(&tool, &tip_in_object);
         let contact = geometry.map(|g| WorldContact {
             depth_m: g.depth_m,
             normal: o.orientation * g.normal,
             degenerate_normal: g.degenerate_normal,
+            curvature_1_per_m: g.curvature_1_per_m,
         });
         let tool_axis = sample.tip_in_world.orientation * DVec3::Y;
         let rendered = self.renderer.render(
@@ -149,7 +185,14 @@ impl HapticWorld {
             state.depth_m = g.depth_m.max(0.0);
             state.normal = c.normal;
             state.contact_point_m = o.transform_point(g.contact_point_m);
-            state.contact_radius_m = law::contact_radius_m(&self.tool, state.depth_m);
+            let model = self.renderer.model();
+            // The paper's a = √(Rδ) (sphere) or 2δ tan α/π (cone) unless the model bends it
+            // with the curvature; the renderer holds this tick's geometry.
+            state.contact_radius_m = if model.spec().curvature {
+                model.contact_radius_m(state.depth_m, self.renderer.geometry())
+            } else {
+                law::contact_radius_m(&tool, state.depth_m)
+            };
         }
         state
     }

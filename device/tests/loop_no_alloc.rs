@@ -13,10 +13,11 @@ use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceLimits, HapticDevice};
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
 use softhaptic_device::liver;
+use softhaptic_device::model::ForceModel;
 use softhaptic_device::render::RenderConfig;
 use softhaptic_device::sim::{HandScript, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
-use softhaptic_proto::{Material, Pose, ToolShape};
+use softhaptic_proto::{Material, ModelSpec, Pose, ToolShape};
 
 struct Counting;
 
@@ -43,7 +44,7 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-fn setup(material: Material) -> (SimulatedPhantom, HapticWorld) {
+fn setup(material: Material, spec: ModelSpec) -> (SimulatedPhantom, HapticWorld) {
     let top = liver::top_contact();
     let mut script = HandScript::press(top.point_m, top.normal, 0.015);
     script.approach_s = 0.05;
@@ -51,11 +52,10 @@ fn setup(material: Material) -> (SimulatedPhantom, HapticWorld) {
     script.slide_s = 0.2;
     script.repeat = true;
     let tool = ToolShape::sphere(0.01).unwrap();
-    let world = HapticWorld::new(
+    let world = HapticWorld::with_model(
         Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
         Pose::IDENTITY,
-        tool,
-        material,
+        ForceModel::new(tool, material, spec).unwrap(),
         RenderConfig::for_tool(&tool),
         DeviceLimits::PHANTOM_DESKTOP,
     );
@@ -64,9 +64,22 @@ fn setup(material: Material) -> (SimulatedPhantom, HapticWorld) {
 
 #[test]
 fn ticks_do_not_allocate() {
-    // Synchronous: press, hold, slide, release, repeat, through every safety limit.
-    for material in [Material::PAPER_SOFT, Material::PAPER_STIFF] {
-        let (mut device, mut world) = setup(material);
+    // Synchronous: press, hold, slide, release, repeat, through every safety limit; with the
+    // paper's law and with the combined model, whose curvature changes as the tool slides (the
+    // stiffness cap's depth is then found again on the tick).
+    let combined = ModelSpec {
+        exact_sphere: true,
+        curvature: true,
+        hyperelastic: true,
+        ..ModelSpec::PAPER
+    };
+    for (material, spec) in [
+        (Material::PAPER_SOFT, ModelSpec::PAPER),
+        (Material::PAPER_STIFF, ModelSpec::PAPER),
+        (Material::PAPER_SOFT, combined),
+        (Material::PAPER_STIFF, combined),
+    ] {
+        let (mut device, mut world) = setup(material, spec);
         let before = ALLOCATIONS.load(Ordering::Relaxed);
         let mut touched = 0;
         for _ in 0..3000 {
@@ -79,7 +92,7 @@ fn ticks_do_not_allocate() {
     }
 
     // The loop thread, with a tick ring: count only between two points of its steady state.
-    let (device, world) = setup(Material::PAPER_SOFT);
+    let (device, world) = setup(Material::PAPER_SOFT, combined);
     let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(16);
     let haptic = HapticLoop::spawn(
         Box::new(device),

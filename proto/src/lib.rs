@@ -8,8 +8,9 @@
 //! # Layout
 //! - [`material`]: linear-elastic constants (E, ν) validated on construction, and the derived
 //!   shear and plane-strain moduli.
-//! - [`model`]: which contact model and corrections a scene object uses, and the measured
-//!   validity limits of each model (file format of the calibration's `model_limits.json`).
+//! - [`model`]: which contact model and corrections a scene object uses, the measured
+//!   validity limits of each model (file format of the calibration's `model_limits.json`), and
+//!   the limits a running model uses ([`ValidityLimits`]: measured, else the paper's).
 //! - [`tool`]: the rigid tool tips (sphere, cone) and the cone half-angle convention.
 //! - [`contact`]: poses, the per-tick [`ContactState`] and its [`ContactFlags`].
 //! - [`calibration`]: the δ → R_d calibration table (JSON file format), its piecewise fit and
@@ -36,5 +37,5 @@ pub use calibration::{CalibrationError, CalibrationSource, CalibrationTable};
 pub use contact::{ContactFlags, ContactState, Pose};
 pub use deformation::DeformationProfile;
 pub use material::{Material, MaterialError};
-pub use model::{LayerSpec, ModelError, ModelLimitsFile, ModelSpec};
+pub use model::{LayerSpec, ModelError, ModelLimitsFile, ModelSpec, ValidityLimits};
 pub use tool::{ToolError, ToolShape};

@@ -5,7 +5,8 @@
 //! corrections of physics.md ("Corrections that go past the paper") one by one, so a scene pays
 //! only for what its objects need (design.md, invariant 6). The runtime evaluates them in
 //! `softhaptic_device::model`; the offline calibration measures each against the FEM and writes
-//! a [`ModelLimitsFile`] of the depths where each combination stays within 7 % of it.
+//! a [`ModelLimitsFile`] of the depths where each combination stays within 7 % of it, which a
+//! scene turns into the [`ValidityLimits`] its flags use (the paper's where nothing was measured).
 
 use serde::{Deserialize, Serialize};
 
@@ -196,6 +197,70 @@ impl ModelLimitsFile {
     }
 }
 
+/// The paper's validity depth for both tips: within 7 % of the linear FEM up to 4.3 mm (§4.3).
+pub const PAPER_VALID_DEPTH_M: f64 = 4.3e-3;
+
+/// The paper's validity inclination: 22° for the sphere (eq. 7), 9° for the cone (§3.2).
+pub fn paper_valid_inclination_rad(tool: &ToolShape) -> f64 {
+    let degrees: f64 = match tool {
+        ToolShape::Sphere { .. } => 22.0,
+        ToolShape::Cone { .. } => 9.0,
+    };
+    degrees.to_radians()
+}
+
+/// The validity limits a model runs with, and where they come from: the measured limit of
+/// exactly this tool kind and model when a limits file has one, the paper's otherwise.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValidityLimits {
+    /// Depth beyond which the contact frame is flagged `beyond_valid_depth`.
+    pub valid_depth_m: f64,
+    /// Angle between tool axis and contact normal beyond which it is flagged
+    /// `beyond_valid_inclination`.
+    pub valid_inclination_rad: f64,
+    /// The measured limit's `reference`, or [`ValidityLimits::PAPER_SOURCE`].
+    pub source: String,
+}
+
+impl ValidityLimits {
+    /// The source of the paper's limits.
+    pub const PAPER_SOURCE: &'static str = "paper";
+
+    /// The paper's limits for `tool`.
+    pub fn paper(tool: &ToolShape) -> Self {
+        Self {
+            valid_depth_m: PAPER_VALID_DEPTH_M,
+            valid_inclination_rad: paper_valid_inclination_rad(tool),
+            source: Self::PAPER_SOURCE.to_owned(),
+        }
+    }
+
+    /// The limits of `spec` with `tool`: measured when `file` has them, the paper's otherwise.
+    /// A measured limit without an inclination keeps the paper's inclination, and says so.
+    pub fn of(file: Option<&ModelLimitsFile>, tool: &ToolShape, spec: &ModelSpec) -> Self {
+        let Some(measured) = file.and_then(|f| f.lookup(tool, spec)) else {
+            return Self::paper(tool);
+        };
+        match measured.valid_inclination_rad {
+            Some(valid_inclination_rad) => Self {
+                valid_depth_m: measured.valid_depth_m,
+                valid_inclination_rad,
+                source: measured.reference.clone(),
+            },
+            None => Self {
+                valid_depth_m: measured.valid_depth_m,
+                valid_inclination_rad: paper_valid_inclination_rad(tool),
+                source: format!("{} (inclination: paper)", measured.reference),
+            },
+        }
+    }
+
+    /// True when both limits are the paper's.
+    pub fn is_paper(&self) -> bool {
+        self.source == Self::PAPER_SOURCE
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -267,5 +332,60 @@ mod tests {
             radius_m: 0.01,
         };
         assert!(back.lookup(&cone, &best).is_none());
+    }
+
+    #[test]
+    fn validity_limits_are_measured_when_present_else_the_papers() {
+        let sphere = ToolShape::Sphere { radius_m: 0.01 };
+        let cone = ToolShape::Cone {
+            half_angle_rad: 0.7,
+            radius_m: 0.01,
+        };
+        let curved = ModelSpec {
+            curvature: true,
+            ..ModelSpec::PAPER
+        };
+        let measured = |valid_inclination_rad| MeasuredLimit {
+            tool: ToolKind::Sphere,
+            model: curved,
+            valid_depth_m: 0.0055,
+            crossed: true,
+            valid_inclination_rad,
+            reference: "sphere 10 mm on a 50 mm ball, neo-Hookean FEM".into(),
+        };
+        let mut file = ModelLimitsFile {
+            version: 1,
+            threshold_percent: 7.0,
+            limits: vec![measured(Some(0.3))],
+        };
+        let got = ValidityLimits::of(Some(&file), &sphere, &curved);
+        assert_eq!(got.valid_depth_m, 0.0055);
+        assert_eq!(got.valid_inclination_rad, 0.3);
+        assert_eq!(got.source, "sphere 10 mm on a 50 mm ball, neo-Hookean FEM");
+        assert!(!got.is_paper());
+        // Without a measured inclination, the paper's, and the source says so.
+        file.limits = vec![measured(None)];
+        let got = ValidityLimits::of(Some(&file), &sphere, &curved);
+        assert_eq!(got.valid_inclination_rad, 22f64.to_radians());
+        assert!(
+            got.source.ends_with("(inclination: paper)"),
+            "{}",
+            got.source
+        );
+        // Another model, another tool, or no file: the paper's limits.
+        for (tool, spec, f) in [
+            (sphere, ModelSpec::PAPER, Some(&file)),
+            (cone, curved, Some(&file)),
+            (sphere, curved, None),
+        ] {
+            let got = ValidityLimits::of(f, &tool, &spec);
+            assert!(got.is_paper());
+            assert_eq!(got.valid_depth_m, 4.3e-3);
+            assert_eq!(
+                got.valid_inclination_rad,
+                paper_valid_inclination_rad(&tool)
+            );
+        }
+        assert_eq!(paper_valid_inclination_rad(&cone), 9f64.to_radians());
     }
 }

@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 use crate::calibration::CalibrationTable;
 use crate::contact::{ContactFlags, ContactState, Pose};
 use crate::material::Material;
+use crate::model::{ModelSpec, ValidityLimits};
 use crate::tool::ToolShape;
 
 /// The protocol version carried by `hello` and `scene`.
@@ -44,6 +45,9 @@ pub enum ServerMessage {
 pub enum Role {
     /// Watches the session: receives scene, contact and stats, sends nothing that matters.
     Viewer,
+    /// Watches a recorded session (`softhaptic replay`): also receives `replay` status messages
+    /// and may send `replay_control` (play, pause, seek, speed).
+    Replay,
 }
 
 /// `hello`: the protocol version, this connection's id and role, and the server's name.
@@ -68,6 +72,55 @@ pub struct ModelInfo {
     pub valid_inclination_rad: f64,
 }
 
+/// The contact model the loop runs: the paper's law and the corrections the scene turned on,
+/// and the limits the validity flags use with where they come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactModelInfo {
+    /// [`ModelSpec::label`], e.g. `"Hertz + exact sphere + curvature + neo-Hookean fit"`.
+    pub label: String,
+    /// [`ModelSpec::corrections`]: the scene-file names of the corrections that are on.
+    pub corrections: Vec<String>,
+    /// The scene's model, field by field.
+    pub spec: ModelSpec,
+    /// Depth beyond which contact frames carry `beyond_valid_depth`.
+    pub valid_depth_m: f64,
+    /// Angle between tool axis and contact normal beyond which contact frames carry
+    /// `beyond_valid_inclination`.
+    pub valid_inclination_rad: f64,
+    /// The measured limit's reference, or `"paper"` for the paper's limits.
+    pub limits_source: String,
+}
+
+impl ContactModelInfo {
+    /// The description of `spec` for `tool` running with `limits`.
+    pub fn new(tool: &ToolShape, spec: &ModelSpec, limits: &ValidityLimits) -> Self {
+        Self {
+            label: spec.label(tool),
+            corrections: spec.corrections().into_iter().map(str::to_owned).collect(),
+            spec: *spec,
+            valid_depth_m: limits.valid_depth_m,
+            valid_inclination_rad: limits.valid_inclination_rad,
+            limits_source: limits.source.clone(),
+        }
+    }
+
+    /// The paper's law with the paper's limits: what every server ran before the scene message
+    /// named its model.
+    pub fn paper(tool: &ToolShape) -> Self {
+        Self::new(tool, &ModelSpec::PAPER, &ValidityLimits::paper(tool))
+    }
+
+    /// The limits as the renderer takes them.
+    pub fn validity(&self) -> ValidityLimits {
+        ValidityLimits {
+            valid_depth_m: self.valid_depth_m,
+            valid_inclination_rad: self.valid_inclination_rad,
+            source: self.limits_source.clone(),
+        }
+    }
+}
+
 /// A render mesh the viewer fetches from `url` (binary layout "SHM1", wire.md).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RenderMeshInfo {
@@ -90,15 +143,54 @@ pub struct DeviceInfo {
 
 /// `scene`: the tool, the material, the model, the calibration table, the render meshes and the
 /// device. Also served as JSON at `GET /api/scene`.
+///
+/// A message without `contact_model` (from a server that predates it, or a recording it wrote)
+/// decodes with [`ContactModelInfo::paper`]: those servers ran the paper's law.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(from = "SceneMessageFields")]
 pub struct SceneMessage {
     pub protocol_version: u32,
     pub tool: ToolShape,
     pub material: Material,
+    /// The law's name and its validity bounds (the same bounds as `contact_model`'s), for
+    /// viewers that predate `contact_model`.
     pub model: ModelInfo,
+    /// The active contact model, its corrections and where its limits come from.
+    pub contact_model: ContactModelInfo,
     pub calibration: CalibrationTable,
     pub render_meshes: Vec<RenderMeshInfo>,
     pub device: DeviceInfo,
+}
+
+/// [`SceneMessage`] as decoded, `contact_model` optional.
+#[derive(Deserialize)]
+struct SceneMessageFields {
+    protocol_version: u32,
+    tool: ToolShape,
+    material: Material,
+    model: ModelInfo,
+    #[serde(default)]
+    contact_model: Option<ContactModelInfo>,
+    calibration: CalibrationTable,
+    render_meshes: Vec<RenderMeshInfo>,
+    device: DeviceInfo,
+}
+
+impl From<SceneMessageFields> for SceneMessage {
+    fn from(m: SceneMessageFields) -> Self {
+        SceneMessage {
+            contact_model: m
+                .contact_model
+                .unwrap_or_else(|| ContactModelInfo::paper(&m.tool)),
+            protocol_version: m.protocol_version,
+            tool: m.tool,
+            material: m.material,
+            model: m.model,
+            calibration: m.calibration,
+            render_meshes: m.render_meshes,
+            device: m.device,
+        }
+    }
 }
 
 /// `contact`: one 50 Hz frame, everything the viewer needs to draw the deformation and the force.
@@ -391,7 +483,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
     });
     let tool = ToolShape::Sphere { radius_m: 0.01 };
     let material = Material::PAPER_SOFT;
-    let scene = |tool: ToolShape, model: &str, valid_depth_m: f64, valid_inclination_rad: f64| {
+    let scene = |tool: ToolShape, model: &str, spec: ModelSpec, limits: ValidityLimits| {
         let calibration =
             CalibrationTable::half_space(tool, material, crate::calibration::PAPER_THRESHOLD_M)
                 .map_err(serde::ser::Error::custom)?;
@@ -401,9 +493,10 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             material,
             model: ModelInfo {
                 name: model.into(),
-                valid_depth_m,
-                valid_inclination_rad,
+                valid_depth_m: limits.valid_depth_m,
+                valid_inclination_rad: limits.valid_inclination_rad,
             },
+            contact_model: ContactModelInfo::new(&tool, &spec, &limits),
             calibration,
             render_meshes: vec![RenderMeshInfo {
                 name: "liver".into(),
@@ -471,7 +564,22 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         ("hello", hello),
         (
             "scene_sphere",
-            scene(tool, "hertz", 0.0043, 22f64.to_radians())?,
+            scene(
+                tool,
+                "hertz",
+                ModelSpec {
+                    exact_sphere: true,
+                    curvature: true,
+                    hyperelastic: true,
+                    ..ModelSpec::PAPER
+                },
+                ValidityLimits {
+                    valid_depth_m: 0.0058,
+                    valid_inclination_rad: 22f64.to_radians(),
+                    source: "sphere R = 6 mm, block 100 × 100 × 30 mm, neo-Hookean FEM (inclination: paper)"
+                        .into(),
+                },
+            )?,
         ),
         (
             "scene_cone",
@@ -481,8 +589,30 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                     radius_m: 0.01,
                 },
                 "sneddon_cone",
-                0.006,
-                9f64.to_radians(),
+                ModelSpec {
+                    curvature: true,
+                    inclination: true,
+                    ..ModelSpec::PAPER
+                },
+                ValidityLimits::paper(&ToolShape::Cone {
+                    half_angle_rad: std::f64::consts::FRAC_PI_4,
+                    radius_m: 0.01,
+                }),
+            )?,
+        ),
+        (
+            "scene_paper_layer",
+            scene(
+                tool,
+                "hertz",
+                ModelSpec {
+                    thickness: Some(crate::model::LayerSpec {
+                        thickness_m: 0.03,
+                        bonded: true,
+                    }),
+                    ..ModelSpec::PAPER
+                },
+                ValidityLimits::paper(&tool),
             )?,
         ),
         (
@@ -504,6 +634,26 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         out.push(MessageVector::Valid {
             name: name.into(),
             json: serde_json::to_value(&message)?,
+        });
+    }
+    // A scene from a server that predates `contact_model` (and its recordings): still valid,
+    // read as the paper's law with the paper's limits.
+    if let Some(MessageVector::Valid { json, .. }) = out.get(1) {
+        let mut old = json.clone();
+        if let Some(fields) = old.as_object_mut() {
+            fields.remove("contact_model");
+            fields.insert(
+                "model".into(),
+                serde_json::json!({
+                    "name": "hertz",
+                    "valid_depth_m": crate::model::PAPER_VALID_DEPTH_M,
+                    "valid_inclination_rad": crate::model::paper_valid_inclination_rad(&tool),
+                }),
+            );
+        }
+        out.push(MessageVector::Valid {
+            name: "scene_before_contact_model".into(),
+            json: old,
         });
     }
     let invalid = [
@@ -529,6 +679,65 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             name: name.into(),
             raw: raw.into(),
             valid: false,
+        });
+    }
+    // A replay server's hello and status, and the controls a viewer sends it (the viewer's
+    // encoder must produce exactly these).
+    let replay = [
+        (
+            "hello_replay",
+            serde_json::to_value(ServerMessage::Hello(Hello {
+                protocol_version: PROTOCOL_VERSION,
+                session_id: "19abc0de123-4242".into(),
+                role: Role::Replay,
+                server: "softhaptic 0.1.0".into(),
+            }))?,
+        ),
+        (
+            "replay_status",
+            serde_json::to_value(crate::record::ReplayStatus {
+                duration_s: 2.98,
+                time_s: 1.25,
+                paused: false,
+                speed: 0.5,
+                file: "sphere-press.mcap".into(),
+            })?,
+        ),
+    ];
+    for (name, json) in replay {
+        out.push(MessageVector::Valid {
+            name: name.into(),
+            json,
+        });
+    }
+    let controls = [
+        (
+            "replay_control_pause",
+            crate::record::ReplayAction::Pause,
+            None,
+            None,
+        ),
+        (
+            "replay_control_play_at_2x",
+            crate::record::ReplayAction::Play,
+            None,
+            Some(2.0),
+        ),
+        (
+            "replay_control_seek",
+            crate::record::ReplayAction::Seek,
+            Some(1.5),
+            None,
+        ),
+    ];
+    for (name, action, time_s, speed) in controls {
+        out.push(MessageVector::Valid {
+            name: name.into(),
+            json: serde_json::to_value(crate::record::ReplayControl {
+                action,
+                time_s,
+                speed,
+            })?,
         });
     }
     // Well-formed but of a type no viewer knows: to be ignored and counted, not refused.
@@ -573,6 +782,20 @@ mod tests {
                     match ServerMessage::decode(&text) {
                         Ok(m) => {
                             round_trip(&m);
+                            let mut json = json;
+                            if name == "scene_before_contact_model" {
+                                // Read as the paper's law with the paper's limits; re-encoded
+                                // with the field.
+                                let ServerMessage::Scene(scene) = &m else {
+                                    panic!("{name} is a scene")
+                                };
+                                assert_eq!(
+                                    scene.contact_model,
+                                    ContactModelInfo::paper(&scene.tool)
+                                );
+                                json["contact_model"] =
+                                    serde_json::to_value(&scene.contact_model).unwrap();
+                            }
                             // Re-encoding gives the same JSON value (no field lost or added).
                             assert_eq!(serde_json::to_value(&m).unwrap(), json, "{name}");
                             decoded.insert(m.type_name());
@@ -724,6 +947,51 @@ mod tests {
                 path.display()
             );
         }
+    }
+
+    #[test]
+    fn scene_carries_the_active_contact_model() {
+        let v = message_vectors().unwrap();
+        let MessageVector::Valid { json, .. } = &v[1] else {
+            panic!("second vector is the sphere scene")
+        };
+        let model = &json["contact_model"];
+        assert_eq!(
+            model["label"],
+            "Hertz + exact sphere + curvature + neo-Hookean fit"
+        );
+        assert_eq!(
+            model["corrections"],
+            serde_json::json!(["exact_sphere", "curvature", "hyperelastic"])
+        );
+        assert_eq!(model["spec"]["exact_sphere"], true);
+        assert_eq!(model["spec"]["thickness"], serde_json::Value::Null);
+        assert_eq!(model["valid_depth_m"], 0.0058);
+        assert!(model["limits_source"].as_str().unwrap().contains("FEM"));
+        // The legacy summary carries the same bounds.
+        assert_eq!(json["model"]["valid_depth_m"], 0.0058);
+        // An unknown field in the model is refused (a typo must not pass for a correction).
+        let mut bad = json.clone();
+        bad["contact_model"]["spec"]["curvatur"] = true.into();
+        let err = ServerMessage::decode(&bad.to_string()).unwrap_err();
+        assert!(err.to_string().contains("curvatur"), "{err}");
+        // A layer round-trips with its thickness.
+        let layer = v
+            .iter()
+            .find_map(|v| match v {
+                MessageVector::Valid { name, json } if name == "scene_paper_layer" => Some(json),
+                _ => None,
+            })
+            .unwrap();
+        let ServerMessage::Scene(scene) = ServerMessage::decode(&layer.to_string()).unwrap() else {
+            panic!("a scene")
+        };
+        assert_eq!(scene.contact_model.corrections, vec!["thickness_bonded"]);
+        assert_eq!(
+            scene.contact_model.spec.thickness.map(|l| l.thickness_m),
+            Some(0.03)
+        );
+        assert_eq!(scene.contact_model.limits_source, "paper");
     }
 
     #[test]

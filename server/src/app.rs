@@ -19,11 +19,9 @@ use axum::extract::{Path as UrlPath, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, get_service};
-use softhaptic_device::collision::Collider;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
 use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_device::stats::LoopStats;
-use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::ToolShape;
 use softhaptic_proto::wire::{
     DeviceInfo, Hello, ModelInfo, PROTOCOL_VERSION, RenderMeshInfo, Role, SceneMessage,
@@ -79,6 +77,9 @@ pub struct ServerOptions {
     /// Every tick record goes here (session log, or a test comparing forces); a full ring drops
     /// records, never delays the loop.
     pub tick_sink: Option<rtrb::Producer<TickRecord>>,
+    /// The session id `hello` announces; a fresh random one when `None`. A recorded session
+    /// passes the recording's, so the file and the viewers name the same session.
+    pub session_id: Option<String>,
 }
 
 impl ServerOptions {
@@ -93,6 +94,7 @@ impl ServerOptions {
             viewer_limits: ViewerLimits::default(),
             send_buffer_bytes: None,
             tick_sink: None,
+            session_id: None,
         }
     }
 }
@@ -204,6 +206,7 @@ pub fn scene_message(scene: &Scene) -> SceneMessage {
             valid_depth_m: scene.render.valid_depth_m,
             valid_inclination_rad: scene.render.valid_inclination_rad,
         },
+        contact_model: scene.contact_model_info(),
         calibration: scene.calibration.clone(),
         render_meshes: vec![RenderMeshInfo {
             name: scene.object_name.clone(),
@@ -256,7 +259,7 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
         "hello",
         ServerMessage::Hello(Hello {
             protocol_version: PROTOCOL_VERSION,
-            session_id: new_session_id(),
+            session_id: options.session_id.clone().unwrap_or_else(new_session_id),
             role: Role::Viewer,
             server: SERVER_NAME.into(),
         }),
@@ -277,15 +280,8 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
         source,
     })?;
 
-    // The haptic side: world, simulated device, loop thread.
-    let world = HapticWorld::new(
-        Collider::new(scene.haptic_mesh.clone(), scene.collision),
-        scene.object_in_world,
-        scene.tool,
-        scene.material,
-        scene.render,
-        scene.device_limits,
-    );
+    // The haptic side: world (with the scene's contact model), simulated device, loop thread.
+    let world = scene.haptic_world();
     let device = match scene.device_kind {
         DeviceKind::Simulated => SimulatedPhantom::with_params(
             hand_script(&scene),

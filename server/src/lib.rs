@@ -2,14 +2,18 @@
 //! 50 Hz contact frames to WebSocket viewers and serves the web viewer.
 //!
 //! # Layout
-//! - [`scene`]: scene files (TOML), their validation and loading (meshes, calibration table),
-//!   and the built-in default scene.
+//! - [`scene`]: scene files (TOML), their validation and loading (meshes, calibration table,
+//!   the object's contact model `[object.model]` built for the scene's tool only, and its
+//!   validity limits from the measured limits file or the paper's), the haptic world a scene
+//!   describes, and the built-in default scene (its calibration tables built into the binary).
 //! - [`app`]: [`app::start`] builds the haptic world, spawns the loop, binds HTTP and WebSocket
-//!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of wire.md.
+//!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of wire.md;
+//!   the `scene` message, whose `contact_model` names the active model and its limits.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
-//! - [`session`]: recording sessions to MCAP files and reading them back.
+//! - [`session`]: recording sessions to MCAP files and reading them back; a replay check
+//!   rebuilds the recorded contact model from the recording's `scene` message.
 
 pub mod app;
 pub mod scene;

@@ -120,6 +120,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         scene = %args.scene.as_deref().map(|p| p.display().to_string()).unwrap_or_else(|| "built-in default".into()),
         object = %scene.object_name,
         calibration = scene.calibration.source().as_str(),
+        model = %scene.contact_model_info().label,
+        limits = %scene.validity.source,
         "scene loaded"
     );
     let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
@@ -133,6 +135,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         let mut options = ServerOptions::new(args.addr, web_dir);
         options.realtime = !args.no_realtime;
         options.tick_sink = recording.as_mut().and_then(|r| r.take_tick_sink());
+        options.session_id = recording.as_ref().map(|r| r.session_id().to_owned());
         let server = app::start(scene, options).await?;
         if let Some(r) = &recording {
             r.attach(&server);

@@ -1,11 +1,13 @@
 //! Scenes: what the server simulates, described in a TOML file.
 //!
-//! A scene names one object (haptic and render meshes, pose, material), the tool, the device,
-//! the calibration table that gives R_d, the collision mode and the damping. [`SceneFile`] is
-//! the file as written; [`Scene`] is the same content validated and loaded (meshes read, the
-//! calibration table read or built), ready to build the haptic world. An invalid file is
-//! refused before anything starts, with the file, the field and the reason
-//! ([`SceneError`]); syntax and type errors carry toml's line and column.
+//! A scene names one object (haptic and render meshes, pose, material, contact model), the
+//! tool, the device, the calibration table that gives R_d and the measured limits of the
+//! contact models, the collision mode and the damping. [`SceneFile`] is the file as written;
+//! [`Scene`] is the same content validated and loaded (meshes read, the calibration table read
+//! or built, the object's [`ForceModel`] built for the scene's tool and its validity limits
+//! looked up), ready to build the haptic world. An invalid file is refused before anything
+//! starts, with the file, the field and the reason ([`SceneError`]); syntax and type errors
+//! carry toml's line and column.
 //!
 //! ```toml
 //! [object]
@@ -13,6 +15,13 @@
 //! builtin = "liver"                 # or: haptic_mesh = "x.obj", render_mesh = "x_fine.obj"
 //! position_m = [0.0, 0.0, 0.0]
 //! orientation = [0.0, 0.0, 0.0, 1.0] # quaternion [x, y, z, w]
+//!
+//! [object.model]                    # the object's contact model; absent: the paper's law
+//! exact_sphere = true               # Sneddon's exact sphere (sphere tools only)
+//! curvature = true                  # the object's local curvature, from the haptic mesh
+//! hyperelastic = true               # neo-Hookean stiffening fitted to the project's FEM
+//! inclination = false               # force along the normal of a tilted tool (cone)
+//! thickness = { thickness_m = 0.03, bonded = true } # a layer on a rigid base; omit if none
 //!
 //! [material]
 //! youngs_modulus_pa = 50000.0
@@ -29,22 +38,82 @@
 //!
 //! [calibration]
 //! table = "half_space"             # or a path to a calibration JSON, relative to this file
+//! limits = "my_limits.json"        # measured limits of the models; when absent, the default
+//!                                  # calibration/model_limits.json, which may be missing
 //!
 //! [haptics]
 //! collision = "continuous"         # or "paper_vertices"
 //! damping_n_s_per_m = 1.0
 //! ```
+//!
+//! # Model only what the scene requires
+//! The scene builds one [`ForceModel`], for its tool: a scene with a cone builds no sphere law,
+//! and the mesh's curvature is estimated only when the model uses it (the haptic world asks the
+//! collider for it, [`Scene::haptic_world`]).
+//!
+//! # Validity limits
+//! The flags `beyond_valid_depth` and `beyond_valid_inclination` use the measured limits of the
+//! object's model for the scene's tool kind, from the limits file (`calibration.limits`, written
+//! by `softhaptic-calibrate`), or the paper's (4.3 mm; 22° sphere, 9° cone) when the file has no
+//! entry for the model ([`ValidityLimits`]). A missing file at the default path falls back to
+//! the paper's with a log line; a file named in the scene must exist and be well formed.
+//!
+//! # Files of the built-in scene
+//! The built-in default scene has no directory of its own. The calibration tables it may name
+//! (the ones under the repository's `scenes/calibration/`) are built into the binary, so it
+//! runs from any directory; its limits file is looked up in the `scenes/` directory of the
+//! source tree the binary was built from (the calibration command rewrites it, so it is read
+//! when the scene loads rather than frozen into the binary).
 
 use std::path::{Path, PathBuf};
 
 use glam::{DQuat, DVec3};
 use serde::Deserialize;
-use softhaptic_device::collision::CollisionMode;
+use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::DeviceLimits;
 use softhaptic_device::mesh::HapticMesh;
+use softhaptic_device::model::ForceModel;
 use softhaptic_device::render::RenderConfig;
+use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
-use softhaptic_proto::{CalibrationTable, Material, Pose, ToolShape};
+use softhaptic_proto::wire::ContactModelInfo;
+use softhaptic_proto::{
+    CalibrationTable, Material, ModelError, ModelLimitsFile, ModelSpec, Pose, ToolShape,
+    ValidityLimits,
+};
+
+/// The limits file a scene uses when it names none, relative to the scene file.
+pub const DEFAULT_LIMITS_FILE: &str = "calibration/model_limits.json";
+
+/// The calibration tables built into the binary, by the name the built-in scene gives them
+/// (relative to the repository's `scenes/`).
+const EMBEDDED_TABLES: [(&str, &str); 4] = [
+    (
+        "calibration/sphere10_50kpa.json",
+        include_str!("../../scenes/calibration/sphere10_50kpa.json"),
+    ),
+    (
+        "calibration/sphere10_1500kpa.json",
+        include_str!("../../scenes/calibration/sphere10_1500kpa.json"),
+    ),
+    (
+        "calibration/cone10_45_50kpa.json",
+        include_str!("../../scenes/calibration/cone10_45_50kpa.json"),
+    ),
+    (
+        "calibration/cone10_45_1500kpa.json",
+        include_str!("../../scenes/calibration/cone10_45_1500kpa.json"),
+    ),
+];
+
+/// The `scenes/` directory of the source tree this binary was built from.
+pub fn source_tree_scenes_dir() -> PathBuf {
+    let server = Path::new(env!("CARGO_MANIFEST_DIR"));
+    server
+        .parent()
+        .map_or_else(|| server.join(".."), Path::to_path_buf)
+        .join("scenes")
+}
 
 /// Why a scene could not be loaded. Every variant names the file; field-level errors name the
 /// field and the value.
@@ -77,6 +146,12 @@ pub enum SceneError {
     Calibration {
         path: PathBuf,
         table: PathBuf,
+        reason: String,
+    },
+    #[error("{path}: calibration.limits: {file}: {reason}")]
+    Limits {
+        path: PathBuf,
+        file: PathBuf,
         reason: String,
     },
 }
@@ -123,6 +198,9 @@ pub struct ObjectSection {
     /// Quaternion [x, y, z, w]; normalised on load.
     #[serde(default = "identity_quaternion")]
     pub orientation: [f64; 4],
+    /// The object's contact model (`[object.model]`): the paper's law when absent.
+    #[serde(default)]
+    pub model: ModelSpec,
 }
 
 fn identity_quaternion() -> [f64; 4] {
@@ -194,6 +272,9 @@ impl Default for DeviceSection {
 pub struct CalibrationSection {
     /// `"half_space"` for the analytical table, or a calibration JSON file relative to the scene.
     pub table: String,
+    /// The measured limits of the contact models (a `ModelLimitsFile`), relative to the scene;
+    /// [`DEFAULT_LIMITS_FILE`] when absent.
+    pub limits: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
@@ -283,13 +364,45 @@ pub struct Scene {
     pub press_site_in_object: (DVec3, DVec3),
     pub calibration: CalibrationTable,
     pub collision: CollisionMode,
+    /// The safety layers, damping, and the validity limits of `validity`.
     pub render: RenderConfig,
+    /// The object's contact model, built for the scene's tool (and only for it).
+    pub contact_model: ForceModel,
+    /// The limits the validity flags use, and where they come from.
+    pub validity: ValidityLimits,
+}
+
+/// Where a scene's relative file names resolve: the scene file's directory, or, for a built-in
+/// scene, the tables built into the binary and the source tree's `scenes/`.
+#[derive(Debug, Clone, Copy)]
+enum FileBase<'a> {
+    Dir(&'a Path),
+    BuiltIn,
+}
+
+impl FileBase<'_> {
+    fn resolve(&self, p: &Path) -> PathBuf {
+        match self {
+            FileBase::Dir(base) => base.join(p),
+            FileBase::BuiltIn => source_tree_scenes_dir().join(p),
+        }
+    }
+}
+
+/// Where the object's model and its limits come from.
+#[derive(Debug, Clone, Copy)]
+enum ModelSource<'a> {
+    /// The scene file's `[object.model]` and limits file.
+    File,
+    /// A recording's `scene` message: the model and limits the session ran with.
+    Recorded(&'a ContactModelInfo),
 }
 
 impl Scene {
     /// The scene used when no file is given: the procedural liver, a 10 mm sphere, E = 50 kPa,
-    /// ν = 0.33, the half-space R_d table (labelled `half_space` in the scene message), a
-    /// simulated PHANTOM Desktop.
+    /// ν = 0.33, the best combined contact model for a sphere on a curved organ (exact sphere,
+    /// hyperelastic fit, curvature), the neo-Hookean FEM R_d table of a 10 mm sphere at 50 kPa
+    /// (built into the binary), a simulated PHANTOM Desktop.
     pub fn builtin_default() -> Result<Scene, SceneError> {
         let text = include_str!("../../scenes/default.toml");
         Self::from_toml(text, Path::new("<built-in scenes/default.toml>"), None)
@@ -306,25 +419,65 @@ impl Scene {
     }
 
     /// Parses, validates and loads scene text; `path` is used in errors, `base` resolves
-    /// relative files (`None`: the built-in scene, which may not name files).
+    /// relative files (`None`: a built-in scene, whose files resolve as the module docs say).
     pub fn from_toml(text: &str, path: &Path, base: Option<&Path>) -> Result<Scene, SceneError> {
-        let file: SceneFile = toml::from_str(text).map_err(|e| SceneError::Parse {
-            path: path.to_owned(),
-            message: e.to_string().trim_end().to_owned(),
-        })?;
-        Self::from_file(file, path, base)
+        let file = Self::parse(text, path)?;
+        Self::from_file(file, path, base, ModelSource::File)
     }
 
-    fn from_file(file: SceneFile, path: &Path, base: Option<&Path>) -> Result<Scene, SceneError> {
+    /// Loads the scene text of a recording with the contact model and limits the recording's
+    /// `scene` message says the session ran with (so a replay rebuilds the same model even if
+    /// the scene's defaults or the limits file have changed since); the limits file is not read.
+    pub fn from_recorded_toml(
+        text: &str,
+        path: &Path,
+        base: Option<&Path>,
+        contact_model: &ContactModelInfo,
+    ) -> Result<Scene, SceneError> {
+        let file = Self::parse(text, path)?;
+        Self::from_file(file, path, base, ModelSource::Recorded(contact_model))
+    }
+
+    fn parse(text: &str, path: &Path) -> Result<SceneFile, SceneError> {
+        toml::from_str(text).map_err(|e| SceneError::Parse {
+            path: path.to_owned(),
+            message: e.to_string().trim_end().to_owned(),
+        })
+    }
+
+    /// The haptic world of this scene: its mesh, pose, contact model, render configuration and
+    /// device limits. The world estimates the mesh's curvature only if the model uses it.
+    pub fn haptic_world(&self) -> HapticWorld {
+        HapticWorld::with_model(
+            Collider::new(self.haptic_mesh.clone(), self.collision),
+            self.object_in_world,
+            self.contact_model.clone(),
+            self.render,
+            self.device_limits,
+        )
+    }
+
+    /// The active contact model as the `scene` message describes it.
+    pub fn contact_model_info(&self) -> ContactModelInfo {
+        ContactModelInfo::new(&self.tool, self.contact_model.spec(), &self.validity)
+    }
+
+    fn from_file(
+        file: SceneFile,
+        path: &Path,
+        base: Option<&Path>,
+        model_source: ModelSource<'_>,
+    ) -> Result<Scene, SceneError> {
         let field = |field: &str, reason: String| SceneError::Field {
             path: path.to_owned(),
             field: field.to_owned(),
             reason,
         };
-        let resolve = |p: &Path| match base {
-            Some(b) => b.join(p),
-            None => p.to_owned(),
+        let files = match base {
+            Some(b) => FileBase::Dir(b),
+            None => FileBase::BuiltIn,
         };
+        let resolve = |p: &Path| files.resolve(p);
         let object = &file.object;
         if object.name.is_empty()
             || !object
@@ -440,20 +593,41 @@ impl Scene {
                 .map_err(|e| field("calibration.table", e.to_string()))?
         } else {
             let table_path = PathBuf::from(&file.calibration.table);
-            if base.is_none() {
-                return Err(field(
-                    "calibration.table",
-                    "the built-in scene cannot name files".into(),
-                ));
-            }
-            let full = resolve(&table_path);
+            let (full, text) = match files {
+                FileBase::Dir(_) => {
+                    let full = resolve(&table_path);
+                    let text =
+                        std::fs::read_to_string(&full).map_err(|e| SceneError::Calibration {
+                            path: path.to_owned(),
+                            table: full.clone(),
+                            reason: e.to_string(),
+                        })?;
+                    (full, text)
+                }
+                FileBase::BuiltIn => {
+                    let name = file.calibration.table.as_str();
+                    let found = EMBEDDED_TABLES.iter().find(|(n, _)| *n == name);
+                    let Some((_, text)) = found else {
+                        let names: Vec<&str> = EMBEDDED_TABLES.iter().map(|(n, _)| *n).collect();
+                        return Err(field(
+                            "calibration.table",
+                            format!(
+                                "a built-in scene can name only the tables built into the binary ({}), got {name:?}",
+                                names.join(", ")
+                            ),
+                        ));
+                    };
+                    (
+                        PathBuf::from(format!("<built-in {name}>")),
+                        (*text).to_owned(),
+                    )
+                }
+            };
             let calibration_error = |reason: String| SceneError::Calibration {
                 path: path.to_owned(),
                 table: full.clone(),
                 reason,
             };
-            let text =
-                std::fs::read_to_string(&full).map_err(|e| calibration_error(e.to_string()))?;
             let table: CalibrationTable =
                 serde_json::from_str(&text).map_err(|e| calibration_error(e.to_string()))?;
             if table.tool() != &tool {
@@ -465,6 +639,26 @@ impl Scene {
             }
             table
         };
+
+        // The object's contact model, for the scene's tool only, and its validity limits.
+        let (spec, validity) = match model_source {
+            ModelSource::File => {
+                let spec = file.object.model;
+                let limits = load_limits(file.calibration.limits.as_deref(), files, path)?;
+                let validity = ValidityLimits::of(limits.as_ref(), &tool, &spec);
+                (spec, validity)
+            }
+            ModelSource::Recorded(info) => (info.spec, info.validity()),
+        };
+        let contact_model = ForceModel::new(tool, material, spec).map_err(|e| {
+            let name = match e {
+                ModelError::Thickness(_) => "object.model.thickness.thickness_m",
+                ModelError::ExactSphereOnCone => "object.model.exact_sphere",
+                ModelError::UnbondedCone => "object.model.thickness.bonded",
+            };
+            field(name, e.to_string())
+        })?;
+        render = render.with_limits(&validity);
 
         Ok(Scene {
             source: base.map(|_| path.to_owned()),
@@ -481,8 +675,73 @@ impl Scene {
             calibration,
             collision: file.haptics.collision.into(),
             render,
+            contact_model,
+            validity,
         })
     }
+}
+
+/// Reads the limits file: the one `named` in the scene (which must exist), or the default one
+/// (whose absence means the paper's limits, logged). `None` when there is no file.
+fn load_limits(
+    named: Option<&Path>,
+    files: FileBase<'_>,
+    scene: &Path,
+) -> Result<Option<ModelLimitsFile>, SceneError> {
+    let full = files.resolve(named.unwrap_or(Path::new(DEFAULT_LIMITS_FILE)));
+    let error = |reason: String| SceneError::Limits {
+        path: scene.to_owned(),
+        file: full.clone(),
+        reason,
+    };
+    let text = match std::fs::read_to_string(&full) {
+        Ok(text) => text,
+        Err(e) if named.is_none() && e.kind() == std::io::ErrorKind::NotFound => {
+            tracing::info!(
+                scene = %scene.display(),
+                file = %full.display(),
+                "no model limits file: the validity flags use the paper's limits (4.3 mm; 22° sphere, 9° cone)"
+            );
+            return Ok(None);
+        }
+        Err(e) => return Err(error(e.to_string())),
+    };
+    let limits: ModelLimitsFile = serde_json::from_str(&text).map_err(|e| error(e.to_string()))?;
+    validate_limits(&limits).map_err(error)?;
+    Ok(Some(limits))
+}
+
+/// Checks what serde cannot: the version, and that every limit is a usable positive number.
+fn validate_limits(file: &ModelLimitsFile) -> Result<(), String> {
+    if file.version != ModelLimitsFile::VERSION {
+        return Err(format!(
+            "version: this build reads version {}, got {}",
+            ModelLimitsFile::VERSION,
+            file.version
+        ));
+    }
+    if !(file.threshold_percent.is_finite() && file.threshold_percent > 0.0) {
+        return Err(format!(
+            "threshold_percent: must be finite and > 0, got {}",
+            file.threshold_percent
+        ));
+    }
+    for (i, limit) in file.limits.iter().enumerate() {
+        if !(limit.valid_depth_m.is_finite() && limit.valid_depth_m > 0.0) {
+            return Err(format!(
+                "limits[{i}].valid_depth_m: must be finite and > 0, got {}",
+                limit.valid_depth_m
+            ));
+        }
+        if let Some(angle) = limit.valid_inclination_rad
+            && !(angle.is_finite() && angle > 0.0 && angle <= std::f64::consts::FRAC_PI_2)
+        {
+            return Err(format!(
+                "limits[{i}].valid_inclination_rad: must be in (0, π/2], got {angle}"
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The vertex highest in the world (largest y) and its normal: where a hand coming from above
@@ -564,17 +823,159 @@ mod tests {
     use super::*;
 
     #[test]
-    fn builtin_default_scene_is_the_liver_with_a_labelled_half_space_table() {
+    fn builtin_default_scene_is_the_liver_with_the_combined_model_and_the_fem_table() {
         let s = Scene::builtin_default().unwrap();
         assert_eq!(s.object_name, "liver");
         assert!(s.render_surface.positions_m.len() >= 100_000);
         assert_eq!(s.tool, ToolShape::sphere(0.01).unwrap());
         assert_eq!(s.material, Material::PAPER_SOFT);
+        assert_eq!(s.device_limits, DeviceLimits::PHANTOM_DESKTOP);
+        // The FEM table of the 10 mm sphere at 50 kPa, from inside the binary: the same table
+        // as the file of the source tree.
         assert_eq!(
             s.calibration.source(),
-            softhaptic_proto::CalibrationSource::HalfSpace
+            softhaptic_proto::CalibrationSource::FemNeoHookean
         );
-        assert_eq!(s.device_limits, DeviceLimits::PHANTOM_DESKTOP);
+        let on_disk: CalibrationTable = serde_json::from_str(
+            &std::fs::read_to_string(
+                source_tree_scenes_dir().join("calibration/sphere10_50kpa.json"),
+            )
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(s.calibration, on_disk);
+        // The best combined model for a sphere on a curved organ, no layer.
+        let spec = *s.contact_model.spec();
+        assert_eq!(
+            spec,
+            ModelSpec {
+                exact_sphere: true,
+                curvature: true,
+                hyperelastic: true,
+                ..ModelSpec::PAPER
+            }
+        );
+        assert_eq!(s.contact_model.tool(), &s.tool);
+        // The limits: measured when the source tree's limits file has them, the paper's
+        // otherwise; the renderer uses the same.
+        let file = std::fs::read_to_string(source_tree_scenes_dir().join(DEFAULT_LIMITS_FILE))
+            .ok()
+            .map(|t| serde_json::from_str::<ModelLimitsFile>(&t).unwrap());
+        assert_eq!(
+            s.validity,
+            ValidityLimits::of(file.as_ref(), &s.tool, &spec)
+        );
+        assert_eq!(s.render.valid_depth_m, s.validity.valid_depth_m);
+        assert_eq!(
+            s.render.valid_inclination_rad,
+            s.validity.valid_inclination_rad
+        );
+        // The world measures the curvature, because the model uses it.
+        assert!(s.haptic_world().collider().has_curvature());
+    }
+
+    #[test]
+    fn a_scene_without_a_model_table_runs_the_papers_law() {
+        let text = include_str!("../../scenes/default.toml");
+        let start = text.find("[object.model]").unwrap();
+        let end = start + text[start..].find("\n[material]").unwrap();
+        let plain = format!("{}{}", &text[..start], &text[end..]);
+        let s = Scene::from_toml(&plain, Path::new("<test>"), None).unwrap();
+        assert!(s.contact_model.spec().is_paper());
+        assert!(!s.haptic_world().collider().has_curvature());
+        let info = s.contact_model_info();
+        assert_eq!(info.label, "Hertz");
+        assert!(info.corrections.is_empty());
+    }
+
+    #[test]
+    fn the_built_in_scene_names_only_embedded_tables() {
+        let text = include_str!("../../scenes/default.toml").replace(
+            "calibration/sphere10_50kpa.json",
+            "calibration/elsewhere.json",
+        );
+        let err = Scene::from_toml(&text, Path::new("<test>"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("calibration.table")
+                && err.contains("elsewhere.json")
+                && err.contains("sphere10_50kpa.json"),
+            "{err}"
+        );
+        // Every embedded table parses.
+        for (name, text) in EMBEDDED_TABLES {
+            serde_json::from_str::<CalibrationTable>(text)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+        }
+    }
+
+    #[test]
+    fn the_cone_scene_builds_a_cone_model_only() {
+        let s = Scene::from_toml(
+            include_str!("../../scenes/cone.toml"),
+            Path::new("<test>"),
+            None,
+        )
+        .unwrap();
+        assert!(matches!(s.contact_model.tool(), ToolShape::Cone { .. }));
+        assert_eq!(
+            *s.contact_model.spec(),
+            ModelSpec {
+                curvature: true,
+                inclination: true,
+                ..ModelSpec::PAPER
+            }
+        );
+        assert_eq!(
+            s.contact_model_info().label,
+            "Sneddon cone + curvature + inclination"
+        );
+    }
+
+    #[test]
+    fn a_recorded_model_overrides_the_scene_file() {
+        // A replay runs the model the session ran, whatever the scene text's defaults say now.
+        let text = include_str!("../../scenes/default.toml");
+        let tool = ToolShape::sphere(0.01).unwrap();
+        let recorded = ContactModelInfo::new(
+            &tool,
+            &ModelSpec::PAPER,
+            &ValidityLimits {
+                valid_depth_m: 0.002,
+                valid_inclination_rad: 0.1,
+                source: "recorded".into(),
+            },
+        );
+        let s = Scene::from_recorded_toml(text, Path::new("<test>"), None, &recorded).unwrap();
+        assert!(s.contact_model.spec().is_paper());
+        assert_eq!(s.render.valid_depth_m, 0.002);
+        assert_eq!(s.render.valid_inclination_rad, 0.1);
+        assert_eq!(s.contact_model_info(), recorded);
+        // A recorded model the tool cannot take is refused, naming the field.
+        let cone = Scene::from_toml(
+            include_str!("../../scenes/cone.toml"),
+            Path::new("<test>"),
+            None,
+        )
+        .unwrap();
+        let exact = ContactModelInfo::new(
+            &cone.tool,
+            &ModelSpec {
+                exact_sphere: true,
+                ..ModelSpec::PAPER
+            },
+            &ValidityLimits::paper(&cone.tool),
+        );
+        let err = Scene::from_recorded_toml(
+            include_str!("../../scenes/cone.toml"),
+            Path::new("<test>"),
+            None,
+            &exact,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(err.contains("object.model.exact_sphere"), "{err}");
     }
 
     #[test]

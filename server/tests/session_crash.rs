@@ -1,6 +1,7 @@
 //! A server killed without warning leaves a recording that reads back: the real `softhaptic`
 //! binary records to a temporary directory, is SIGKILLed about 1.5 s into its session, and the
-//! file is read, its recovery described, and its recovered ticks replayed bit for bit.
+//! file is read, its recovery described, and its recovered ticks replayed bit for bit. The
+//! viewers of that session were told the same session id as the file records.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -26,6 +27,7 @@ fn a_sigkilled_server_leaves_a_recording_that_recovers_its_ticks() {
     let stdout = child.stdout.take().expect("stdout is piped");
     let mut lines = BufReader::new(stdout).lines();
     let mut recording: Option<PathBuf> = None;
+    let mut viewer_url = String::new();
     let started = Instant::now();
     // The server prints the recording's path, then the viewer's URL once it serves.
     for line in lines.by_ref() {
@@ -33,7 +35,8 @@ fn a_sigkilled_server_leaves_a_recording_that_recovers_its_ticks() {
         if let Some(p) = line.strip_prefix("recording: ") {
             recording = Some(PathBuf::from(p));
         }
-        if line.starts_with("viewer: ") {
+        if let Some(url) = line.strip_prefix("viewer: ") {
+            viewer_url = url.to_owned();
             break;
         }
         assert!(
@@ -42,12 +45,14 @@ fn a_sigkilled_server_leaves_a_recording_that_recovers_its_ticks() {
         );
     }
     let path = recording.expect("the server names its recording");
+    let hello_session_id = hello_session_id(&viewer_url);
     std::thread::sleep(Duration::from_millis(1500));
     child.kill().expect("SIGKILL delivered");
     let _ = child.wait();
 
     let r = Recording::open(&path).expect("a killed server's recording still opens");
     let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(r.build.session_id, hello_session_id);
     assert!(
         matches!(r.ending, Ending::Truncated { .. }),
         "a killed server cannot have closed its file: {}",
@@ -65,4 +70,18 @@ fn a_sigkilled_server_leaves_a_recording_that_recovers_its_ticks() {
     let report = check(&r, CheckOverrides::default()).expect("the check runs");
     assert!(report.passed(), "{report}");
     assert_eq!(report.ticks_compared, r.device.len() as u64);
+}
+
+/// The session id of the `hello` a viewer of `viewer_url` (http://host:port/) receives.
+fn hello_session_id(viewer_url: &str) -> String {
+    let ws_url = format!("{}ws", viewer_url.replacen("http://", "ws://", 1));
+    let (mut socket, _) = tungstenite::connect(ws_url.as_str()).expect("the viewer connects");
+    let first = socket.read().expect("the server sends hello first");
+    let hello: serde_json::Value =
+        serde_json::from_str(first.to_text().expect("hello is text")).expect("hello is JSON");
+    assert_eq!(hello["type"], "hello", "{hello}");
+    hello["session_id"]
+        .as_str()
+        .expect("hello names its session")
+        .to_owned()
 }

@@ -134,6 +134,7 @@ async fn replay_sends_hello_scene_and_the_recorded_frames_in_order() {
         panic!("hello first")
     };
     assert_eq!(hello.session_id, r.build.session_id);
+    assert_eq!(hello.role, softhaptic_proto::wire::Role::Replay);
     let Received::Wire(ServerMessage::Scene(scene)) = receive(&mut socket).await else {
         panic!("scene second")
     };

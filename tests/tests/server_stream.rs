@@ -28,7 +28,7 @@ async fn viewer_gets_hello_scene_then_contact_frames_showing_the_press() {
         panic!("second message is scene")
     };
     assert_eq!(scene.model.name, "hertz");
-    assert_eq!(scene.calibration.source(), CalibrationSource::HalfSpace);
+    assert_eq!(scene.calibration.source(), CalibrationSource::FemNeoHookean);
     assert_eq!(scene.render_meshes.len(), 1);
     assert_eq!(scene.render_meshes[0].url, "/meshes/liver.bin");
     assert_eq!(scene.device.name, "simulated PHANTOM Desktop");

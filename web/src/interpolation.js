@@ -12,6 +12,10 @@
 // behind); the render time never moves backwards, so a falling offset slows the playout down for
 // a moment instead of replaying.
 //
+// A replay may run the device clock at another rate than ours (`speed`), and pausing, seeking or
+// changing speed breaks the relation between the two clocks: `restartClock(rate)` says so, and
+// the offset is then taken from the frames that arrive afterwards only.
+//
 // Storage is a fixed ring of numbers; pushing and sampling allocate nothing.
 
 import { CONTACT_FLAGS } from './protocol.js';
@@ -30,7 +34,7 @@ const QUAT = 15; // 4, [x,y,z,w]
 const FORCE = 19; // 3
 const FLAGS = 22; // bit i = CONTACT_FLAGS[i]
 const ARRIVAL = 23; // local ms
-const CLOCK = 24; // device ms − local arrival ms
+const CLOCK = 24; // device ms − rate × local arrival ms
 const STRIDE = 25;
 
 /** Bitmask of a frame's flag names, bit i for `CONTACT_FLAGS[i]`. */
@@ -90,8 +94,14 @@ export class PlayoutBuffer {
     this.data = new Float64Array(capacity * STRIDE);
     this.head = 0; // index of the next write
     this.count = 0;
-    this.offsetMs = 0; // device ms − local ms
+    this.offsetMs = 0; // device ms − rate × local ms
     this.lastRenderMs = -Infinity;
+    /** Device ms per local ms: 1 live, the replay speed in a replay. */
+    this.rate = 1;
+    /** Frames pushed since the clock (re)started; only they set the offset. */
+    this.sinceClockStart = 0;
+    /** Times the clock was restarted (replay play, seek or speed change). */
+    this.clockRestarts = 0;
     /** Times the device clock went backwards (server or device restarted) and the buffer reset. */
     this.resets = 0;
     this.duplicates = 0;
@@ -102,6 +112,22 @@ export class PlayoutBuffer {
     this.head = 0;
     this.count = 0;
     this.lastRenderMs = -Infinity;
+    this.sinceClockStart = 0;
+  }
+
+  /**
+   * The device clock now runs at `rate` device ms per local ms and its relation to ours is
+   * unknown (a replay resumed, jumped or changed speed). Frames are kept, so the newest one stays
+   * drawn, held as if it were the render time now, until frames of the new run arrive; the next
+   * frame sets the offset afresh.
+   */
+  restartClock(nowMs, rate = this.rate) {
+    if (!(rate > 0 && Number.isFinite(rate))) throw new RangeError(`rate must be finite and > 0, got ${rate}`);
+    this.rate = rate;
+    this.sinceClockStart = 0;
+    this.clockRestarts++;
+    this.lastRenderMs = -Infinity;
+    if (this.count > 0) this.offsetMs = this.newestTimeMs() - rate * (nowMs - this.delayMs);
   }
 
   #slot(k) {
@@ -155,19 +181,20 @@ export class PlayoutBuffer {
     for (let i = 0; i < 4; i++) d[o + QUAT + i] = m.tip_in_world.orientation[i];
     d[o + FLAGS] = flagBits(m.flags);
     d[o + ARRIVAL] = arrivalMs;
-    d[o + CLOCK] = t - arrivalMs;
+    d[o + CLOCK] = t - this.rate * arrivalMs;
     this.head = (this.head + 1) % this.capacity;
     if (this.count < this.capacity) this.count++;
-    // The least-delayed recent frame sets the clock offset.
+    this.sinceClockStart++;
+    // The least-delayed recent frame (of the current clock run) sets the clock offset.
     let offset = -Infinity;
-    const n = Math.min(this.count, this.clockWindow);
+    const n = Math.min(this.count, this.clockWindow, this.sinceClockStart);
     for (let k = this.count - n; k < this.count; k++) offset = Math.max(offset, d[this.#slot(k) + CLOCK]);
     this.offsetMs = offset;
   }
 
-  /** The device time the viewer draws at local time `nowMs`. */
+  /** The device time the viewer draws at local time `nowMs` (the delay is local time). */
   renderTimeMs(nowMs) {
-    return nowMs + this.offsetMs - this.delayMs;
+    return this.rate * (nowMs - this.delayMs) + this.offsetMs;
   }
 
   /** Writes the state to draw at local time `nowMs` into `out` (a `RenderedContact`). */
@@ -206,7 +233,7 @@ export class PlayoutBuffer {
     out.valid = true;
     out.deviceTimeMs = s === 0 ? d[a + T] : t;
     out.lateMs = t - d[newest + T];
-    out.stale = out.lateMs > this.staleAfterMs;
+    out.stale = out.lateMs > this.staleAfterMs * this.rate;
     return out;
   }
 

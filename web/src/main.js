@@ -4,7 +4,8 @@
 //
 // Reading order: `init()` builds everything once; `onMessage()` takes the server's messages;
 // `animate()` runs per screen refresh and allocates nothing; `exposeTestHook()` is what the
-// browser tests read.
+// browser tests read. When the server replays a recording, the timeline panel (`replay.js`)
+// shows where the replay stands and sends the instructor's pause, play, seek and speed.
 
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
@@ -13,7 +14,8 @@ import { MeshDeformer, depressionAt, profileSetup, toolFromJson } from './deform
 import { ForcePlot } from './forceplot.js';
 import { PlayoutBuffer, RenderedContact } from './interpolation.js';
 import { parseRenderMesh } from './mesh.js';
-import { CONTACT_FLAGS, ViewerConnection, validateMessage, webSocketUrl } from './protocol.js';
+import { CONTACT_FLAGS, ViewerConnection, contactModelOf, validateMessage, webSocketUrl } from './protocol.js';
+import { ReplayTimeline } from './replay.js';
 
 /** Flags that mean the force is not what the model says (shown in red rather than amber). */
 const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal']);
@@ -40,6 +42,8 @@ const state = {
   lastStats: null,
   loadError: null,
   sceneLoads: 0,
+  /** The active contact model as shown (see `contactModelOf`). */
+  contactModel: null,
   contactFrames: 0,
   /** While paused the view keeps drawing the last interpolated contact (inspection, tests). */
   paused: false,
@@ -56,6 +60,7 @@ const timings = {
 const frameTimes = { ms: new Float64Array(128), head: 0, count: 0 };
 let plot = null;
 let connection = null;
+let timeline = null;
 
 // Scratch objects reused every frame.
 const scratch = {
@@ -84,7 +89,20 @@ function init() {
     'v-depth',
     'v-rd',
     'v-force',
+    'v-material',
     'v-model',
+    'model-details',
+    'm-corrections',
+    'm-depth',
+    'm-inclination',
+    'm-source',
+    'mode',
+    'replay-panel',
+    'replay-play',
+    'replay-speed',
+    'replay-scrubber',
+    'replay-time',
+    'replay-file',
     'flags',
     's-rate',
     's-jitter',
@@ -118,6 +136,15 @@ function init() {
     url: webSocketUrl(window.location),
     onMessage,
     onStateChange: showConnectionState,
+  });
+  timeline = new ReplayTimeline({
+    panel: dom['replay-panel'],
+    playButton: dom['replay-play'],
+    speedSelect: dom['replay-speed'],
+    scrubber: dom['replay-scrubber'],
+    timeText: dom['replay-time'],
+    fileText: dom['replay-file'],
+    send: (text) => connection.send(text),
   });
   connection.start();
   loadSceneOverHttp();
@@ -241,7 +268,8 @@ async function applyScene(scene) {
   state.sceneJson = scene;
   state.tool = toolFromJson(scene.tool);
   plot.setPeakForce(scene.device.peak_force_n);
-  dom['v-model'].textContent = `${scene.model.name}, E ${formatPa(scene.material.youngs_modulus_pa)}`;
+  dom['v-material'].textContent = `E ${formatPa(scene.material.youngs_modulus_pa)}, ν ${scene.material.poisson_ratio}`;
+  showContactModel(contactModelOf(scene));
   buildTool(scene.tool);
 
   for (const m of state.meshes) {
@@ -361,14 +389,56 @@ function frameCamera() {
   }
 }
 
+/** The active contact model in the info panel: its label, and on expanding, its limits. */
+function showContactModel(model) {
+  state.contactModel = model;
+  dom['v-model'].textContent = model.label;
+  const corrections = model.corrections.length
+    ? model.corrections.map((c) => c.replaceAll('_', ' ')).join(', ')
+    : "none: the paper's law";
+  const depth = model.validDepthM === null ? 'not stated' : `${(model.validDepthM * 1e3).toFixed(1)} mm`;
+  const inclination =
+    model.validInclinationRad === null
+      ? 'not stated'
+      : `${((model.validInclinationRad * 180) / Math.PI).toFixed(1)}° (${model.validInclinationRad.toFixed(2)} rad)`;
+  const source = model.limitsSource ?? 'not stated by this server';
+  dom['m-corrections'].textContent = corrections;
+  dom['m-depth'].textContent = depth;
+  dom['m-inclination'].textContent = inclination;
+  dom['m-source'].textContent = source;
+  // The same on hover, for a glance without expanding.
+  dom['model-details'].title =
+    `corrections: ${corrections}\nvalid to depth ${depth}, inclination ${inclination}\nlimits from: ${source}\n` +
+    'beyond them the flags "beyond valid depth" and "beyond valid inclination" light up';
+}
+
+function setMode(replay) {
+  setText(dom.mode, replay ? 'replay' : 'live view');
+}
+
 function onMessage(message, receivedAtMs) {
   switch (message.type) {
     case 'hello':
       if (state.sessionId !== null && state.sessionId !== message.session_id) {
         buffer.reset();
         plot.reset();
+        // Another session: a replay's timeline stays only if this one is a replay too.
+        timeline.hide();
+        buffer.restartClock(receivedAtMs, 1);
+        setMode(false);
+      }
+      if (message.role === 'replay') {
+        timeline.show();
+        setMode(true);
       }
       state.sessionId = message.session_id;
+      break;
+    case 'replay':
+      if (timeline.onStatus(message, receivedAtMs)) {
+        // Play, seek or a new speed: the frames that follow are timed afresh, at the new rate.
+        buffer.restartClock(receivedAtMs, message.speed);
+      }
+      setMode(true);
       break;
     case 'scene':
       applyScene(message).catch((e) => {
@@ -395,10 +465,12 @@ function animate(nowMs) {
   frameTimes.head = (frameTimes.head + 1) % frameTimes.ms.length;
   if (frameTimes.count < frameTimes.ms.length) frameTimes.count++;
 
+  const now = performance.now();
   if (!state.paused) {
-    buffer.sample(performance.now(), rendered);
+    buffer.sample(now, rendered);
     deformMeshes();
   }
+  timeline.frame(now);
   placeToolAndMarkers();
   plot.draw();
   if (view.renderer) {
@@ -552,7 +624,9 @@ function fps() {
 function updatePanels() {
   const error = connection.lastError ?? state.loadError;
   setText(dom['conn-error'], error ?? '');
-  if (!rendered.valid) setBadge(dom['contact-state'], 'no data', '');
+  const replayPaused = timeline.visible && timeline.clock.known && timeline.clock.paused;
+  if (!rendered.valid) setBadge(dom['contact-state'], replayPaused ? 'paused' : 'no data', '');
+  else if (replayPaused) setBadge(dom['contact-state'], rendered.inContact ? 'in contact, paused' : 'free, paused', '');
   else if (rendered.stale) setBadge(dom['contact-state'], 'stale', 'warn');
   else if (rendered.inContact) setBadge(dom['contact-state'], 'in contact', 'active');
   else setBadge(dom['contact-state'], 'free', 'ok');
@@ -677,6 +751,26 @@ function exposeTestHook() {
     framesReceivedPerSecond: () => buffer.arrivalsSince(performance.now()),
     /** Contact frames received since the page loaded. */
     contactFrames: () => state.contactFrames,
+    /** The active contact model as the info panel shows it. */
+    contactModel: () => state.contactModel,
+    /** The replay timeline: what it shows and what the server last said. */
+    replay: () => ({
+      visible: timeline.visible,
+      panelVisible: !dom['replay-panel'].hidden,
+      known: timeline.clock.known,
+      durationS: timeline.clock.durationS,
+      positionS: timeline.positionS(performance.now()),
+      paused: timeline.clock.paused,
+      speed: timeline.clock.speed,
+      file: timeline.clock.file,
+      statuses: timeline.clock.statuses,
+      lastStatus: timeline.lastStatus,
+      scrubber: { value: dom['replay-scrubber'].valueAsNumber, max: Number(dom['replay-scrubber'].max) },
+      timeText: dom['replay-time'].textContent,
+      sent: timeline.sent.slice(),
+      statusLog: timeline.statusLog.slice(),
+      clockRestarts: buffer.clockRestarts,
+    }),
     lastStats: () => state.lastStats,
     /** Freezes (true) or resumes (false) the drawn contact; frames keep arriving meanwhile. */
     pause: (paused) => {

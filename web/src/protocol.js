@@ -1,5 +1,6 @@
-// The viewer's side of the WebSocket protocol: decoding and validating the server's messages,
-// the socket URL, and a connection that reconnects with exponential backoff and jitter.
+// The viewer's side of the WebSocket protocol (proto/WIRE.md): decoding and validating the
+// server's messages, encoding the one message a viewer sends (`replay_control`), the socket URL,
+// and a connection that reconnects with exponential backoff and jitter.
 //
 // Messages keep their wire names (snake_case, SI units in the names) so that what the viewer
 // reads can be compared with the contract line by line. A message that breaks the contract is
@@ -8,7 +9,7 @@
 
 import { toolFromJson } from './deformation.js';
 
-/** The protocol version this viewer speaks; `hello` and `scene` must carry it. */
+/** The protocol version this viewer speaks (proto/WIRE.md); `hello` and `scene` must carry it. */
 export const PROTOCOL_VERSION = 1;
 
 /** The contact flags the contract defines, in its snake_case spelling. */
@@ -138,6 +139,28 @@ function validateCalibration(c, field) {
   return c;
 }
 
+/** A number ≥ 0 when present; absent or null means "not known". */
+function optionalNonNegative(value, field) {
+  if (value === undefined || value === null) return value;
+  return nonNegative(value, field);
+}
+
+function validateContactModel(c, field) {
+  object(c, field);
+  string(c.label, `${field}.label`);
+  if (c.corrections !== undefined) {
+    if (!Array.isArray(c.corrections)) {
+      throw new ProtocolError(`${field}.corrections`, `expected an array of names, got ${show(c.corrections)}`);
+    }
+    c.corrections.forEach((name, i) => string(name, `${field}.corrections[${i}]`));
+  }
+  if (c.spec !== undefined && c.spec !== null) object(c.spec, `${field}.spec`);
+  optionalNonNegative(c.valid_depth_m, `${field}.valid_depth_m`);
+  optionalNonNegative(c.valid_inclination_rad, `${field}.valid_inclination_rad`);
+  if (c.limits_source !== undefined && c.limits_source !== null) string(c.limits_source, `${field}.limits_source`);
+  return c;
+}
+
 function validateScene(m) {
   version(m.protocol_version, 'scene.protocol_version');
   try {
@@ -166,6 +189,10 @@ function validateScene(m) {
     count(mesh.vertex_count, `${f}.vertex_count`);
     pose(mesh.object_in_world, `${f}.object_in_world`);
   });
+  // Servers before the contact-model field, and their recordings, do not send it.
+  if (m.contact_model !== undefined && m.contact_model !== null) {
+    validateContactModel(m.contact_model, 'scene.contact_model');
+  }
   const device = object(m.device, 'scene.device');
   string(device.name, 'scene.device.name');
   positive(device.peak_force_n, 'scene.device.peak_force_n');
@@ -210,7 +237,86 @@ function validateStats(m) {
   return m;
 }
 
-const VALIDATORS = { hello: validateHello, scene: validateScene, contact: validateContact, stats: validateStats };
+function validateReplay(m) {
+  nonNegative(m.duration_s, 'replay.duration_s');
+  nonNegative(m.time_s, 'replay.time_s');
+  boolean(m.paused, 'replay.paused');
+  positive(m.speed, 'replay.speed');
+  string(m.file, 'replay.file');
+  return m;
+}
+
+const VALIDATORS = {
+  hello: validateHello,
+  scene: validateScene,
+  contact: validateContact,
+  stats: validateStats,
+  replay: validateReplay,
+};
+
+/** Slowest and fastest replay speeds the server accepts (`ReplayControl::SPEED_RANGE`). */
+export const REPLAY_SPEED_RANGE = Object.freeze([0.01, 100]);
+
+const REPLAY_ACTIONS = ['pause', 'play', 'seek'];
+
+/**
+ * Encodes a `replay_control` message (viewer → server): `action` is `pause`, `play` or `seek`;
+ * `timeS` (seconds from the recording's start) is required by `seek`; `speed` (1 = real time)
+ * may go with any action and is kept by the server when absent. Throws `ProtocolError` for
+ * what the server would refuse (and close the connection for), so a bad control never leaves.
+ */
+export function encodeReplayControl(action, { timeS, speed } = {}) {
+  if (!REPLAY_ACTIONS.includes(action)) {
+    throw new ProtocolError(
+      'replay_control.action',
+      `expected one of ${REPLAY_ACTIONS.join(', ')}, got ${show(action)}`,
+    );
+  }
+  const message = { type: 'replay_control', action };
+  if (action === 'seek' && timeS === undefined) {
+    throw new ProtocolError('replay_control.time_s', 'seek needs a time');
+  }
+  if (timeS !== undefined) message.time_s = nonNegative(timeS, 'replay_control.time_s');
+  if (speed !== undefined) {
+    const [lo, hi] = REPLAY_SPEED_RANGE;
+    if (!(finite(speed, 'replay_control.speed') >= lo && speed <= hi)) {
+      throw new ProtocolError('replay_control.speed', `expected a speed in [${lo}, ${hi}], got ${show(speed)}`);
+    }
+    message.speed = speed;
+  }
+  return JSON.stringify(message);
+}
+
+/** Wire names of the paper's laws, as the contact-model labels spell them. */
+const LAW_LABELS = { hertz: 'Hertz', sneddon_cone: 'Sneddon cone' };
+
+/**
+ * The active contact model of a validated scene, for display: `{label, corrections,
+ * validDepthM, validInclinationRad, limitsSource, spec}`. From `contact_model` when the server
+ * sends it; otherwise (older servers and recordings) from `model`, which names the paper's law
+ * and its validity bounds but not where they come from (`limitsSource` null).
+ */
+export function contactModelOf(scene) {
+  const c = scene.contact_model;
+  if (c !== undefined && c !== null) {
+    return {
+      label: c.label,
+      corrections: c.corrections ?? [],
+      validDepthM: c.valid_depth_m ?? null,
+      validInclinationRad: c.valid_inclination_rad ?? null,
+      limitsSource: c.limits_source ?? null,
+      spec: c.spec ?? null,
+    };
+  }
+  return {
+    label: LAW_LABELS[scene.model.name] ?? scene.model.name,
+    corrections: [],
+    validDepthM: scene.model.valid_depth_m,
+    validInclinationRad: scene.model.valid_inclination_rad,
+    limitsSource: null,
+    spec: null,
+  };
+}
 
 /**
  * Validates an already parsed message. Returns it (known type) or `null` (unknown type, to be
@@ -294,9 +400,25 @@ export class ViewerConnection {
     this.timer = null;
     this.attempt = 0;
     /** Counters shown by the viewer and read by tests. */
-    this.stats = { messages: 0, unknown: 0, malformed: 0, connects: 0, reconnects: 0 };
+    this.stats = { messages: 0, unknown: 0, malformed: 0, connects: 0, reconnects: 0, sent: 0 };
     this.lastError = null;
     this.nextRetryMs = 0;
+  }
+
+  /**
+   * Sends one text frame (e.g. from `encodeReplayControl`) on the open connection; returns
+   * false, sending nothing, when there is none.
+   */
+  send(text) {
+    if (this.state !== 'open' || this.socket === null) return false;
+    try {
+      this.socket.send(text);
+    } catch (e) {
+      this.lastError = `could not send: ${e.message}`;
+      return false;
+    }
+    this.stats.sent++;
+    return true;
   }
 
   #setState(state, detail = null) {

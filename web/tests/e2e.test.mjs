@@ -171,6 +171,8 @@ test('without WebGL the page says so and still connects, plots and deforms', asy
     await p.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
     assert.equal(await p.evaluate(() => window.__softhaptic.webgl()), false);
     assert.ok(await p.locator('#webgl-message').isVisible(), 'the page explains that the 3D view is missing');
+    // Enough frames for the plot check below, even if the page connected in the middle of a press.
+    await p.waitForFunction(() => window.__softhaptic.contactFrames() > 20, null, { timeout: 30000 });
     await p.waitForFunction(
       () => {
         const h = window.__softhaptic;
@@ -184,7 +186,8 @@ test('without WebGL the page says so and still connects, plots and deforms', asy
     );
     const moved = await p.evaluate(() => window.__softhaptic.movedVertices().length);
     assert.ok(moved > 0, 'the mesh is still deformed (for the hook and a later WebGL context)');
-    assert.ok((await p.evaluate(() => window.__softhaptic.forcePlotSamples().length)) > 10);
+    const plotted = await p.evaluate(() => window.__softhaptic.forcePlotSamples().length);
+    assert.ok(plotted > 10, `${plotted} force samples plotted`);
     assert.equal(await p.locator('#conn-state').textContent(), 'open');
     assert.deepEqual(errors, []);
   } finally {

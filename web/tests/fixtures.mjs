@@ -1,4 +1,4 @@
-// Messages as the wire contract (wire.md) spells them, shared by the unit tests.
+// Messages as the wire contract (proto/WIRE.md) spells them, shared by the unit tests.
 
 export const hello = {
   type: 'hello',
@@ -41,6 +41,19 @@ export const scene = {
     damping_n_s_per_m: 5,
     workspace_radius_m: 0.1,
   },
+};
+
+/**
+ * The scene's `contact_model` object (newer servers): a sphere with three corrections and limits
+ * measured by the project's FEM.
+ */
+export const contactModel = {
+  label: 'Hertz + exact sphere + curvature + neo-Hookean fit',
+  corrections: ['exact_sphere', 'curvature', 'hyperelastic'],
+  spec: { exact_sphere: true, curvature: true, thickness: null, hyperelastic: true, inclination: false },
+  valid_depth_m: 0.0058,
+  valid_inclination_rad: 0.38,
+  limits_source: 'FEM (neo-Hookean block, 10 mm sphere), within 7 % of the reference force',
 };
 
 export function contact(overrides = {}) {

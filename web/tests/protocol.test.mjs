@@ -5,8 +5,16 @@ import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 
-import { ProtocolError, ViewerConnection, backoffDelayMs, decodeMessage, webSocketUrl } from '../src/protocol.js';
-import { contact, hello, scene, stats } from './fixtures.mjs';
+import {
+  ProtocolError,
+  ViewerConnection,
+  backoffDelayMs,
+  contactModelOf,
+  decodeMessage,
+  encodeReplayControl,
+  webSocketUrl,
+} from '../src/protocol.js';
+import { contact, contactModel, hello, scene, stats } from './fixtures.mjs';
 
 const VECTORS = fileURLToPath(new URL('../../proto/vectors/messages.json', import.meta.url));
 
@@ -24,13 +32,37 @@ test('every shared message vector decodes or is refused as the Rust side says', 
     const decoded = decodeMessage(text);
     const type = (v.json ?? JSON.parse(v.raw)).type;
     if (decoded.kind === 'unknown') {
-      assert.ok(!['hello', 'scene', 'contact', 'stats'].includes(type), `${v.name}`);
+      assert.ok(!['hello', 'scene', 'contact', 'stats', 'replay'].includes(type), `${v.name}`);
     } else {
       assert.equal(decoded.message.type, type, v.name);
       seen.add(type);
+      if (type === 'scene') {
+        // With or without `contact_model`, the panel has a model to show.
+        const model = contactModelOf(decoded.message);
+        assert.ok(model.label.length > 0, v.name);
+        if (v.json.contact_model) {
+          assert.equal(model.label, v.json.contact_model.label, v.name);
+          assert.equal(model.limitsSource, v.json.contact_model.limits_source, v.name);
+        } else {
+          assert.equal(model.limitsSource, null, `${v.name}: an older scene states no source`);
+        }
+      }
     }
   }
-  for (const type of ['hello', 'scene', 'contact', 'stats']) assert.ok(seen.has(type), `vectors cover ${type}`);
+  for (const type of ['hello', 'scene', 'contact', 'stats', 'replay'])
+    assert.ok(seen.has(type), `vectors cover ${type}`);
+});
+
+test('replay controls are encoded exactly as the Rust side writes them', () => {
+  const list = JSON.parse(readFileSync(VECTORS, 'utf8'));
+  const controls = list.filter((v) => v.json?.type === 'replay_control');
+  assert.equal(controls.length, 3);
+  for (const v of controls) {
+    const options = {};
+    if (v.json.time_s !== undefined) options.timeS = v.json.time_s;
+    if (v.json.speed !== undefined) options.speed = v.json.speed;
+    assert.deepEqual(JSON.parse(encodeReplayControl(v.json.action, options)), v.json, v.name);
+  }
 });
 
 test('the four message types of the contract decode', () => {
@@ -242,4 +274,66 @@ test('a socket constructor that throws is retried like a failed connection', (t)
   t.mock.timers.tick(250);
   assert.equal(calls, 2);
   conn.stop();
+});
+
+test('a scene without contact_model (older servers and recordings) shows the law and its limits', () => {
+  assert.equal(scene.contact_model, undefined);
+  const decoded = decodeMessage(JSON.stringify(scene)).message;
+  assert.deepEqual(contactModelOf(decoded), {
+    label: 'Hertz',
+    corrections: [],
+    validDepthM: 0.0043,
+    validInclinationRad: 0.38,
+    limitsSource: null,
+    spec: null,
+  });
+  const cone = { ...scene, model: { name: 'sneddon_cone', valid_depth_m: 0.006, valid_inclination_rad: 0.16 } };
+  assert.equal(contactModelOf(decodeMessage(JSON.stringify(cone)).message).label, 'Sneddon cone');
+  const other = { ...scene, model: { ...scene.model, name: 'some_future_law' } };
+  assert.equal(contactModelOf(decodeMessage(JSON.stringify(other)).message).label, 'some_future_law');
+  // A server that writes the absent field as null is read the same way.
+  const withNull = { ...scene, contact_model: null };
+  assert.equal(contactModelOf(decodeMessage(JSON.stringify(withNull)).message).label, 'Hertz');
+});
+
+test('a scene with contact_model shows its label, corrections and the source of its limits', () => {
+  const decoded = decodeMessage(JSON.stringify({ ...scene, contact_model: contactModel })).message;
+  assert.deepEqual(contactModelOf(decoded), {
+    label: 'Hertz + exact sphere + curvature + neo-Hookean fit',
+    corrections: ['exact_sphere', 'curvature', 'hyperelastic'],
+    validDepthM: 0.0058,
+    validInclinationRad: 0.38,
+    limitsSource: contactModel.limits_source,
+    spec: contactModel.spec,
+  });
+  // Only the label is needed; absent limits read as "not known".
+  const bare = decodeMessage(JSON.stringify({ ...scene, contact_model: { label: 'Hertz' } })).message;
+  assert.deepEqual(contactModelOf(bare), {
+    label: 'Hertz',
+    corrections: [],
+    validDepthM: null,
+    validInclinationRad: null,
+    limitsSource: null,
+    spec: null,
+  });
+});
+
+test('a contact_model that breaks the contract is refused with the field', () => {
+  const cases = [
+    [{ ...contactModel, label: 3 }, /scene.contact_model.label: expected a string, got 3/],
+    [{ ...contactModel, corrections: 'curvature' }, /scene.contact_model.corrections: expected an array of names/],
+    [{ ...contactModel, corrections: ['curvature', 7] }, /scene.contact_model.corrections\[1\]: expected a string/],
+    [{ ...contactModel, valid_depth_m: -0.001 }, /scene.contact_model.valid_depth_m: expected a number ≥ 0/],
+    [{ ...contactModel, valid_inclination_rad: 'wide' }, /scene.contact_model.valid_inclination_rad/],
+    [{ ...contactModel, limits_source: 42 }, /scene.contact_model.limits_source: expected a string/],
+    [{ ...contactModel, spec: [1] }, /scene.contact_model.spec: expected an object/],
+    ['Hertz', /scene.contact_model: expected an object/],
+  ];
+  for (const [c, pattern] of cases) {
+    assert.throws(
+      () => decodeMessage(JSON.stringify({ ...scene, contact_model: c })),
+      (e) => e instanceof ProtocolError && pattern.test(e.message),
+      JSON.stringify(c),
+    );
+  }
 });

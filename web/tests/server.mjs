@@ -1,9 +1,11 @@
 // Starting the real device-host server for the browser tests and the benchmark.
 //
 // `startServer()` builds the `softhaptic` binary with cargo (debug profile unless told
-// otherwise), runs it on a free local port and resolves with the viewer URL it prints
-// ("viewer: http://HOST:PORT/"). SOFTHAPTIC_URL points the tests at a server that is already
-// running instead; SOFTHAPTIC_BIN at a binary that is already built.
+// otherwise; into CARGO_TARGET_DIR when set), runs it on a free local port and resolves with the
+// viewer URL it prints ("viewer: http://HOST:PORT/", or "replay: ..." for `softhaptic replay`).
+// SOFTHAPTIC_URL points the tests at a server that is already running instead (tests that need
+// a server of their own, such as a replay, say `external: false`); SOFTHAPTIC_BIN at a binary
+// that is already built.
 import { spawn, spawnSync } from 'node:child_process';
 import { existsSync } from 'node:fs';
 import path from 'node:path';
@@ -34,14 +36,27 @@ export function buildServer({ release = false } = {}) {
 
 /**
  * Runs the server and resolves with `{url, stop, output}` once it prints its viewer URL.
- * `extraArgs` are passed through (e.g. a scene); `addr` defaults to a free local port.
+ * `command` comes first (e.g. `['replay', 'tests/sessions/x.mcap']`; none runs a live
+ * session), then `--addr` and `extraArgs` (e.g. a scene); paths are relative to the repository.
+ * `addr` defaults to a free local port. With `external` (the default), SOFTHAPTIC_URL, when set,
+ * is used instead of starting anything.
  */
-export async function startServer({ release = false, extraArgs = [], addr = '127.0.0.1:0', timeoutMs = 60000 } = {}) {
-  if (process.env.SOFTHAPTIC_URL) {
+export async function startServer({
+  release = false,
+  command = [],
+  extraArgs = [],
+  addr = '127.0.0.1:0',
+  timeoutMs = 60000,
+  external = true,
+} = {}) {
+  if (external && process.env.SOFTHAPTIC_URL) {
     return { url: process.env.SOFTHAPTIC_URL, stop: async () => {}, output: () => '' };
   }
   const bin = buildServer({ release });
-  const child = spawn(bin, ['--addr', addr, ...extraArgs], { cwd: REPO, stdio: ['ignore', 'pipe', 'pipe'] });
+  const child = spawn(bin, [...command, '--addr', addr, ...extraArgs], {
+    cwd: REPO,
+    stdio: ['ignore', 'pipe', 'pipe'],
+  });
   let output = '';
   const url = await new Promise((resolve, reject) => {
     const timer = setTimeout(
@@ -50,7 +65,7 @@ export async function startServer({ release = false, extraArgs = [], addr = '127
     );
     const onData = (chunk) => {
       output += chunk.toString();
-      const m = /viewer: (http:\/\/\S+)/.exec(output);
+      const m = /(?:viewer|replay): (http:\/\/\S+)/.exec(output);
       if (m) {
         clearTimeout(timer);
         resolve(m[1].endsWith('/') ? m[1] : `${m[1]}/`);

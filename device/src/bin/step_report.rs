@@ -10,6 +10,12 @@
 //! batch mean. On a shared machine another process preempting a batch inflates that batch only:
 //! the median shows the typical cost under the current load, the fastest batch the cost of the
 //! code itself. The figures are measurements, never pass/fail criteria.
+//!
+//! A second table times the contact model: one evaluation of the force (the paper's law, and
+//! the default scene's combined model: exact sphere, hyperelastic fit, curvature), the bisection
+//! for the stiffness cap's depth δ*, and a whole tick ([`HapticWorld::step`]: collision with the
+//! curvature, the model, every safety layer) pressing and sliding on the liver, where the
+//! curvature under the tool changes from tick to tick.
 
 use std::hint::black_box;
 use std::time::{Duration, Instant};
@@ -17,9 +23,13 @@ use std::time::{Duration, Instant};
 use glam::DQuat;
 use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode, timing_step_force_n};
+use softhaptic_device::device::{DeviceLimits, DeviceSample};
 use softhaptic_device::liver;
 use softhaptic_device::mesh::HapticMesh;
-use softhaptic_proto::{Material, Pose, ToolShape};
+use softhaptic_device::model::{ForceModel, LocalGeometry};
+use softhaptic_device::render::RenderConfig;
+use softhaptic_device::world::HapticWorld;
+use softhaptic_proto::{Material, ModelSpec, Pose, ToolShape};
 
 /// Vertices per side and the paper's mean step time (ms, Intel i7-2600, 2011; Table 1), or
 /// `None` for the sizes past the paper's.
@@ -107,6 +117,142 @@ impl Bench {
         let paper_mode = self.time(&mut collider, path);
         (build_ms, continuous, paper_mode)
     }
+}
+
+/// Median and minimum over batches of the mean time of one call of `run(steps, start)`, which
+/// runs `steps` calls starting at index `start` (batches sized as in [`Bench::time`]).
+fn time_calls(mut run: impl FnMut(usize, usize) -> f64) -> Timing {
+    let probe = Instant::now();
+    let mut probe_steps = 0;
+    while probe.elapsed() < Duration::from_millis(50) {
+        black_box(run(16, probe_steps));
+        probe_steps += 16;
+    }
+    let per_step = probe.elapsed().as_secs_f64() / probe_steps as f64;
+    let steps = ((BATCH_TIME.as_secs_f64() / per_step) as usize).max(1);
+    let mut start = probe_steps;
+    let mut means_us: Vec<f64> = (0..BATCHES)
+        .map(|_| {
+            let t = Instant::now();
+            black_box(run(steps, start));
+            start += steps;
+            t.elapsed().as_secs_f64() * 1e6 / steps as f64
+        })
+        .collect();
+    means_us.sort_by(f64::total_cmp);
+    Timing {
+        median_us: means_us[BATCHES / 2],
+        best_us: means_us[0],
+    }
+}
+
+/// The default scene's combined model.
+fn combined_spec() -> ModelSpec {
+    ModelSpec {
+        exact_sphere: true,
+        curvature: true,
+        hyperelastic: true,
+        ..ModelSpec::PAPER
+    }
+}
+
+/// Times the contact model alone and whole ticks on the liver, paper's law against the
+/// combined model.
+fn model_report(tool: ToolShape, material: Material) {
+    let paper = ForceModel::paper(tool, material);
+    // A constant spec valid for a sphere: cannot fail.
+    let combined =
+        ForceModel::new(tool, material, combined_spec()).expect("valid for a sphere tool");
+    let depth_m = |k: usize| 1e-3 + 4e-3 * ((k % 97) as f64 / 97.0);
+    let geometry = |k: usize| LocalGeometry {
+        curvature_1_per_m: 10.0 + (k % 89) as f64 * 0.2,
+        inclination_rad: 0.0,
+    };
+    let force = |model: &ForceModel| {
+        time_calls(|steps, start| {
+            (start..start + steps)
+                .map(|k| model.force_n(black_box(depth_m(k)), &geometry(k)))
+                .sum()
+        })
+    };
+    let k_max = DeviceLimits::PHANTOM_DESKTOP.max_stiffness_n_per_m;
+    let cap = |model: &ForceModel| {
+        time_calls(|steps, start| {
+            (start..start + steps)
+                .map(|k| model.depth_at_stiffness_m(black_box(k_max), &geometry(k)))
+                .sum()
+        })
+    };
+
+    // Whole ticks: the tip 2–4 mm deep at the top of the right lobe, sliding ±10 mm across it
+    // and back over 4 s, so the curvature under the tool keeps changing.
+    let top = liver::top_contact();
+    let orientation = DQuat::from_rotation_arc(DVec3::Y, top.normal);
+    let along = top.normal.any_orthonormal_vector();
+    let sample = |k: usize| {
+        let phase = k as f64 * std::f64::consts::TAU / 4000.0;
+        DeviceSample {
+            time_ns: k as u64 * 1_000_000,
+            tip_in_world: Pose {
+                position_m: top.point_m + along * (0.01 * phase.sin())
+                    - top.normal * (0.003 + 0.001 * (3.0 * phase).cos()),
+                orientation,
+            },
+            tip_velocity_m_s: DVec3::ZERO,
+            buttons: 0,
+        }
+    };
+    let tick = |spec: ModelSpec| {
+        let model = ForceModel::new(tool, material, spec).expect("valid for a sphere tool");
+        let mut world = HapticWorld::with_model(
+            Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
+            Pose::IDENTITY,
+            model,
+            RenderConfig::for_tool(&tool),
+            DeviceLimits::PHANTOM_DESKTOP,
+        );
+        time_calls(|steps, start| {
+            (start..start + steps)
+                .map(|k| world.step(Ok(black_box(sample(k)))).force_n.y)
+                .sum()
+        })
+    };
+
+    println!();
+    println!(
+        "Contact model, 10 mm sphere, 50 kPa; µs per call, median and fastest of {BATCHES} batch means."
+    );
+    println!("Combined = the default scene's model: exact sphere + hyperelastic fit + curvature.");
+    println!();
+    println!(
+        "{:<50} {:>9} {:>9} {:>9} {:>9}",
+        "", "paper", "", "combined", ""
+    );
+    println!(
+        "{:<50} {:>9} {:>9} {:>9} {:>9}",
+        "", "median", "best", "median", "best"
+    );
+    let line = |name: &str, p: Timing, c: Timing| {
+        println!(
+            "{name:<50} {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
+            p.median_us, p.best_us, c.median_us, c.best_us
+        );
+    };
+    line(
+        "force F(δ; geometry), one evaluation",
+        force(&paper),
+        force(&combined),
+    );
+    line(
+        "stiffness-cap depth δ* (closed form / bisection)",
+        cap(&paper),
+        cap(&combined),
+    );
+    line(
+        "whole tick on the liver, pressing and sliding",
+        tick(ModelSpec::PAPER),
+        tick(combined_spec()),
+    );
 }
 
 fn row(vertices: usize, triangles: usize, build_ms: f64, c: Timing, p: Timing, tail: &str) {
@@ -209,4 +355,6 @@ fn main() {
             c1m.median_us / c10k.median_us
         );
     }
+
+    model_report(bench.tool, bench.material);
 }

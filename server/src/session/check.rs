@@ -11,7 +11,6 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
-use softhaptic_device::collision::Collider;
 use softhaptic_device::device::HapticDevice;
 use softhaptic_device::replay::ReplayDevice;
 use softhaptic_device::world::HapticWorld;
@@ -124,17 +123,12 @@ impl fmt::Display for CheckReport {
 
 /// The haptic world a scene describes (the same construction as the live server's).
 pub fn haptic_world(scene: &Scene) -> HapticWorld {
-    HapticWorld::new(
-        Collider::new(scene.haptic_mesh.clone(), scene.collision),
-        scene.object_in_world,
-        scene.tool,
-        scene.material,
-        scene.render,
-        scene.device_limits,
-    )
+    scene.haptic_world()
 }
 
-/// Loads the scene a recording was made with (from the scene text it stores).
+/// Loads the scene a recording was made with: the scene text it stores, with the contact model
+/// and validity limits of its `scene` message (a recording made before the message named its
+/// model reads as the paper's law, which is what those servers ran).
 pub fn recorded_scene(recording: &Recording) -> Result<Scene, CheckError> {
     let s = &recording.scene;
     let (label, base) = match &s.scene_file {
@@ -148,7 +142,13 @@ pub fn recorded_scene(recording: &Recording) -> Result<Scene, CheckError> {
             None,
         ),
     };
-    Scene::from_toml(&s.scene_toml, &label, base.as_deref()).map_err(|e| CheckError::Scene {
+    Scene::from_recorded_toml(
+        &s.scene_toml,
+        &label,
+        base.as_deref(),
+        &s.message.contact_model,
+    )
+    .map_err(|e| CheckError::Scene {
         path: recording.path.clone(),
         source: Box::new(e),
     })

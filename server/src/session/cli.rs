@@ -245,6 +245,7 @@ async fn shutdown_signal() -> anyhow::Result<()> {
 pub struct LiveRecording {
     recorder: Recorder,
     tick_sink: Option<rtrb::Producer<TickRecord>>,
+    session_id: String,
 }
 
 impl LiveRecording {
@@ -292,12 +293,19 @@ impl LiveRecording {
         Ok(Some(LiveRecording {
             recorder,
             tick_sink: Some(producer),
+            session_id,
         }))
     }
 
     /// The ring the haptic loop pushes its ticks into (`ServerOptions::tick_sink`); once.
     pub fn take_tick_sink(&mut self) -> Option<rtrb::Producer<TickRecord>> {
         self.tick_sink.take()
+    }
+
+    /// The session id of the recording; the server's `hello` carries the same one, so a viewer
+    /// and the file name the same session.
+    pub fn session_id(&self) -> &str {
+        &self.session_id
     }
 
     /// The file being written.

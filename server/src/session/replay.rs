@@ -5,7 +5,8 @@
 //! frames differs: instead of the haptic loop, a player task walks the recorded `/contact` frames
 //! and `/loop_stats` messages on the recording's device-time axis, at `speed` times real time.
 //! Viewers send `replay_control` messages (pause, play, seek, speed) and receive `replay` status
-//! messages (duration, position, paused, speed) on connect, after each control and once a second.
+//! messages (duration, position, paused, speed) after each control and once a second, so a viewer
+//! that connects learns the replay's state within a second; their `hello` says role `replay`.
 //!
 //! Frames keep their recorded content; only `seq` is renumbered (+1 per frame sent, across
 //! seeks), so a viewer's loss detection works as live, and `dropped` is the viewer's own count.
@@ -141,7 +142,7 @@ pub async fn start(
         ServerMessage::Hello(Hello {
             protocol_version: PROTOCOL_VERSION,
             session_id: recording.build.session_id.clone(),
-            role: Role::Viewer,
+            role: Role::Replay,
             server: SERVER_NAME.into(),
         }),
     )?;

@@ -1,0 +1,268 @@
+// The replay timeline: where a recording being replayed stands, and the controls that move it.
+//
+// The server (`softhaptic replay FILE`) sends a `replay` status (duration, position, paused,
+// speed) about once a second and after every control. Between two statuses the position is
+// extrapolated from the last one: position + speed × elapsed while playing, held while paused,
+// so the time shown advances smoothly at display rate. The viewer moves the replay with
+// `replay_control` messages (pause, play, seek, speed; see proto/WIRE.md, "Replay").
+//
+// `ReplayClock` and `formatReplayTime` are plain computations (unit-tested); `ReplayTimeline`
+// binds them to the page's controls. `ReplayTimeline.frame()` runs every animation frame and
+// allocates nothing: it writes numbers into the scrubber and rebuilds the time text only when
+// the tenths of a second it shows change, at most twenty times a second whatever the speed.
+
+import { encodeReplayControl } from './protocol.js';
+
+/**
+ * A status whose position differs from the extrapolated one by more than this many seconds of
+ * wall-clock time (times the speed) is a jump (a seek), not the drift between two clocks.
+ */
+const JUMP_TOLERANCE_WALL_S = 0.25;
+
+/** How far (recording seconds) a status may be from the extrapolation and still be the same run. */
+function seekTolerance(speed) {
+  return JUMP_TOLERANCE_WALL_S * Math.max(1, speed);
+}
+
+/** Where a replay stands, from its last status; all times in seconds of recording time. */
+export class ReplayClock {
+  constructor() {
+    /** True once a status arrived. */
+    this.known = false;
+    this.durationS = 0;
+    /** Position at local time `anchorMs`. */
+    this.anchorS = 0;
+    this.anchorMs = 0;
+    this.paused = true;
+    this.speed = 1;
+    this.file = '';
+    /** Statuses taken. */
+    this.statuses = 0;
+  }
+
+  /** The position at local time `nowMs`: extrapolated while playing, never past the end. */
+  positionS(nowMs) {
+    if (!this.known) return 0;
+    if (this.paused) return this.anchorS;
+    const t = this.anchorS + (nowMs - this.anchorMs) * 1e-3 * this.speed;
+    return Math.min(Math.max(t, 0), this.durationS);
+  }
+
+  /**
+   * Takes a validated `replay` status received at local time `nowMs`. Returns true when the
+   * replay's time axis broke continuity with what was extrapolated (the first status, play after
+   * a pause, a speed change, a seek): the frames that follow must not be timed against the ones
+   * before.
+   */
+  update(status, nowMs) {
+    const expected = this.positionS(nowMs);
+    const tolerance = seekTolerance(status.speed);
+    const broke =
+      !this.known ||
+      (this.paused && !status.paused) ||
+      this.speed !== status.speed ||
+      Math.abs(status.time_s - expected) > tolerance;
+    this.known = true;
+    this.durationS = status.duration_s;
+    this.anchorS = Math.min(status.time_s, status.duration_s);
+    this.anchorMs = nowMs;
+    this.paused = status.paused;
+    this.speed = status.speed;
+    this.file = status.file;
+    this.statuses++;
+    return broke;
+  }
+
+  /** Forgets the replay (the viewer now watches another session). */
+  reset() {
+    this.known = false;
+    this.durationS = 0;
+    this.anchorS = 0;
+    this.paused = true;
+    this.speed = 1;
+    this.file = '';
+  }
+}
+
+/** Seconds as `m:ss.s` (tenths, truncated so the display never runs ahead); `—` if not finite. */
+export function formatReplayTime(seconds) {
+  if (!Number.isFinite(seconds)) return '—';
+  const tenths = Math.floor(Math.max(0, seconds) * 10 + 1e-6);
+  const minutes = Math.floor(tenths / 600);
+  const rest = tenths - minutes * 600;
+  const s = Math.floor(rest / 10);
+  return `${minutes}:${s < 10 ? '0' : ''}${s}.${rest % 10}`;
+}
+
+/** The speeds offered by the selector (any other speed the server reports is added to it). */
+export const REPLAY_SPEEDS = Object.freeze([0.25, 0.5, 1, 2, 4]);
+
+/**
+ * The timeline panel: play/pause button, speed selector, scrubber and time. Shown only while the
+ * viewer watches a replay. `send(text)` sends one WebSocket text frame and returns whether it
+ * could; `now()` is the local clock in ms.
+ */
+export class ReplayTimeline {
+  constructor({ panel, playButton, speedSelect, scrubber, timeText, fileText, send, now = () => performance.now() }) {
+    this.el = { panel, playButton, speedSelect, scrubber, timeText, fileText };
+    this.send = send;
+    this.now = now;
+    this.clock = new ReplayClock();
+    this.visible = false;
+    /** True while the user holds the scrubber: frames do not move it under the pointer. */
+    this.dragging = false;
+    /** The position asked for by the last seek, shown until the server's status answers. */
+    this.pendingSeekS = null;
+    this.pendingUntilMs = 0;
+    this.shownTenths = -1;
+    this.shownDurationTenths = -1;
+    this.lastTextMs = -Infinity;
+    /** Controls sent and statuses received, newest last, the last 50 of each (browser tests). */
+    this.sent = [];
+    this.statusLog = [];
+    this.lastStatus = null;
+
+    playButton.addEventListener('click', () => this.#togglePlay());
+    speedSelect.addEventListener('change', () => this.#setSpeed(Number(speedSelect.value)));
+    scrubber.addEventListener('pointerdown', () => {
+      this.dragging = true;
+    });
+    scrubber.addEventListener('input', () => {
+      this.dragging = true;
+      this.#showTime(scrubber.valueAsNumber, this.now(), true);
+    });
+    // `change` fires when the scrubber is released (or moved with the keyboard): seek then.
+    scrubber.addEventListener('change', () => {
+      this.dragging = false;
+      this.#seek(scrubber.valueAsNumber);
+    });
+    // A press on the thumb that does not move it ends without `change`: the release anywhere
+    // ends the drag (`change`, when it comes, follows the release in the same task).
+    const release = () => {
+      this.dragging = false;
+    };
+    scrubber.ownerDocument.addEventListener('pointerup', release);
+    scrubber.addEventListener('pointercancel', release);
+  }
+
+  /**
+   * Takes a `replay` status received at `nowMs`; shows the panel. Returns true when the replay's
+   * time axis broke continuity (see `ReplayClock.update`).
+   */
+  onStatus(status, nowMs) {
+    const broke = this.clock.update(status, nowMs);
+    this.lastStatus = status;
+    if (this.statusLog.length >= 50) this.statusLog.shift();
+    this.statusLog.push(status);
+    // A periodic status may overtake the answer to a seek; only the answer ends the wait.
+    if (this.pendingSeekS !== null && Math.abs(status.time_s - this.pendingSeekS) <= seekTolerance(status.speed)) {
+      this.pendingSeekS = null;
+    }
+    const { playButton, scrubber, fileText } = this.el;
+    this.show();
+    if (scrubber.max !== String(status.duration_s)) scrubber.max = String(status.duration_s);
+    const label = status.paused ? 'play' : 'pause';
+    if (playButton.dataset.action !== label) {
+      playButton.dataset.action = label;
+      playButton.textContent = status.paused ? '▶ play' : '❚❚ pause';
+      playButton.title = status.paused ? 'play the recording' : 'pause the replay';
+    }
+    this.#showSpeed(status.speed);
+    if (fileText.textContent !== status.file) fileText.textContent = status.file;
+    this.shownTenths = -1; // redraw the text now
+    this.frame(nowMs);
+    return broke;
+  }
+
+  /** Shows the panel before the first status (the server's `hello` said it serves a replay). */
+  show() {
+    if (this.visible) return;
+    this.visible = true;
+    this.el.panel.hidden = false;
+    this.shownTenths = -1;
+  }
+
+  /** Hides the panel and forgets the replay (the viewer now watches another session). */
+  hide() {
+    this.visible = false;
+    this.el.panel.hidden = true;
+    this.clock.reset();
+    this.lastStatus = null;
+    this.pendingSeekS = null;
+  }
+
+  /** The position shown at `nowMs`: a seek waiting for its answer, else the clock's. */
+  positionS(nowMs) {
+    if (this.pendingSeekS !== null && nowMs < this.pendingUntilMs) return this.pendingSeekS;
+    return this.clock.positionS(nowMs);
+  }
+
+  /** Once per animation frame: moves the scrubber and the time. Allocates nothing. */
+  frame(nowMs) {
+    if (!this.visible || this.dragging) return;
+    const t = this.positionS(nowMs);
+    const scrubber = this.el.scrubber;
+    // The scrubber's step is 0.01 s: it rounds what it is given, so compare at that grain.
+    if (Math.abs(scrubber.valueAsNumber - t) > 0.006) scrubber.valueAsNumber = t;
+    this.#showTime(t, nowMs, false);
+  }
+
+  #showTime(t, nowMs, force) {
+    const tenths = Math.floor(t * 10 + 1e-6);
+    const durationTenths = Math.floor(this.clock.durationS * 10 + 1e-6);
+    if (tenths === this.shownTenths && durationTenths === this.shownDurationTenths) return;
+    // The text is rebuilt at most twenty times a second, however fast the replay runs.
+    if (!force && this.shownTenths >= 0 && nowMs - this.lastTextMs < 50) return;
+    this.shownTenths = tenths;
+    this.shownDurationTenths = durationTenths;
+    this.lastTextMs = nowMs;
+    this.el.timeText.textContent = `${formatReplayTime(t)} / ${formatReplayTime(this.clock.durationS)}`;
+  }
+
+  #showSpeed(speed) {
+    const select = this.el.speedSelect;
+    const value = String(speed);
+    if (select.value === value) return;
+    if (![...select.options].some((o) => o.value === value)) {
+      const option = select.ownerDocument.createElement('option');
+      option.value = value;
+      option.textContent = `${speed}×`;
+      select.appendChild(option);
+    }
+    select.value = value;
+  }
+
+  #control(action, options) {
+    let text;
+    try {
+      text = encodeReplayControl(action, options);
+    } catch (e) {
+      console.warn(`softhaptic: replay control not sent: ${e.message}`);
+      return false;
+    }
+    const ok = this.send(text);
+    if (ok) {
+      if (this.sent.length >= 50) this.sent.shift();
+      this.sent.push(JSON.parse(text));
+    }
+    return ok;
+  }
+
+  #togglePlay() {
+    this.#control(this.clock.paused ? 'play' : 'pause');
+  }
+
+  #setSpeed(speed) {
+    // The speed goes with the action that keeps the current state.
+    this.#control(this.clock.paused ? 'pause' : 'play', { speed });
+  }
+
+  #seek(timeS) {
+    if (!Number.isFinite(timeS)) return;
+    if (this.#control('seek', { timeS: Math.max(0, timeS) })) {
+      this.pendingSeekS = timeS;
+      // Without an answer within a second (a lost connection), the clock's position returns.
+      this.pendingUntilMs = this.now() + 1000;
+    }
+  }
+}

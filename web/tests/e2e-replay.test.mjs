@@ -1,0 +1,211 @@
+// End to end, replay: the real `softhaptic replay` serving a recorded session (started paused),
+// the real viewer page in headless Chromium, the timeline driven with the mouse.
+//
+//   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_BIN to reuse a built one)
+//
+// Checks: the timeline appears with the recording's duration and nothing plays until asked;
+// the speed selector and the play button are obeyed (the server's status says so), the time
+// advances between the 1 Hz statuses and contact frames arrive; releasing the scrubber seeks
+// (the server's answer confirms the position); pause holds the position and stops the frames;
+// a seek while paused shows the recorded frame at the new position. Saves a screenshot to
+// web/test-results/replay.png.
+//
+// The machine may be slow (software WebGL, two cores): the checks read the statuses the page
+// logged rather than racing the replay's clock.
+import { after, before, test } from 'node:test';
+import assert from 'node:assert/strict';
+import { mkdirSync } from 'node:fs';
+import { fileURLToPath } from 'node:url';
+
+import { launchBrowser } from './browser.mjs';
+import { startServer } from './server.mjs';
+
+const RESULTS = fileURLToPath(new URL('../test-results/', import.meta.url));
+const RECORDING = 'tests/sessions/sphere-press.mcap';
+// The replay runs from the recording's first contact frame to its last: 150 frames at 50 Hz.
+const DURATION_S = 2.98;
+const WAIT = { timeout: 30000, polling: 'raf' };
+
+let server;
+let browser;
+let page;
+const pageErrors = [];
+
+const replay = () => page.evaluate(() => window.__softhaptic.replay());
+
+/**
+ * Releases the scrubber at `fraction` of its track (a click: press and release) and waits for
+ * the server's answer: the first status after the seek, exactly at the position asked for.
+ * Returns the seek sent, the status log before it, and the answer.
+ */
+async function seekWithScrubber(fraction) {
+  const before = await replay();
+  const box = await page.locator('#replay-scrubber').boundingBox();
+  await page.mouse.click(box.x + box.width * fraction, box.y + box.height / 2);
+  await page.waitForFunction((n) => window.__softhaptic.replay().sent.length > n, before.sent.length, WAIT);
+  const seek = (await replay()).sent.at(-1);
+  assert.equal(seek.action, 'seek');
+  // The answer to a control is sent at once, at the position it set (to the nanosecond).
+  await page.waitForFunction(
+    ({ from, target }) =>
+      window.__softhaptic
+        .replay()
+        .statusLog.slice(from)
+        .some((s) => Math.abs(s.time_s - target) < 1e-6),
+    { from: before.statusLog.length, target: seek.time_s },
+    WAIT,
+  );
+  const log = (await replay()).statusLog;
+  const answer = log.slice(before.statusLog.length).find((s) => Math.abs(s.time_s - seek.time_s) < 1e-6);
+  return { seek, before, answer };
+}
+
+before(async () => {
+  // A replay server of its own, even when SOFTHAPTIC_URL names a live one.
+  server = await startServer({ command: ['replay', RECORDING, '--paused'], external: false });
+  browser = await launchBrowser();
+  page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
+  page.on('pageerror', (e) => pageErrors.push(e.message));
+  await page.goto(server.url);
+  await page.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
+  // The first status comes within a second of connecting.
+  await page.waitForFunction(() => window.__softhaptic.replay().known, null, WAIT);
+});
+
+after(async () => {
+  await browser?.close();
+  await server?.stop();
+});
+
+test('a paused replay shows the timeline with the duration of the recording and plays nothing', async () => {
+  const r = await replay();
+  assert.equal(r.panelVisible, true);
+  assert.ok(await page.locator('#replay-panel').isVisible(), 'the timeline panel is on screen');
+  assert.equal(r.lastStatus.duration_s, r.durationS);
+  assert.ok(Math.abs(r.durationS - DURATION_S) < 1e-9, `duration ${r.durationS} s`);
+  assert.equal(r.scrubber.max, r.durationS);
+  assert.equal(r.paused, true);
+  assert.equal(r.positionS, 0);
+  assert.equal(r.file, 'sphere-press.mcap');
+  assert.equal(await page.locator('#replay-time').textContent(), '0:00.0 / 0:02.9');
+  assert.equal(await page.locator('#replay-play').textContent(), '▶ play');
+  assert.equal(await page.locator('#mode').textContent(), 'replay');
+  // The info panel names the recorded contact model (recordings older than the field: the law).
+  const scene = await page.evaluate(() => window.__softhaptic.scene());
+  const label = scene.contact_model?.label ?? 'Hertz';
+  assert.equal(await page.locator('#v-model').textContent(), label);
+  await page.waitForTimeout(1200);
+  assert.equal(await page.evaluate(() => window.__softhaptic.contactFrames()), 0, 'paused: no frames');
+  assert.equal((await replay()).positionS, 0);
+});
+
+test('at half speed, play advances the time between statuses and the contact frames arrive', async () => {
+  await page.selectOption('#replay-speed', '0.5');
+  await page.waitForFunction(
+    () => {
+      const s = window.__softhaptic.replay().lastStatus;
+      return s.speed === 0.5 && s.paused;
+    },
+    null,
+    WAIT,
+  );
+  await page.click('#replay-play');
+  await page.waitForFunction(() => window.__softhaptic.replay().lastStatus.paused === false, null, WAIT);
+  assert.equal(await page.locator('#replay-play').textContent(), '❚❚ pause');
+
+  // One second of animation frames: the scrubber moves every frame, not once a second.
+  const samples = await page.evaluate(
+    () =>
+      new Promise((resolve) => {
+        const out = [];
+        const start = performance.now();
+        const step = () => {
+          const r = window.__softhaptic.replay();
+          out.push({ atMs: performance.now(), position: r.positionS, scrubber: r.scrubber.value });
+          if (performance.now() - start < 1000) requestAnimationFrame(step);
+          else resolve(out);
+        };
+        requestAnimationFrame(step);
+      }),
+  );
+  for (let i = 1; i < samples.length; i++) {
+    assert.ok(samples[i].position >= samples[i - 1].position, `position went back at sample ${i}`);
+  }
+  const advanced = samples.at(-1).position - samples[0].position;
+  const elapsedS = (samples.at(-1).atMs - samples[0].atMs) / 1000;
+  // At 0.5× the position moves half as fast as the wall clock (a status may correct it by the
+  // network's delay, a few milliseconds).
+  assert.ok(Math.abs(advanced - 0.5 * elapsedS) < 0.1, `advanced ${advanced} s in ${elapsedS} s at 0.5×`);
+  const distinct = new Set(samples.map((s) => s.scrubber.toFixed(2))).size;
+  assert.ok(distinct >= 4, `${distinct} scrubber positions in one second (${samples.length} frames)`);
+
+  await page.waitForFunction(() => window.__softhaptic.contactFrames() > 10, null, WAIT);
+  const c = await page.evaluate(() => window.__softhaptic.contact());
+  assert.ok(c.valid, 'a contact is drawn');
+});
+
+test('releasing the scrubber while playing seeks, and the server answers at the new position', async () => {
+  await page.waitForFunction(() => window.__softhaptic.replay().positionS > 1.2, null, WAIT);
+  // A quarter of the way along the track: behind the position, away from the thumb.
+  const { seek, before, answer } = await seekWithScrubber(0.25);
+  assert.ok(seek.time_s > 0.3 && seek.time_s < 1.1, `seek to ${seek.time_s} s`);
+  assert.equal(answer.paused, false, 'a seek keeps playing');
+  // The server's own position before the seek was well past the target: the replay jumped back.
+  assert.ok(before.lastStatus.time_s > seek.time_s + 0.2, `from ${before.lastStatus.time_s} s to ${seek.time_s} s`);
+  assert.ok((await replay()).clockRestarts > before.clockRestarts, 'the frames after the jump are timed afresh');
+});
+
+test('pause holds the position and the frames stop', async () => {
+  if ((await replay()).paused) assert.fail('the replay ended before the pause could be tested');
+  await page.click('#replay-play');
+  await page.waitForFunction(() => window.__softhaptic.replay().lastStatus.paused === true, null, WAIT);
+  const p1 = await replay();
+  const frames1 = await page.evaluate(() => window.__softhaptic.contactFrames());
+  await page.waitForTimeout(1000);
+  const p2 = await replay();
+  const frames2 = await page.evaluate(() => window.__softhaptic.contactFrames());
+  assert.equal(p2.positionS, p1.positionS);
+  assert.equal(p2.positionS, p2.lastStatus.time_s);
+  assert.ok(p2.positionS > 0 && p2.positionS < DURATION_S);
+  assert.ok(frames2 - frames1 <= 1, `${frames2 - frames1} frames arrived while paused`);
+  assert.equal(await page.locator('#replay-play').textContent(), '▶ play');
+  assert.match(await page.locator('#contact-state').textContent(), /paused/);
+});
+
+test('a seek while paused shows the recorded frame at the new position', async () => {
+  // Two thirds along: the sphere is held pressed there.
+  const { seek, answer } = await seekWithScrubber(0.66);
+  assert.equal(answer.paused, true, 'a seek keeps the replay paused');
+  await page.waitForFunction(
+    (target) => {
+      const h = window.__softhaptic;
+      const c = h.contact();
+      // The frame in effect at the target: the last one at or before it (50 Hz).
+      return c.valid && c.deviceTimeMs / 1000 <= target + 1e-9 && c.deviceTimeMs / 1000 > target - 0.021;
+    },
+    seek.time_s,
+    WAIT,
+  );
+  const r = await replay();
+  // Held where the server says (which counts in nanoseconds: 1e-6 s covers the rounding).
+  assert.equal(r.positionS, r.lastStatus.time_s);
+  assert.ok(Math.abs(r.positionS - seek.time_s) < 1e-6, `position ${r.positionS} s`);
+  assert.ok(Math.abs(r.scrubber.value - seek.time_s) < 0.006, `scrubber at ${r.scrubber.value}`);
+  const c = await page.evaluate(() => window.__softhaptic.contact());
+  assert.ok(c.inContact && c.depthM > 1e-3, `pressed ${c.depthM} m deep at ${seek.time_s} s`);
+
+  // A screenshot of the paused replay, the tool and the dimple in view, the model expanded.
+  await page.click('#v-model');
+  await page.evaluate((p) => window.__softhaptic.focusCamera(p, 0.12, 0.35), c.point);
+  await page.waitForTimeout(1500);
+  mkdirSync(RESULTS, { recursive: true });
+  await page.screenshot({ path: `${RESULTS}replay.png` });
+});
+
+test('the replay viewer counted no malformed or unknown message and raised no page error', async () => {
+  const conn = await page.evaluate(() => window.__softhaptic.connection());
+  assert.equal(conn.stats.malformed, 0, conn.lastError ?? '');
+  assert.equal(conn.stats.unknown, 0, 'replay statuses are known messages');
+  assert.equal(conn.stats.sent, 5, 'speed, play, seek, pause, seek');
+  assert.deepEqual(pageErrors, []);
+});
