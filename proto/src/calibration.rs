@@ -4,7 +4,7 @@
 //! with the indentation depth δ; the paper measures it by FEM (the radius beyond which the surface
 //! is depressed by less than 0.5 mm), samples δ every 0.5 mm up to 10 mm, and fits a line below
 //! about 7 mm and a quadratic beyond. A table is a JSON file (format `softhaptic-calibration`,
-//! version 1, see wire.md) written by the offline calibration tool, or built here from the
+//! version 1, see proto/WIRE.md) written by the offline calibration tool, or built here from the
 //! analytical elastic half-space when no FEM table exists ([`CalibrationTable::half_space`]).
 //!
 //! The fit is what the server evaluates at 50 Hz ([`CalibrationTable::deformed_radius_m`]); the
@@ -245,7 +245,7 @@ impl CalibrationFit {
     }
 }
 
-/// A δ → R_d table with its provenance (wire.md, "Calibration table file / object").
+/// A δ → R_d table with its provenance (proto/WIRE.md, "Calibration table file / object").
 ///
 /// Every `CalibrationTable` in the program has been validated: deserialising one runs the same
 /// checks as [`CalibrationTable::new`].

@@ -1,4 +1,5 @@
-//! The reference deformation profile the viewer draws (paper §3.3), exactly as wire.md defines it.
+//! The reference deformation profile the viewer draws (paper §3.3), exactly as proto/WIRE.md
+//! ("Deformation profile") defines it.
 //!
 //! Around the contact axis (the line through the contact point along the outward normal), a
 //! render vertex at radial distance r is moved along −n by the depression z(r):
@@ -16,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::tool::ToolShape;
 
-/// Non-finite or negative inputs count as zero (wire.md, step 1).
+/// Non-finite or negative inputs count as zero (proto/WIRE.md, "Deformation profile", step 1).
 #[inline]
 fn sanitise(x: f64) -> f64 {
     if x.is_finite() && x > 0.0 { x } else { 0.0 }
@@ -53,7 +54,7 @@ pub struct DeformationProfile {
 
 impl DeformationProfile {
     /// Builds the profile from the tool, depth δ, contact radius a (from the contact law) and
-    /// deformed radius R_d (from the calibration table), following wire.md steps 1–4.
+    /// deformed radius R_d (from the calibration table), following proto/WIRE.md steps 1–4.
     ///
     /// A tool that fails [`ToolShape::validate`] deforms nothing (depth treated as 0), so no
     /// input can produce NaN.
@@ -110,7 +111,8 @@ impl DeformationProfile {
         }
     }
 
-    /// The depression z(r) ≥ 0 at radial distance `r_m` from the contact axis (wire.md, step 5).
+    /// The depression z(r) ≥ 0 at radial distance `r_m` from the contact axis (proto/WIRE.md,
+    /// "Deformation profile", step 5).
     pub fn depression_m(&self, r_m: f64) -> f64 {
         let r = sanitise(r_m);
         let a = self.contact_radius_eff_m;
@@ -231,8 +233,8 @@ mod number_or_name {
 }
 
 /// The shared deformation vectors: normal contacts of a sphere and of cones (45° and 30°) swept
-/// across every region, and each degenerate case of wire.md (zero and negative depth, R_d inside
-/// the contact, contact wider than the tool, zero contact radius, negative radius).
+/// across every region, and each degenerate case of proto/WIRE.md (zero and negative depth, R_d
+/// inside the contact, contact wider than the tool, zero contact radius, negative radius).
 pub fn deformation_vectors() -> Vec<DeformationVector> {
     const MM: f64 = 1e-3;
     let sphere = ToolShape::Sphere {

@@ -1,4 +1,4 @@
-//! The WebSocket messages between the server and the viewer (wire.md).
+//! The WebSocket messages between the server and the viewer (proto/WIRE.md).
 //!
 //! These are transport types: they exist to be encoded as JSON text frames, and they are built
 //! from the application types ([`ContactState`], [`CalibrationTable`], [`Material`],
@@ -121,7 +121,7 @@ impl ContactModelInfo {
     }
 }
 
-/// A render mesh the viewer fetches from `url` (binary layout "SHM1", wire.md).
+/// A render mesh the viewer fetches from `url` (binary layout "SHM1", proto/WIRE.md).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RenderMeshInfo {
     pub name: String,
@@ -322,7 +322,7 @@ pub fn flag_name(flag: ContactFlags) -> Option<&'static str> {
         .map(|(_, name)| *name)
 }
 
-/// Every flag with its wire name, in the order wire.md lists them.
+/// Every flag with its wire name, in the order proto/WIRE.md lists them.
 pub const FLAG_NAMES: [(ContactFlags, &str); 8] = [
     (ContactFlags::SATURATED, "saturated"),
     (ContactFlags::STIFFNESS_CAPPED, "stiffness_capped"),

@@ -329,7 +329,7 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
     ];
 
     let state = AppState {
-        // The same text as the WebSocket `scene` message (wire.md).
+        // The same text as the WebSocket `scene` message (proto/WIRE.md).
         scene_json: Bytes::from(scene_text),
         meshes: Arc::new(meshes),
         hub: Arc::clone(&hub),
@@ -376,7 +376,7 @@ fn bind(
     socket.listen(1024)
 }
 
-/// The routes of wire.md over an existing stream hub, for another source of frames than the
+/// The routes of proto/WIRE.md over an existing stream hub, for another source of frames than the
 /// haptic loop (a recording's replay).
 pub fn viewer_router(
     web_dir: &Path,
@@ -394,7 +394,7 @@ pub fn viewer_router(
     )
 }
 
-/// The routes of wire.md.
+/// The routes of proto/WIRE.md.
 fn router(web_dir: &Path, state: AppState) -> Router {
     let three = web_dir.join("node_modules").join("three");
     Router::new()

@@ -7,8 +7,8 @@
 //!   validity limits from the measured limits file or the paper's), the haptic world a scene
 //!   describes, and the built-in default scene (its calibration tables built into the binary).
 //! - [`app`]: [`app::start`] builds the haptic world, spawns the loop, binds HTTP and WebSocket
-//!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of wire.md;
-//!   the `scene` message, whose `contact_model` names the active model and its limits.
+//!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of
+//!   proto/WIRE.md; the `scene` message, whose `contact_model` names the active model and its limits.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.

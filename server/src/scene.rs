@@ -312,7 +312,7 @@ pub struct RenderSurface {
 }
 
 impl RenderSurface {
-    /// The binary layout of `GET /meshes/<name>.bin` (wire.md): "SHM1", u32 vertex count,
+    /// The binary layout of `GET /meshes/<name>.bin` (proto/WIRE.md): "SHM1", u32 vertex count,
     /// u32 triangle count, f32 positions, f32 normals, u32 indices, all little-endian.
     pub fn to_shm1(&self) -> Vec<u8> {
         let n = self.positions_m.len();
