@@ -2,18 +2,25 @@
 //!
 //! A static finite-element model of an elastic block (or ball) indented by a rigid frictionless
 //! sphere or cone, displacement controlled, bottom clamped. It writes the δ → R_d tables the
-//! viewer's deformation uses (paper §3.3.2), and measures the closed-form contact laws of
-//! `softhaptic-device` against the FEM (paper §3.2, §4.3).
+//! viewer's deformation uses (paper §3.3.2), measures the runtime contact models of
+//! `softhaptic-device` (the paper's laws and every correction) against the FEM (paper §3.2,
+//! §4.3), fits the runtime's hyperelastic correction, and writes the measured validity limits
+//! of each model (`scenes/calibration/model_limits.json`).
 //!
 //! # Layout
 //! - [`mesh`]: graded structured meshes of 10-node tetrahedra (blocks, quarter balls), boundary
 //!   conditions, symmetry.
 //! - [`element`]: the 10-node tetrahedron and the linear / neo-Hookean laws (forces, tangents).
-//! - [`sparse`]: fixed-pattern sparse assembly and the sparse Cholesky factorisation (faer).
+//! - [`sparse`]: fixed-pattern sparse assembly and the sparse Cholesky factorisation (faer),
+//!   ordered by nested dissection of the structured grid.
 //! - [`indenter`]: rigid sphere, cone and paraboloid indenters and their gap functions.
 //! - [`solver`]: Newton's method with an active set for frictionless contact, load stepping.
-//! - [`analytic`]: the closed-form references (Hertz, exact sphere, half-space profiles).
-//! - [`experiments`]: the paper's experiments, each returning its figures.
+//! - [`analytic`]: closed-form references that are not runtime models (Sneddon's exact sphere,
+//!   Lin et al.'s neo-Hookean sphere).
+//! - [`models`]: the runtime models (`softhaptic_device::model::ForceModel`) as the studies
+//!   score and time them.
+//! - [`experiments`]: the FEM runs each experiment needs, solved once and in parallel, and the
+//!   experiments' figures (including the hyperelastic fit and the model limits).
 //! - [`report`]: markdown, CSV and SVG output.
 //!
 //! # Frame
@@ -30,6 +37,7 @@ pub mod element;
 pub mod experiments;
 pub mod indenter;
 pub mod mesh;
+pub mod models;
 pub mod report;
 pub mod solver;
 pub mod sparse;

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use softhaptic_calibration::experiments::{self, Mode, RunCache};
+use softhaptic_calibration::experiments::{self, Mode, RunCache, RunSpec};
 use softhaptic_calibration::report::{self, Results};
 
 #[derive(Parser)]
@@ -21,33 +21,97 @@ struct Cli {
     /// Directory for the report, CSV and SVG files.
     #[arg(long, global = true, default_value = "calibration/report")]
     out: PathBuf,
-    /// Directory the R_d tables are written to (full mode). Quick runs write their tables under
-    /// `<out>/tables` instead, so a quick run never replaces the scenes' tables.
+    /// Directory the R_d tables and (by `all`) the model limits are written to (full mode).
+    /// Quick runs write theirs under `<out>/tables` instead, so a quick run never replaces the
+    /// scenes' files.
     #[arg(long, global = true, default_value = "scenes/calibration")]
     tables: PathBuf,
-    /// Worker threads for the sparse factorisation (1 = sequential).
-    #[arg(long, global = true, default_value_t = 1)]
-    threads: usize,
+    /// FEM runs solved at once, one per thread (default: the machine's cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
     #[command(subcommand)]
     command: Command,
 }
 
-#[derive(Subcommand)]
+#[derive(Subcommand, Clone, Copy, PartialEq, Eq)]
 enum Command {
     /// δ → R_d tables (paper §3.3.2) for the sphere and cone of radius 10 mm.
     RdTable,
     /// Force against depth, FEM against Hertz / Sneddon (paper §4.3).
     ForceDepth,
-    /// Balls of radius 30, 50, 100 mm against the block (paper §3.2, eq. 6).
+    /// Balls of radius 30, 50, 100 mm against the block (paper §3.2, eq. 6), and the
+    /// curvature-corrected runtime models against the balls.
     Curvature,
-    /// Tilted tools (paper §3.2, eq. 7).
+    /// Tilted tools (paper §3.2, eq. 7), and the inclination-corrected cone.
     Inclination,
-    /// Time per force evaluation against force error, every model.
+    /// The hyperelastic fit, then time per force evaluation against force error for every
+    /// runtime model; writes the model limits.
     SpeedAccuracy,
     /// Verification: Hertz on a large block, half-space profile, patch tests.
     Verify,
     /// Everything, then the report.
     All,
+}
+
+impl Command {
+    fn name(self) -> &'static str {
+        match self {
+            Command::RdTable => "rd-table",
+            Command::ForceDepth => "force-depth",
+            Command::Curvature => "curvature",
+            Command::Inclination => "inclination",
+            Command::SpeedAccuracy => "speed-accuracy",
+            Command::Verify => "verify",
+            Command::All => "all",
+        }
+    }
+}
+
+/// Which experiments a command runs.
+struct Plan {
+    verify: bool,
+    rd: bool,
+    force: bool,
+    speed: bool,
+    curvature: bool,
+    inclination: bool,
+}
+
+impl Plan {
+    fn of(command: Command) -> Self {
+        let all = command == Command::All;
+        Plan {
+            verify: all || command == Command::Verify,
+            rd: all || command == Command::RdTable,
+            force: all || command == Command::ForceDepth,
+            speed: all || command == Command::SpeedAccuracy,
+            curvature: all || command == Command::Curvature,
+            inclination: all || command == Command::Inclination,
+        }
+    }
+
+    fn runs(&self, mode: Mode) -> Vec<RunSpec> {
+        let mut runs = Vec::new();
+        if self.verify {
+            runs.extend(experiments::verification_runs(mode));
+        }
+        if self.rd {
+            runs.extend(experiments::rd_runs(mode));
+        }
+        if self.force {
+            runs.extend(experiments::force_runs(mode));
+        }
+        if self.speed {
+            runs.extend(experiments::speed_accuracy_runs(mode));
+        }
+        if self.curvature {
+            runs.extend(experiments::curvature_runs(mode));
+        }
+        if self.inclination {
+            runs.extend(experiments::inclination_runs(mode));
+        }
+        runs
+    }
 }
 
 fn main() -> Result<()> {
@@ -58,97 +122,98 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
+    let started = Instant::now();
     let cli = Cli::parse();
-    let par = match std::num::NonZeroUsize::new(cli.threads) {
-        Some(n) if n.get() > 1 => faer::Par::Rayon(n),
-        _ => faer::Par::Seq,
-    };
-    faer::set_global_parallelism(par);
     let mode = if cli.quick { Mode::Quick } else { Mode::Full };
     let tables_dir = match mode {
         Mode::Quick => cli.out.join("tables"),
         Mode::Full => cli.tables.clone(),
     };
+    let threads = cli.threads.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
+    let plan = Plan::of(cli.command);
     let mut results = Results {
-        command: match cli.command {
-            Command::RdTable => "rd-table",
-            Command::ForceDepth => "force-depth",
-            Command::Curvature => "curvature",
-            Command::Inclination => "inclination",
-            Command::SpeedAccuracy => "speed-accuracy",
-            Command::Verify => "verify",
-            Command::All => "all",
-        }
-        .to_owned(),
+        command: cli.command.name().to_owned(),
         ..Results::default()
     };
-    let mut cache = RunCache::default();
-    let (verify, rd, force, curv, incl, speed) = match cli.command {
-        Command::Verify => (true, false, false, false, false, false),
-        Command::RdTable => (false, true, false, false, false, false),
-        Command::ForceDepth => (false, false, true, false, false, false),
-        Command::Curvature => (false, false, false, true, false, false),
-        Command::Inclination => (false, false, false, false, true, false),
-        Command::SpeedAccuracy => (false, false, false, false, false, true),
-        Command::All => (true, true, true, true, true, true),
-    };
-    if verify {
-        let t = Instant::now();
-        results.verification = Some(experiments::verification(mode).context("verify")?);
-        results
-            .timings_s
-            .push(("verify".into(), t.elapsed().as_secs_f64()));
+
+    // Every FEM run the command needs, each solved once, all cores busy.
+    let mut cache = RunCache::new(threads);
+    let specs = plan.runs(mode);
+    tracing::info!(runs = specs.len(), threads, "solving the FEM runs");
+    cache.ensure(&specs).context("FEM runs")?;
+    results.fem = Some(cache.timings().clone());
+    tracing::info!(
+        wall_s = cache.timings().wall_seconds,
+        run_s = cache.timings().run_seconds,
+        runs = cache.timings().runs,
+        "FEM runs solved"
+    );
+
+    // The studies read the finished runs; the report is rewritten after each so that a failure
+    // leaves the finished parts behind.
+    if plan.verify {
+        results.verification = Some(experiments::verification(mode, &cache).context("verify")?);
         report::write_report(&cli.out, mode, &results)?;
     }
-    if rd {
-        let t = Instant::now();
-        let studies = experiments::rd_table(mode).context("rd-table")?;
-        let written = report::write_tables(&tables_dir, &studies)?;
-        for path in &written {
+    if plan.rd {
+        let studies = experiments::rd_table(mode, &cache).context("rd-table")?;
+        for path in report::write_tables(&tables_dir, &studies)? {
             tracing::info!(path = %path.display(), "calibration table written");
         }
-        results
-            .timings_s
-            .push(("rd-table".into(), t.elapsed().as_secs_f64()));
         results.rd = Some(studies);
-        // Written after every stage so a long run leaves its finished parts behind.
         report::write_report(&cli.out, mode, &results)?;
     }
-    if force {
-        let t = Instant::now();
-        results.force = Some(experiments::force_depth(mode, &mut cache).context("force-depth")?);
-        results
-            .timings_s
-            .push(("force-depth".into(), t.elapsed().as_secs_f64()));
+    if plan.force {
+        results.force = Some(experiments::force_depth(mode, &cache).context("force-depth")?);
         report::write_report(&cli.out, mode, &results)?;
     }
-    if speed {
-        let t = Instant::now();
-        results.speed =
-            Some(experiments::speed_accuracy(mode, &mut cache).context("speed-accuracy")?);
-        results
-            .timings_s
-            .push(("speed-accuracy".into(), t.elapsed().as_secs_f64()));
+    if plan.speed {
+        results.hyperelastic =
+            Some(experiments::hyperelastic_fit(mode, &cache).context("hyperelastic fit")?);
+        results.speed = Some(experiments::speed_accuracy(mode, &cache).context("speed-accuracy")?);
         report::write_report(&cli.out, mode, &results)?;
     }
-    if curv {
-        let t = Instant::now();
-        results.curvature = Some(experiments::curvature(mode).context("curvature")?);
-        results
-            .timings_s
-            .push(("curvature".into(), t.elapsed().as_secs_f64()));
+    if let Some(rd) = &results.rd {
+        results.transfer =
+            Some(experiments::force::transfer_check(rd).context("hyperelastic transfer check")?);
+    }
+    if plan.curvature {
+        results.curvature = Some(experiments::curvature(mode, &cache).context("curvature")?);
         report::write_report(&cli.out, mode, &results)?;
     }
-    if incl {
-        let t = Instant::now();
-        results.inclination = Some(experiments::inclination(mode).context("inclination")?);
-        results
-            .timings_s
-            .push(("inclination".into(), t.elapsed().as_secs_f64()));
+    if plan.inclination {
+        results.inclination = Some(experiments::inclination(mode, &cache).context("inclination")?);
         report::write_report(&cli.out, mode, &results)?;
     }
+    if results.speed.is_some() || results.curvature.is_some() {
+        let limits = experiments::model_limits(
+            results.speed.as_ref(),
+            results.curvature.as_deref(),
+            results.inclination.as_deref(),
+        )
+        .context("model limits")?;
+        // Only `all` measures every model the file lists, so only `all` replaces the file the
+        // scenes load; a single study writes its part beside its report.
+        let path = if cli.command == Command::All {
+            tables_dir.join("model_limits.json")
+        } else {
+            cli.out.join("model_limits.json")
+        };
+        report::write_json(&path, &limits)?;
+        tracing::info!(path = %path.display(), entries = limits.limits.len(), "model limits written");
+        results.limits = Some(limits);
+    }
+    results.wall_seconds = started.elapsed().as_secs_f64();
     let path = report::write_report(&cli.out, mode, &results)?;
-    tracing::info!(path = %path.display(), "report written");
+    tracing::info!(
+        path = %path.display(),
+        wall_s = results.wall_seconds,
+        "report written"
+    );
     println!("{}", path.display());
     Ok(())
 }

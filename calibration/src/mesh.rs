@@ -179,7 +179,7 @@ fn doubled(coords: &[f64]) -> Vec<f64> {
 }
 
 /// Parameters of a graded block mesh.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct BlockSpec {
     /// Whole block size along x, y (lateral) and z (depth), metres.
     pub size_m: [f64; 3],
@@ -278,7 +278,7 @@ pub fn block(spec: &BlockSpec) -> Result<TetMesh, MeshError> {
 }
 
 /// Parameters of a ball mesh (for the curvature study).
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct BallSpec {
     /// Radius of the ball.
     pub radius_m: f64,

@@ -172,6 +172,11 @@ impl ContactModel {
         self.pattern.size()
     }
 
+    /// Stored entries of the Cholesky factor of the stiffness matrix.
+    pub fn factor_entries(&self) -> usize {
+        self.pattern.factor_entries()
+    }
+
     /// Stored entries of the stiffness matrix (lower triangle).
     pub fn stored_entries(&self) -> usize {
         self.pattern.stored_entries()

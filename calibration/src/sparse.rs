@@ -85,7 +85,7 @@ pub fn nested_dissection_order(dims: [usize; 3]) -> Vec<usize> {
                 let mid = (lo[axis] + hi[axis] - 1) / 2;
                 [mid, mid + 1, mid.saturating_sub(1), mid + 2]
                     .into_iter()
-                    .find(|&s| s % 2 == 0 && s > lo[axis] && s + 1 < hi[axis])
+                    .find(|&s| s.is_multiple_of(2) && s > lo[axis] && s + 1 < hi[axis])
                     .map(|s| (axis, s))
             })
         };

@@ -7,7 +7,9 @@ use softhaptic_calibration::element::{Constitutive, LawKind};
 use softhaptic_calibration::indenter::{Indenter, IndenterShape};
 use softhaptic_calibration::mesh::{self, BlockSpec, Symmetry};
 use softhaptic_calibration::solver::{ContactModel, SolverOptions, deformed_radius_m};
-use softhaptic_proto::Material;
+use softhaptic_calibration::sparse::{FillOrdering, StiffnessPattern};
+use softhaptic_device::model::{ForceModel, LocalGeometry};
+use softhaptic_proto::{LayerSpec, Material, ModelSpec};
 
 fn patch_mesh() -> mesh::TetMesh {
     // A graded, non-uniform block so the elements differ in size and shape.
@@ -172,13 +174,21 @@ fn indentation_matches_hertz_and_half_space_profile() {
             depth,
         )
         .unwrap();
-    let layer = softhaptic_calibration::analytic::thickness_factor_sphere(
-        material.poisson_ratio(),
-        r,
-        depth,
-        size,
-        true,
-    );
+    // The runtime's bonded-layer correction (Dimitriadis) for the block's finite depth.
+    let layered = ForceModel::new(
+        softhaptic_proto::ToolShape::Sphere { radius_m: r },
+        material,
+        ModelSpec {
+            thickness: Some(LayerSpec {
+                thickness_m: size,
+                bonded: true,
+            }),
+            ..ModelSpec::PAPER
+        },
+    )
+    .unwrap()
+    .force_n(depth, &LocalGeometry::FLAT);
+    let layer = layered / hertz;
     let err = eq.force_on_tool_n[2] / (hertz * layer) - 1.0;
     assert!(
         err.abs() < 0.03,
@@ -285,4 +295,57 @@ fn quarter_and_full_models_agree() {
         "{forces:?}"
     );
     assert!(forces[1][0].abs() < 0.01 * forces[1][2] && forces[1][1].abs() < 0.01 * forces[1][2]);
+}
+
+/// The nested-dissection ordering is a permutation of every node, and the factorisation it
+/// orders solves the same system as minimum degree's, to rounding.
+#[test]
+fn nested_dissection_solves_the_same_system_as_minimum_degree() {
+    let spec = BlockSpec::graded([0.06, 0.06, 0.03], 0.004, 0.004, 2, Symmetry::Quarter);
+    let mesh = mesh::block(&spec).unwrap();
+    let dims = mesh.grid_nodes.unwrap();
+    let mut order = softhaptic_calibration::sparse::nested_dissection_order(dims);
+    assert_eq!(order.len(), mesh.node_count());
+    order.sort_unstable();
+    assert!(order.iter().enumerate().all(|(i, &n)| i == n));
+    // An SPD matrix on the mesh's pattern: a stiffness-like Laplacian plus a diagonal shift.
+    let nd = StiffnessPattern::with_ordering(&mesh, FillOrdering::NestedDissection).unwrap();
+    let md = StiffnessPattern::with_ordering(&mesh, FillOrdering::MinimumDegree).unwrap();
+    assert!(
+        nd.factor_entries() < md.factor_entries(),
+        "nested dissection {} vs minimum degree {} factor entries",
+        nd.factor_entries(),
+        md.factor_entries()
+    );
+    let mut values = nd.zero_values();
+    for (k, v) in values.iter_mut().enumerate() {
+        *v = -1e-3 * (1.0 + (k % 7) as f64);
+    }
+    for dof in 0..nd.size() {
+        nd.set_diagonal(&mut values, dof, 10.0);
+    }
+    let b: Vec<f64> = (0..nd.size())
+        .map(|i| ((i * 37) % 11) as f64 - 5.0)
+        .collect();
+    let mut x_nd = b.clone();
+    nd.factorise(&values).unwrap().solve_in_place(&mut x_nd);
+    let mut x_md = b.clone();
+    md.factorise(&values).unwrap().solve_in_place(&mut x_md);
+    let scale = x_md.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+    let worst = x_nd
+        .iter()
+        .zip(&x_md)
+        .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(
+        worst <= 1e-10 * scale,
+        "solutions differ by {worst:e} (scale {scale:e})"
+    );
+    // And it is the solution: K x = b.
+    let mut kx = vec![0.0; nd.size()];
+    nd.multiply(&values, &x_nd, &mut kx);
+    let residual = kx
+        .iter()
+        .zip(&b)
+        .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(residual < 1e-9, "residual {residual:e}");
 }

@@ -172,8 +172,9 @@ pub struct MeasuredLimit {
     pub reference: String,
 }
 
-/// The file `softhaptic-calibrate speed-accuracy` writes (`scenes/calibration/model_limits.json`)
-/// and scenes load to set the validity flags of their active model.
+/// The file `softhaptic-calibrate all` writes (`scenes/calibration/model_limits.json`; a single
+/// study writes its own into `--out`) and scenes load to set the validity flags of their active
+/// model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelLimitsFile {

@@ -1,0 +1,207 @@
+//! The measured validity limits of the runtime models (`scenes/calibration/model_limits.json`):
+//! for every (tool kind, model) the studies evaluated, the depth up to which its eq. 9 error
+//! against the neo-Hookean FEM stays under 7%, and the tilt up to which the inclination study
+//! measured it within 7%.
+
+use softhaptic_device::model::LocalGeometry;
+use softhaptic_proto::model::{MeasuredLimit, ToolKind};
+use softhaptic_proto::{ModelLimitsFile, ModelSpec, ToolShape};
+
+use super::curvature::CurvatureStudy;
+use super::force::{RowKind, SpeedAccuracyStudy};
+use super::inclination::InclinationStudy;
+use super::{ExperimentError, JND_PERCENT, MATERIAL, MM};
+use crate::element::LawKind;
+use crate::models::RuntimeModel;
+
+/// The inclination limit of `spec` on `tool`, and how it was found, from the inclination study
+/// of the same tool kind, by the paper's criterion: the angle where the error of the force
+/// magnitude reaches 7% (against the corrected magnitude for a cone model with the inclination
+/// correction) or its direction 32°, or the largest angle measured if neither does.
+fn inclination_limit(
+    studies: Option<&[InclinationStudy]>,
+    tool: &ToolShape,
+    spec: &ModelSpec,
+) -> (Option<f64>, String) {
+    let Some(s) = studies
+        .into_iter()
+        .flatten()
+        .find(|s| ToolKind::of(&s.tool) == ToolKind::of(tool))
+    else {
+        return (None, String::new());
+    };
+    let corrected = spec.inclination && matches!(tool, ToolShape::Cone { .. });
+    let what = match (tool, corrected) {
+        (ToolShape::Sphere { .. }, _) => "δ along the contact normal",
+        (ToolShape::Cone { .. }, true) => "with the inclination correction",
+        (ToolShape::Cone { .. }, false) => "perpendicular law",
+    };
+    let (angle, how) = match s.valid_inclination_rad(corrected) {
+        Some(a) => (a, format!("limit reached at {:.1}°", a.to_degrees())),
+        None => (
+            s.max_angle_rad(),
+            format!(
+                "no limit reached up to {:.0}°, the largest angle measured",
+                s.max_angle_rad().to_degrees()
+            ),
+        ),
+    };
+    (
+        Some(angle),
+        format!(
+            "; inclination ({what}): {} tilted on the 100 × 100 × 50 mm block, linear FEM, \
+             depths ≥ {:.0} mm, force magnitude within 7% and direction within {:.0}°; {how}",
+            super::tool_description(&s.tool),
+            s.resolved_from_m / MM,
+            super::inclination::DIRECTION_THRESHOLD_DEG,
+        ),
+    )
+}
+
+/// The cone model with the inclination correction switched on: identical to `spec` for a
+/// perpendicular tool (checked at every depth), so it inherits the depth limit.
+fn inclined_variant(
+    tool: &ToolShape,
+    spec: &ModelSpec,
+    depths_m: &[f64],
+) -> Result<Option<ModelSpec>, ExperimentError> {
+    if !matches!(tool, ToolShape::Cone { .. }) || spec.inclination {
+        return Ok(None);
+    }
+    let variant = ModelSpec {
+        inclination: true,
+        ..*spec
+    };
+    let model = |s: ModelSpec| {
+        RuntimeModel::new(*tool, MATERIAL, s).map_err(|source| ExperimentError::Model {
+            run: "model limits".to_owned(),
+            source,
+        })
+    };
+    let base = model(*spec)?.forces_n(depths_m, &LocalGeometry::FLAT);
+    let inclined = model(variant)?.forces_n(depths_m, &LocalGeometry::FLAT);
+    if base
+        .iter()
+        .zip(&inclined)
+        .any(|(a, b)| a.to_bits() != b.to_bits())
+    {
+        return Err(ExperimentError::Data {
+            study: "model limits".to_owned(),
+            reason: format!(
+                "{}: the inclination correction changes the perpendicular force",
+                variant.label(tool)
+            ),
+        });
+    }
+    Ok(Some(variant))
+}
+
+/// Builds the limits file from the studies that ran: the speed-accuracy study gives the depth
+/// limits of the flat-object models (§4.3 tools), the curvature study those of the
+/// curvature-corrected models (tools of radius 10 mm on balls), the inclination study the
+/// angles. Each (tool kind, model) appears once.
+pub fn model_limits(
+    speed: Option<&SpeedAccuracyStudy>,
+    curvature: Option<&[CurvatureStudy]>,
+    inclination: Option<&[InclinationStudy]>,
+) -> Result<ModelLimitsFile, ExperimentError> {
+    let mut limits: Vec<MeasuredLimit> = Vec::new();
+    let push = |tool: &ToolShape,
+                spec: ModelSpec,
+                crossing: Option<f64>,
+                deepest_m: f64,
+                reference: &str,
+                limits: &mut Vec<MeasuredLimit>| {
+        let kind = ToolKind::of(tool);
+        if limits.iter().any(|l| l.tool == kind && l.model == spec) {
+            return;
+        }
+        let (valid_inclination_rad, inclination_note) = inclination_limit(inclination, tool, &spec);
+        limits.push(MeasuredLimit {
+            tool: kind,
+            model: spec,
+            valid_depth_m: crossing.unwrap_or(deepest_m),
+            crossed: crossing.is_some(),
+            valid_inclination_rad,
+            reference: format!("{reference}{inclination_note}"),
+        });
+    };
+    if let Some(speed) = speed {
+        for t in &speed.tools {
+            let reference = format!(
+                "{} on the §4.3 block 100 × 100 × 30 mm (bottom clamped), δ ≤ {:.1} mm: eq. 9 \
+                 against the neo-Hookean FEM, 10-node tets, {:.1} mm cells, {} unknowns",
+                super::tool_description(&t.tool),
+                t.models.first().map_or(0.0, |m| m.deepest_m) / MM,
+                t.reference_cell_m / MM,
+                t.reference_dofs,
+            );
+            let grid: Vec<f64> = (1..=60).map(|i| i as f64 * 0.1 * MM).collect();
+            for m in t.models.iter().filter(|m| m.kind == RowKind::Runtime) {
+                let Some(spec) = m.spec else { continue };
+                push(
+                    &t.tool,
+                    spec,
+                    m.crossing_m,
+                    m.deepest_m,
+                    &reference,
+                    &mut limits,
+                );
+                if let Some(variant) = inclined_variant(&t.tool, &spec, &grid)? {
+                    push(
+                        &t.tool,
+                        variant,
+                        m.crossing_m,
+                        m.deepest_m,
+                        &reference,
+                        &mut limits,
+                    );
+                }
+            }
+        }
+    }
+    for s in curvature.into_iter().flatten() {
+        let Some(nh) = s.laws.iter().find(|l| l.law == LawKind::NeoHookean) else {
+            continue;
+        };
+        let deepest_m = s.depths_m.last().copied().unwrap_or(0.0);
+        let reference = format!(
+            "{} on balls R0 = {} mm (lower cap clamped), δ ≤ {:.0} mm: eq. 9 against the \
+             neo-Hookean FEM of each ball, 10-node tets, {:.1} mm cells; the shallowest crossing \
+             of the three",
+            super::tool_description(&s.tool),
+            s.object_radii_m
+                .iter()
+                .map(|r| format!("{:.0}", r / MM))
+                .collect::<Vec<_>>()
+                .join(", "),
+            deepest_m / MM,
+            nh.balls.first().map_or(0.0, |b| b.resolution.fine_cell_m) / MM,
+        );
+        for m in nh.models.iter().filter(|m| m.spec.curvature) {
+            push(
+                &s.tool,
+                m.spec,
+                m.first_crossing_m(),
+                deepest_m,
+                &reference,
+                &mut limits,
+            );
+            if let Some(variant) = inclined_variant(&s.tool, &m.spec, &s.depths_m)? {
+                push(
+                    &s.tool,
+                    variant,
+                    m.first_crossing_m(),
+                    deepest_m,
+                    &reference,
+                    &mut limits,
+                );
+            }
+        }
+    }
+    Ok(ModelLimitsFile {
+        version: ModelLimitsFile::VERSION,
+        threshold_percent: JND_PERCENT,
+        limits,
+    })
+}

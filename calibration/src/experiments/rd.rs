@@ -1,0 +1,156 @@
+//! R_d calibration (paper §3.3.2): the δ → R_d tables the viewer's deformation uses.
+
+use serde::Serialize;
+use softhaptic_proto::calibration::CalibrationRow;
+use softhaptic_proto::{CalibrationSource, CalibrationTable, Material, ToolShape};
+
+use super::{
+    ExperimentError, IndentationRun, MM, Mode, RD_BLOCK_M, RD_BREAKPOINT_M, RD_THRESHOLD_M,
+    Resolution, RunCache, RunSpec, block_body, depths, paper_tools_10mm, spec, tool_description,
+};
+use crate::element::LawKind;
+use crate::mesh::Symmetry;
+
+/// One tool's R_d study.
+#[derive(Debug, Clone, Serialize)]
+pub struct RdStudy {
+    pub tool_name: String,
+    pub tool: ToolShape,
+    pub runs: Vec<IndentationRun>,
+    /// R_d of the elastic half-space at the same depths (physics.md).
+    pub half_space_m: Vec<f64>,
+    /// The tables written for the scenes (one per material).
+    pub tables: Vec<(String, CalibrationTable)>,
+}
+
+/// Mesh and depths of the R_d study (also the block of the curvature study).
+pub fn rd_setup(mode: Mode) -> (Resolution, Vec<f64>) {
+    match mode {
+        Mode::Quick => (
+            Resolution {
+                name: "quick",
+                fine_cell_m: 6.0 * MM,
+                coarse_cells: 2,
+            },
+            depths(2.0, 10.0, 2.0),
+        ),
+        Mode::Full => (
+            Resolution {
+                name: "full",
+                fine_cell_m: 2.5 * MM,
+                coarse_cells: 4,
+            },
+            depths(0.5, 10.0, 0.5),
+        ),
+    }
+}
+
+/// The block run of `tool` with `law` on the calibration block.
+pub fn rd_run(mode: Mode, name: &str, tool: &ToolShape, law: LawKind) -> RunSpec {
+    let (res, ds) = rd_setup(mode);
+    let max_depth = ds.last().copied().unwrap_or(0.01);
+    let body = block_body(RD_BLOCK_M, tool, max_depth, 0.0, res, Symmetry::Quarter);
+    spec(
+        format!("block 100×100×50 {name} {}", law.name()),
+        body,
+        tool,
+        law,
+        res,
+        &ds,
+        0.0,
+    )
+}
+
+/// The FEM runs of the R_d study: sphere and cone of radius 10 mm, linear and neo-Hookean.
+pub fn rd_runs(mode: Mode) -> Vec<RunSpec> {
+    let mut out = Vec::new();
+    for (name, tool) in paper_tools_10mm() {
+        for law in [LawKind::Linear, LawKind::NeoHookean] {
+            out.push(rd_run(mode, name, &tool, law));
+        }
+    }
+    out
+}
+
+/// The R_d calibration for the paper's sphere and cone (R = 10 mm, 45°), linear and
+/// neo-Hookean; the tables come from the neo-Hookean run (large strain: the depth reaches the
+/// tool radius).
+///
+/// With the displacement imposed and no body force, the static solution of either law depends
+/// on E only through the stress scale: the displacement field, hence R_d, is the same for 50 kPa
+/// and 1.5 MPa (a test checks this). One solve per tool and law therefore serves both materials.
+pub fn rd_table(mode: Mode, cache: &RunCache) -> Result<Vec<RdStudy>, ExperimentError> {
+    let (res, ds) = rd_setup(mode);
+    let mut studies = Vec::new();
+    for (name, tool) in paper_tools_10mm() {
+        let mut runs = Vec::new();
+        for law in [LawKind::Linear, LawKind::NeoHookean] {
+            runs.push(
+                cache
+                    .get("rd-table", &rd_run(mode, name, &tool, law))?
+                    .clone(),
+            );
+        }
+        let half_space_m = ds
+            .iter()
+            .map(|&d| {
+                softhaptic_proto::calibration::half_space_deformed_radius_m(
+                    &tool,
+                    d,
+                    RD_THRESHOLD_M,
+                )
+            })
+            .collect();
+        let mut tables = Vec::new();
+        if let Some(nh) = runs.iter().find(|r| r.law == LawKind::NeoHookean) {
+            let rows: Vec<CalibrationRow> = nh
+                .depths_m
+                .iter()
+                .zip(&nh.deformed_radius_m)
+                .map(|(&depth_m, &deformed_radius_m)| CalibrationRow {
+                    depth_m,
+                    deformed_radius_m,
+                })
+                .collect();
+            for (mat_name, material) in [
+                ("50kpa", Material::PAPER_SOFT),
+                ("1500kpa", Material::PAPER_STIFF),
+            ] {
+                let file = format!("{name}_{mat_name}");
+                let description = format!(
+                    "R_d(δ) of a {:.0} × {:.0} × {:.0} mm block (bottom clamped, sides free) indented by a rigid frictionless {} ; static compressible neo-Hookean FEM, 10-node tets, quarter symmetry, fine cells {:.1} mm ({} mode, softhaptic-calibrate rd-table); R_d = outermost radius where the surface sinks more than {:.1} mm. The static solution does not depend on E at fixed ν.",
+                    RD_BLOCK_M[0] / MM,
+                    RD_BLOCK_M[1] / MM,
+                    RD_BLOCK_M[2] / MM,
+                    tool_description(&tool),
+                    res.fine_cell_m / MM,
+                    res.name,
+                    RD_THRESHOLD_M / MM,
+                );
+                let table = CalibrationTable::new(
+                    CalibrationSource::FemNeoHookean,
+                    description,
+                    tool,
+                    material,
+                    RD_THRESHOLD_M,
+                    Some(RD_BLOCK_M),
+                    rows.clone(),
+                    RD_BREAKPOINT_M,
+                )
+                .map_err(|source| ExperimentError::Table {
+                    run: file.clone(),
+                    source,
+                })?;
+                tables.push((file, table));
+            }
+        }
+        studies.push(RdStudy {
+            tool_name: name.to_owned(),
+            tool,
+            runs,
+            half_space_m,
+            tables,
+        });
+    }
+    Ok(studies)
+}
