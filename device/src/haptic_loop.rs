@@ -205,16 +205,18 @@ pub struct HapticLoop {
 }
 
 impl HapticLoop {
-    /// Starts the loop thread, bound to the last CPU when real-time scheduling is requested
-    /// ([`CpuChoice::Auto`]). Returns once the thread has asked for real-time treatment, so the
-    /// caller learns what was granted ([`HapticLoop::realtime`]) before the first tick; a refusal
-    /// is logged here, once, as a warning.
+    /// Starts the loop thread, not bound to a CPU ([`CpuChoice::Unpinned`]): on the machines
+    /// measured (`loop-timing --cpu`), binding to the last CPU gave more overruns, not fewer,
+    /// where that CPU also took the disk's interrupts; a host with an isolated CPU binds the loop
+    /// to it with [`HapticLoop::spawn_on`]. Returns once the thread has asked for real-time
+    /// treatment, so the caller learns what was granted ([`HapticLoop::realtime`]) before the
+    /// first tick; a refusal is logged here, once, as a warning.
     pub fn spawn(
         device: Box<dyn HapticDevice>,
         world: HapticWorld,
         config: LoopConfig,
     ) -> Result<HapticLoop, LoopError> {
-        Self::spawn_on(device, world, config, CpuChoice::Auto)
+        Self::spawn_on(device, world, config, CpuChoice::Unpinned)
     }
 
     /// [`HapticLoop::spawn`], with the loop thread bound to the CPU `cpu` says (a refused

@@ -10,7 +10,10 @@
 //! 3. a linear ramp from zero when contact begins with a force that would jump, or when the
 //!    device comes back after a fault (`RAMPING`);
 //! 4. the passivity controller (`PASSIVITY_DAMPING`, see [`crate::passivity`]);
-//! 5. saturation at the device's peak force (`SATURATED`).
+//! 5. saturation at the device's peak force (`SATURATED`);
+//! 6. the continuous-force limit: a model of the motors' heating scales the force down, smoothly,
+//!    when a long hard press would hold more than the device's continuous rating
+//!    (`CONTINUOUS_FORCE_LIMITED`, see [`crate::thermal`]).
 //!
 //! Validity bounds of the model (`BEYOND_VALID_DEPTH`, `BEYOND_VALID_INCLINATION`) are reported,
 //! not enforced: the force stays continuous, and the viewer shows that it is extrapolated. The
@@ -34,6 +37,7 @@ use softhaptic_proto::{ContactFlags, Material, ToolShape};
 use crate::device::DeviceLimits;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::passivity::PassivityObserver;
+use crate::thermal::ContinuousForceLimiter;
 
 /// δ* is found again when the curvature has changed by more than this fraction of the tool's
 /// curvature 1/R (the effective radius then moves by about as much, and δ* with it).
@@ -65,6 +69,8 @@ pub struct RenderConfig {
     /// A tip farther than this many workspace radii from the device origin (the world origin)
     /// cannot be a real reading: it is treated as a device fault.
     pub workspace_tolerance: f64,
+    /// Hold the motors' RMS force at the device's continuous rating ([`crate::thermal`]).
+    pub continuous_force_limit: bool,
 }
 
 impl RenderConfig {
@@ -81,6 +87,7 @@ impl RenderConfig {
             valid_depth_m: softhaptic_proto::model::PAPER_VALID_DEPTH_M,
             valid_inclination_rad: softhaptic_proto::model::paper_valid_inclination_rad(tool),
             workspace_tolerance: 2.0,
+            continuous_force_limit: true,
         }
     }
 
@@ -149,6 +156,12 @@ pub struct ForceRenderer {
     resume_pending: bool,
     was_in_contact: bool,
     previous_time_ns: Option<u64>,
+    /// The motors' heating model; lives as long as the renderer (faults included) because the
+    /// motors keep their heat through a fault. `None` when the configuration switches it off or
+    /// the device's limits do not define a continuous rating below the peak.
+    thermal: Option<ContinuousForceLimiter>,
+    /// Device time of the last tick the heating model booked.
+    thermal_time_ns: Option<u64>,
 }
 
 impl ForceRenderer {
@@ -191,6 +204,12 @@ impl ForceRenderer {
             resume_pending: false,
             was_in_contact: false,
             previous_time_ns: None,
+            thermal: if config.continuous_force_limit {
+                ContinuousForceLimiter::for_device(&limits).ok()
+            } else {
+                None
+            },
+            thermal_time_ns: None,
         }
     }
 
@@ -329,7 +348,23 @@ impl ForceRenderer {
                 .observe(self.previous_force_n, position_m - previous);
         }
         self.previous_position_m = Some(position_m);
-        let rendered = self.render_force(contact, velocity_m_s, tool_axis, time_ns);
+        let mut rendered = self.render_force(contact, velocity_m_s, tool_axis, time_ns);
+        if let Some(thermal) = self.thermal.as_mut() {
+            // Last in the pipeline, after the saturation: it books what the device delivers. The
+            // force is held until the next tick, estimated as long as the last interval; after a
+            // fault that interval spans it, and the ramp's first, near-zero force is booked over
+            // it, which is how the motors cooled.
+            let period_s = match self.thermal_time_ns {
+                Some(previous) if time_ns > previous => (time_ns - previous) as f64 * 1e-9,
+                _ => 0.0,
+            };
+            self.thermal_time_ns = Some(time_ns);
+            let (limited_n, acted) = thermal.apply(rendered.force_n, period_s);
+            rendered.force_n = limited_n;
+            if acted {
+                rendered.flags |= ContactFlags::CONTINUOUS_FORCE_LIMITED;
+            }
+        }
         self.previous_force_n = rendered.force_n;
         rendered
     }
@@ -596,7 +631,12 @@ mod tests {
 
     #[test]
     fn without_cap_the_law_runs_unbounded_until_saturation() {
-        let mut r = renderer(Material::PAPER_STIFF, |c| c.stiffness_cap = false);
+        // The continuous-force limit would take over after 0.13 s at the peak: this is about
+        // the saturation alone.
+        let mut r = renderer(Material::PAPER_STIFF, |c| {
+            c.stiffness_cap = false;
+            c.continuous_force_limit = false;
+        });
         let t = settle(&mut r, 0.003);
         let f = r.render(Some(&contact(0.003)), at(0.003), DVec3::ZERO, DVec3::Y, t);
         assert!(!f.flags.contains(ContactFlags::STIFFNESS_CAPPED));
@@ -607,13 +647,67 @@ mod tests {
     #[test]
     fn absurd_depth_without_cap_saturates_instead_of_failing() {
         let mut r = renderer(Material::new(1e9, 0.4999).unwrap(), |c| {
-            c.stiffness_cap = false
+            c.stiffness_cap = false;
+            c.continuous_force_limit = false;
         });
         let t = settle(&mut r, 1e200);
         let f = r.render(Some(&contact(1e200)), at(1e200), DVec3::ZERO, DVec3::Y, t);
         assert_eq!(f.force_n, DVec3::Y * 7.9);
         assert!(f.flags.contains(ContactFlags::SATURATED));
         assert!(!f.flags.contains(ContactFlags::DEVICE_FAULT));
+    }
+
+    #[test]
+    fn a_long_hard_press_is_held_to_the_continuous_rating_and_released_after() {
+        // 10 mm sphere 5.5 mm into 50 kPa: about 3 N, held for 8 s on a PHANTOM Desktop
+        // (1.75 N continuous). A short press passes untouched; the long one is brought down
+        // smoothly, flagged, and its RMS settles at the rating; after release the limiter lets
+        // go again.
+        let depth = 0.0055;
+        let mut r = renderer(Material::PAPER_SOFT, |c| c.passivity = false);
+        let law_n = law::contact_force_n(&sphere(), &Material::PAPER_SOFT, depth);
+        assert!(law_n > 2.5, "{law_n}");
+        let mut t = 0;
+        let mut previous = 0.0_f64;
+        let mut largest_step = 0.0_f64;
+        let mut first_limited_ms = None;
+        let mut last = RenderedForce::ZERO;
+        for ms in 0..8000 {
+            last = r.render(Some(&contact(depth)), at(depth), DVec3::ZERO, DVec3::Y, t);
+            let f = last.force_n.y;
+            if ms > 100 {
+                largest_step = largest_step.max((f - previous).abs());
+            }
+            previous = f;
+            if first_limited_ms.is_none()
+                && last.flags.contains(ContactFlags::CONTINUOUS_FORCE_LIMITED)
+            {
+                first_limited_ms = Some(ms);
+            }
+            t += MS;
+        }
+        let first = first_limited_ms.expect("an 8 s press at 3 N is limited");
+        assert!(
+            first > 300,
+            "a press shorter than 0.3 s passes untouched: {first} ms"
+        );
+        assert!(last.flags.contains(ContactFlags::CONTINUOUS_FORCE_LIMITED));
+        assert!(
+            last.force_n.y <= 1.75 + 1e-3 && last.force_n.y > 1.6,
+            "held at the rating: {}",
+            last.force_n.y
+        );
+        assert!(
+            largest_step < 0.02,
+            "no step of the limiter's own: {largest_step} N"
+        );
+        // Released for 20 s (the motors cool), then pressed again: full force at once.
+        for _ in 0..20_000 {
+            r.render(None, at(-0.01), DVec3::ZERO, DVec3::Y, t);
+            t += MS;
+        }
+        let again = r.render(Some(&contact(depth)), at(depth), DVec3::ZERO, DVec3::Y, t);
+        assert!(!again.flags.contains(ContactFlags::CONTINUOUS_FORCE_LIMITED));
     }
 
     #[test]

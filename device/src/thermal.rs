@@ -2,8 +2,9 @@
 //! device's continuous rating, while short peaks up to the peak force still pass.
 //!
 //! A PHANTOM Desktop exerts 7.9 N briefly but only 1.75 N continuously (physics.md, "Haptic
-//! stability"): holding more heats the motor windings until the driver disables the amplifiers
-//! (a device fault in the middle of a session). [`ContinuousForceLimiter`] keeps below that.
+//! stability"): holding more heats the motor windings until the device's own protection turns
+//! the force output off (a device fault in the middle of a session), or damages them.
+//! [`ContinuousForceLimiter`] keeps below that.
 //!
 //! # The model
 //! The heat a DC motor makes is I²R, and its current is proportional to its torque, so to the
@@ -22,8 +23,9 @@
 //! τ = [`MOTOR_TIME_CONSTANT_S`] = 5 s. The windings of the small coreless DC motors that drive
 //! desktop haptic arms have thermal time constants of the order of ten seconds (their housings
 //! of minutes); a single pole at 5 s heats faster than such a winding, so a long push is limited
-//! somewhat before the winding would reach its limit, and the equilibrium (which is what the
-//! continuous rating specifies) is the same. It is also long enough that the taps and presses of
+//! somewhat before the winding would reach its limit (it also cools faster, so a press soon after
+//! a long one is forgiven sooner), and the equilibrium, which is what the continuous rating
+//! specifies, is the same. It is also long enough that the taps and presses of
 //! palpation (a few tenths of a second at several newtons) pass untouched: from cold, a 5 N
 //! press is limited only after 0.53 s, a 7.9 N one after 0.13 s.
 //!
@@ -34,11 +36,15 @@
 //!
 //! which falls continuously from F_peak at the knee to F_c at the rating (and below F_c past it).
 //! Delivering F_allow gives τ·dh/dt = (1 + K)(F_c² − h): h settles at the rating from below, with
-//! the time constant τ/(1 + K) (0.13 s for the PHANTOM Desktop), without overshoot. The commanded
-//! force is multiplied by a gain g ∈ [0, 1] that moves toward F_allow/|F| (1 when the command is
-//! within it) by at most [`GAIN_RATE_PER_S`]·T per tick, so the limiter never adds a step of its
-//! own to the force: it changes the force by at most 0.5 % of the command per millisecond. The
-//! direction of the force is never changed, only its magnitude reduced.
+//! the time constant τ/(1 + K) (0.13 s for the PHANTOM Desktop); a hold at any force up to the
+//! peak never takes h past the rating. A command that jumps up while the motors are warm passes
+//! at first (the gain falls at its rate), so h exceeds the rating for a moment: that is the short
+//! peak the rating allows, and the limit pulls h back (F_allow < F_c past the rating).
+//!
+//! The commanded force is multiplied by a gain g ∈ [0, 1] that moves toward F_allow/|F| (1 when
+//! the command is within it) by at most [`GAIN_RATE_PER_S`]·T per tick, so the limiter never adds
+//! a step of its own to the force: it changes the force by at most 0.5 % of the command per
+//! millisecond. The direction of the force is never changed, only its magnitude reduced.
 //!
 //! # Where it goes
 //! Last in the force pipeline, after the saturation at the peak force: every force it sees is
@@ -285,7 +291,7 @@ mod tests {
             let now_s = k as f64 * T;
             let (out, acted) = t.apply(command, T);
             let out_n = out.length();
-            assert!(out_n <= 5.0 + 1e-12 && out_n <= DESKTOP.peak_force_n);
+            assert!(out_n <= 5.0 + 1e-12, "never more than commanded: {out_n}");
             assert!(
                 (out.normalize() - command.normalize()).length() < 1e-12,
                 "direction kept"
@@ -316,6 +322,29 @@ mod tests {
         // less: the limiter does not take more than it must).
         let rms = (window_sq_sum / window_ticks as f64).sqrt();
         assert!((rms / rating - 1.0).abs() < 1e-3, "RMS {rms} N");
+    }
+
+    #[test]
+    fn no_hold_up_to_the_peak_takes_the_model_past_the_rating() {
+        let rating = DESKTOP.continuous_force_n;
+        for magnitude_n in [1.8, 2.5, 3.5, 5.0, 6.5, DESKTOP.peak_force_n] {
+            let mut t = limiter();
+            for _ in 0..30_000 {
+                t.apply(force(magnitude_n), T);
+                assert!(
+                    t.rms_force_n() <= rating * (1.0 + 1e-12),
+                    "{magnitude_n} N hold: model RMS {}",
+                    t.rms_force_n()
+                );
+            }
+            // ... and every one of them ends at the rating, not below it.
+            let (out, acted) = t.apply(force(magnitude_n), T);
+            assert!(acted, "{magnitude_n} N");
+            assert!(
+                (out.length() / rating - 1.0).abs() < 1e-3,
+                "{magnitude_n} N: {out}"
+            );
+        }
     }
 
     #[test]
@@ -460,12 +489,15 @@ mod tests {
                     let g_before = t.gain();
                     let (out, acted) = t.apply(f, period);
                     let again = twin.apply(f, period);
-                    prop_assert_eq!(again.0.to_array().map(f64::to_bits), out.to_array().map(f64::to_bits));
+                    prop_assert_eq!(
+                        again.0.to_array().map(f64::to_bits),
+                        out.to_array().map(f64::to_bits)
+                    );
                     prop_assert_eq!(again.1, acted);
                     prop_assert!(out.is_finite());
                     prop_assert!((0.0..=1.0).contains(&t.gain()));
                     let h = t.rms_force_n();
-                    prop_assert!(h.is_finite() && h >= 0.0 && h <= DESKTOP.peak_force_n * (1.0 + 1e-12));
+                    prop_assert!((0.0..=DESKTOP.peak_force_n * (1.0 + 1e-12)).contains(&h));
                     if f.length().is_finite() {
                         prop_assert!(out.length() <= f.length() * (1.0 + 1e-12));
                         prop_assert_eq!(acted, t.gain() < 1.0 && f.length() > 0.0);
@@ -473,7 +505,8 @@ mod tests {
                         prop_assert_eq!(out, DVec3::ZERO);
                     }
                     if period.is_finite() && period > 0.0 {
-                        prop_assert!((t.gain() - g_before).abs() <= GAIN_RATE_PER_S * period * (1.0 + 1e-12) + 1e-15);
+                        let step = (t.gain() - g_before).abs();
+                        prop_assert!(step <= GAIN_RATE_PER_S * period * (1.0 + 1e-12) + 1e-15);
                     } else {
                         prop_assert_eq!(t.gain(), g_before);
                     }

@@ -61,6 +61,9 @@ bitflags::bitflags! {
         const PASSIVITY_DAMPING = 1 << 6;
         /// The colliding vertex normals cancelled; the normal fell back to a defined direction.
         const DEGENERATE_NORMAL = 1 << 7;
+        /// The force was scaled down to hold the motors' RMS force at the device's continuous
+        /// rating (a long, hard press).
+        const CONTINUOUS_FORCE_LIMITED = 1 << 8;
     }
 }
 

@@ -22,6 +22,7 @@ export const CONTACT_FLAGS = Object.freeze([
   'ramping',
   'passivity_damping',
   'degenerate_normal',
+  'continuous_force_limited',
 ]);
 
 /** A message that breaks the contract; `field` is its dotted path. */

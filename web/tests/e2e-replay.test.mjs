@@ -40,6 +40,10 @@ const replay = () => page.evaluate(() => window.__softhaptic.replay());
  */
 async function seekWithScrubber(fraction) {
   const before = await replay();
+  // A click on the thumb where it already stands changes nothing, and a range input then fires
+  // no `change`: on a slow machine the replay may have paused right there. Aim beside it.
+  const current = before.scrubber.value / DURATION_S;
+  if (Math.abs(current - fraction) < 0.05) fraction += fraction < 0.5 ? 0.1 : -0.1;
   const box = await page.locator('#replay-scrubber').boundingBox();
   await page.mouse.click(box.x + box.width * fraction, box.y + box.height / 2);
   await page.waitForFunction((n) => window.__softhaptic.replay().sent.length > n, before.sent.length, WAIT);

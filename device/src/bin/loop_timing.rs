@@ -1,7 +1,8 @@
 //! Loop timing report: runs the 1 kHz loop with the simulated PHANTOM pressing the built-in liver
 //! for a number of seconds, prints the statistics once a second and a final table.
 //!
-//! `cargo run --release -p softhaptic-device --bin loop-timing -- --seconds 10 [--burn] [--cpu last]`
+//! `cargo run --release -p softhaptic-device --bin loop-timing -- --seconds 10 [--burn]`
+//! (`--cpu auto|last|none|N` chooses the loop thread's CPU).
 //!
 //! `--burn` starts one CPU-burning thread per core beside the loop, to show what a busy machine
 //! does to the period error (and what SCHED_FIFO, when granted, protects against).
@@ -43,9 +44,9 @@ struct Args {
     /// Do not ask for SCHED_FIFO and locked memory.
     #[arg(long)]
     no_realtime: bool,
-    /// CPU of the loop thread: `auto` (the last one when real-time is asked for), `last`,
-    /// `none` (unbound) or a CPU number.
-    #[arg(long, default_value = "auto", value_parser = parse_cpu)]
+    /// CPU of the loop thread: `none` (unbound, as the server runs it), `auto` (the last one
+    /// when real-time is asked for), `last` or a CPU number.
+    #[arg(long, default_value = "none", value_parser = parse_cpu)]
     cpu: CpuChoice,
 }
 
