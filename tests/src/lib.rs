@@ -4,7 +4,8 @@
 //! - `tests/server_*.rs`: the real server (library [`start`](softhaptic_server::app::start) on
 //!   127.0.0.1:0, the real haptic loop thread and simulated device) spoken to by real WebSocket
 //!   and HTTP clients.
-//! - this library: the helpers those tests share ([`start_default`], [`Viewer`], [`http_get`]).
+//! - this library: the helpers those tests share ([`start_default`], [`Viewer`], [`http_get`],
+//!   [`scratch_dir`], [`repo_scenes`]).
 
 use std::net::SocketAddr;
 use std::time::Duration;
@@ -149,4 +150,21 @@ fn dechunk(mut body: &[u8]) -> Vec<u8> {
         out.extend_from_slice(&body[start..start + size]);
         body = &body[start + size + 2..];
     }
+}
+
+/// A fresh, empty directory for one test's files: `<tmp>/softhaptic-<name>-<pid>`.
+pub fn scratch_dir(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("softhaptic-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    if let Err(e) = std::fs::create_dir_all(&dir) {
+        panic!("could not create {}: {e}", dir.display());
+    }
+    dir
+}
+
+/// The repository's `scenes/` directory.
+pub fn repo_scenes() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join("scenes")
 }

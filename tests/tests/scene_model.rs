@@ -22,16 +22,11 @@ const WAIT: Duration = Duration::from_secs(10);
 
 /// A fresh directory for one test's files.
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("softhaptic-model-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    softhaptic_tests::scratch_dir(&format!("model-{name}"))
 }
 
 fn repo_scenes() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join("scenes")
+    softhaptic_tests::repo_scenes()
 }
 
 /// A sphere scene with a model table (`{model}` is replaced by its fields).

@@ -11,16 +11,11 @@ use softhaptic_server::scene::{Scene, SceneError};
 
 /// A fresh directory for one test's files.
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("softhaptic-scene-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    softhaptic_tests::scratch_dir(&format!("scene-{name}"))
 }
 
 fn repo_scenes() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join("scenes")
+    softhaptic_tests::repo_scenes()
 }
 
 const GOOD: &str = r#"
