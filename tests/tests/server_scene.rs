@@ -64,7 +64,11 @@ fn shipped_scenes_load() {
     let cone = Scene::load(&repo_scenes().join("cone.toml")).unwrap();
     assert!(matches!(cone.tool, ToolShape::Cone { .. }));
     assert!(matches!(cone.calibration.tool(), ToolShape::Cone { .. }));
-    assert_eq!(cone.calibration.source(), CalibrationSource::HalfSpace);
+    assert_eq!(cone.calibration.source(), CalibrationSource::FemNeoHookean);
+    assert_eq!(
+        default.calibration.source(),
+        CalibrationSource::FemNeoHookean
+    );
 }
 
 #[test]
