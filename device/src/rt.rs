@@ -36,22 +36,39 @@ pub const PREFAULT_STACK_BYTES: usize = 256 << 10;
 /// Which CPU the loop thread is bound to.
 ///
 /// Bound, the thread never migrates (a migration costs a cold cache and, on a busy machine, a
-/// wait for the new CPU), and its timer, its wake-up and its work stay on one CPU. The last CPU
-/// is chosen by default because the first one usually carries the housekeeping other work is
-/// started on; on a machine where device interrupts land on the last CPU, another choice may
-/// measure better (`loop-timing --cpu`).
+/// wait for the new CPU), and its timer, its wake-up and its work stay on one CPU. That pays
+/// only where the CPU is kept quiet (isolated, its interrupts steered elsewhere): on a shared
+/// machine whose disk interrupts land on the chosen CPU, binding measured more overruns than
+/// leaving the thread free, so unbound is the default (`loop-timing --cpu` measures a host).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CpuChoice {
     /// [`CpuChoice::Last`] when real-time scheduling is requested, [`CpuChoice::Unpinned`]
-    /// otherwise (tests and ordinary runs leave the scheduler free).
-    #[default]
+    /// otherwise.
     Auto,
     /// Leave the thread free to run on any CPU of the process.
+    #[default]
     Unpinned,
     /// The highest-numbered CPU of the process's affinity mask.
     Last,
     /// This CPU (it must be in the process's affinity mask).
     Index(usize),
+}
+
+impl std::str::FromStr for CpuChoice {
+    type Err = String;
+
+    /// `auto`, `last`, `none` (unbound) or a CPU number, as the command lines spell it.
+    fn from_str(text: &str) -> Result<Self, Self::Err> {
+        match text {
+            "auto" => Ok(CpuChoice::Auto),
+            "last" => Ok(CpuChoice::Last),
+            "none" => Ok(CpuChoice::Unpinned),
+            n => n
+                .parse()
+                .map(CpuChoice::Index)
+                .map_err(|_| format!("expected auto, last, none or a CPU number, got {n:?}")),
+        }
+    }
 }
 
 /// What the operating system granted when the loop thread asked for real-time treatment.

@@ -63,6 +63,8 @@ pub struct ServerOptions {
     pub web_dir: PathBuf,
     /// Ask the OS for real-time scheduling of the haptic thread.
     pub realtime: bool,
+    /// The CPU the haptic thread is bound to (unbound by default; see `softhaptic_device::rt`).
+    pub loop_cpu: softhaptic_device::rt::CpuChoice,
     /// Contact frame period (20 ms: 50 Hz).
     pub frame_period: Duration,
     /// Stats period (1 s).
@@ -89,6 +91,7 @@ impl ServerOptions {
             addr,
             web_dir,
             realtime: true,
+            loop_cpu: softhaptic_device::rt::CpuChoice::Unpinned,
             frame_period: Duration::from_millis(20),
             stats_period: Duration::from_secs(1),
             viewer_limits: ViewerLimits::default(),
@@ -291,7 +294,7 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
             },
         ),
     };
-    let haptic_loop = Arc::new(HapticLoop::spawn(
+    let haptic_loop = Arc::new(HapticLoop::spawn_on(
         Box::new(device),
         world,
         LoopConfig {
@@ -299,6 +302,7 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
             realtime: options.realtime,
             tick_sink: options.tick_sink,
         },
+        options.loop_cpu,
     )?);
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);

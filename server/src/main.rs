@@ -65,6 +65,11 @@ struct RunArgs {
     /// Do not ask for real-time scheduling (SCHED_FIFO, locked memory) for the haptic thread.
     #[arg(long)]
     no_realtime: bool,
+    /// CPU of the haptic thread: `none` (unbound), `auto` (the last CPU when real-time is
+    /// granted), `last` or a CPU number. Bind it to a CPU kept free of other work and interrupts;
+    /// on a shared machine unbound measured better (`loop-timing --cpu`).
+    #[arg(long, default_value = "none", value_name = "CPU")]
+    loop_cpu: softhaptic_device::rt::CpuChoice,
     #[command(flatten)]
     record: session::cli::RecordArgs,
 }
@@ -134,6 +139,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     runtime.block_on(async move {
         let mut options = ServerOptions::new(args.addr, web_dir);
         options.realtime = !args.no_realtime;
+        options.loop_cpu = args.loop_cpu;
         options.tick_sink = recording.as_mut().and_then(|r| r.take_tick_sink());
         options.session_id = recording.as_ref().map(|r| r.session_id().to_owned());
         let server = app::start(scene, options).await?;

@@ -51,15 +51,7 @@ struct Args {
 }
 
 fn parse_cpu(text: &str) -> Result<CpuChoice, String> {
-    match text {
-        "auto" => Ok(CpuChoice::Auto),
-        "last" => Ok(CpuChoice::Last),
-        "none" => Ok(CpuChoice::Unpinned),
-        n => n
-            .parse()
-            .map(CpuChoice::Index)
-            .map_err(|_| format!("expected auto, last, none or a CPU number, got {n:?}")),
-    }
+    text.parse()
 }
 
 /// What the kernel counts for one thread, from `/proc/self/task/<id>/`.
