@@ -339,17 +339,7 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
         hub: Arc::clone(&hub),
     };
     let app = router(&options.web_dir, state);
-    let mut http_shutdown = shutdown_rx;
-    let http = tokio::spawn(async move {
-        let served = axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                let _ = http_shutdown.wait_for(|stop| *stop).await;
-            })
-            .await;
-        if let Err(e) = served {
-            tracing::error!(error = %e, "HTTP server failed");
-        }
-    });
+    let http = serve_http(listener, app, shutdown_rx);
 
     Ok(RunningServer {
         local_addr,
@@ -378,6 +368,25 @@ fn bind(
     }
     socket.bind(addr)?;
     socket.listen(1024)
+}
+
+/// Serves `app` on `listener` until `shutdown` turns true, then lets open requests finish; the
+/// live server and the replay server both run their HTTP side this way.
+pub(crate) fn serve_http(
+    listener: tokio::net::TcpListener,
+    app: Router,
+    mut shutdown: watch::Receiver<bool>,
+) -> JoinHandle<()> {
+    tokio::spawn(async move {
+        let served = axum::serve(listener, app)
+            .with_graceful_shutdown(async move {
+                let _ = shutdown.wait_for(|stop| *stop).await;
+            })
+            .await;
+        if let Err(e) = served {
+            tracing::error!(error = %e, "HTTP server failed");
+        }
+    })
 }
 
 /// The routes of proto/WIRE.md over an existing stream hub, for another source of frames than the

@@ -166,8 +166,13 @@ async fn replay_sends_hello_scene_and_the_recorded_frames_in_order() {
     // The same HTTP routes as live: the scene and the render mesh it names.
     let (code, body) = softhaptic_tests::http_get(addr, "/api/scene").await;
     assert_eq!(code, 200);
-    let served: softhaptic_proto::wire::SceneMessage = serde_json::from_slice(&body).unwrap();
-    assert_eq!(served, r.scene.message);
+    // The very text of the WebSocket `scene` message, as a live server serves it.
+    let ServerMessage::Scene(served) =
+        ServerMessage::decode(std::str::from_utf8(&body).unwrap()).unwrap()
+    else {
+        panic!("/api/scene is a scene message")
+    };
+    assert_eq!(*served, r.scene.message);
     let (code, mesh) = softhaptic_tests::http_get(addr, &served.render_meshes[0].url).await;
     assert_eq!(code, 200);
     assert_eq!(&mesh[..4], b"SHM1");

@@ -28,7 +28,7 @@ use tokio::time::Instant;
 
 use super::check::recorded_scene;
 use super::reader::{RecordedMessage, Recording};
-use crate::app::{SERVER_NAME, viewer_router};
+use crate::app::{SERVER_NAME, serve_http, viewer_router};
 use crate::stream::{EncodedFrame, FRAME_BACKLOG, STATS_BACKLOG, StreamHub, ViewerLimits};
 
 /// How often the player sends a `replay` status while playing.
@@ -133,10 +133,6 @@ pub async fn start(
             .map_err(|source| ReplayError::Encode { what, source })
     };
     let scene_text = encode("scene", ServerMessage::Scene(Box::new(message.clone())))?;
-    let scene_json = serde_json::to_vec(&message).map_err(|source| ReplayError::Encode {
-        what: "scene",
-        source,
-    })?;
     let hello_text = encode(
         "hello",
         ServerMessage::Hello(Hello {
@@ -164,7 +160,7 @@ pub async fn start(
     let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
     let hub = Arc::new(StreamHub {
         hello: Utf8Bytes::from(hello_text),
-        scene: Utf8Bytes::from(scene_text),
+        scene: Utf8Bytes::from(scene_text.clone()),
         frames,
         stats,
         counters: Default::default(),
@@ -177,21 +173,12 @@ pub async fn start(
 
     let app = viewer_router(
         &options.web_dir,
-        Bytes::from(scene_json),
+        // The same text as the WebSocket `scene` message, as a live server serves it.
+        Bytes::from(scene_text),
         meshes,
         Arc::clone(&hub),
     );
-    let mut http_shutdown = shutdown_rx;
-    let http = tokio::spawn(async move {
-        let served = axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                let _ = http_shutdown.wait_for(|stop| *stop).await;
-            })
-            .await;
-        if let Err(e) = served {
-            tracing::error!(error = %e, "HTTP server failed");
-        }
-    });
+    let http = serve_http(listener, app, shutdown_rx);
     Ok(RunningReplay {
         local_addr,
         shutdown_tx,
