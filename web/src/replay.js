@@ -64,7 +64,11 @@ export class ReplayClock {
       Math.abs(status.time_s - expected) > tolerance;
     this.known = true;
     this.durationS = status.duration_s;
-    this.anchorS = Math.min(status.time_s, status.duration_s);
+    // Within one run, a status slightly behind the extrapolation (it was sent a moment before it
+    // arrived, or the two clocks differ) must not make the time shown step back: hold what is
+    // shown and let the run continue from there. A real jump (beyond the tolerance) is taken.
+    const held = !broke && !status.paused ? Math.max(status.time_s, expected) : status.time_s;
+    this.anchorS = Math.min(held, status.duration_s);
     this.anchorMs = nowMs;
     this.paused = status.paused;
     this.speed = status.speed;

@@ -99,6 +99,26 @@ test('a status reports a break of the time axis on play, seek and speed change, 
   assert.equal(clock.update(status({ paused: false, time_s: 2.4, speed: 4 }), 3500), false);
 });
 
+test('a status a little behind the extrapolation never makes the shown time step back', () => {
+  const clock = new ReplayClock();
+  clock.update(status({ time_s: 1, paused: false, speed: 0.5 }), 0);
+  // One second later the extrapolation says 1.5 s; the server's status, sent a moment earlier,
+  // says 1.45 s: the same run (within the tolerance), so the time shown holds at 1.5 s.
+  assert.ok(near(clock.positionS(1000), 1.5));
+  assert.equal(clock.update(status({ time_s: 1.45, paused: false, speed: 0.5 }), 1000), false);
+  assert.ok(near(clock.positionS(1000), 1.5));
+  assert.ok(clock.positionS(1100) > 1.5);
+  // A status ahead of the extrapolation is taken as it is.
+  clock.update(status({ time_s: 1.6, paused: false, speed: 0.5 }), 1100);
+  assert.ok(near(clock.positionS(1100), 1.6));
+  // A real jump back (a seek by another viewer) is taken, and reported as a break.
+  assert.equal(clock.update(status({ time_s: 0.2, paused: false, speed: 0.5 }), 1200), true);
+  assert.ok(near(clock.positionS(1200), 0.2));
+  // Paused, the server's position is the truth.
+  clock.update(status({ time_s: 0.9, paused: true, speed: 0.5 }), 1300);
+  assert.ok(near(clock.positionS(5000), 0.9));
+});
+
 test('times read as m:ss.s, truncated to the tenth', () => {
   assert.equal(formatReplayTime(0), '0:00.0');
   assert.equal(formatReplayTime(2.98), '0:02.9');
