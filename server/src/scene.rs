@@ -37,7 +37,8 @@
 //! press_depth_m = 0.008            # how deep the simulated hand aims
 //!
 //! [calibration]
-//! table = "half_space"             # or a path to a calibration JSON, relative to this file
+//! table = "half_space"             # or a path to a calibration JSON, relative to this file;
+//!                                  # with a model thickness, the half-space on that rigid base
 //! limits = "my_limits.json"        # measured limits of the models; when absent, the default
 //!                                  # calibration/model_limits.json, which may be missing
 //!
@@ -78,8 +79,8 @@ use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
 use softhaptic_proto::wire::ContactModelInfo;
 use softhaptic_proto::{
-    CalibrationTable, Material, ModelError, ModelLimitsFile, ModelSpec, Pose, ToolShape,
-    ValidityLimits,
+    CalibrationError, CalibrationTable, Material, ModelError, ModelLimitsFile, ModelSpec, Pose,
+    ToolShape, ValidityLimits,
 };
 
 /// The limits file a scene uses when it names none, relative to the scene file.
@@ -270,7 +271,8 @@ impl Default for DeviceSection {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationSection {
-    /// `"half_space"` for the analytical table, or a calibration JSON file relative to the scene.
+    /// `"half_space"` for the analytical table (cut by the rigid base when the object's model
+    /// declares a thickness), or a calibration JSON file relative to the scene.
     pub table: String,
     /// The measured limits of the contact models (a `ModelLimitsFile`), relative to the scene;
     /// [`DEFAULT_LIMITS_FILE`] when absent.
@@ -589,8 +591,30 @@ impl Scene {
         }
 
         let calibration = if file.calibration.table == "half_space" {
-            CalibrationTable::half_space(tool, material, PAPER_THRESHOLD_M)
-                .map_err(|e| field("calibration.table", e.to_string()))?
+            // An object that is a layer on a rigid base gets the half-space profile with the far
+            // field the base removes, which is much closer to an FEM table of that layer than the
+            // plain half-space (CalibrationTable::half_space_on_base); the model is the one the
+            // session runs with, from the file or the recording.
+            let layer = match model_source {
+                ModelSource::File => file.object.model.thickness,
+                ModelSource::Recorded(info) => info.spec.thickness,
+            };
+            match layer {
+                Some(layer) => CalibrationTable::half_space_on_base(
+                    tool,
+                    material,
+                    PAPER_THRESHOLD_M,
+                    layer.thickness_m,
+                )
+                .map_err(|e| match e {
+                    CalibrationError::Thickness(_) => {
+                        field("object.model.thickness.thickness_m", e.to_string())
+                    }
+                    _ => field("calibration.table", e.to_string()),
+                })?,
+                None => CalibrationTable::half_space(tool, material, PAPER_THRESHOLD_M)
+                    .map_err(|e| field("calibration.table", e.to_string()))?,
+            }
         } else {
             let table_path = PathBuf::from(&file.calibration.table);
             let (full, text) = match files {
@@ -886,6 +910,85 @@ mod tests {
         let info = s.contact_model_info();
         assert_eq!(info.label, "Hertz");
         assert!(info.corrections.is_empty());
+    }
+
+    #[test]
+    fn a_half_space_table_on_a_layer_is_cut_by_its_base() {
+        let text = include_str!("../../scenes/default.toml").replace(
+            "table = \"calibration/sphere10_50kpa.json\"",
+            "table = \"half_space\"",
+        );
+        let with_layer = |thickness: &str| {
+            text.replace(
+                "hyperelastic = true\n",
+                &format!("hyperelastic = true\nthickness = {{ thickness_m = {thickness}, bonded = true }}\n"),
+            )
+        };
+        let tool = ToolShape::sphere(0.01).unwrap();
+        // No thickness: the plain half-space.
+        let plain = Scene::from_toml(&text, Path::new("<test>"), None).unwrap();
+        assert_eq!(
+            plain.calibration,
+            CalibrationTable::half_space(tool, Material::PAPER_SOFT, PAPER_THRESHOLD_M).unwrap()
+        );
+        // A 50 mm layer: the base-corrected table of that thickness, which says so.
+        let layer = Scene::from_toml(&with_layer("0.05"), Path::new("<test>"), None).unwrap();
+        assert_eq!(
+            layer.calibration.source(),
+            softhaptic_proto::CalibrationSource::HalfSpaceOnBase
+        );
+        assert!(
+            layer
+                .calibration
+                .description()
+                .contains("rigid base 50.0 mm")
+        );
+        assert_eq!(
+            layer.calibration,
+            CalibrationTable::half_space_on_base(
+                tool,
+                Material::PAPER_SOFT,
+                PAPER_THRESHOLD_M,
+                0.05
+            )
+            .unwrap()
+        );
+        assert!(
+            layer.calibration.deformed_radius_m(0.006)
+                < 0.6 * plain.calibration.deformed_radius_m(0.006)
+        );
+        // A bad thickness is refused with its field and value.
+        let err = Scene::from_toml(&with_layer("-0.02"), Path::new("<test>"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("object.model.thickness.thickness_m") && err.contains("-0.02"),
+            "{err}"
+        );
+        // A replay takes the layer from the recorded model, not from the scene text.
+        let recorded = ContactModelInfo::new(
+            &tool,
+            &ModelSpec {
+                thickness: Some(softhaptic_proto::LayerSpec {
+                    thickness_m: 0.03,
+                    bonded: true,
+                }),
+                ..ModelSpec::PAPER
+            },
+            &ValidityLimits::paper(&tool),
+        );
+        let replay =
+            Scene::from_recorded_toml(&text, Path::new("<test>"), None, &recorded).unwrap();
+        assert_eq!(
+            replay.calibration,
+            CalibrationTable::half_space_on_base(
+                tool,
+                Material::PAPER_SOFT,
+                PAPER_THRESHOLD_M,
+                0.03
+            )
+            .unwrap()
+        );
     }
 
     #[test]
