@@ -27,12 +27,12 @@ use softhaptic_proto::wire::{
     DeviceInfo, Hello, ModelInfo, PROTOCOL_VERSION, RenderMeshInfo, Role, SceneMessage,
     ServerMessage,
 };
-use tokio::sync::{broadcast, watch};
+use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tower_http::services::{ServeDir, ServeFile};
 
 use crate::scene::{DeviceKind, Scene};
-use crate::stream::{self, FRAME_BACKLOG, STATS_BACKLOG, StreamHub, ViewerLimits};
+use crate::stream::{self, StreamHub, ViewerLimits};
 
 /// The server's name in `hello`.
 pub const SERVER_NAME: &str = concat!("softhaptic ", env!("CARGO_PKG_VERSION"));
@@ -306,18 +306,13 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
     )?);
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
-    let (frames, _) = broadcast::channel(FRAME_BACKLOG);
-    let (stats, _) = broadcast::channel(STATS_BACKLOG);
-    let hub = Arc::new(StreamHub {
-        hello: Utf8Bytes::from(hello_text),
-        scene: Utf8Bytes::from(scene_text.clone()),
-        frames,
-        stats,
-        counters: Default::default(),
-        limits: options.viewer_limits,
-        shutdown: shutdown_rx.clone(),
-        replay_control: None,
-    });
+    let hub = Arc::new(StreamHub::new(
+        Utf8Bytes::from(hello_text),
+        Utf8Bytes::from(scene_text.clone()),
+        options.viewer_limits,
+        shutdown_rx.clone(),
+        None,
+    ));
     let tasks = vec![
         tokio::spawn(stream::frame_task(
             Arc::clone(&haptic_loop),

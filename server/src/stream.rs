@@ -139,6 +139,29 @@ pub struct StreamHub {
     pub replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
 }
 
+impl StreamHub {
+    /// A hub with empty frame and stats channels of the standard backlogs, for a live session
+    /// (`replay_control` `None`) or a replay (the player's control queue).
+    pub fn new(
+        hello: Utf8Bytes,
+        scene: Utf8Bytes,
+        limits: ViewerLimits,
+        shutdown: watch::Receiver<bool>,
+        replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
+    ) -> Self {
+        Self {
+            hello,
+            scene,
+            frames: broadcast::channel(FRAME_BACKLOG).0,
+            stats: broadcast::channel(STATS_BACKLOG).0,
+            counters: StreamCounters::default(),
+            limits,
+            shutdown,
+            replay_control,
+        }
+    }
+}
+
 /// Counts a viewer for as long as its connection task lives.
 struct ViewerGuard<'a>(&'a StreamCounters);
 

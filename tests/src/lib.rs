@@ -168,3 +168,32 @@ pub fn repo_scenes() -> std::path::PathBuf {
         .join("..")
         .join("scenes")
 }
+
+/// Writes `text` as `scene.toml` in `dir` and loads it as the server would.
+pub fn load_scene_text(
+    dir: &std::path::Path,
+    text: &str,
+) -> Result<Scene, softhaptic_server::scene::SceneError> {
+    let path = dir.join("scene.toml");
+    if let Err(e) = std::fs::write(&path, text) {
+        panic!("could not write {}: {e}", path.display());
+    }
+    Scene::load(&path)
+}
+
+/// Asserts that `text` is refused as a scene with an error naming the file and containing each
+/// of `expected` (the field, the value, the reason).
+pub fn assert_scene_refused(dir: &std::path::Path, text: &str, expected: &[&str]) {
+    let err = match load_scene_text(dir, text) {
+        Ok(_) => panic!("the scene is refused:\n{text}"),
+        Err(e) => e.to_string(),
+    };
+    let path = dir.join("scene.toml");
+    assert!(
+        err.contains(&path.display().to_string()),
+        "error names the file: {err}"
+    );
+    for e in expected {
+        assert!(err.contains(e), "expected {e:?} in: {err}");
+    }
+}

@@ -74,23 +74,11 @@ const COMBINED_TOML: &str = "exact_sphere = true\ncurvature = true\nhyperelastic
 
 /// Writes `text` as `scene.toml` in `dir` and loads it.
 fn load(dir: &Path, text: &str) -> Result<Scene, SceneError> {
-    let path = dir.join("scene.toml");
-    std::fs::write(&path, text).unwrap();
-    Scene::load(&path)
+    softhaptic_tests::load_scene_text(dir, text)
 }
 
 fn refused(dir: &Path, text: &str, expected: &[&str]) {
-    let err = load(dir, text)
-        .expect_err("the scene is refused")
-        .to_string();
-    let path = dir.join("scene.toml");
-    assert!(
-        err.contains(&path.display().to_string()),
-        "error names the file: {err}"
-    );
-    for e in expected {
-        assert!(err.contains(e), "expected {e:?} in: {err}");
-    }
+    softhaptic_tests::assert_scene_refused(dir, text, expected)
 }
 
 fn limits_file(valid_depth_m: f64, spec: ModelSpec, inclination: Option<f64>) -> String {

@@ -22,14 +22,14 @@ use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_proto::record::{ReplayAction, ReplayControl, ReplayStatus};
 use softhaptic_proto::wire::{Hello, PROTOCOL_VERSION, Role, ServerMessage};
-use tokio::sync::{broadcast, mpsc, watch};
+use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
 use super::check::recorded_scene;
 use super::reader::{RecordedMessage, Recording};
 use crate::app::{SERVER_NAME, serve_http, viewer_router};
-use crate::stream::{EncodedFrame, FRAME_BACKLOG, STATS_BACKLOG, StreamHub, ViewerLimits};
+use crate::stream::{EncodedFrame, FRAME_BACKLOG, StreamHub, ViewerLimits};
 
 /// How often the player sends a `replay` status while playing.
 const STATUS_PERIOD: Duration = Duration::from_secs(1);
@@ -155,19 +155,14 @@ pub async fn start(
     })?;
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
-    let (frames, _) = broadcast::channel(FRAME_BACKLOG);
-    let (stats, _) = broadcast::channel(STATS_BACKLOG);
     let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
-    let hub = Arc::new(StreamHub {
-        hello: Utf8Bytes::from(hello_text),
-        scene: Utf8Bytes::from(scene_text.clone()),
-        frames,
-        stats,
-        counters: Default::default(),
-        limits: options.viewer_limits,
-        shutdown: shutdown_rx.clone(),
-        replay_control: Some(control_tx),
-    });
+    let hub = Arc::new(StreamHub::new(
+        Utf8Bytes::from(hello_text),
+        Utf8Bytes::from(scene_text.clone()),
+        options.viewer_limits,
+        shutdown_rx.clone(),
+        Some(control_tx),
+    ));
     let player = Player::new(&recording, speed, options.start_paused);
     let player = tokio::spawn(player.run(Arc::clone(&hub), control_rx));
 
