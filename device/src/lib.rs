@@ -27,7 +27,8 @@
 //!   motors' heating that holds the RMS force at the device's continuous rating.
 //! - [`world`]: [`HapticWorld`](world::HapticWorld), one tick as a synchronous function; built
 //!   with the scene's [`ForceModel`](model::ForceModel) (or the paper's law).
-//! - [`haptic_loop`]: the 1 kHz thread and its wait-free publication of the latest contact.
+//! - [`haptic_loop`]: the 1 kHz thread, its standby on a second CPU, and the wait-free publication
+//!   of the latest contact.
 //! - [`stats`]: fixed-size timing histograms and the loop's [`LoopStats`](stats::LoopStats).
 //! - [`rt`]: monotonic clock, absolute-deadline sleep, SCHED_FIFO and mlockall requests.
 //! - [`replay`]: [`ReplayDevice`](replay::ReplayDevice), a recorded session played back as a

@@ -18,6 +18,12 @@
 //! `PREEMPT_DYNAMIC`) or run a `PREEMPT_RT` kernel, and keep other work off the loop's CPU
 //! (`isolcpus=`, a cpuset). Virtual machines add the host's own scheduling of their virtual
 //! CPUs, which no guest setting reaches.
+//!
+//! What the loop can do is not depend on one CPU: such stalls mostly hold one CPU at a time, so
+//! the loop keeps a standby thread on a second CPU that runs a tick the loop thread has not
+//! started in time ([`standby_placement`], `crate::haptic_loop`). A stall of every CPU at once
+//! (a host pausing the whole virtual machine) still loses ticks; `loop-timing`'s witness threads
+//! tell the two apart.
 
 use std::fmt;
 
@@ -52,6 +58,9 @@ pub enum CpuChoice {
     Last,
     /// This CPU (it must be in the process's affinity mask).
     Index(usize),
+    /// Any CPU of the process but this one (where the loop's standby thread is bound, see
+    /// [`crate::haptic_loop`]).
+    Except(usize),
 }
 
 impl std::str::FromStr for CpuChoice {
@@ -248,8 +257,8 @@ impl SpinBudget {
     }
 }
 
-/// The highest-numbered CPU the calling thread may run on.
-fn last_allowed_cpu() -> Result<usize, i32> {
+/// The CPUs the calling thread may run on, in increasing order (errno on failure).
+pub fn allowed_cpus() -> Result<Vec<usize>, i32> {
     // SAFETY: cpu_set_t is a plain bit array, valid when zeroed.
     let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
     // SAFETY: `set` is valid and writable for the size passed; pid 0 is the calling thread.
@@ -259,21 +268,32 @@ fn last_allowed_cpu() -> Result<usize, i32> {
     }
     let setsize = libc::CPU_SETSIZE as usize;
     // SAFETY: every index is below CPU_SETSIZE, inside the set.
-    (0..setsize)
-        .rev()
-        .find(|&cpu| unsafe { libc::CPU_ISSET(cpu, &set) })
-        .ok_or(libc::EINVAL)
+    Ok((0..setsize)
+        .filter(|&cpu| unsafe { libc::CPU_ISSET(cpu, &set) })
+        .collect())
+}
+
+/// The highest-numbered CPU the calling thread may run on.
+fn last_allowed_cpu() -> Result<usize, i32> {
+    allowed_cpus()?.last().copied().ok_or(libc::EINVAL)
 }
 
 /// Binds the calling thread to `cpu`.
 fn bind_to_cpu(cpu: usize) -> Result<(), i32> {
-    if cpu >= libc::CPU_SETSIZE as usize {
+    bind_to_cpus(&[cpu])
+}
+
+/// Binds the calling thread to the CPUs `cpus` (none may be at or above CPU_SETSIZE).
+fn bind_to_cpus(cpus: &[usize]) -> Result<(), i32> {
+    if cpus.is_empty() || cpus.iter().any(|&cpu| cpu >= libc::CPU_SETSIZE as usize) {
         return Err(libc::EINVAL);
     }
     // SAFETY: cpu_set_t is a plain bit array, valid when zeroed.
     let mut set: libc::cpu_set_t = unsafe { std::mem::zeroed() };
-    // SAFETY: `cpu` is below CPU_SETSIZE (checked above), inside the set.
-    unsafe { libc::CPU_SET(cpu, &mut set) };
+    for &cpu in cpus {
+        // SAFETY: `cpu` is below CPU_SETSIZE (checked above), inside the set.
+        unsafe { libc::CPU_SET(cpu, &mut set) };
+    }
     // SAFETY: `set` is valid for the size passed; pid 0 is the calling thread.
     if unsafe { libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) } != 0 {
         return Err(errno());
@@ -291,10 +311,48 @@ fn apply_cpu_choice(choice: CpuChoice, realtime_requested: bool) -> (Option<usiz
             Err(e) => return (None, Some(e)),
         },
         CpuChoice::Index(cpu) => cpu,
+        CpuChoice::Except(busy) => {
+            let others: Vec<usize> = match allowed_cpus() {
+                Ok(cpus) => cpus.into_iter().filter(|&c| c != busy).collect(),
+                Err(e) => return (None, Some(e)),
+            };
+            // Reported as bound only when that leaves a single CPU.
+            return match bind_to_cpus(&others) {
+                Ok(()) => ((others.len() == 1).then(|| others[0]), None),
+                Err(e) => (None, Some(e)),
+            };
+        }
     };
     match bind_to_cpu(cpu) {
         Ok(()) => (Some(cpu), None),
         Err(e) => (None, Some(e)),
+    }
+}
+
+/// Where the loop's standby thread goes when the loop itself is placed as `loop_cpu` says, and
+/// where the loop then goes: the standby takes the lowest CPU the loop is not bound to, and an
+/// unbound loop is kept off that CPU, so that no stall of one CPU holds both. `None` when the
+/// process has a single CPU (or its CPUs cannot be read): no standby.
+pub fn standby_placement(
+    loop_cpu: CpuChoice,
+    realtime_requested: bool,
+) -> Option<(CpuChoice, usize)> {
+    let cpus = allowed_cpus().ok()?;
+    if cpus.len() < 2 {
+        return None;
+    }
+    let loop_bound = match loop_cpu {
+        CpuChoice::Index(cpu) => Some(cpu),
+        CpuChoice::Last => cpus.last().copied(),
+        CpuChoice::Auto if realtime_requested => cpus.last().copied(),
+        CpuChoice::Auto | CpuChoice::Unpinned | CpuChoice::Except(_) => None,
+    };
+    match loop_bound {
+        Some(cpu) => {
+            let standby = cpus.iter().copied().find(|&c| c != cpu)?;
+            Some((loop_cpu, standby))
+        }
+        None => Some((CpuChoice::Except(cpus[0]), cpus[0])),
     }
 }
 

@@ -119,7 +119,7 @@ pub struct LoopStats {
     pub period_error_p99_ns: u64,
     pub period_error_p999_ns: u64,
     pub period_error_max_ns: u64,
-    /// Ticks whose work ended after the next deadline (the next tick started late).
+    /// Deadlines whose tick did not start before the next deadline (ticks lost).
     pub overruns: u64,
     /// Time from wake-up to the force being commanded and published.
     pub compute_p50_ns: u64,
@@ -135,11 +135,16 @@ pub struct LoopStats {
     pub realtime_granted: bool,
     /// Current spin before each deadline, adapted to the machine's wake-up latency.
     pub spin_ns: u64,
+    /// CLOCK_MONOTONIC time ([`crate::rt::now_ns`]) the deadlines count from: tick k is due at
+    /// `deadline_origin_ns + (k + 1) · period`.
+    pub deadline_origin_ns: u64,
+    /// Ticks run by the standby thread because the loop thread had not started them in time.
+    pub standby_ticks: u64,
 }
 
 impl LoopStats {
     /// Number of `u64` words in [`LoopStats::to_words`].
-    pub const WORDS: usize = 15;
+    pub const WORDS: usize = 17;
 
     /// Encodes into words for a lock-free publication (f64 by bit pattern).
     pub fn to_words(&self) -> [u64; Self::WORDS] {
@@ -159,6 +164,8 @@ impl LoopStats {
             self.command_errors,
             self.realtime_granted as u64,
             self.spin_ns,
+            self.deadline_origin_ns,
+            self.standby_ticks,
         ]
     }
 
@@ -179,6 +186,78 @@ impl LoopStats {
             command_errors: w[12],
             realtime_granted: w[13] != 0,
             spin_ns: w[14],
+            deadline_origin_ns: w[15],
+            standby_ticks: w[16],
+        }
+    }
+}
+
+/// A deadline of the loop that waited more than half a period for a tick to start: a late tick,
+/// or a run of lost ticks (then the wait runs from the first deadline no tick served).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LateWake {
+    /// The deadline, CLOCK_MONOTONIC nanoseconds ([`crate::rt::now_ns`]).
+    pub deadline_ns: u64,
+    /// How long after it the next tick started.
+    pub late_ns: u64,
+}
+
+/// The most recent late ticks and runs of lost ticks of the loop ([`LateWake`]), with their clock times, so that a report can set
+/// them beside what other threads saw at the same moments (`loop-timing` asks whether every CPU
+/// of the machine was stalled, or only the loop's). Fixed size; the loop writes it only on a late
+/// tick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LateLog {
+    /// Late ticks and runs of lost ticks since the start, including those no longer held.
+    pub total: u64,
+    ring: [LateWake; LateLog::CAPACITY],
+}
+
+impl Default for LateLog {
+    fn default() -> Self {
+        Self {
+            total: 0,
+            ring: [LateWake::default(); Self::CAPACITY],
+        }
+    }
+}
+
+impl LateLog {
+    /// How many of the latest late wake-ups are kept.
+    pub const CAPACITY: usize = 64;
+    /// Number of `u64` words in [`LateLog::to_words`].
+    pub const WORDS: usize = 1 + 2 * Self::CAPACITY;
+
+    /// Adds a late wake-up, replacing the oldest when full.
+    pub fn push(&mut self, wake: LateWake) {
+        self.ring[(self.total % Self::CAPACITY as u64) as usize] = wake;
+        self.total += 1;
+    }
+
+    /// The wake-ups held, oldest first.
+    pub fn iter(&self) -> impl Iterator<Item = LateWake> + '_ {
+        let held = self.total.min(Self::CAPACITY as u64);
+        (self.total - held..self.total).map(|i| self.ring[(i % Self::CAPACITY as u64) as usize])
+    }
+
+    /// Encodes into words for a lock-free publication.
+    pub fn to_words(&self) -> [u64; Self::WORDS] {
+        let mut w = [0; Self::WORDS];
+        w[0] = self.total;
+        for (i, wake) in self.ring.iter().enumerate() {
+            w[1 + 2 * i] = wake.deadline_ns;
+            w[2 + 2 * i] = wake.late_ns;
+        }
+        w
+    }
+
+    pub fn from_words(w: &[u64; Self::WORDS]) -> Self {
+        Self {
+            total: w[0],
+            ring: std::array::from_fn(|i| LateWake {
+                deadline_ns: w[1 + 2 * i],
+                late_ns: w[2 + 2 * i],
+            }),
         }
     }
 }
@@ -187,6 +266,26 @@ impl LoopStats {
 #[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
+
+    #[test]
+    fn late_log_keeps_the_latest_in_order_and_survives_words() {
+        let mut log = LateLog::default();
+        assert_eq!(log.iter().count(), 0);
+        for i in 0..(LateLog::CAPACITY as u64 + 5) {
+            log.push(LateWake {
+                deadline_ns: 1_000 * i,
+                late_ns: i,
+            });
+        }
+        assert_eq!(log.total, LateLog::CAPACITY as u64 + 5);
+        let held: Vec<u64> = log.iter().map(|w| w.late_ns).collect();
+        let expected: Vec<u64> = (5..LateLog::CAPACITY as u64 + 5).collect();
+        assert_eq!(
+            held, expected,
+            "the oldest five were replaced, the rest in order"
+        );
+        assert_eq!(LateLog::from_words(&log.to_words()), log);
+    }
 
     #[test]
     fn buckets_are_monotone_and_tight() {
@@ -244,6 +343,8 @@ mod tests {
             realtime_granted: true,
             command_errors: 3,
             spin_ns: 42_000,
+            deadline_origin_ns: 1_234_567_890,
+            standby_ticks: 17,
             ..LoopStats::default()
         };
         assert_eq!(LoopStats::from_words(&s.to_words()), s);

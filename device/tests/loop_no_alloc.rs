@@ -101,6 +101,7 @@ fn ticks_do_not_allocate() {
             period_ns: 1_000_000,
             realtime: false,
             tick_sink: Some(producer),
+            standby: true,
         },
     )
     .unwrap();

@@ -65,6 +65,9 @@ pub struct ServerOptions {
     pub realtime: bool,
     /// The CPU the haptic thread is bound to (unbound by default; see `softhaptic_device::rt`).
     pub loop_cpu: softhaptic_device::rt::CpuChoice,
+    /// Run the haptic loop's standby thread on a second CPU (see
+    /// `softhaptic_device::haptic_loop::HapticLoop::spawn_on`).
+    pub loop_standby: bool,
     /// Contact frame period (20 ms: 50 Hz).
     pub frame_period: Duration,
     /// Stats period (1 s).
@@ -92,6 +95,7 @@ impl ServerOptions {
             web_dir,
             realtime: true,
             loop_cpu: softhaptic_device::rt::CpuChoice::Unpinned,
+            loop_standby: true,
             frame_period: Duration::from_millis(20),
             stats_period: Duration::from_secs(1),
             viewer_limits: ViewerLimits::default(),
@@ -301,6 +305,7 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
             period_ns: 1_000_000,
             realtime: options.realtime,
             tick_sink: options.tick_sink,
+            standby: options.loop_standby,
         },
         options.loop_cpu,
     )?);

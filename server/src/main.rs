@@ -70,6 +70,11 @@ struct RunArgs {
     /// on a shared machine unbound measured better (`loop-timing --cpu`).
     #[arg(long, default_value = "none", value_name = "CPU")]
     loop_cpu: softhaptic_device::rt::CpuChoice,
+    /// Run the haptic loop without its standby thread. By default a second thread, bound to
+    /// another CPU, runs a tick the haptic thread has not started a quarter period after its
+    /// deadline, so a stall of one CPU costs 250 µs instead of a lost tick.
+    #[arg(long)]
+    no_loop_standby: bool,
     #[command(flatten)]
     record: session::cli::RecordArgs,
 }
@@ -140,6 +145,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         let mut options = ServerOptions::new(args.addr, web_dir);
         options.realtime = !args.no_realtime;
         options.loop_cpu = args.loop_cpu;
+        options.loop_standby = !args.no_loop_standby;
         options.tick_sink = recording.as_mut().and_then(|r| r.take_tick_sink());
         options.session_id = recording.as_ref().map(|r| r.session_id().to_owned());
         let server = app::start(scene, options).await?;

@@ -7,6 +7,13 @@
 //! `--burn` starts one CPU-burning thread per core beside the loop, to show what a busy machine
 //! does to the period error (and what SCHED_FIFO, when granted, protects against).
 //!
+//! Witness threads, one bound to each CPU at a lower real-time priority than the loop, wake every
+//! half period (offset from the loop's deadlines) and note each stretch in which their CPU could
+//! not run them. Each late tick, and each run of lost ticks, is then set beside them: if every CPU was stalled
+//! at that moment (a virtual machine paused by its host, or the whole kernel held), no thread of
+//! the loop's, wherever it ran, could have ticked on time; if some CPU was free, the delay was
+//! local to the loop's CPU (`--no-witness` leaves them out).
+//!
 //! Besides the loop's own statistics it prints what the kernel saw of the loop thread between the
 //! end of the first second and the end of the run (page faults, involuntary context switches,
 //! migrations between CPUs), the machine's load average and the kernel's preemption model: the
@@ -23,9 +30,9 @@ use softhaptic_device::device::{DeviceLimits, HapticDevice};
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig};
 use softhaptic_device::liver;
 use softhaptic_device::render::RenderConfig;
-use softhaptic_device::rt::CpuChoice;
+use softhaptic_device::rt::{self, CpuChoice, RealtimeStatus};
 use softhaptic_device::sim::{HandScript, SimulatedPhantom};
-use softhaptic_device::stats::LoopStats;
+use softhaptic_device::stats::{LateWake, LoopStats};
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{Material, Pose, ToolShape};
 
@@ -48,6 +55,13 @@ struct Args {
     /// when real-time is asked for), `last` or a CPU number.
     #[arg(long, default_value = "none", value_parser = parse_cpu)]
     cpu: CpuChoice,
+    /// Run the loop thread alone, without the standby thread that takes over a tick the loop
+    /// thread has not started a quarter period after its deadline.
+    #[arg(long)]
+    no_standby: bool,
+    /// Run no witness threads (see the top of this file): the loop alone on the machine.
+    #[arg(long)]
+    no_witness: bool,
 }
 
 fn parse_cpu(text: &str) -> Result<CpuChoice, String> {
@@ -138,6 +152,102 @@ fn preemption_model() -> String {
     "not preemptible (no PREEMPT in /proc/version)".to_string()
 }
 
+/// SCHED_FIFO priority of the witness threads: below the loop's, so that a witness sharing the
+/// loop's CPU never delays it.
+const WITNESS_PRIORITY: i32 = rt::LOOP_PRIORITY - 10;
+
+/// A witness wake-up later than this counts as a stall of its CPU.
+const STALL_THRESHOLD_NS: u64 = 200_000;
+
+/// Room for stalls per witness, allocated before it starts (one per half period would be 2000 per
+/// second; a run that overflows stops recording and says so).
+const STALL_CAPACITY: usize = 100_000;
+
+/// A stretch `[from_ns, until_ns)` of CLOCK_MONOTONIC in which a CPU did not run its witness.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Stall {
+    from_ns: u64,
+    until_ns: u64,
+}
+
+/// What one witness saw.
+struct WitnessReport {
+    cpu: usize,
+    status: RealtimeStatus,
+    stalls: Vec<Stall>,
+    overflowed: bool,
+}
+
+/// Starts a witness bound to `cpu`, waking every `period_ns` at `phase_ns` past multiples of the
+/// period from `origin_ns`, until `stop`.
+fn spawn_witness(
+    cpu: usize,
+    realtime: bool,
+    origin_ns: u64,
+    period_ns: u64,
+    phase_ns: u64,
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<std::thread::JoinHandle<WitnessReport>> {
+    std::thread::Builder::new()
+        .name(format!("witness-{cpu}"))
+        .spawn(move || {
+            let mut stalls = Vec::with_capacity(STALL_CAPACITY);
+            let status = rt::request_realtime(realtime, WITNESS_PRIORITY, CpuChoice::Index(cpu));
+            let mut overflowed = false;
+            let mut deadline = origin_ns + phase_ns;
+            while !stop.load(Ordering::Relaxed) {
+                rt::sleep_until_ns(deadline);
+                let woke = rt::now_ns();
+                if woke.saturating_sub(deadline) > STALL_THRESHOLD_NS {
+                    if stalls.len() < STALL_CAPACITY {
+                        stalls.push(Stall {
+                            from_ns: deadline,
+                            until_ns: woke,
+                        });
+                    } else {
+                        overflowed = true;
+                    }
+                }
+                // The next deadline after the wake-up: the stall above covers the ones lost.
+                deadline += ((woke - deadline) / period_ns + 1) * period_ns;
+            }
+            WitnessReport {
+                cpu,
+                status,
+                stalls,
+                overflowed,
+            }
+        })
+}
+
+/// How much of `[from_ns, until_ns)` the stalls cover, as a fraction.
+fn stalled_fraction(stalls: &[Stall], from_ns: u64, until_ns: u64) -> f64 {
+    if until_ns <= from_ns {
+        return 0.0;
+    }
+    let covered: u64 = stalls
+        .iter()
+        .map(|s| {
+            s.until_ns
+                .min(until_ns)
+                .saturating_sub(s.from_ns.max(from_ns))
+        })
+        .sum();
+    covered as f64 / (until_ns - from_ns) as f64
+}
+
+/// Whether a CPU counts as stalled during a late tick: its witness was held for at least half
+/// of the time the loop was late.
+const STALLED_FRACTION: f64 = 0.5;
+
+/// For one late tick (or run of lost ticks), the stalled fraction of each witness's CPU.
+fn classify(wake: LateWake, witnesses: &[WitnessReport]) -> Vec<f64> {
+    witnesses
+        .iter()
+        .map(|w| stalled_fraction(&w.stalls, wake.deadline_ns, wake.deadline_ns + wake.late_ns))
+        .collect()
+}
+
 fn load_average() -> String {
     std::fs::read_to_string("/proc/loadavg")
         .ok()
@@ -221,10 +331,17 @@ fn main() -> anyhow::Result<()> {
             period_ns: args.period_us * 1000,
             realtime: !args.no_realtime,
             tick_sink: None,
+            standby: !args.no_standby,
         },
         args.cpu,
     )?;
     let os_thread_id = haptic.realtime().os_thread_id;
+    let witness_stop = Arc::new(AtomicBool::new(false));
+    let witnesses = if args.no_witness {
+        Vec::new()
+    } else {
+        start_witnesses(&haptic_origin(&haptic)?, &args, &witness_stop)?
+    };
     println!(
         "loop-timing: {} s, period {} µs, {} burning threads on {cores} cores; {}",
         args.seconds,
@@ -232,6 +349,11 @@ fn main() -> anyhow::Result<()> {
         burners.len(),
         haptic.realtime()
     );
+    match haptic.standby() {
+        Some(status) => println!("standby thread: {status}"),
+        None if args.no_standby => println!("standby thread: none (--no-standby)"),
+        None => println!("standby thread: none (the process has one CPU)"),
+    }
     println!(
         "machine: load average {}, kernel {}",
         load_average(),
@@ -254,7 +376,13 @@ fn main() -> anyhow::Result<()> {
     }
     let end_counters = thread_counters(os_thread_id);
     let last = haptic.latest_contact();
+    let late = haptic.late_wakes();
     let s = haptic.stop();
+    witness_stop.store(true, Ordering::Relaxed);
+    let witnesses: Vec<WitnessReport> = witnesses
+        .into_iter()
+        .filter_map(|w| w.join().ok())
+        .collect();
     burning.store(false, Ordering::Relaxed);
     for b in burners {
         let _ = b.join();
@@ -278,8 +406,9 @@ fn main() -> anyhow::Result<()> {
     );
     println!();
     println!(
-        "ticks {}, rate {:.2} Hz, overruns {}, device faults {}, real-time granted: {}, burn: {}, spin before deadline now {:.0} µs",
+        "ticks {} (by the standby {}), rate {:.2} Hz, overruns {}, device faults {}, real-time granted: {}, burn: {}, spin before deadline now {:.0} µs",
         s.ticks,
+        s.standby_ticks,
         s.loop_rate_hz,
         s.overruns,
         s.device_faults,
@@ -311,5 +440,164 @@ fn main() -> anyhow::Result<()> {
         last.depth_m * 1e3,
         last.force_n.length()
     );
+    if !args.no_witness {
+        print_late_wakes(late.total, &late.iter().collect::<Vec<_>>(), &witnesses, &s);
+    }
     Ok(())
+}
+
+/// The origin of the loop's deadlines, as soon as the loop has published it.
+fn haptic_origin(haptic: &HapticLoop) -> anyhow::Result<u64> {
+    // Published before `spawn_on` returns.
+    match haptic.stats().deadline_origin_ns {
+        0 => anyhow::bail!("the loop published no deadline origin"),
+        origin => Ok(origin),
+    }
+}
+
+/// One witness per CPU the process may use, waking half-way between the loop's half periods so
+/// that none wakes while the loop spins before its deadline.
+fn start_witnesses(
+    origin_ns: &u64,
+    args: &Args,
+    stop: &Arc<AtomicBool>,
+) -> anyhow::Result<Vec<std::thread::JoinHandle<WitnessReport>>> {
+    let period_ns = args.period_us * 1000;
+    let cpus = rt::allowed_cpus().map_err(|e| {
+        anyhow::anyhow!(
+            "reading the CPUs this process may use: {}",
+            std::io::Error::from_raw_os_error(e)
+        )
+    })?;
+    // Start a few periods ahead, so every witness is set up before its first deadline.
+    let now = rt::now_ns();
+    let periods_ahead = now.saturating_sub(*origin_ns) / period_ns + 10;
+    let witness_origin = origin_ns + periods_ahead * period_ns;
+    cpus.into_iter()
+        .map(|cpu| {
+            spawn_witness(
+                cpu,
+                !args.no_realtime,
+                witness_origin,
+                period_ns / 2,
+                period_ns / 4,
+                Arc::clone(stop),
+            )
+            .with_context(|| format!("starting the witness thread of CPU {cpu}"))
+        })
+        .collect()
+}
+
+/// Each late tick or run of lost ticks beside what the witnesses saw, and how many came while every
+/// CPU was stalled.
+fn print_late_wakes(total: u64, late: &[LateWake], witnesses: &[WitnessReport], s: &LoopStats) {
+    println!();
+    for w in witnesses {
+        println!(
+            "witness on CPU {}: {} stalls over {} µs{}; {}",
+            w.cpu,
+            w.stalls.len(),
+            STALL_THRESHOLD_NS / 1000,
+            if w.overflowed {
+                " (more than it had room for)"
+            } else {
+                ""
+            },
+            w.status
+        );
+    }
+    if late.is_empty() {
+        println!("late ticks or lost ones (a deadline waiting over half a period): none");
+        return;
+    }
+    println!(
+        "late ticks or runs of lost ones (a deadline waiting over half a period): {total}{}",
+        if total > late.len() as u64 {
+            format!(", the last {} shown", late.len())
+        } else {
+            String::new()
+        }
+    );
+    let header: Vec<String> = witnesses
+        .iter()
+        .map(|w| format!("CPU {} stalled", w.cpu))
+        .collect();
+    println!("| at (s) | waited (µs) | {} |", header.join(" | "));
+    println!("|---|---|{}", "---|".repeat(witnesses.len()));
+    let mut everywhere = 0;
+    for &wake in late {
+        let fractions = classify(wake, witnesses);
+        if !fractions.is_empty() && fractions.iter().all(|&f| f >= STALLED_FRACTION) {
+            everywhere += 1;
+        }
+        let cells: Vec<String> = fractions
+            .iter()
+            .map(|f| format!("{:.0} %", f * 100.0))
+            .collect();
+        println!(
+            "| {:.3} | {:.1} | {} |",
+            wake.deadline_ns.saturating_sub(s.deadline_origin_ns) as f64 * 1e-9,
+            us(wake.late_ns),
+            cells.join(" | ")
+        );
+    }
+    println!(
+        "{everywhere} of the {} shown came while every CPU was stalled (each for at least {:.0} % \
+         of the wait): no thread on any CPU could have run a tick then",
+        late.len(),
+        STALLED_FRACTION * 100.0
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn witness(cpu: usize, stalls: &[(u64, u64)]) -> WitnessReport {
+        WitnessReport {
+            cpu,
+            status: RealtimeStatus::default(),
+            stalls: stalls
+                .iter()
+                .map(|&(from_ns, until_ns)| Stall { from_ns, until_ns })
+                .collect(),
+            overflowed: false,
+        }
+    }
+
+    #[test]
+    fn stalled_fraction_counts_only_the_overlap() {
+        let stalls = [
+            Stall {
+                from_ns: 100,
+                until_ns: 200,
+            },
+            Stall {
+                from_ns: 300,
+                until_ns: 400,
+            },
+        ];
+        assert_eq!(stalled_fraction(&stalls, 100, 200), 1.0);
+        assert_eq!(stalled_fraction(&stalls, 150, 350), 0.5);
+        assert_eq!(stalled_fraction(&stalls, 200, 300), 0.0);
+        assert_eq!(stalled_fraction(&stalls, 500, 500), 0.0, "an empty stretch");
+        assert_eq!(stalled_fraction(&[], 0, 1000), 0.0);
+    }
+
+    #[test]
+    fn a_late_tick_is_set_beside_every_cpu() {
+        // The loop waited 1 ms from t = 10 ms: CPU 0 was stalled all along, CPU 1 for a fifth.
+        let wake = LateWake {
+            deadline_ns: 10_000_000,
+            late_ns: 1_000_000,
+        };
+        let witnesses = [
+            witness(0, &[(9_750_000, 11_250_000)]),
+            witness(1, &[(10_250_000, 10_450_000)]),
+        ];
+        let fractions = classify(wake, &witnesses);
+        assert_eq!(fractions.len(), 2);
+        assert!((fractions[0] - 1.0).abs() < 1e-12);
+        assert!((fractions[1] - 0.2).abs() < 1e-12);
+    }
 }

@@ -89,6 +89,7 @@ fn run_once(
             period_ns: params.period_ns,
             realtime,
             tick_sink: sink,
+            ..LoopConfig::default()
         },
     )?;
     let granted = haptic.realtime().granted();

@@ -2,7 +2,8 @@
 //! frames per second received per viewer and bytes per contact frame with 1 and with 200 viewers
 //! (one of which never reads), and the loop's period error with 0 and with 200 viewers.
 //!
-//! `cargo run --release -p softhaptic-tests --bin stream-report [-- --seconds 5]`
+//! `cargo run --release -p softhaptic-tests --bin stream-report [-- --seconds 5] [--no-loop-standby]`
+//! (`--no-loop-standby` runs the haptic loop without its standby thread, for comparison).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -45,9 +46,10 @@ struct Run {
 
 /// Runs the default scene with `readers` reading viewers (plus one that never reads when
 /// `stalled`), measures for `seconds` after a one-second settling time.
-async fn run(readers: usize, stalled: bool, seconds: f64) -> Run {
+async fn run(readers: usize, stalled: bool, seconds: f64, standby: bool) -> Run {
     let mut options = test_options();
     options.realtime = true;
+    options.loop_standby = standby;
     let server = start_default(options).await;
     let addr = server.local_addr();
     let _stalled = if stalled {
@@ -109,13 +111,14 @@ fn print(label: &str, r: &Run) {
         );
     }
     println!(
-        "{label}: loop {:.1} Hz, period error p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us, overruns {}, real-time {}",
+        "{label}: loop {:.1} Hz, period error p50 {:.1} us, p99 {:.1} us, p99.9 {:.1} us, max {:.1} us, overruns {}, ticks by the standby {}, real-time {}",
         r.stats.loop_rate_hz,
         us(r.stats.period_error_p50_ns),
         us(r.stats.period_error_p99_ns),
         us(r.stats.period_error_p999_ns),
         us(r.stats.period_error_max_ns),
         r.stats.overruns,
+        r.stats.standby_ticks,
         if r.stats.realtime_granted {
             "granted"
         } else {
@@ -130,6 +133,7 @@ fn main() {
         .nth(1)
         .and_then(|s| s.parse::<f64>().ok())
         .unwrap_or(5.0);
+    let standby = !std::env::args().any(|a| a == "--no-loop-standby");
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -141,11 +145,11 @@ fn main() {
         }
     };
     runtime.block_on(async {
-        print("0 viewers", &run(0, false, seconds).await);
-        print("1 viewer", &run(1, false, seconds).await);
+        print("0 viewers", &run(0, false, seconds, standby).await);
+        print("1 viewer", &run(1, false, seconds, standby).await);
         print(
             "200 viewers (199 reading, 1 never reading)",
-            &run(199, true, seconds).await,
+            &run(199, true, seconds, standby).await,
         );
     });
 }
