@@ -4,7 +4,8 @@
 //! `cargo run --release -p softhaptic-device --bin loop-timing -- --seconds 10 [--burn]`
 //! (`--cpu auto|last|none|N` chooses the loop thread's CPU).
 //!
-//! `--burn` starts one CPU-burning thread per core beside the loop, to show what a busy machine
+//! `--burn` starts one CPU-burning neighbour process per core beside the loop (this program again,
+//! run as a burner; it dies with its parent), to show what a busy machine
 //! does to the period error (and what SCHED_FIFO, when granted, protects against).
 //!
 //! Witness threads, one bound to each CPU at a lower real-time priority than the loop, wake every
@@ -42,9 +43,12 @@ struct Args {
     /// How long to run, seconds.
     #[arg(long, default_value_t = 10.0)]
     seconds: f64,
-    /// Start a CPU-burning thread on every core beside the loop.
+    /// Start a CPU-burning neighbour process for every core beside the loop.
     #[arg(long)]
     burn: bool,
+    /// Burn a CPU until killed or until the parent exits (how `--burn` runs its neighbours).
+    #[arg(long, hide = true)]
+    burner: bool,
     /// Loop period in microseconds.
     #[arg(long, default_value_t = 1000)]
     period_us: u64,
@@ -278,8 +282,37 @@ fn print_line(elapsed_s: f64, s: &LoopStats) {
     );
 }
 
+/// A burner process, killed and reaped when dropped.
+struct Burner(std::process::Child);
+
+impl Drop for Burner {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// The body of a burner process: spins until killed, or until its parent exits.
+fn burn() -> ! {
+    // SAFETY: PR_SET_PDEATHSIG takes a signal number and affects only the calling process.
+    unsafe {
+        libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL as libc::c_ulong);
+    }
+    // The parent may have died before the request: then it is not our parent any more.
+    if std::os::unix::process::parent_id() == 1 {
+        std::process::exit(0);
+    }
+    let mut x = 1u64;
+    loop {
+        x = std::hint::black_box(x.wrapping_mul(6364136223846793005) + 1);
+    }
+}
+
 fn main() -> anyhow::Result<()> {
     let args = Args::parse();
+    if args.burner {
+        burn();
+    }
     if !(args.seconds.is_finite() && args.seconds > 0.0) {
         anyhow::bail!("--seconds must be a positive number, got {}", args.seconds);
     }
@@ -303,26 +336,19 @@ fn main() -> anyhow::Result<()> {
         limits,
     );
 
-    let burning = Arc::new(AtomicBool::new(args.burn));
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let burners: Vec<_> = if args.burn {
-        (0..cores)
-            .map(|_| {
-                let burning = Arc::clone(&burning);
-                std::thread::spawn(move || {
-                    let mut x = 1u64;
-                    while burning.load(Ordering::Relaxed) {
-                        for _ in 0..10_000 {
-                            x = std::hint::black_box(x.wrapping_mul(6364136223846793005) + 1);
-                        }
-                    }
-                    x
-                })
-            })
-            .collect()
-    } else {
-        Vec::new()
-    };
+    let mut burners = Vec::new();
+    if args.burn {
+        let me = std::env::current_exe().context("finding this program to start the burners")?;
+        for _ in 0..cores {
+            let child = std::process::Command::new(&me)
+                .arg("--burner")
+                .stdin(std::process::Stdio::null())
+                .spawn()
+                .with_context(|| format!("starting a burner process ({})", me.display()))?;
+            burners.push(Burner(child));
+        }
+    }
 
     let haptic = HapticLoop::spawn_on(
         Box::new(device),
@@ -343,7 +369,7 @@ fn main() -> anyhow::Result<()> {
         start_witnesses(&haptic_origin(&haptic)?, &args, &witness_stop)?
     };
     println!(
-        "loop-timing: {} s, period {} µs, {} burning threads on {cores} cores; {}",
+        "loop-timing: {} s, period {} µs, {} burning processes on {cores} cores; {}",
         args.seconds,
         args.period_us,
         burners.len(),
@@ -383,10 +409,7 @@ fn main() -> anyhow::Result<()> {
         .into_iter()
         .filter_map(|w| w.join().ok())
         .collect();
-    burning.store(false, Ordering::Relaxed);
-    for b in burners {
-        let _ = b.join();
-    }
+    drop(burners);
 
     println!();
     println!("| quantity | p50 | p99 | p99.9 | max |");
