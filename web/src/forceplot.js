@@ -1,13 +1,14 @@
 // The live force plot: |force_n| of the last few seconds of received frames, against device
-// time, with the device's peak force as a dashed line. Samples live in a fixed ring; drawing
-// allocates nothing.
+// time, with the device's peak force as a dashed line. Samples live in a fixed ring that holds
+// ten minutes of 50 Hz frames, so that a replay sought backwards still shows the seconds before
+// the new position that it had already played; drawing allocates nothing.
 
 export class ForcePlot {
   /**
    * @param {HTMLCanvasElement|null} canvas where to draw (null: keep samples only).
    * @param {{windowMs?: number, capacity?: number}} [options]
    */
-  constructor(canvas, { windowMs = 5000, capacity = 512, pixelRatio = 1 } = {}) {
+  constructor(canvas, { windowMs = 5000, capacity = 30000, pixelRatio = 1 } = {}) {
     this.canvas = canvas;
     this.ctx = canvas ? canvas.getContext('2d') : null;
     // Draw in CSS pixels on a backing store `pixelRatio` times finer (sharp on HiDPI screens).
@@ -50,9 +51,16 @@ export class ForcePlot {
     this.dirty = true;
   }
 
-  /** Adds the magnitude of one frame's force at its device time. */
+  /**
+   * Adds the magnitude of one frame's force at its device time. A time at or before the newest
+   * sample (a replay sought backwards) first drops the samples from that time on: they will come
+   * again, and the ones before it stay on the plot.
+   */
   push(timeMs, forceN) {
-    if (this.count > 0 && timeMs < this.timeMs[(this.head - 1 + this.capacity) % this.capacity]) this.reset();
+    while (this.count > 0 && this.timeMs[(this.head - 1 + this.capacity) % this.capacity] >= timeMs) {
+      this.head = (this.head - 1 + this.capacity) % this.capacity;
+      this.count--;
+    }
     this.timeMs[this.head] = timeMs;
     this.forceN[this.head] = forceN;
     this.head = (this.head + 1) % this.capacity;
@@ -64,9 +72,18 @@ export class ForcePlot {
   forEachVisible(fn) {
     if (this.count === 0) return;
     const newest = this.timeMs[(this.head - 1 + this.capacity) % this.capacity];
-    for (let k = 0; k < this.count; k++) {
-      const i = (this.head - this.count + k + this.capacity) % this.capacity;
-      if (this.timeMs[i] >= newest - this.windowMs) fn(this.timeMs[i], this.forceN[i]);
+    // Samples are in time order: count back from the newest to the window's start, so a draw
+    // costs the visible samples, not the whole history.
+    let visible = 0;
+    while (
+      visible < this.count &&
+      this.timeMs[(this.head - 1 - visible + 2 * this.capacity) % this.capacity] >= newest - this.windowMs
+    ) {
+      visible++;
+    }
+    for (let k = 0; k < visible; k++) {
+      const i = (this.head - visible + k + this.capacity) % this.capacity;
+      fn(this.timeMs[i], this.forceN[i]);
     }
   }
 

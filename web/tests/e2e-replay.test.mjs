@@ -6,7 +6,8 @@
 // Checks: the timeline appears with the recording's duration and nothing plays until asked;
 // the speed selector and the play button are obeyed (the server's status says so), the time
 // advances between the 1 Hz statuses and contact frames arrive; releasing the scrubber seeks
-// (the server's answer confirms the position); pause holds the position and stops the frames;
+// (the server's answer confirms the position) and the force plot keeps what was played before
+// the new position; pause holds the position and stops the frames;
 // a seek while paused shows the recorded frame at the new position. Saves a screenshot to
 // web/test-results/replay.png.
 //
@@ -159,6 +160,21 @@ test('releasing the scrubber while playing seeks, and the server answers at the 
   assert.ok(before.positionS > seek.time_s + 0.2, `from ${before.positionS} s to ${seek.time_s} s`);
   assert.ok(answer.time_s < before.positionS - 0.2, `the server answered at ${answer.time_s} s`);
   assert.ok((await replay()).clockRestarts > before.clockRestarts, 'the frames after the jump are timed afresh');
+  // The force plot keeps what was played before the new position; the frames after it come again.
+  await page.waitForFunction(
+    (target) => window.__softhaptic.forcePlotSamples().some((s) => s.timeMs / 1000 > target + 0.05),
+    seek.time_s,
+    WAIT,
+  );
+  const samples = await page.evaluate(() => window.__softhaptic.forcePlotSamples());
+  assert.ok(
+    samples.some((s) => s.timeMs / 1000 < seek.time_s - 0.2),
+    `the plot starts at ${samples[0]?.timeMs} ms, after the seek to ${seek.time_s} s`,
+  );
+  assert.ok(
+    samples.every((s, i) => i === 0 || s.timeMs > samples[i - 1].timeMs),
+    'the plot is in time order',
+  );
 });
 
 test('pause holds the position and the frames stop', async () => {
