@@ -19,11 +19,11 @@
 //! (`isolcpus=`, a cpuset). Virtual machines add the host's own scheduling of their virtual
 //! CPUs, which no guest setting reaches.
 //!
-//! What the loop can do is not depend on one CPU: such stalls mostly hold one CPU at a time, so
-//! the loop keeps a standby thread on a second CPU that runs a tick the loop thread has not
-//! started in time ([`standby_placement`], `crate::haptic_loop`). A stall of every CPU at once
-//! (a host pausing the whole virtual machine) still loses ticks; `loop-timing`'s witness threads
-//! tell the two apart.
+//! What the loop itself can do is not depend on a single CPU: such stalls mostly hold one CPU at
+//! a time, so the loop keeps a standby thread on a second CPU that runs a tick the loop thread
+//! has not started in time ([`standby_placement`], `crate::haptic_loop`). A stall of every CPU
+//! at once (a host pausing the whole virtual machine) still loses ticks; `loop-timing`'s witness
+//! threads tell the two apart.
 
 use std::fmt;
 
@@ -463,6 +463,33 @@ mod tests {
         assert_eq!(b.spin_ns(), 200_000, "bounded");
         b.observe(1_000);
         assert!(b.spin_ns() < 200_000 && b.spin_ns() > 190_000);
+    }
+
+    #[test]
+    fn the_standby_never_shares_the_loops_cpu() {
+        let cpus = allowed_cpus().unwrap();
+        assert!(!cpus.is_empty() && cpus.windows(2).all(|w| w[0] < w[1]));
+        if cpus.len() < 2 {
+            assert_eq!(standby_placement(CpuChoice::Unpinned, true), None);
+            return;
+        }
+        // Unbound: the standby takes the first CPU and the loop any other.
+        assert_eq!(
+            standby_placement(CpuChoice::Unpinned, false),
+            Some((CpuChoice::Except(cpus[0]), cpus[0]))
+        );
+        // Bound, to the first CPU or to the last: the standby goes elsewhere.
+        for choice in [CpuChoice::Index(cpus[0]), CpuChoice::Last] {
+            let (loop_cpu, standby) = standby_placement(choice, true).unwrap();
+            assert_eq!(loop_cpu, choice);
+            let bound = if choice == CpuChoice::Last {
+                *cpus.last().unwrap()
+            } else {
+                cpus[0]
+            };
+            assert_ne!(standby, bound);
+            assert!(cpus.contains(&standby));
+        }
     }
 
     #[test]

@@ -4,16 +4,17 @@
 //! `cargo run --release -p softhaptic-device --bin loop-timing -- --seconds 10 [--burn]`
 //! (`--cpu auto|last|none|N` chooses the loop thread's CPU).
 //!
-//! `--burn` starts one CPU-burning neighbour process per core beside the loop (this program again,
-//! run as a burner; it dies with its parent), to show what a busy machine
-//! does to the period error (and what SCHED_FIFO, when granted, protects against).
+//! `--burn` starts one CPU-burning neighbour process per core beside the loop (this program
+//! again, run as a burner; it dies with its parent), to show what a busy machine does to the
+//! period error (and what SCHED_FIFO, when granted, protects against). `--no-standby` runs the
+//! loop thread without its standby, for comparison.
 //!
 //! Witness threads, one bound to each CPU at a lower real-time priority than the loop, wake every
 //! half period (offset from the loop's deadlines) and note each stretch in which their CPU could
-//! not run them. Each late tick, and each run of lost ticks, is then set beside them: if every CPU was stalled
-//! at that moment (a virtual machine paused by its host, or the whole kernel held), no thread of
-//! the loop's, wherever it ran, could have ticked on time; if some CPU was free, the delay was
-//! local to the loop's CPU (`--no-witness` leaves them out).
+//! not run them. Each late tick, and each run of lost ticks, is then set beside them: if every
+//! CPU was stalled at that moment (a virtual machine paused by its host, or the whole kernel
+//! held), no thread of the loop's, wherever it ran, could have ticked on time; if some CPU was
+//! free, the delay was local to the loop's CPU (`--no-witness` leaves them out).
 //!
 //! Besides the loop's own statistics it prints what the kernel saw of the loop thread between the
 //! end of the first second and the end of the run (page faults, involuntary context switches,
