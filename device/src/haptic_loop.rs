@@ -431,9 +431,9 @@ impl HapticLoop {
         for (label, status) in [("loop", Some(realtime)), ("standby", standby)] {
             let Some(status) = status else { continue };
             if config_requested_and_refused(&status) {
-                tracing::warn!(thread = label, status = %status, "haptic {label} thread runs without real-time guarantees");
+                tracing::warn!(thread = label, status = %status, "haptic thread runs without real-time guarantees");
             } else {
-                tracing::info!(thread = label, status = %status, "haptic {label} thread started");
+                tracing::info!(thread = label, status = %status, "haptic thread started");
             }
         }
         if config.standby && standby.is_none() {
