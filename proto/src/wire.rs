@@ -307,6 +307,7 @@ pub struct StatsMessage {
     pub loop_rate_hz: f64,
     /// |actual − nominal| tick period.
     pub period_error_us: PeriodErrorUs,
+    /// Deadlines whose tick did not start before the next deadline (ticks lost), since the start.
     pub overruns: u64,
     pub compute_us: ComputeUs,
     pub viewers: u32,

@@ -160,6 +160,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         tracing::info!(
             ticks = stats.ticks,
             overruns = stats.overruns,
+            ticks_by_standby = stats.standby_ticks,
             period_error_p99_us = stats.period_error_p99_ns as f64 * 1e-3,
             "haptic loop stopped"
         );
