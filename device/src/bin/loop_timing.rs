@@ -542,6 +542,11 @@ fn print_late_wakes(total: u64, late: &[LateWake], witnesses: &[WitnessReport], 
             String::new()
         }
     );
+    println!(
+        "(times from the loop's deadline origin, CLOCK_MONOTONIC {:.6} s, to set beside a kernel \
+         trace taken with trace_clock mono)",
+        s.deadline_origin_ns as f64 * 1e-9
+    );
     let header: Vec<String> = witnesses
         .iter()
         .map(|w| format!("CPU {} stalled", w.cpu))
