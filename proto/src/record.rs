@@ -488,6 +488,7 @@ pub mod schema {
     "period_error_us": {"type": "object", "properties": {
       "p50": {"type": "number"}, "p99": {"type": "number"}, "p999": {"type": "number"}, "max": {"type": "number"}}},
     "overruns": {"type": "integer", "minimum": 0},
+    "standby_ticks": {"type": "integer", "minimum": 0},
     "compute_us": {"type": "object", "properties": {
       "p50": {"type": "number"}, "p99": {"type": "number"}, "max": {"type": "number"}}},
     "viewers": {"type": "integer", "minimum": 0},

@@ -309,6 +309,11 @@ pub struct StatsMessage {
     pub period_error_us: PeriodErrorUs,
     /// Deadlines whose tick did not start before the next deadline (ticks lost), since the start.
     pub overruns: u64,
+    /// Ticks run by the loop's standby thread because the loop thread had not started them a
+    /// quarter period after their deadline, since the start. Absent in recordings made before
+    /// the standby existed: 0.
+    #[serde(default)]
+    pub standby_ticks: u64,
     pub compute_us: ComputeUs,
     pub viewers: u32,
     /// Frames lost by all viewers together since the server started.
@@ -557,6 +562,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             max: 130.0,
         },
         overruns: 2,
+        standby_ticks: 5,
         compute_us: ComputeUs {
             p50: 12.5,
             p99: 40.0,
@@ -929,6 +935,21 @@ mod tests {
         let text = ServerMessage::Contact(frame).encode().unwrap();
         assert!(!text.contains("null"));
         assert!(ServerMessage::decode(&text).is_ok());
+    }
+
+    #[test]
+    fn stats_recorded_before_the_standby_existed_still_decode() {
+        // A `stats` message as recordings made before `standby_ticks` hold it.
+        let old = r#"{"type":"stats","loop_rate_hz":1000.0,
+            "period_error_us":{"p50":1.0,"p99":2.0,"p999":3.0,"max":4.0},"overruns":1,
+            "compute_us":{"p50":1.0,"p99":2.0,"max":3.0},"viewers":0,"dropped_frames":0}"#;
+        let Ok(ServerMessage::Stats(stats)) = ServerMessage::decode(old) else {
+            panic!("an old stats message is refused");
+        };
+        assert_eq!((stats.overruns, stats.standby_ticks), (1, 0));
+        // Sent on again (a replay), it carries the field the viewer requires.
+        let text = ServerMessage::Stats(stats).encode().unwrap();
+        assert!(text.contains(r#""standby_ticks":0"#), "{text}");
     }
 
     #[test]

@@ -226,6 +226,7 @@ pub fn stats_message(loop_stats: &LoopStats, counters: &StreamCounters) -> Stats
             max: us(loop_stats.period_error_max_ns),
         },
         overruns: loop_stats.overruns,
+        standby_ticks: loop_stats.standby_ticks,
         compute_us: ComputeUs {
             p50: us(loop_stats.compute_p50_ns),
             p99: us(loop_stats.compute_p99_ns),
@@ -471,6 +472,7 @@ mod tests {
             period_error_p999_ns: 48_000,
             period_error_max_ns: 130_000,
             overruns: 3,
+            standby_ticks: 11,
             compute_p50_ns: 12_000,
             compute_p99_ns: 40_000,
             compute_max_ns: 95_000,
@@ -484,5 +486,6 @@ mod tests {
         assert_eq!(m.period_error_us.max, 130.0);
         assert_eq!(m.compute_us.p99, 40.0);
         assert_eq!((m.viewers, m.dropped_frames, m.overruns), (2, 7, 3));
+        assert_eq!(m.standby_ticks, 11);
     }
 }

@@ -645,7 +645,7 @@ function updatePanels() {
     setText(dom['s-rate'], `${s.loop_rate_hz.toFixed(1)} Hz`);
     setText(dom['s-jitter'], `${formatUs(s.period_error_us.p99)}, ${formatUs(s.period_error_us.max)}`);
     setText(dom['s-compute'], formatUs(s.compute_us.p99));
-    setText(dom['s-overruns'], String(s.overruns));
+    setText(dom['s-overruns'], `${s.overruns} / ${s.standby_ticks}`);
     setText(dom['s-viewers'], `${s.viewers} / ${s.dropped_frames}`);
   }
   setText(dom['w-rx'], `${buffer.arrivalsSince(performance.now())} /s`);

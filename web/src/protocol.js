@@ -231,6 +231,7 @@ function validateStats(m) {
   const period = object(m.period_error_us, 'stats.period_error_us');
   for (const k of ['p50', 'p99', 'p999', 'max']) finite(period[k], `stats.period_error_us.${k}`);
   count(m.overruns, 'stats.overruns');
+  count(m.standby_ticks, 'stats.standby_ticks');
   const compute = object(m.compute_us, 'stats.compute_us');
   for (const k of ['p50', 'p99', 'max']) finite(compute[k], `stats.compute_us.${k}`);
   count(m.viewers, 'stats.viewers');

@@ -77,6 +77,11 @@ test('the page loads the scene and its render mesh and receives the stream', asy
   await page.waitForFunction(() => window.__softhaptic.lastStats() !== null, null, { timeout: 30000 });
   const stats = await page.evaluate(() => window.__softhaptic.lastStats());
   assert.ok(stats.loop_rate_hz > 0, `loop rate ${stats.loop_rate_hz}`);
+  // The panel shows the server's counts: ticks lost, and ticks the standby thread ran.
+  await page.waitForFunction(() => document.querySelector('#s-overruns').textContent !== '—', null, {
+    timeout: 30000,
+  });
+  assert.match(await page.locator('#s-overruns').textContent(), /^\d+ \/ \d+$/);
   assert.ok(info.webgl || (await page.locator('#webgl-message').isVisible()), 'without WebGL the page says so');
 });
 

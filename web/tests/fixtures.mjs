@@ -81,6 +81,7 @@ export const stats = {
   loop_rate_hz: 1000.2,
   period_error_us: { p50: 2, p99: 15, p999: 40, max: 80 },
   overruns: 0,
+  standby_ticks: 0,
   compute_us: { p50: 5, p99: 12, max: 30 },
   viewers: 1,
   dropped_frames: 0,
