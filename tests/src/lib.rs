@@ -6,6 +6,12 @@
 //!   and HTTP clients.
 //! - this library: the helpers those tests share ([`start_default`], [`Viewer`], [`http_get`],
 //!   [`scratch_dir`], [`repo_scenes`]).
+//! - [`standin`] and `tests/hd_standin.rs`: the HD API stand-in (`standin/hd_standin.c`, built by
+//!   `build.rs` into a `libHD.so` the OpenHaptics backend loads in place of the vendor's), its
+//!   path and a handle on its test controls; the test file checks the stand-in keeps the HD
+//!   API's rules.
+
+pub mod standin;
 
 use std::net::SocketAddr;
 use std::time::Duration;
