@@ -108,6 +108,60 @@ pub enum DeviceError {
     /// The vendor library reported an error code.
     #[error("haptic device driver error code {0}")]
     Driver(i32),
+    /// The device's encoders are not calibrated: its positions cannot be trusted, so no force is
+    /// rendered until the operator calibrates it (for a PHANTOM: puts the stylus in its inkwell).
+    #[error("haptic device needs calibration: put the stylus in its inkwell")]
+    NeedsCalibration,
+    /// The tick ran past its servo period before the force could be sent; the device was sent
+    /// zero force instead of a stale one.
+    #[error("haptic device servo tick overran its period")]
+    Overrun,
+}
+
+impl DeviceError {
+    /// A nonzero word for publishing the error through an atomic (0 means "no error"); the
+    /// inverse is [`DeviceError::from_word`].
+    pub fn to_word(self) -> u64 {
+        match self {
+            DeviceError::Disconnected => 1,
+            DeviceError::Timeout => 2,
+            DeviceError::ForceDisabled => 3,
+            DeviceError::NeedsCalibration => 4,
+            DeviceError::Overrun => 5,
+            // The code's 32 bits above the kind.
+            DeviceError::Driver(code) => 6 | (u64::from(code as u32) << 8),
+        }
+    }
+
+    /// The error a word from [`DeviceError::to_word`] stands for; `None` for 0 (no error) or a
+    /// word no error encodes to.
+    pub fn from_word(word: u64) -> Option<DeviceError> {
+        Some(match word & 0xff {
+            1 => DeviceError::Disconnected,
+            2 => DeviceError::Timeout,
+            3 => DeviceError::ForceDisabled,
+            4 => DeviceError::NeedsCalibration,
+            5 => DeviceError::Overrun,
+            6 => DeviceError::Driver((word >> 8) as u32 as i32),
+            _ => return None,
+        })
+    }
+}
+
+/// The servo clock of a device whose vendor library runs its own servo thread (OpenHaptics'
+/// scheduler). The loop hands it the tick and the driver calls it once per servo period, between
+/// the frame's state read and its force write; see [`crate::haptic_loop`] for why the tick runs
+/// inside the driver's callback.
+pub trait ServoClock: Send {
+    /// The servo period the driver was asked for, nanoseconds.
+    fn period_ns(&self) -> u64;
+    /// Starts calling `tick` from the driver's servo thread, once per servo period, with the
+    /// CLOCK_MONOTONIC time at which that servo tick began. `tick` must return within the period
+    /// and must not block.
+    fn start(&mut self, tick: Box<dyn FnMut(u64) + Send>) -> Result<(), DeviceError>;
+    /// Sends zero force, disables force output and stops the servo thread; `tick` is not called
+    /// after this returns. Idempotent.
+    fn stop(&mut self);
 }
 
 /// A haptic device the 1 kHz loop drives. `Send` because the loop thread owns it.
@@ -117,8 +171,16 @@ pub trait HapticDevice: Send {
     /// Reads the latest pose, velocity and buttons. Called once per tick, before
     /// [`HapticDevice::command_force`].
     fn read(&mut self) -> Result<DeviceSample, DeviceError>;
-    /// Commands the force, world frame, to hold until the next command.
+    /// Commands the force, world frame, to hold until the next command. An error means the
+    /// device did not take this force (it output zero instead); the loop flags the tick as a
+    /// device fault.
     fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError>;
+    /// The driver's servo clock, for a device whose vendor library owns the servo thread; the
+    /// loop then runs each tick from that thread ([`ServoClock`]). `None` (the default): the
+    /// loop's own thread clocks the device. Called once, before the first tick.
+    fn servo_clock(&mut self) -> Option<Box<dyn ServoClock>> {
+        None
+    }
 }
 
 impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {
@@ -130,6 +192,9 @@ impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {
     }
     fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
         (**self).command_force(force_n)
+    }
+    fn servo_clock(&mut self) -> Option<Box<dyn ServoClock>> {
+        (**self).servo_clock()
     }
 }
 
@@ -166,6 +231,24 @@ mod tests {
         s.tip_velocity_m_s.y = 0.0;
         s.tip_in_world.orientation.w = f64::NAN;
         assert!(!s.is_finite());
+    }
+
+    #[test]
+    fn errors_survive_the_trip_through_a_word() {
+        for e in [
+            DeviceError::Disconnected,
+            DeviceError::Timeout,
+            DeviceError::ForceDisabled,
+            DeviceError::NeedsCalibration,
+            DeviceError::Overrun,
+            DeviceError::Driver(0x302),
+            DeviceError::Driver(-7),
+        ] {
+            assert_ne!(e.to_word(), 0);
+            assert_eq!(DeviceError::from_word(e.to_word()), Some(e));
+        }
+        assert_eq!(DeviceError::from_word(0), None);
+        assert_eq!(DeviceError::from_word(0xff), None);
     }
 
     #[test]

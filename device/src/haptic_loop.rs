@@ -12,6 +12,22 @@
 //! tick's state (device, world, timing) is a [`Baton`] that the two pass by compare-and-swap:
 //! whoever finds it taken leaves the tick to the holder, so neither ever waits.
 //!
+//! # Who owns the clock
+//! A device whose vendor library runs its own servo thread (OpenHaptics' scheduler: device
+//! state may be read and force written only inside its callback, between begin and end frame)
+//! returns a [`ServoClock`] from [`HapticDevice::servo_clock`], and the loop is then
+//! *device-clocked*: each tick runs inside the driver's servo callback, so the reading, the
+//! force and the command of a tick share one servo frame (read-to-command latency: the tick's
+//! compute time, well under one servo period). The alternative, our own thread exchanging
+//! samples and forces with the callback through wait-free cells, was rejected: two 1 kHz clocks
+//! drift against each other, so a force would reach the motors between one and two servo
+//! periods after the reading it answers, and the extra period of delay costs stability margin
+//! on a stiff contact. A device-clocked tick is the same [`TickCore`] tick behind the same
+//! [`Baton`]: statistics (the period from the driver's tick starts), the recording ring, the
+//! published contact and the final zero force work unchanged. While the driver's clock is down
+//! (the device is being reconnected) a watchdog thread runs fault ticks at the period, so
+//! viewers, the recording and the fault counters see the gap as it happens.
+//!
 //! Before the first tick the loop allocates its timing state, and each thread prefaults its
 //! stack, binds itself to a CPU and asks for SCHED_FIFO and locked memory
 //! ([`rt::request_realtime`]); what the machine still does to the period (and what no thread
@@ -25,10 +41,10 @@ use std::thread::JoinHandle;
 use glam::{DQuat, DVec3};
 use softhaptic_proto::{ContactFlags, ContactState, Pose};
 
-use crate::device::{DeviceSample, HapticDevice};
+use crate::device::{DeviceError, DeviceSample, HapticDevice, ServoClock};
 use crate::rt::{self, CpuChoice, RealtimeStatus};
 use crate::stats::{Histogram, LateLog, LateWake, LoopStats};
-use crate::world::HapticWorld;
+use crate::world::{HapticWorld, TickOutcome};
 
 /// How the loop runs.
 pub struct LoopConfig {
@@ -61,8 +77,13 @@ impl Default for LoopConfig {
 pub struct TickRecord {
     /// The device's reading, `None` when the read failed.
     pub sample: Option<DeviceSample>,
-    /// The read failed or the sample was refused (NaN, out of workspace).
+    /// The read failed, the sample was refused (NaN, out of workspace) or the device refused the
+    /// command.
     pub device_fault: bool,
+    /// Why the read failed, when it did.
+    pub device_error: Option<DeviceError>,
+    /// Why the device refused the command, when it did (the tick's force is then zero).
+    pub command_error: Option<DeviceError>,
     /// What the world computed, including the force commanded.
     pub contact: ContactState,
 }
@@ -76,6 +97,8 @@ pub enum LoopError {
     Spawn(#[source] std::io::Error),
     #[error("the haptic loop thread ended before reporting its start")]
     StartLost,
+    #[error("the haptic device's servo clock did not start: {0}")]
+    ServoClock(DeviceError),
 }
 
 /// Bounds of the spin before each deadline ([`rt::SpinBudget`]): at least 20 µs, at most 200 µs
@@ -84,6 +107,9 @@ const SPIN_MIN_NS: u64 = 20_000;
 const SPIN_MAX_NS: u64 = 200_000;
 /// Stats are summarised for readers every this many ticks (percentiles scan the histogram).
 const STATS_EVERY_TICKS: u64 = 100;
+/// A device-clocked loop whose driver has not called for this many periods is taken to be down
+/// (reconnecting), and its watchdog starts running fault ticks.
+const WATCHDOG_SILENT_PERIODS: u64 = 10;
 
 /// A seqlock over plain `u64` words: one writer, any number of readers, no `unsafe`.
 ///
@@ -213,6 +239,25 @@ struct Shared {
     /// the baton: a thread that took it only to look, and was then held back by its CPU, would
     /// make the other thread skip ticks.
     next_tick: AtomicU64,
+    /// The device's error on the last tick ([`DeviceError::to_word`]; 0 when it had none).
+    device_error: AtomicU64,
+    /// CLOCK_MONOTONIC time of the last call from the driver's servo clock (device-clocked
+    /// loops only): the watchdog's evidence that the driver is running.
+    last_servo_call_ns: AtomicU64,
+}
+
+impl Shared {
+    fn new() -> Self {
+        Shared {
+            stop: AtomicBool::new(false),
+            contact: SeqCell::new(contact_to_words(&ContactState::IDLE)),
+            stats: SeqCell::new(LoopStats::default().to_words()),
+            late: SeqCell::new(LateLog::default().to_words()),
+            next_tick: AtomicU64::new(0),
+            device_error: AtomicU64::new(0),
+            last_servo_call_ns: AtomicU64::new(0),
+        }
+    }
 }
 
 /// Which of the two loop threads a thread is.
@@ -225,6 +270,18 @@ enum Role {
     Standby,
 }
 
+/// Where a tick came from, for its bookkeeping.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum TickSource {
+    /// The loop's own threads, on their deadlines.
+    Thread(Role),
+    /// The device driver's servo thread, at the servo tick that began at this CLOCK_MONOTONIC
+    /// time.
+    Servo { tick_start_ns: u64 },
+    /// The watchdog of a device-clocked loop whose driver stopped calling.
+    Watchdog,
+}
+
 /// Everything a tick touches: held by one loop thread at a time ([`Baton`]).
 struct TickCore {
     device: Box<dyn HapticDevice>,
@@ -234,6 +291,9 @@ struct TickCore {
     timing: Box<Timing>,
     /// Index of the first tick not yet run; the ticks before it ran, or were lost.
     next_tick: u64,
+    /// Start of the last servo tick of a device-clocked loop, `None` before the first and after
+    /// a watchdog tick (the driver's clock was down: its next interval is not a period).
+    last_servo_start_ns: Option<u64>,
 }
 
 /// The tick state, handed between the loop thread and its standby without either ever waiting.
@@ -305,6 +365,9 @@ pub struct HapticLoop {
     threads: Vec<JoinHandle<()>>,
     realtime: RealtimeStatus,
     standby: Option<RealtimeStatus>,
+    /// The driver's servo clock of a device-clocked loop. Behind a mutex only so the loop can be
+    /// shared between threads; it is touched at start and stop, never by a tick.
+    servo: Option<std::sync::Mutex<Box<dyn ServoClock>>>,
 }
 
 impl HapticLoop {
@@ -332,32 +395,27 @@ impl HapticLoop {
     /// Returns once the threads have asked for real-time treatment, so the caller learns what
     /// was granted ([`HapticLoop::realtime`], [`HapticLoop::standby`]) before the first tick; a
     /// refusal is logged here, once, as a warning.
+    ///
+    /// A device with a [`ServoClock`] runs device-clocked instead (see the module docs): `cpu`,
+    /// `config.period_ns`, `config.realtime` and `config.standby` then do not apply, because the
+    /// driver's servo thread sets the period, its priority and its CPU.
     pub fn spawn_on(
-        device: Box<dyn HapticDevice>,
+        mut device: Box<dyn HapticDevice>,
         world: HapticWorld,
         config: LoopConfig,
         cpu: CpuChoice,
     ) -> Result<HapticLoop, LoopError> {
+        if let Some(clock) = device.servo_clock() {
+            return Self::spawn_device_clocked(device, clock, world, config);
+        }
         let period_ns = config.period_ns;
         if period_ns == 0 {
             return Err(LoopError::Period(0));
         }
-        let shared = Arc::new(Shared {
-            stop: AtomicBool::new(false),
-            contact: SeqCell::new(contact_to_words(&ContactState::IDLE)),
-            stats: SeqCell::new(LoopStats::default().to_words()),
-            late: SeqCell::new(LateLog::default().to_words()),
-            next_tick: AtomicU64::new(0),
-        });
+        let shared = Arc::new(Shared::new());
         // Allocated before the threads' real-time requests, so that mlockall locks it too: the
         // only allocation of the loop.
-        let baton = Arc::new(Baton::new(TickCore {
-            device,
-            world,
-            tick_sink: config.tick_sink,
-            timing: Box::new(Timing::new()),
-            next_tick: 0,
-        }));
+        let baton = Arc::new(Baton::new(TickCore::new(device, world, config.tick_sink)));
         let placement = if config.standby {
             rt::standby_placement(cpu, config.realtime)
         } else {
@@ -445,7 +503,104 @@ impl HapticLoop {
             threads,
             realtime,
             standby,
+            servo: None,
         })
+    }
+
+    /// Starts a device-clocked loop: the driver's servo thread runs the ticks, a watchdog thread
+    /// covers the times its clock is down.
+    fn spawn_device_clocked(
+        device: Box<dyn HapticDevice>,
+        mut clock: Box<dyn ServoClock>,
+        world: HapticWorld,
+        config: LoopConfig,
+    ) -> Result<HapticLoop, LoopError> {
+        let period_ns = clock.period_ns();
+        if period_ns == 0 {
+            return Err(LoopError::Period(0));
+        }
+        let shared = Arc::new(Shared::new());
+        let baton = Arc::new(Baton::new(TickCore::new(device, world, config.tick_sink)));
+        let origin_ns = rt::now_ns();
+        // Counted as called now, so the watchdog gives the driver its first periods to start.
+        shared
+            .last_servo_call_ns
+            .store(origin_ns, Ordering::Release);
+        if let Some(mut core) = baton.try_take() {
+            core.timing.start_ns = origin_ns;
+            shared
+                .stats
+                .write(&core.timing.summary(origin_ns).to_words());
+        }
+
+        // The watchdog asks for nothing: it runs only while the driver's clock is down, when
+        // there is no force to keep on time.
+        let (status_tx, status_rx) = std::sync::mpsc::sync_channel(1);
+        let watchdog = {
+            let shared = Arc::clone(&shared);
+            let baton = Arc::clone(&baton);
+            std::thread::Builder::new()
+                .name("haptic-watchdog".into())
+                .stack_size(rt::LOOP_STACK_BYTES)
+                .spawn(move || {
+                    let status =
+                        rt::request_realtime(false, rt::LOOP_PRIORITY, CpuChoice::Unpinned);
+                    let _ = status_tx.send(status);
+                    watch(&baton, &shared, period_ns);
+                })
+                .map_err(LoopError::Spawn)?
+        };
+        let realtime = status_rx.recv().map_err(|_| LoopError::StartLost)?;
+
+        let tick_shared = Arc::clone(&shared);
+        let tick_baton = Arc::clone(&baton);
+        let started = clock.start(Box::new(move |tick_start_ns| {
+            let called_ns = rt::now_ns();
+            tick_shared
+                .last_servo_call_ns
+                .store(called_ns, Ordering::Release);
+            if tick_shared.stop.load(Ordering::Acquire) {
+                return;
+            }
+            // Taken only by the watchdog otherwise, which runs only while this clock is silent.
+            if let Some(mut core) = tick_baton.try_take() {
+                core.run_tick(
+                    TickSource::Servo { tick_start_ns },
+                    called_ns,
+                    &tick_shared,
+                    period_ns,
+                );
+            }
+        }));
+        if let Err(e) = started {
+            shared.stop.store(true, Ordering::Release);
+            clock.stop();
+            let _ = watchdog.join();
+            return Err(LoopError::ServoClock(e));
+        }
+        tracing::info!(
+            period_us = period_ns as f64 * 1e-3,
+            "haptic loop runs on the device driver's servo clock"
+        );
+        Ok(HapticLoop {
+            shared,
+            baton,
+            threads: vec![watchdog],
+            realtime,
+            standby: None,
+            servo: Some(std::sync::Mutex::new(clock)),
+        })
+    }
+
+    /// Whether the driver's servo thread clocks the loop ([`ServoClock`]).
+    pub fn device_clocked(&self) -> bool {
+        self.servo.is_some()
+    }
+
+    /// The device's error on the last tick, `None` when the last tick read and commanded it
+    /// without one. Wait-free; for the operator's and the viewers' status line.
+    pub fn device_error(&self) -> Option<DeviceError> {
+        DeviceError::from_word(self.shared.device_error.load(Ordering::Acquire))
     }
 
     /// What the operating system granted the loop thread.
@@ -482,6 +637,13 @@ impl HapticLoop {
 
     fn halt(&mut self) -> LoopStats {
         self.shared.stop.store(true, Ordering::Release);
+        if let Some(servo) = self.servo.take() {
+            // Zero force, force output off, the driver's thread stopped: no tick runs after this.
+            let mut clock = servo
+                .into_inner()
+                .unwrap_or_else(|poisoned| poisoned.into_inner());
+            clock.stop();
+        }
         for thread in self.threads.drain(..) {
             // A thread that panicked (a bug) released the baton while unwinding.
             let _ = thread.join();
@@ -520,6 +682,8 @@ struct Timing {
     compute: Histogram,
     ticks: u64,
     standby_ticks: u64,
+    /// Fault ticks the watchdog of a device-clocked loop ran while the driver's clock was down.
+    watchdog_ticks: u64,
     overruns: u64,
     dropped: u64,
     device_faults: u64,
@@ -539,6 +703,7 @@ impl Timing {
             compute: Histogram::new(),
             ticks: 0,
             standby_ticks: 0,
+            watchdog_ticks: 0,
             overruns: 0,
             dropped: 0,
             device_faults: 0,
@@ -574,6 +739,7 @@ impl Timing {
             spin_ns: self.spin_ns,
             deadline_origin_ns: self.start_ns,
             standby_ticks: self.standby_ticks,
+            watchdog_ticks: self.watchdog_ticks,
         }
     }
 }
@@ -591,8 +757,25 @@ fn latest_due(origin_ns: u64, period_ns: u64, now_ns: u64) -> u64 {
 }
 
 impl TickCore {
-    /// Runs tick `tick`, whose thread woke at `woke_ns`.
-    fn run_tick(
+    /// The tick state before the first tick.
+    fn new(
+        device: Box<dyn HapticDevice>,
+        world: HapticWorld,
+        tick_sink: Option<rtrb::Producer<TickRecord>>,
+    ) -> Self {
+        TickCore {
+            device,
+            world,
+            tick_sink,
+            timing: Box::new(Timing::new()),
+            next_tick: 0,
+            last_servo_start_ns: None,
+        }
+    }
+
+    /// Books the deadline (or servo tick) that tick `tick` serves, run by a thread that woke (or
+    /// was called) at `woke_ns`.
+    fn book_deadline(
         &mut self,
         tick: u64,
         woke_ns: u64,
@@ -618,18 +801,62 @@ impl TickCore {
         }
         // Deadlines that passed with no tick started before the next one.
         timing.overruns += tick - self.next_tick;
-        self.next_tick = tick + 1;
-        shared.next_tick.store(self.next_tick, Ordering::Release);
         if role == Role::Standby {
             timing.standby_ticks += 1;
         }
+    }
 
-        let read = self.device.read();
-        let state = self.world.step(read);
-        if self.device.command_force(state.force_n).is_err() {
+    /// Books a servo tick of the driver's clock that began at `tick_start_ns`: the period comes
+    /// from the device's clock, and servo ticks it skipped count as lost.
+    fn book_servo_tick(&mut self, tick_start_ns: u64, shared: &Shared, period_ns: u64) {
+        let timing = &mut self.timing;
+        if let Some(previous) = self.last_servo_start_ns {
+            let interval_ns = tick_start_ns.saturating_sub(previous);
+            timing.period_error.record(interval_ns.abs_diff(period_ns));
+            let periods = (interval_ns + period_ns / 2) / period_ns;
+            timing.overruns += periods.saturating_sub(1);
+            if interval_ns > period_ns + period_ns / 2 {
+                timing.late.push(LateWake {
+                    deadline_ns: previous + period_ns,
+                    late_ns: interval_ns - period_ns,
+                });
+                shared.late.write(&timing.late.to_words());
+            }
+        }
+        self.last_servo_start_ns = Some(tick_start_ns);
+    }
+
+    /// Runs the next tick for `source`, whose thread woke (or was called) at `woke_ns`.
+    fn run_tick(&mut self, source: TickSource, woke_ns: u64, shared: &Shared, period_ns: u64) {
+        match source {
+            TickSource::Servo { tick_start_ns } => {
+                self.book_servo_tick(tick_start_ns, shared, period_ns)
+            }
+            TickSource::Watchdog => {
+                self.last_servo_start_ns = None;
+                self.timing.watchdog_ticks += 1;
+            }
+            // Booked by the caller, which knows the deadline.
+            TickSource::Thread(_) => {}
+        }
+        let tick = self.next_tick;
+        self.next_tick = tick + 1;
+        shared.next_tick.store(self.next_tick, Ordering::Release);
+
+        let TickOutcome {
+            state,
+            read,
+            command,
+        } = self.world.tick(self.device.as_mut());
+        let timing = &mut self.timing;
+        if command.is_err() {
             timing.command_errors += 1;
         }
         shared.contact.write(&contact_to_words(&state));
+        let error = read.err().or(command.err());
+        shared
+            .device_error
+            .store(error.map_or(0, DeviceError::to_word), Ordering::Release);
         let device_fault = state.flags.contains(ContactFlags::DEVICE_FAULT);
         if device_fault {
             timing.device_faults += 1;
@@ -638,6 +865,8 @@ impl TickCore {
             let record = TickRecord {
                 sample: read.ok(),
                 device_fault,
+                device_error: read.err(),
+                command_error: command.err(),
                 contact: state,
             };
             if sink.push(record).is_err() {
@@ -649,6 +878,28 @@ impl TickCore {
         timing.compute.record(done.saturating_sub(woke_ns));
         if timing.ticks.is_multiple_of(STATS_EVERY_TICKS) {
             shared.stats.write(&timing.summary(done).to_words());
+        }
+    }
+}
+
+/// The watchdog of a device-clocked loop: while the driver's servo clock is silent (the device
+/// is being reconnected, or its driver stalled), it runs a fault tick every period, so the
+/// viewers, the recording and the fault counters follow the outage. It stands aside as soon as
+/// the driver calls again.
+fn watch(baton: &Baton<TickCore>, shared: &Shared, period_ns: u64) {
+    let silent_ns = WATCHDOG_SILENT_PERIODS * period_ns;
+    let mut next_ns = rt::now_ns() + period_ns;
+    while !shared.stop.load(Ordering::Acquire) {
+        rt::sleep_until_ns(next_ns);
+        let now = rt::now_ns();
+        // After a long sleep, keep the period from now rather than catching up in a burst.
+        next_ns = (next_ns + period_ns).max(now + period_ns / 2);
+        let last_call = shared.last_servo_call_ns.load(Ordering::Acquire);
+        if now.saturating_sub(last_call) <= silent_ns || shared.stop.load(Ordering::Acquire) {
+            continue;
+        }
+        if let Some(mut core) = baton.try_take() {
+            core.run_tick(TickSource::Watchdog, now, shared, period_ns);
         }
     }
 }
@@ -682,7 +933,9 @@ fn run(baton: &Baton<TickCore>, shared: &Shared, role: Role, origin_ns: u64, per
                 }
                 // Checked again under the baton: the other thread may have run it meanwhile.
                 if due >= core.next_tick {
-                    core.run_tick(due, woke, role, shared, origin_ns, period_ns);
+                    core.book_deadline(due, woke, role, shared, origin_ns, period_ns);
+                    core.next_tick = due;
+                    core.run_tick(TickSource::Thread(role), woke, shared, period_ns);
                 }
             }
         }
@@ -761,30 +1014,22 @@ mod tests {
             RenderConfig::for_tool(&tool),
             DeviceLimits::PHANTOM_DESKTOP,
         );
-        TickCore {
-            device: Box::new(SimulatedPhantom::new(HandScript::press(
+        TickCore::new(
+            Box::new(SimulatedPhantom::new(HandScript::press(
                 DVec3::ZERO,
                 DVec3::Y,
                 0.005,
             ))),
             world,
-            tick_sink: None,
-            timing: Box::new(Timing::new()),
-            next_tick: 0,
-        }
+            None,
+        )
     }
 
     #[test]
     fn the_standby_runs_the_ticks_of_a_held_back_loop_thread_once_each() {
         const P: u64 = 1_000_000;
         let baton = Baton::new(grid_core());
-        let shared = Shared {
-            stop: AtomicBool::new(false),
-            contact: SeqCell::new(contact_to_words(&ContactState::IDLE)),
-            stats: SeqCell::new(LoopStats::default().to_words()),
-            late: SeqCell::new(LateLog::default().to_words()),
-            next_tick: AtomicU64::new(0),
-        };
+        let shared = Shared::new();
         let origin = rt::now_ns();
         std::thread::scope(|s| {
             // The loop thread is held back for its first 40 periods, as a CPU busy in the kernel

@@ -18,6 +18,9 @@
 //! - [`liver`]: the procedural liver-like organ, as a coarse haptic mesh and a fine render surface.
 //! - [`device`]: the [`HapticDevice`](device::HapticDevice) trait, device limits, samples, errors.
 //! - [`sim`]: a simulated PHANTOM Desktop moved by a scripted hand (mass–spring–damper).
+//! - [`openhaptics`]: a PHANTOM / Touch through OpenHaptics' HD API, loaded at run time; its
+//!   servo scheduler clocks the loop, faults give zero force and a reconnection off the servo
+//!   path.
 //! - [`render`]: the scene's contact model at the contact's geometry (curvature, the tool's
 //!   inclination) + damping, then the safety layer (stiffness cap at the model's δ*, ramp,
 //!   passivity, saturation, fault guard) with a flag for every limit that acts, and the validity
@@ -42,6 +45,7 @@ pub mod law;
 pub mod liver;
 pub mod mesh;
 pub mod model;
+pub mod openhaptics;
 pub mod passivity;
 pub mod render;
 pub mod replay;

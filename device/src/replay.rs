@@ -29,6 +29,8 @@ pub struct ReplayDevice {
     /// Forces commanded so far, one per `command_force` call, preallocated to the recording's
     /// length so the loop never allocates.
     commanded_n: Vec<DVec3>,
+    /// The recorded device's refusals of the commands, by reading (empty: none refused).
+    refusals: Vec<Option<DeviceError>>,
 }
 
 impl ReplayDevice {
@@ -41,12 +43,21 @@ impl ReplayDevice {
             reads,
             next: 0,
             commanded_n,
+            refusals: Vec::new(),
         }
     }
 
-    /// A device replaying the device channel of a recording.
+    /// A device replaying the device channel of a recording: its readings, and its refusals of
+    /// the commands that followed them.
     pub fn from_records(limits: DeviceLimits, records: &[DeviceRecord]) -> Self {
-        Self::new(limits, records.iter().map(device_read).collect())
+        let mut device = Self::new(limits, records.iter().map(device_read).collect());
+        if records.iter().any(|r| r.command_error.is_some()) {
+            device.refusals = records
+                .iter()
+                .map(|r| r.command_error.as_ref().map(device_error))
+                .collect();
+        }
+        device
     }
 
     /// Readings not yet returned.
@@ -80,22 +91,28 @@ impl HapticDevice for ReplayDevice {
         }
     }
 
-    /// Keeps the command (up to the recording's length, so that it never allocates).
+    /// Keeps the command (up to the recording's length, so that it never allocates), and refuses
+    /// it when the recorded device refused the command after the same reading.
     fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
         if self.commanded_n.len() < self.commanded_n.capacity() {
             self.commanded_n.push(force_n);
         }
-        Ok(())
+        match self.next.checked_sub(1).and_then(|i| self.refusals.get(i)) {
+            Some(Some(e)) => Err(*e),
+            _ => Ok(()),
+        }
     }
 }
 
-/// The record of one tick the loop offered to the session log. The loop keeps the sample but not
-/// the device's error, so a failed read is recorded without its cause.
+/// The record of one tick the loop offered to the session log, with the device's errors.
 pub fn tick_device_record(t: &TickRecord) -> DeviceRecord {
-    let read = t.sample.ok_or(DeviceError::Disconnected);
+    let read = match (t.sample, t.device_error) {
+        (Some(s), _) => Ok(s),
+        (None, e) => Err(e.unwrap_or(DeviceError::Disconnected)),
+    };
     let mut r = device_record(&read, &t.contact);
-    r.device_error = None;
     r.device_fault = t.device_fault;
+    r.command_error = t.command_error.as_ref().map(error_record);
     r
 }
 
@@ -116,6 +133,7 @@ pub fn device_record(
             .flags
             .contains(softhaptic_proto::ContactFlags::DEVICE_FAULT),
         device_error,
+        command_error: None,
         in_contact: contact.in_contact,
         depth_m: contact.depth_m,
         force_n: contact.force_n.to_array(),
@@ -154,6 +172,8 @@ pub fn error_record(e: &DeviceError) -> DeviceErrorRecord {
         DeviceError::Timeout => DeviceErrorRecord::Timeout,
         DeviceError::ForceDisabled => DeviceErrorRecord::ForceDisabled,
         DeviceError::Driver(code) => DeviceErrorRecord::Driver { code },
+        DeviceError::NeedsCalibration => DeviceErrorRecord::NeedsCalibration,
+        DeviceError::Overrun => DeviceErrorRecord::Overrun,
     }
 }
 
@@ -164,6 +184,8 @@ pub fn device_error(r: &DeviceErrorRecord) -> DeviceError {
         DeviceErrorRecord::Timeout => DeviceError::Timeout,
         DeviceErrorRecord::ForceDisabled => DeviceError::ForceDisabled,
         DeviceErrorRecord::Driver { code } => DeviceError::Driver(code),
+        DeviceErrorRecord::NeedsCalibration => DeviceError::NeedsCalibration,
+        DeviceErrorRecord::Overrun => DeviceError::Overrun,
     }
 }
 

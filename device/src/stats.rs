@@ -114,7 +114,8 @@ pub struct LoopStats {
     pub ticks: u64,
     /// Ticks per second of wall time since the start.
     pub loop_rate_hz: f64,
-    /// Lateness of the tick's start behind its absolute deadline, nanoseconds.
+    /// Lateness of the tick's start behind its absolute deadline, nanoseconds; for a loop on a
+    /// device's servo clock, |interval between the driver's servo ticks − period|.
     pub period_error_p50_ns: u64,
     pub period_error_p99_ns: u64,
     pub period_error_p999_ns: u64,
@@ -140,11 +141,14 @@ pub struct LoopStats {
     pub deadline_origin_ns: u64,
     /// Ticks run by the standby thread because the loop thread had not started them in time.
     pub standby_ticks: u64,
+    /// Fault ticks run by the watchdog of a device-clocked loop while the driver's servo clock
+    /// was down (the device being reconnected).
+    pub watchdog_ticks: u64,
 }
 
 impl LoopStats {
     /// Number of `u64` words in [`LoopStats::to_words`].
-    pub const WORDS: usize = 17;
+    pub const WORDS: usize = 18;
 
     /// Encodes into words for a lock-free publication (f64 by bit pattern).
     pub fn to_words(&self) -> [u64; Self::WORDS] {
@@ -166,6 +170,7 @@ impl LoopStats {
             self.spin_ns,
             self.deadline_origin_ns,
             self.standby_ticks,
+            self.watchdog_ticks,
         ]
     }
 
@@ -188,6 +193,7 @@ impl LoopStats {
             spin_ns: w[14],
             deadline_origin_ns: w[15],
             standby_ticks: w[16],
+            watchdog_ticks: w[17],
         }
     }
 }
@@ -345,6 +351,7 @@ mod tests {
             spin_ns: 42_000,
             deadline_origin_ns: 1_234_567_890,
             standby_ticks: 17,
+            watchdog_ticks: 4,
             ..LoopStats::default()
         };
         assert_eq!(LoopStats::from_words(&s.to_words()), s);

@@ -10,10 +10,21 @@ use glam::DVec3;
 use softhaptic_proto::{ContactFlags, ContactState, Material, Pose, ToolShape};
 
 use crate::collision::Collider;
-use crate::device::{DeviceError, DeviceLimits, DeviceSample};
+use crate::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
 use crate::law;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::render::{ForceRenderer, RenderConfig, RenderedForce, WorldContact};
+
+/// What [`HapticWorld::tick`] read, computed and commanded.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TickOutcome {
+    /// The contact state; its `force_n` is what the device was commanded (zero when refused).
+    pub state: ContactState,
+    /// The device's reading, or why it failed.
+    pub read: Result<DeviceSample, DeviceError>,
+    /// Whether the device took the command.
+    pub command: Result<(), DeviceError>,
+}
 
 /// One object, one tool, one device: everything a tick needs. Owns its collider, so it never
 /// shares memory with another thread.
@@ -195,6 +206,28 @@ impl HapticWorld {
             };
         }
         state
+    }
+
+    /// One whole tick against `device`: read it, step, command the force. A command the device
+    /// refused (it output zero instead, [`HapticDevice::command_force`]) makes this tick a device
+    /// fault with zero force, and the force ramps in again afterwards as after any fault. The
+    /// loop thread runs its ticks through here, and so does the replay check, whose replay device
+    /// refuses the commands the recorded device refused: one code path, so a replay is
+    /// bit-identical (design.md, invariant 5).
+    pub fn tick<D: HapticDevice + ?Sized>(&mut self, device: &mut D) -> TickOutcome {
+        let read = device.read();
+        let mut state = self.step(read);
+        let command = device.command_force(state.force_n);
+        if command.is_err() {
+            self.renderer.fault();
+            state.force_n = DVec3::ZERO;
+            state.flags |= ContactFlags::DEVICE_FAULT;
+        }
+        TickOutcome {
+            state,
+            read,
+            command,
+        }
     }
 
     /// A reading is plausible when every number is finite and the tip is where a device of this

@@ -98,6 +98,10 @@ pub struct DeviceRecord {
     /// The device's error when the read failed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub device_error: Option<DeviceErrorRecord>,
+    /// The device's error when it refused the force command (it output zero; the tick's
+    /// `force_n` is then zero and `device_fault` set).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_error: Option<DeviceErrorRecord>,
     /// Whether the tool touched the object.
     pub in_contact: bool,
     /// Indentation depth along the contact normal.
@@ -118,6 +122,8 @@ pub enum DeviceErrorRecord {
     Timeout,
     ForceDisabled,
     Driver { code: i32 },
+    NeedsCalibration,
+    Overrun,
 }
 
 /// The scene of the session: the `scene` wire message the viewers got, and the scene definition
@@ -391,7 +397,10 @@ pub mod schema {
     },
     "device_fault": {"type": "boolean"},
     "device_error": {"type": "object", "description": "why the read failed", "properties": {
-      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver"]},
+      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun"]},
+      "code": {"type": "integer"}}, "required": ["kind"]},
+    "command_error": {"type": "object", "description": "why the device refused the force command (it output zero)", "properties": {
+      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun"]},
       "code": {"type": "integer"}}, "required": ["kind"]},
     "in_contact": {"type": "boolean"},
     "depth_m": {"type": ["number", "string"], "description": "indentation depth, metres"},
@@ -423,7 +432,8 @@ pub mod schema {
     "deformed_radius_m": {"type": "number"},
     "force_n": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
     "flags": {"type": "array", "items": {"type": "string"}},
-    "dropped": {"type": "integer", "minimum": 0}
+    "dropped": {"type": "integer", "minimum": 0},
+    "buttons": {"type": "integer", "minimum": 0, "description": "device button bits, bit 0 the stylus' first button"}
   },
   "required": ["type", "seq", "tick", "time_ns", "tip_in_world", "in_contact", "depth_m", "normal", "contact_point_m", "contact_radius_m", "deformed_radius_m", "force_n", "flags", "dropped"]
 }"##;
@@ -492,7 +502,8 @@ pub mod schema {
     "compute_us": {"type": "object", "properties": {
       "p50": {"type": "number"}, "p99": {"type": "number"}, "max": {"type": "number"}}},
     "viewers": {"type": "integer", "minimum": 0},
-    "dropped_frames": {"type": "integer", "minimum": 0}
+    "dropped_frames": {"type": "integer", "minimum": 0},
+    "device": {"type": "string", "enum": ["ok", "disconnected", "not_answering", "force_disabled", "needs_calibration", "overrun", "driver_error"], "description": "the haptic device's state on the last tick"}
   },
   "required": ["type", "loop_rate_hz", "period_error_us", "overruns", "compute_us"]
 }"##;
@@ -531,6 +542,7 @@ mod tests {
             }),
             device_fault: false,
             device_error: None,
+            command_error: None,
             in_contact: true,
             depth_m: 0.0012345678901234567,
             force_n: [1e-300, -0.0, 7.9],

@@ -215,7 +215,12 @@ pub struct ContactFrame {
     /// Encoded as a list of snake_case names (see [`flag_name`]).
     #[serde(with = "flag_list")]
     pub flags: ContactFlags,
-    /// Frames this viewer lost so far because it read too slowly.
+    /// The device's button bits at that tick (bit 0 the stylus' first button). Absent in
+    /// recordings made before it existed: 0.
+    #[serde(default)]
+    pub buttons: u32,
+    /// Frames this viewer lost so far because it read too slowly. Last, so the server can
+    /// splice each viewer's count into one shared encoding.
     pub dropped: u64,
 }
 
@@ -279,6 +284,7 @@ impl ContactFrame {
             },
             force_n: finite_vec_or_zero(state.force_n),
             flags: state.flags,
+            buttons: state.buttons,
             dropped,
         }
     }
@@ -318,6 +324,48 @@ pub struct StatsMessage {
     pub viewers: u32,
     /// Frames lost by all viewers together since the server started.
     pub dropped_frames: u64,
+    /// The haptic device's state on the last tick. Absent in recordings made before it
+    /// existed: `ok`.
+    #[serde(default)]
+    pub device: DeviceStatus,
+}
+
+/// The haptic device's state, as the viewer tells it to people ([`DeviceStatus::message`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceStatus {
+    /// Read and commanded on the last tick without an error.
+    #[default]
+    Ok,
+    /// The device is gone (cable, power, driver): force is zero while it is reconnected.
+    Disconnected,
+    /// The device did not answer within its servo period.
+    NotAnswering,
+    /// The driver stopped the force output (e.g. a force beyond its maximum, hot motors).
+    ForceDisabled,
+    /// The device must be calibrated before it renders force.
+    NeedsCalibration,
+    /// A tick ran past its servo period; zero force was sent instead of a late one.
+    Overrun,
+    /// Another error of the device's driver.
+    DriverError,
+}
+
+impl DeviceStatus {
+    /// What the viewer shows, in words a trainee understands.
+    pub fn message(self) -> &'static str {
+        match self {
+            DeviceStatus::Ok => "device ok",
+            DeviceStatus::Disconnected => "device disconnected",
+            DeviceStatus::NotAnswering => "device not answering",
+            DeviceStatus::ForceDisabled => "device force output disabled",
+            DeviceStatus::NeedsCalibration => {
+                "device needs calibration: put the stylus in its inkwell"
+            }
+            DeviceStatus::Overrun => "device tick overran: force skipped",
+            DeviceStatus::DriverError => "device driver error",
+        }
+    }
 }
 
 /// The wire name of one flag bit, or `None` for a bit this protocol version does not name.
@@ -570,6 +618,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         },
         viewers: 3,
         dropped_frames: 17,
+        device: DeviceStatus::Disconnected,
     });
     let valid = [
         ("hello", hello),
@@ -889,10 +938,11 @@ mod tests {
             "force_n",
             "flags",
             "dropped",
+            "buttons",
         ] {
             assert!(keys.contains(&k), "missing {k}");
         }
-        assert_eq!(keys.len(), 14);
+        assert_eq!(keys.len(), 15);
         assert_eq!(
             json["flags"],
             serde_json::json!(["saturated", "degenerate_normal"])

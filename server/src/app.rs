@@ -19,8 +19,9 @@ use axum::extract::{Path as UrlPath, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, get_service};
+use softhaptic_device::device::HapticDevice;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
-use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
+use softhaptic_device::openhaptics::OpenHapticsError;
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::ToolShape;
 use softhaptic_proto::wire::{
@@ -31,7 +32,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tower_http::services::{ServeDir, ServeFile};
 
-use crate::scene::{DeviceKind, Scene};
+use crate::scene::Scene;
 use crate::stream::{self, StreamHub, ViewerLimits};
 
 /// The server's name in `hello`.
@@ -48,6 +49,8 @@ pub enum ServerError {
     },
     #[error("haptic loop: {0}")]
     Loop(#[from] LoopError),
+    #[error("haptic device: {0}")]
+    Device(#[from] OpenHapticsError),
     #[error("could not encode the {what} message: {source}")]
     Encode {
         what: &'static str,
@@ -85,6 +88,10 @@ pub struct ServerOptions {
     /// The session id `hello` announces; a fresh random one when `None`. A recorded session
     /// passes the recording's, so the file and the viewers name the same session.
     pub session_id: Option<String>,
+    /// The device, already opened with [`crate::devices::open`] on the same scene (the command
+    /// line opens it before the recording starts, so the recording names the limits it really
+    /// runs with); opened by [`start`] when `None`.
+    pub device: Option<Box<dyn HapticDevice>>,
 }
 
 impl ServerOptions {
@@ -102,6 +109,7 @@ impl ServerOptions {
             send_buffer_bytes: None,
             tick_sink: None,
             session_id: None,
+            device: None,
         }
     }
 }
@@ -176,20 +184,6 @@ impl RunningServer {
     }
 }
 
-/// The simulated hand's demonstration, repeated forever: approach, press, hold, slide, release
-/// at the scene's press site.
-fn hand_script(scene: &Scene) -> HandScript {
-    let pose = scene.object_in_world;
-    let (point, normal) = scene.press_site_in_object;
-    let mut script = HandScript::press(
-        pose.transform_point(point),
-        pose.orientation * normal,
-        scene.press_depth_m,
-    );
-    script.repeat = true;
-    script
-}
-
 /// The contact model's name on the wire.
 fn model_name(tool: &ToolShape) -> &'static str {
     match tool {
@@ -201,9 +195,9 @@ fn model_name(tool: &ToolShape) -> &'static str {
 /// The `scene` message for a loaded scene.
 pub fn scene_message(scene: &Scene) -> SceneMessage {
     let limits = scene.device_limits;
-    let device_name = match scene.device_kind {
-        DeviceKind::Simulated => format!("simulated {}", limits.name),
-    };
+    let device_name = scene.device_label.clone().unwrap_or_else(|| {
+        format!("{} {}", scene.device_kind.name(), limits.name)
+    });
     SceneMessage {
         protocol_version: PROTOCOL_VERSION,
         tool: scene.tool,
@@ -255,7 +249,14 @@ struct AppState {
 }
 
 /// Starts the haptic loop and the server for `scene`.
-pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer, ServerError> {
+pub async fn start(
+    mut scene: Scene,
+    mut options: ServerOptions,
+) -> Result<RunningServer, ServerError> {
+    let device = match options.device.take() {
+        Some(device) => device,
+        None => crate::devices::open(&mut scene)?,
+    };
     let message = scene_message(&scene);
     let encode = |what: &'static str, m: ServerMessage| {
         m.encode()
@@ -287,19 +288,11 @@ pub async fn start(scene: Scene, options: ServerOptions) -> Result<RunningServer
         source,
     })?;
 
-    // The haptic side: world (with the scene's contact model), simulated device, loop thread.
+    // The haptic side: world (with the scene's contact model and the device's limits), device,
+    // loop thread.
     let world = scene.haptic_world();
-    let device = match scene.device_kind {
-        DeviceKind::Simulated => SimulatedPhantom::with_params(
-            hand_script(&scene),
-            SimParams {
-                limits: scene.device_limits,
-                ..SimParams::default()
-            },
-        ),
-    };
     let haptic_loop = Arc::new(HapticLoop::spawn_on(
-        Box::new(device),
+        device,
         world,
         LoopConfig {
             period_ns: 1_000_000,

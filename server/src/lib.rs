@@ -9,6 +9,8 @@
 //! - [`app`]: [`app::start`] builds the haptic world, spawns the loop, binds HTTP and WebSocket
 //!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of
 //!   proto/WIRE.md; the `scene` message, whose `contact_model` names the active model and its limits.
+//! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
+//!   reports) and the `softhaptic devices` listing.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
@@ -16,6 +18,7 @@
 //!   rebuilds the recorded contact model from the recording's `scene` message.
 
 pub mod app;
+pub mod devices;
 pub mod scene;
 pub mod session;
 pub mod stream;

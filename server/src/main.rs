@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
 use softhaptic_server::app::{self, ServerOptions};
-use softhaptic_server::scene::Scene;
+use softhaptic_server::devices;
+use softhaptic_server::scene::{DeviceChoice, Scene};
 use softhaptic_server::session;
 use softhaptic_server::vectors;
 
@@ -25,6 +26,15 @@ struct Cli {
 enum Command {
     /// Load a scene, start the haptic loop and serve the viewer (the default).
     Run(RunArgs),
+    /// List the haptic devices this machine can drive: the OpenHaptics library (found or not,
+    /// and why), each device it can open with its model, serial, limits and calibration state,
+    /// and the simulated device. Exits 0 with a listing on a machine with no hardware.
+    Devices {
+        /// Also try this OpenHaptics device configuration (repeatable); the default device is
+        /// always tried.
+        #[arg(long, value_name = "NAME")]
+        name: Vec<String>,
+    },
     /// The shared test vectors of the viewer and the server (proto/vectors/*.json).
     Vectors {
         #[command(subcommand)]
@@ -54,6 +64,12 @@ struct RunArgs {
     /// procedural liver, a 10 mm sphere, E = 50 kPa, ν = 0.33, a simulated PHANTOM Desktop.
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
+    /// The haptic device, replacing the scene's `[device] kind`: `simulated`, `openhaptics`
+    /// (OpenHaptics' default device) or `openhaptics:<configuration name>`. OpenHaptics'
+    /// libHD.so is loaded at start; SOFTHAPTIC_HD_LIBRARY names it when it is not on the
+    /// system's library path. `softhaptic devices` shows what this machine has.
+    #[arg(long, value_name = "DEVICE")]
+    device: Option<DeviceChoice>,
     /// Address to serve the viewer and the WebSocket stream on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8080", value_name = "HOST:PORT")]
     addr: SocketAddr,
@@ -117,15 +133,25 @@ fn try_main() -> anyhow::Result<()> {
             Ok(())
         }
         Some(Command::Session(command)) => session::cli::run(command),
+        Some(Command::Devices { name }) => {
+            print!("{}", devices::listing(&name));
+            Ok(())
+        }
     }
 }
 
 fn run(args: RunArgs) -> anyhow::Result<()> {
     // Refuse a bad scene before anything starts.
-    let scene = match &args.scene {
+    let mut scene = match &args.scene {
         Some(path) => Scene::load(path)?,
         None => Scene::builtin_default()?,
     };
+    if let Some(choice) = &args.device {
+        scene.choose_device(choice);
+    }
+    // Opened before the recording starts, so that the recording and the viewers are told the
+    // limits the device really runs with; a device that cannot be opened stops here.
+    let device = devices::open(&mut scene)?;
     tracing::info!(
         scene = %args.scene.as_deref().map(|p| p.display().to_string()).unwrap_or_else(|| "built-in default".into()),
         object = %scene.object_name,
@@ -148,6 +174,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.loop_standby = !args.no_loop_standby;
         options.tick_sink = recording.as_mut().and_then(|r| r.take_tick_sink());
         options.session_id = recording.as_ref().map(|r| r.session_id().to_owned());
+        options.device = Some(device);
         let server = app::start(scene, options).await?;
         if let Some(r) = &recording {
             r.attach(&server);

@@ -32,9 +32,14 @@
 //! radius_m = 0.01
 //!
 //! [device]
-//! kind = "simulated"
-//! model = "phantom_desktop"        # phantom_desktop | touch | omni
+//! kind = "simulated"               # or "openhaptics": a PHANTOM / Touch through OpenHaptics
+//! model = "phantom_desktop"        # phantom_desktop | touch | omni: the preset of limits (a real
+//!                                  # device's own nominal limits apply where tighter)
 //! press_depth_m = 0.008            # how deep the simulated hand aims
+//! name = "Default Device"          # openhaptics: the device configuration's name
+//! world_from_device = { position_m = [0.0, 0.0, 0.0], orientation = [0.0, 0.0, 0.0, 1.0], scale = 1.0 }
+//!                                  # openhaptics: where the device's origin and axes are in the
+//!                                  # world, and world metres per metre of stylus motion
 //!
 //! [calibration]
 //! table = "half_space"             # or a path to a calibration JSON, relative to this file;
@@ -220,6 +225,70 @@ pub enum DeviceKind {
     /// The simulated device of the device crate, moved by a scripted hand.
     #[default]
     Simulated,
+    /// A PHANTOM / Touch through OpenHaptics' HD library, loaded at run time.
+    Openhaptics,
+}
+
+impl DeviceKind {
+    /// The name a scene file and `--device` use.
+    pub fn name(self) -> &'static str {
+        match self {
+            DeviceKind::Simulated => "simulated",
+            DeviceKind::Openhaptics => "openhaptics",
+        }
+    }
+}
+
+/// The device a run uses, as `--device` names it: `simulated`, `openhaptics` or
+/// `openhaptics:<configuration name>`; it replaces the scene's `[device] kind` (and `name`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DeviceChoice {
+    pub kind: DeviceKind,
+    pub name: Option<String>,
+}
+
+impl std::str::FromStr for DeviceChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let (kind, name) = match s.split_once(':') {
+            Some((kind, name)) => (kind, Some(name.trim().to_owned())),
+            None => (s, None),
+        };
+        let kind = match kind.trim() {
+            "simulated" => DeviceKind::Simulated,
+            "openhaptics" => DeviceKind::Openhaptics,
+            other => {
+                return Err(format!(
+                    "unknown device kind {other:?}: expected simulated, openhaptics or \"openhaptics:<configuration name>\""
+                ));
+            }
+        };
+        if kind == DeviceKind::Simulated && name.is_some() {
+            return Err("the simulated device has no configuration name".into());
+        }
+        if name.as_deref() == Some("") {
+            return Err("an empty configuration name: write openhaptics alone for the default device".into());
+        }
+        Ok(DeviceChoice { kind, name })
+    }
+}
+
+/// Where a device's origin and axes are in the world, and its motion scale.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldFromDeviceSection {
+    #[serde(default)]
+    pub position_m: [f64; 3],
+    /// Quaternion [x, y, z, w]; normalised on load.
+    #[serde(default = "identity_quaternion")]
+    pub orientation: [f64; 4],
+    /// World metres per metre of stylus motion.
+    #[serde(default = "unit_scale")]
+    pub scale: f64,
+}
+
+fn unit_scale() -> f64 {
+    1.0
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
@@ -252,6 +321,12 @@ pub struct DeviceSection {
     /// where the hand's grip balances the contact force).
     #[serde(default = "default_press_depth_m")]
     pub press_depth_m: f64,
+    /// The OpenHaptics device configuration to open (`None`: the default device).
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Where an OpenHaptics device sits in the world (identity, one to one, when absent).
+    #[serde(default)]
+    pub world_from_device: Option<WorldFromDeviceSection>,
 }
 
 fn default_press_depth_m() -> f64 {
@@ -264,6 +339,8 @@ impl Default for DeviceSection {
             kind: DeviceKind::Simulated,
             model: DeviceModel::PhantomDesktop,
             press_depth_m: default_press_depth_m(),
+            name: None,
+            world_from_device: None,
         }
     }
 }
@@ -360,7 +437,18 @@ pub struct Scene {
     pub material: Material,
     pub tool: ToolShape,
     pub device_kind: DeviceKind,
+    /// The preset's limits as loaded; once a real device is open, the tighter of them and the
+    /// device's own (`crate::devices::open`), and in a replay check the limits the recording
+    /// ran with.
     pub device_limits: DeviceLimits,
+    /// The OpenHaptics device configuration name (`None`: the default device).
+    pub device_name: Option<String>,
+    /// Where a real device sits in the world.
+    pub world_from_device: Pose,
+    /// World metres per metre of stylus motion.
+    pub device_scale: f64,
+    /// The opened device as viewers are told it (model, serial); `None` before it is opened.
+    pub device_label: Option<String>,
     pub press_depth_m: f64,
     /// Where the simulated hand presses, object frame: a surface point and its outward normal.
     pub press_site_in_object: (DVec3, DVec3),
@@ -445,6 +533,14 @@ impl Scene {
             path: path.to_owned(),
             message: e.to_string().trim_end().to_owned(),
         })
+    }
+
+    /// Replaces the scene's device with `--device`'s choice.
+    pub fn choose_device(&mut self, choice: &DeviceChoice) {
+        if choice.kind != self.device_kind || choice.name.is_some() {
+            self.device_name = choice.name.clone();
+        }
+        self.device_kind = choice.kind;
     }
 
     /// The haptic world of this scene: its mesh, pose, contact model, render configuration and
@@ -579,6 +675,64 @@ impl Scene {
                 format!("must be finite and in [0, 0.05] m, got {press_depth_m}"),
             ));
         }
+        if file.device.kind != DeviceKind::Openhaptics {
+            if file.device.name.is_some() {
+                return Err(field(
+                    "device.name",
+                    "names an OpenHaptics device configuration: only for kind = \"openhaptics\""
+                        .into(),
+                ));
+            }
+            if file.device.world_from_device.is_some() {
+                return Err(field(
+                    "device.world_from_device",
+                    "places a real device in the world: only for kind = \"openhaptics\"".into(),
+                ));
+            }
+        }
+        if file.device.name.as_deref().is_some_and(|n| n.is_empty() || n.contains('\0')) {
+            return Err(field(
+                "device.name",
+                format!(
+                    "must be a non-empty configuration name, got {:?}; leave it out for the default device",
+                    file.device.name.as_deref().unwrap_or_default()
+                ),
+            ));
+        }
+        let placement = file.device.world_from_device.unwrap_or(WorldFromDeviceSection {
+            position_m: [0.0; 3],
+            orientation: identity_quaternion(),
+            scale: 1.0,
+        });
+        let device_position_m = DVec3::from_array(placement.position_m);
+        if !device_position_m.is_finite() {
+            return Err(field(
+                "device.world_from_device.position_m",
+                format!("must be finite, got {:?}", placement.position_m),
+            ));
+        }
+        let dq = DQuat::from_array(placement.orientation);
+        let device_orientation = match dq.is_finite().then(|| dq.length()) {
+            Some(len) if len > 1e-9 => dq / len,
+            _ => {
+                return Err(field(
+                    "device.world_from_device.orientation",
+                    format!(
+                        "must be a finite non-zero quaternion [x, y, z, w], got {:?}",
+                        placement.orientation
+                    ),
+                ));
+            }
+        };
+        if !(placement.scale.is_finite() && placement.scale > 0.0 && placement.scale <= 100.0) {
+            return Err(field(
+                "device.world_from_device.scale",
+                format!(
+                    "must be finite and in (0, 100] world metres per metre of stylus motion, got {}",
+                    placement.scale
+                ),
+            ));
+        }
         let mut render = RenderConfig::for_tool(&tool);
         if let Some(d) = file.haptics.damping_n_s_per_m {
             if !(d.is_finite() && d >= 0.0) {
@@ -694,6 +848,13 @@ impl Scene {
             tool,
             device_kind: file.device.kind,
             device_limits: file.device.model.limits(),
+            device_name: file.device.name.clone(),
+            world_from_device: Pose {
+                position_m: device_position_m,
+                orientation: device_orientation,
+            },
+            device_scale: placement.scale,
+            device_label: None,
             press_depth_m,
             press_site_in_object,
             calibration,

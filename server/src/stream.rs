@@ -19,12 +19,14 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::Duration;
 
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, close_code};
+use softhaptic_device::device::DeviceError;
 use softhaptic_device::haptic_loop::HapticLoop;
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::CalibrationTable;
 use softhaptic_proto::record::ReplayControl;
 use softhaptic_proto::wire::{
-    ComputeUs, ContactFrame, PeriodErrorUs, ServerMessage, StatsMessage, message_type,
+    ComputeUs, ContactFrame, DeviceStatus, PeriodErrorUs, ServerMessage, StatsMessage,
+    message_type,
 };
 use tokio::sync::{broadcast, watch};
 
@@ -215,7 +217,11 @@ pub async fn frame_task(
 }
 
 /// The `stats` message for the loop's current summary and the stream's counters.
-pub fn stats_message(loop_stats: &LoopStats, counters: &StreamCounters) -> StatsMessage {
+pub fn stats_message(
+    loop_stats: &LoopStats,
+    counters: &StreamCounters,
+    device: DeviceStatus,
+) -> StatsMessage {
     let us = |ns: u64| ns as f64 * 1e-3;
     StatsMessage {
         loop_rate_hz: loop_stats.loop_rate_hz,
@@ -234,8 +240,26 @@ pub fn stats_message(loop_stats: &LoopStats, counters: &StreamCounters) -> Stats
         },
         viewers: counters.viewers.load(Ordering::Relaxed),
         dropped_frames: counters.dropped_frames.load(Ordering::Relaxed),
+        device,
     }
 }
+
+/// The device's state for viewers, from its error on the last tick.
+pub fn device_status(error: Option<DeviceError>) -> DeviceStatus {
+    match error {
+        None => DeviceStatus::Ok,
+        Some(DeviceError::Disconnected) => DeviceStatus::Disconnected,
+        Some(DeviceError::Timeout) => DeviceStatus::NotAnswering,
+        Some(DeviceError::ForceDisabled) => DeviceStatus::ForceDisabled,
+        Some(DeviceError::NeedsCalibration) => DeviceStatus::NeedsCalibration,
+        Some(DeviceError::Overrun) => DeviceStatus::Overrun,
+        Some(DeviceError::Driver(_)) => DeviceStatus::DriverError,
+    }
+}
+
+/// How often the stats task looks at the device's state: a change is logged and sent to the
+/// viewers at once rather than with the next second's stats.
+const DEVICE_STATUS_POLL: Duration = Duration::from_millis(50);
 
 /// Broadcasts `stats` every `period`, until shutdown.
 pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, period: Duration) {
@@ -244,12 +268,28 @@ pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, perio
     interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     // The first tick fires at once; the loop has no statistics yet then.
     interval.tick().await;
+    let mut poll = tokio::time::interval(DEVICE_STATUS_POLL.min(period));
+    poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut device = DeviceStatus::Ok;
     loop {
         tokio::select! {
             _ = interval.tick() => {}
+            _ = poll.tick() => {
+                let error = haptic_loop.device_error();
+                let now = device_status(error);
+                if now == device {
+                    continue;
+                }
+                // One line per change of state, never per tick; the text a person reads.
+                match error {
+                    Some(e) => tracing::warn!(error = %e, "haptic device: {}", now.message()),
+                    None => tracing::info!("haptic device: back, force ramps in again"),
+                }
+                device = now;
+            }
             _ = shutdown.changed() => break,
         }
-        let message = stats_message(&haptic_loop.stats(), &hub.counters);
+        let message = stats_message(&haptic_loop.stats(), &hub.counters, device);
         match ServerMessage::Stats(message).encode() {
             Ok(text) => {
                 let _ = hub.stats.send(Utf8Bytes::from(text));
@@ -481,7 +521,8 @@ mod tests {
         let counters = StreamCounters::default();
         counters.viewers.store(2, Ordering::Relaxed);
         counters.dropped_frames.store(7, Ordering::Relaxed);
-        let m = stats_message(&stats, &counters);
+        let m = stats_message(&stats, &counters, DeviceStatus::Disconnected);
+        assert_eq!(m.device, DeviceStatus::Disconnected);
         assert_eq!(m.period_error_us.p50, 2.5);
         assert_eq!(m.period_error_us.max, 130.0);
         assert_eq!(m.compute_us.p99, 40.0);

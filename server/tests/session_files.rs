@@ -90,6 +90,8 @@ fn tick(k: u64, fault: bool) -> TickRecord {
     TickRecord {
         sample,
         device_fault: fault,
+        device_error: fault.then_some(softhaptic_device::device::DeviceError::Disconnected),
+        command_error: None,
         contact: ContactState {
             tick: k,
             time_ns: k * 1_000_000,

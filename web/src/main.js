@@ -14,7 +14,14 @@ import { MeshDeformer, depressionAt, profileSetup, toolFromJson } from './deform
 import { ForcePlot } from './forceplot.js';
 import { PlayoutBuffer, RenderedContact } from './interpolation.js';
 import { parseRenderMesh } from './mesh.js';
-import { CONTACT_FLAGS, ViewerConnection, contactModelOf, validateMessage, webSocketUrl } from './protocol.js';
+import {
+  CONTACT_FLAGS,
+  DEVICE_STATUS_MESSAGES,
+  ViewerConnection,
+  contactModelOf,
+  validateMessage,
+  webSocketUrl,
+} from './protocol.js';
 import { ReplayTimeline } from './replay.js';
 
 /** Flags that mean the force is not what the model says (shown in red rather than amber). */
@@ -109,6 +116,7 @@ function init() {
     's-compute',
     's-overruns',
     's-viewers',
+    's-device',
     'w-rx',
     'w-fps',
     'w-deform',
@@ -647,6 +655,10 @@ function updatePanels() {
     setText(dom['s-compute'], formatUs(s.compute_us.p99));
     setText(dom['s-overruns'], `${s.overruns} / ${s.standby_ticks}`);
     setText(dom['s-viewers'], `${s.viewers} / ${s.dropped_frames}`);
+    const device = s.device ?? 'ok';
+    setText(dom['s-device'], DEVICE_STATUS_MESSAGES[device]);
+    const deviceClass = device === 'ok' ? '' : 'severe';
+    if (dom['s-device'].className !== deviceClass) dom['s-device'].className = deviceClass;
   }
   setText(dom['w-rx'], `${buffer.arrivalsSince(performance.now())} /s`);
   const gl = view.renderer === null ? ' (no WebGL)' : view.software ? ' (software GL)' : '';
@@ -672,6 +684,11 @@ function exposeTestHook() {
     webgl: () => view.renderer !== null,
     gpu: () => ({ name: view.gpuName ?? null, software: Boolean(view.software) }),
     scene: () => state.sceneJson,
+    /** The device's state as the last `stats` message gave it, and the words shown for it. */
+    device: () => {
+      const status = state.lastStats ? (state.lastStats.device ?? 'ok') : null;
+      return { status, shown: dom['s-device'].textContent };
+    },
     sceneLoads: () => state.sceneLoads,
     connection: () => ({
       state: connection.state,

@@ -25,6 +25,20 @@ export const CONTACT_FLAGS = Object.freeze([
   'continuous_force_limited',
 ]);
 
+/**
+ * The haptic device's states a `stats` message names (`DeviceStatus` in proto/src/wire.rs), with
+ * what the viewer shows for each: words a trainee understands, not a driver's code.
+ */
+export const DEVICE_STATUS_MESSAGES = Object.freeze({
+  ok: 'device ok',
+  disconnected: 'device disconnected',
+  not_answering: 'device not answering',
+  force_disabled: 'device force output disabled',
+  needs_calibration: 'device needs calibration: put the stylus in its inkwell',
+  overrun: 'device tick overran: force skipped',
+  driver_error: 'device driver error',
+});
+
 /** A message that breaks the contract; `field` is its dotted path. */
 export class ProtocolError extends Error {
   constructor(field, message) {
@@ -223,6 +237,8 @@ function validateContact(m) {
     }
   });
   count(m.dropped, 'contact.dropped');
+  // Absent from servers and recordings that predate it (read it as 0).
+  if (m.buttons !== undefined) count(m.buttons, 'contact.buttons');
   return m;
 }
 
@@ -236,6 +252,13 @@ function validateStats(m) {
   for (const k of ['p50', 'p99', 'max']) finite(compute[k], `stats.compute_us.${k}`);
   count(m.viewers, 'stats.viewers');
   count(m.dropped_frames, 'stats.dropped_frames');
+  // Absent from servers and recordings that predate it (read it as `ok`).
+  if (m.device !== undefined && !Object.hasOwn(DEVICE_STATUS_MESSAGES, m.device)) {
+    throw new ProtocolError(
+      'stats.device',
+      `unknown device state ${show(m.device)} (known: ${Object.keys(DEVICE_STATUS_MESSAGES).join(', ')})`,
+    );
+  }
   return m;
 }
 

@@ -11,7 +11,6 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
-use softhaptic_device::device::HapticDevice;
 use softhaptic_device::replay::ReplayDevice;
 use softhaptic_device::world::HapticWorld;
 
@@ -142,7 +141,7 @@ pub fn recorded_scene(recording: &Recording) -> Result<Scene, CheckError> {
             None,
         ),
     };
-    Scene::from_recorded_toml(
+    let mut scene = Scene::from_recorded_toml(
         &s.scene_toml,
         &label,
         base.as_deref(),
@@ -151,7 +150,17 @@ pub fn recorded_scene(recording: &Recording) -> Result<Scene, CheckError> {
     .map_err(|e| CheckError::Scene {
         path: recording.path.clone(),
         source: Box::new(e),
-    })
+    })?;
+    // The limits the session ran with: a real device's are the tighter of its own and the
+    // preset's, known only once it was open, and the `scene` message recorded them.
+    let d = &s.message.device;
+    scene.device_limits.peak_force_n = d.peak_force_n;
+    scene.device_limits.continuous_force_n = d.continuous_force_n;
+    scene.device_limits.max_stiffness_n_per_m = d.max_stiffness_n_per_m;
+    scene.device_limits.damping_n_s_per_m = d.damping_n_s_per_m;
+    scene.device_limits.workspace_radius_m = d.workspace_radius_m;
+    scene.device_label = Some(d.name.clone());
+    Ok(scene)
 }
 
 /// Replays `recording` and compares every force.
@@ -190,9 +199,8 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
     let mut first_difference = None;
     let mut differing_ticks = 0;
     for rec in records {
-        let state = world.step(device.read());
-        // The replay device keeps it; it cannot fail.
-        let _ = device.command_force(state.force_n);
+        // The same tick as the loop's, refusals of the recorded device included.
+        let state = world.tick(&mut device).state;
         let replayed = state.force_n.to_array();
         replayed_n.push(replayed);
         let same = replayed
