@@ -51,7 +51,10 @@
 //! only looks for the surface within a reach of q (the tip's bounding radius plus that depth
 //! bound), so a tool that appears deep inside a closed mesh, e.g. entering from below through the
 //! far side, yields either a clamped contact against the nearest surface or no contact; never an
-//! unbounded depth measured across the whole object.
+//! unbounded depth measured across the whole object. A query sees one tick only: a tool pushed
+//! past the bound by a hand stronger than the device is followed across ticks and held on the
+//! side it entered by [`crate::tracking::ContactTracker`], which the haptic world runs around
+//! this query.
 
 use std::time::Duration;
 

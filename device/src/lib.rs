@@ -15,6 +15,8 @@
 //! - [`collision`]: tool-tip collision with the haptic mesh (paper §4.1); each contact carries
 //!   the surface's curvature when the collider was built with it.
 //! - [`shape`]: the tool tip as a solid: implicit inside test, bounding box, support point.
+//! - [`tracking`]: the contact followed across ticks: a tool pushed past what the collision
+//!   measures is held on the side it entered (no pop-through).
 //! - [`liver`]: the procedural liver-like organ, as a coarse haptic mesh and a fine render surface.
 //! - [`device`]: the [`HapticDevice`](device::HapticDevice) trait, device limits, samples, errors.
 //! - [`sim`]: a simulated PHANTOM Desktop moved by a scripted hand (mass–spring–damper).
@@ -54,4 +56,5 @@ pub mod shape;
 pub mod sim;
 pub mod stats;
 pub mod thermal;
+pub mod tracking;
 pub mod world;

@@ -4,7 +4,10 @@
 //! 1. the scene's contact model F(δ; geometry) ([`ForceModel`]: the paper's law, or the law with
 //!    the corrections the scene turns on, fed the local curvature from the collision and the
 //!    tool's inclination); past δ*, where its stiffness reaches the device's stable stiffness
-//!    K_max, render F(δ*) + K_max(δ − δ*) instead (`STIFFNESS_CAPPED`);
+//!    K_max, render F(δ*) + K_max(δ − δ*) instead (`STIFFNESS_CAPPED`); past the tip's height,
+//!    which only a contact held after a push-through reaches ([`crate::tracking`],
+//!    `PUSHED_THROUGH`), continue with slope K_max from the force there, so the force keeps
+//!    rising to the device's peak instead of vanishing;
 //! 2. damping along the normal, F − b(v·n) (paper Fig. 9b), clamped so it never pulls the tool
 //!    into the object;
 //! 3. a linear ramp from zero when contact begins with a force that would jump, or when the
@@ -37,6 +40,7 @@ use softhaptic_proto::{ContactFlags, Material, ToolShape};
 use crate::device::DeviceLimits;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::passivity::PassivityObserver;
+use crate::shape;
 use crate::thermal::ContinuousForceLimiter;
 
 /// δ* is found again when the curvature has changed by more than this fraction of the tool's
@@ -143,6 +147,12 @@ pub struct ForceRenderer {
     cap_geometry: LocalGeometry,
     /// F(δ*) at `geometry`, the start of the linear extension.
     cap_force_n: f64,
+    /// The tip's height ([`shape::max_depth_m`]): the collision clamps the depth to it, so only
+    /// a contact the tracker holds after a push-through is rendered deeper.
+    tip_height_m: f64,
+    /// Slope of the force past the tip's height: the device's stable stiffness K_max (zero when
+    /// the device does not give a usable one, which still holds the force there).
+    beyond_tip_stiffness_n_per_m: f64,
     /// Effective damping: the configured one bounded by the device's.
     damping_n_s_per_m: f64,
     observer: PassivityObserver,
@@ -187,7 +197,14 @@ impl ForceRenderer {
         } else {
             0.0
         };
+        let k_max = limits.max_stiffness_n_per_m;
         Self {
+            tip_height_m: shape::max_depth_m(model.tool()),
+            beyond_tip_stiffness_n_per_m: if k_max.is_finite() {
+                k_max.max(0.0)
+            } else {
+                0.0
+            },
             model,
             config,
             limits,
@@ -292,7 +309,30 @@ impl ForceRenderer {
 
     /// The elastic force magnitude at `depth_m` and the current geometry, with the stiffness
     /// cap when it is on; the flag says whether the cap acted.
+    ///
+    /// Past the tip's height the force continues from its value there with slope K_max. Only a
+    /// contact held after a push-through gets there ([`crate::tracking`]); the tool is then
+    /// deeper than any indentation the law describes, and the object's one job left is to
+    /// push it back out the way it came, as hard as the device can stably push: with the
+    /// stiffness cap on and δ* below the tip's height this is the cap's own line, continued.
+    /// Extrapolating the law instead was rejected: for a small tool on soft tissue it grows so
+    /// slowly (Hertz for a 0.5 mm sphere on 50 kPa: 1.7 N at 10 mm, twenty times its height)
+    /// that a strong hand would sink the tool centimetres into the organ before the device
+    /// pushed back in earnest.
     pub fn elastic_force_n(&self, depth_m: f64) -> (f64, bool) {
+        let beyond_m = depth_m - self.tip_height_m;
+        if beyond_m > 0.0 {
+            let (at_height_n, capped) = self.law_force_n(self.tip_height_m);
+            return (
+                at_height_n + self.beyond_tip_stiffness_n_per_m * beyond_m,
+                capped,
+            );
+        }
+        self.law_force_n(depth_m)
+    }
+
+    /// The model, or its capped extension past δ*, at `depth_m`.
+    fn law_force_n(&self, depth_m: f64) -> (f64, bool) {
         if self.config.stiffness_cap && depth_m > self.cap_depth_m {
             let extension = (depth_m - self.cap_depth_m) * self.limits.max_stiffness_n_per_m;
             (self.cap_force_n + extension, true)
@@ -302,9 +342,20 @@ impl ForceRenderer {
     }
 
     /// Elastic energy stored in the rendered contact at `depth_m`: ∫ F dδ of
-    /// [`ForceRenderer::elastic_force_n`] (the model's [`ForceModel::energy_j`], plus the capped
-    /// extension's trapezoid).
+    /// [`ForceRenderer::elastic_force_n`] (the model's [`ForceModel::energy_j`], plus the
+    /// trapezoids of the capped extension and of the line past the tip's height).
     pub fn elastic_energy_j(&self, depth_m: f64) -> f64 {
+        let beyond_m = depth_m - self.tip_height_m;
+        if beyond_m > 0.0 {
+            return self.law_energy_j(self.tip_height_m)
+                + self.law_force_n(self.tip_height_m).0 * beyond_m
+                + 0.5 * self.beyond_tip_stiffness_n_per_m * beyond_m * beyond_m;
+        }
+        self.law_energy_j(depth_m)
+    }
+
+    /// ∫ F dδ of [`ForceRenderer::law_force_n`].
+    fn law_energy_j(&self, depth_m: f64) -> f64 {
         if self.config.stiffness_cap && depth_m > self.cap_depth_m {
             let extra = depth_m - self.cap_depth_m;
             self.model.energy_j(self.cap_depth_m, &self.geometry)
@@ -884,6 +935,50 @@ mod tests {
         ] {
             let r = renderer(material, |c| c.stiffness_cap = cap);
             let depth = 0.004;
+            let n = 20_000;
+            let h = depth / n as f64;
+            let numeric: f64 = (0..n)
+                .map(|i| r.elastic_force_n((i as f64 + 0.5) * h).0 * h)
+                .sum();
+            assert!((r.elastic_energy_j(depth) / numeric - 1.0).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn past_the_tips_height_the_force_keeps_rising_with_the_devices_stable_stiffness() {
+        let k_max = DeviceLimits::PHANTOM_DESKTOP.max_stiffness_n_per_m;
+        // A 1 mm sphere on soft tissue, whose law never reaches K_max within its 2 mm height,
+        // and the default sphere on stiff tissue, capped long before its 20 mm.
+        let small = ToolShape::sphere(0.001).unwrap();
+        let cases = [
+            ForceRenderer::new(
+                small,
+                Material::PAPER_SOFT,
+                RenderConfig::for_tool(&small),
+                DeviceLimits::PHANTOM_DESKTOP,
+            ),
+            renderer(Material::PAPER_STIFF, |_| {}),
+        ];
+        for r in cases {
+            let height = shape::max_depth_m(r.tool());
+            let (at, _) = r.elastic_force_n(height);
+            let (just_past, _) = r.elastic_force_n(height * (1.0 + 1e-9));
+            assert!(
+                (just_past - at).abs() < 1e-6,
+                "continuous: {at} → {just_past}"
+            );
+            let (deeper, _) = r.elastic_force_n(height + 0.005);
+            assert!(
+                (deeper - at - 5.0 * k_max * 1e-3).abs() < 1e-9,
+                "{at} → {deeper}"
+            );
+            // Where the cap already acts, this is the cap's own line, continued.
+            if r.cap_depth_m() < height {
+                let line = r.cap_force_n + k_max * (height + 0.005 - r.cap_depth_m());
+                assert!((deeper - line).abs() < 1e-9);
+            }
+            // The energy still integrates the rendered force, across the height.
+            let depth = height + 0.005;
             let n = 20_000;
             let h = depth / n as f64;
             let numeric: f64 = (0..n)

@@ -2,7 +2,8 @@
 //!
 //! [`HapticWorld::step`] turns one device reading into one [`ContactState`]: fault guard,
 //! collision in the object's frame (with the surface's local curvature when the scene's contact
-//! model uses it), force rendering with every safety limit. The loop thread
+//! model uses it), followed across ticks so that a tool pushed through the object is held on the
+//! side it entered ([`crate::tracking`]), force rendering with every safety limit. The loop thread
 //! calls it at 1 kHz; tests, replays and benches call it directly, with no thread and no clock,
 //! which is what makes a replay bit-identical (design.md, invariant 5).
 
@@ -14,6 +15,7 @@ use crate::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
 use crate::law;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::render::{ForceRenderer, RenderConfig, RenderedForce, WorldContact};
+use crate::tracking::ContactTracker;
 
 /// What [`HapticWorld::tick`] read, computed and commanded.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -30,6 +32,9 @@ pub struct TickOutcome {
 /// shares memory with another thread.
 pub struct HapticWorld {
     collider: Collider,
+    /// Holds a tool pushed past what the collision measures on the side it entered. Kept through
+    /// a fault: a gap in the readings is not a release.
+    tracker: ContactTracker,
     object_in_world: Pose,
     renderer: ForceRenderer,
     /// Ticks stepped so far (the next state's `tick`).
@@ -76,6 +81,7 @@ impl HapticWorld {
         };
         Self {
             collider,
+            tracker: ContactTracker::new(),
             object_in_world,
             renderer: ForceRenderer::with_model(model, render, limits),
             tick: 0,
@@ -163,7 +169,10 @@ impl HapticWorld {
             orientation: to_object * sample.tip_in_world.orientation,
         };
         let tool = *self.renderer.tool();
-        let geometry = self.collider.query(&tool, &tip_in_object);
+        let tracked = self
+            .tracker
+            .query(&mut self.collider, &tool, &tip_in_object);
+        let geometry = tracked.map(|t| t.geometry);
         let contact = geometry.map(|g| WorldContact {
             depth_m: g.depth_m,
             normal: o.orientation * g.normal,
@@ -189,6 +198,9 @@ impl HapticWorld {
             flags: rendered.flags,
             ..ContactState::IDLE
         };
+        if tracked.is_some_and(|t| t.pushed_through) {
+            state.flags |= ContactFlags::PUSHED_THROUGH;
+        }
         if let (Some(g), Some(c)) = (geometry, contact)
             && c.depth_m.is_finite()
         {

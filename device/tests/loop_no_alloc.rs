@@ -15,9 +15,9 @@ use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
 use softhaptic_device::liver;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::render::RenderConfig;
-use softhaptic_device::sim::{HandScript, SimulatedPhantom};
+use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
-use softhaptic_proto::{Material, ModelSpec, Pose, ToolShape};
+use softhaptic_proto::{ContactFlags, Material, ModelSpec, Pose, ToolShape};
 
 struct Counting;
 
@@ -89,6 +89,49 @@ fn ticks_do_not_allocate() {
         }
         assert_eq!(ALLOCATIONS.load(Ordering::Relaxed), before);
         assert!(touched > 500);
+    }
+
+    // A 1 mm sphere that a grip ten times the default pushes 30 mm deep, in both collision
+    // modes: the contact tracker holds it past the collision's reach, and that costs nothing
+    // either.
+    for mode in [CollisionMode::Continuous, CollisionMode::PaperVertices] {
+        let top = liver::top_contact();
+        let mesh = liver::haptic_mesh();
+        let (vertex, _) = mesh
+            .positions_m()
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                (*a.1 - top.point_m)
+                    .length()
+                    .total_cmp(&(*b.1 - top.point_m).length())
+            })
+            .unwrap();
+        let mut script =
+            HandScript::press(mesh.positions_m()[vertex], mesh.normals()[vertex], 0.03);
+        script.repeat = true;
+        let params = SimParams {
+            hand_stiffness_n_per_m: 3000.0,
+            ..SimParams::default()
+        };
+        let mut device = SimulatedPhantom::with_params(script, params);
+        let tool = ToolShape::sphere(0.001).unwrap();
+        let mut world = HapticWorld::with_model(
+            Collider::new(mesh, mode),
+            Pose::IDENTITY,
+            ForceModel::new(tool, Material::PAPER_SOFT, combined).unwrap(),
+            RenderConfig::for_tool(&tool),
+            DeviceLimits::PHANTOM_DESKTOP,
+        );
+        let before = ALLOCATIONS.load(Ordering::Relaxed);
+        let mut held = 0;
+        for _ in 0..4000 {
+            let state = world.step(device.read());
+            held += state.flags.contains(ContactFlags::PUSHED_THROUGH) as u32;
+            device.command_force(state.force_n).unwrap();
+        }
+        assert_eq!(ALLOCATIONS.load(Ordering::Relaxed), before, "{mode:?}");
+        assert!(held > 1000, "{mode:?}: held {held} ticks");
     }
 
     // The loop thread, with a tick ring: count only between two points of its steady state.

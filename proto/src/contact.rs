@@ -64,6 +64,11 @@ bitflags::bitflags! {
         /// The force was scaled down to hold the motors' RMS force at the device's continuous
         /// rating (a long, hard press).
         const CONTINUOUS_FORCE_LIMITED = 1 << 8;
+        /// The tool was pushed past what the collision can measure (deeper than the tip's
+        /// height, or through to the far side of a thin part): the contact is held against the
+        /// surface on the side the tool entered, its depth measured along that side's normal,
+        /// until the tool comes back out on that side.
+        const PUSHED_THROUGH = 1 << 9;
     }
 }
 

@@ -377,7 +377,7 @@ pub fn flag_name(flag: ContactFlags) -> Option<&'static str> {
 }
 
 /// Every flag with its wire name, in the order proto/WIRE.md lists them.
-pub const FLAG_NAMES: [(ContactFlags, &str); 9] = [
+pub const FLAG_NAMES: [(ContactFlags, &str); 10] = [
     (ContactFlags::SATURATED, "saturated"),
     (ContactFlags::STIFFNESS_CAPPED, "stiffness_capped"),
     (ContactFlags::BEYOND_VALID_DEPTH, "beyond_valid_depth"),
@@ -393,6 +393,7 @@ pub const FLAG_NAMES: [(ContactFlags, &str); 9] = [
         ContactFlags::CONTINUOUS_FORCE_LIMITED,
         "continuous_force_limited",
     ),
+    (ContactFlags::PUSHED_THROUGH, "pushed_through"),
 ];
 
 /// The snake_case names of the set flags, in [`FLAG_NAMES`] order.
@@ -954,6 +955,26 @@ mod tests {
         assert_eq!(json["normal"], serde_json::json!([0.0, 1.0, 0.0]));
         assert_eq!(json["dropped"], 9);
         assert_eq!(json["deformed_radius_m"], 0.02);
+    }
+
+    #[test]
+    fn pushed_through_is_bit_nine_and_travels_by_its_name() {
+        // The session log's device channel stores the bits, the wire the names.
+        assert_eq!(ContactFlags::PUSHED_THROUGH.bits(), 1 << 9);
+        let state = ContactState {
+            in_contact: true,
+            depth_m: 0.025,
+            flags: ContactFlags::PUSHED_THROUGH | ContactFlags::SATURATED,
+            ..ContactState::IDLE
+        };
+        let message = ServerMessage::Contact(ContactFrame::from_state(&state, 1, 0.0, 0));
+        let json = serde_json::to_value(&message).unwrap();
+        assert_eq!(
+            json["flags"],
+            serde_json::json!(["saturated", "pushed_through"])
+        );
+        let back: ServerMessage = serde_json::from_value(json).unwrap();
+        assert_eq!(back, message);
     }
 
     #[test]

@@ -24,8 +24,12 @@ import {
 } from './protocol.js';
 import { ReplayTimeline } from './replay.js';
 
-/** Flags that mean the force is not what the model says (shown in red rather than amber). */
-const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal']);
+/**
+ * Flags that mean the force is not what the model says (shown in red rather than amber);
+ * `pushed_through`: a hand has pushed the tool past what the collision measures and the contact
+ * is held on the side it entered, which an instructor should see at once.
+ */
+const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal', 'pushed_through']);
 const PLAYOUT_DELAY_MS = 50;
 const TIMING_SAMPLES = 120;
 

@@ -23,6 +23,7 @@ export const CONTACT_FLAGS = Object.freeze([
   'passivity_damping',
   'degenerate_normal',
   'continuous_force_limited',
+  'pushed_through',
 ]);
 
 /**

@@ -186,6 +186,7 @@ test('an empty buffer draws nothing', () => {
 
 test('flag names map to bits in contract order', () => {
   assert.equal(flagBits(['saturated']), 1);
-  assert.equal(flagBits(['continuous_force_limited']), 1 << (CONTACT_FLAGS.length - 1));
+  assert.equal(flagBits(['continuous_force_limited']), 1 << 8);
+  assert.equal(flagBits(['pushed_through']), 1 << 9);
   assert.equal(flagBits([...CONTACT_FLAGS]), (1 << CONTACT_FLAGS.length) - 1);
 });
