@@ -195,9 +195,10 @@ fn model_name(tool: &ToolShape) -> &'static str {
 /// The `scene` message for a loaded scene.
 pub fn scene_message(scene: &Scene) -> SceneMessage {
     let limits = scene.device_limits;
-    let device_name = scene.device_label.clone().unwrap_or_else(|| {
-        format!("{} {}", scene.device_kind.name(), limits.name)
-    });
+    let device_name = scene
+        .device_label
+        .clone()
+        .unwrap_or_else(|| format!("{} {}", scene.device_kind.name(), limits.name));
     SceneMessage {
         protocol_version: PROTOCOL_VERSION,
         tool: scene.tool,

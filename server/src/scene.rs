@@ -267,7 +267,10 @@ impl std::str::FromStr for DeviceChoice {
             return Err("the simulated device has no configuration name".into());
         }
         if name.as_deref() == Some("") {
-            return Err("an empty configuration name: write openhaptics alone for the default device".into());
+            return Err(
+                "an empty configuration name: write openhaptics alone for the default device"
+                    .into(),
+            );
         }
         Ok(DeviceChoice { kind, name })
     }
@@ -690,7 +693,12 @@ impl Scene {
                 ));
             }
         }
-        if file.device.name.as_deref().is_some_and(|n| n.is_empty() || n.contains('\0')) {
+        if file
+            .device
+            .name
+            .as_deref()
+            .is_some_and(|n| n.is_empty() || n.contains('\0'))
+        {
             return Err(field(
                 "device.name",
                 format!(
@@ -699,11 +707,14 @@ impl Scene {
                 ),
             ));
         }
-        let placement = file.device.world_from_device.unwrap_or(WorldFromDeviceSection {
-            position_m: [0.0; 3],
-            orientation: identity_quaternion(),
-            scale: 1.0,
-        });
+        let placement = file
+            .device
+            .world_from_device
+            .unwrap_or(WorldFromDeviceSection {
+                position_m: [0.0; 3],
+                orientation: identity_quaternion(),
+                scale: 1.0,
+            });
         let device_position_m = DVec3::from_array(placement.position_m);
         if !device_position_m.is_finite() {
             return Err(field(

@@ -25,8 +25,7 @@ use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::CalibrationTable;
 use softhaptic_proto::record::ReplayControl;
 use softhaptic_proto::wire::{
-    ComputeUs, ContactFrame, DeviceStatus, PeriodErrorUs, ServerMessage, StatsMessage,
-    message_type,
+    ComputeUs, ContactFrame, DeviceStatus, PeriodErrorUs, ServerMessage, StatsMessage, message_type,
 };
 use tokio::sync::{broadcast, watch};
 
