@@ -623,6 +623,8 @@ struct Inner {
     in_frame: AtomicBool,
     /// CLOCK_MONOTONIC time the current servo tick began.
     tick_start_ns: AtomicU64,
+    /// +1 each time the scheduler starts: the device clock's count restarts from there.
+    servo_epoch: AtomicU32,
     /// Set (once) by the servo thread when the device must be reconnected.
     reconnect_wanted: AtomicBool,
     /// +1 per successful reconnection: the device checks its calibration again.
@@ -688,6 +690,7 @@ impl Inner {
                 HD_DEFAULT_SCHEDULER_PRIORITY,
             );
             control.scheduled = Some(handle);
+            self.servo_epoch.fetch_add(1, Ordering::AcqRel);
             (api.start_scheduler)();
         }
         control.scheduler_running = true;
@@ -849,6 +852,12 @@ pub struct OpenHapticsDevice {
     limits: DeviceLimits,
     overrun_after_ns: u64,
     opened_ns: u64,
+    /// The device clock ([`OpenHapticsDevice::device_time_ns`]): the scheduler start it counts
+    /// from, the start of that start's first servo tick and its device time.
+    epoch_seen: u32,
+    epoch_start_ns: u64,
+    epoch_time_ns: u64,
+    last_time_ns: Option<u64>,
     clock_taken: bool,
     /// Calibrated since the last (re)connection.
     calibrated: bool,
@@ -889,6 +898,7 @@ impl OpenHapticsDevice {
             period_ns: config.period_ns.max(1),
             in_frame: AtomicBool::new(false),
             tick_start_ns: AtomicU64::new(0),
+            servo_epoch: AtomicU32::new(0),
             reconnect_wanted: AtomicBool::new(false),
             generation: AtomicU32::new(0),
             shutting_down: AtomicBool::new(false),
@@ -940,6 +950,10 @@ impl OpenHapticsDevice {
             limits,
             overrun_after_ns: config.overrun_after_ns.max(1),
             opened_ns: rt::now_ns(),
+            epoch_seen: 0,
+            epoch_start_ns: 0,
+            epoch_time_ns: 0,
+            last_time_ns: None,
             clock_taken: false,
             calibrated: false,
             generation_seen: 0,
@@ -996,6 +1010,31 @@ impl OpenHapticsDevice {
             HD_CALIBRATION_NEEDS_UPDATE => Calibration::NeedsUpdate,
             _ => Calibration::NeedsManualInput,
         })
+    }
+
+    /// The device time of the current servo tick: whole servo periods since the scheduler
+    /// started (the device's clock counts ticks; a late wake-up of the servo thread by less than
+    /// half a period does not move it), continuing from the wall time at each (re)start, and
+    /// increasing from tick to tick. A tick's time then does not depend on how late the host
+    /// woke the servo thread, so the force ramps and the heating model see the device's steps.
+    fn device_time_ns(&mut self) -> u64 {
+        let period_ns = self.inner.period_ns;
+        let start_ns = self.inner.tick_start_ns.load(Ordering::Relaxed);
+        let epoch = self.inner.servo_epoch.load(Ordering::Acquire);
+        if epoch != self.epoch_seen {
+            self.epoch_seen = epoch;
+            self.epoch_start_ns = start_ns;
+            let since_open = start_ns.saturating_sub(self.opened_ns);
+            self.epoch_time_ns = (since_open + period_ns / 2) / period_ns * period_ns;
+        }
+        let periods = (start_ns.saturating_sub(self.epoch_start_ns) + period_ns / 2) / period_ns;
+        let time_ns = self.epoch_time_ns + periods * period_ns;
+        let time_ns = match self.last_time_ns {
+            Some(last) => time_ns.max(last + 1),
+            None => time_ns,
+        };
+        self.last_time_ns = Some(time_ns);
+        time_ns
     }
 
     /// Books an unreachable tick; asks for a reconnection when there have been enough in a row.
@@ -1110,9 +1149,9 @@ impl HapticDevice for OpenHapticsDevice {
         // A rotation that is not one (a broken reading) gives a non-finite quaternion, which the
         // world refuses as a fault.
         let orientation = self.mapping.orientation(stylus);
-        let tick_start_ns = self.inner.tick_start_ns.load(Ordering::Relaxed);
+        let time_ns = self.device_time_ns();
         Ok(DeviceSample {
-            time_ns: tick_start_ns.saturating_sub(self.opened_ns),
+            time_ns,
             tip_in_world: Pose {
                 position_m: self.mapping.position_m(position_mm),
                 orientation,

@@ -1,0 +1,540 @@
+//! The OpenHaptics backend against the HD API stand-in (`tests/standin/hd_standin.c`), loaded
+//! through the same run-time path as the vendor's `libHD.so` (`SOFTHAPTIC_HD_LIBRARY`): the
+//! whole server runs device-clocked on the stand-in's servo thread, records the session, and the
+//! recording replays bit for bit. Each fault the stand-in can inject gives zero force on its
+//! tick, the `device_fault` flag, the device's state to viewers, and a ramp back in afterwards.
+//!
+//! The stand-in is one library per process with one device, so the tests here take turns
+//! ([`standin`]).
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use glam::{DMat3, DQuat, DVec3};
+use softhaptic_device::device::{DeviceLimits, HapticDevice};
+use softhaptic_device::openhaptics::{self, OpenHapticsConfig, OpenHapticsDevice};
+use softhaptic_device::sim::{SimParams, SimulatedPhantom};
+use softhaptic_proto::ContactFlags;
+use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
+use softhaptic_proto::wire::{DeviceStatus, ServerMessage};
+use softhaptic_server::app::{self, RunningServer};
+use softhaptic_server::devices;
+use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
+use softhaptic_server::session::check::{CheckOverrides, check};
+use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
+use softhaptic_server::session::reader::Recording;
+use softhaptic_tests::standin::{StandIn, hd, missing_symbol_path, standin_path};
+use softhaptic_tests::{Viewer, scratch_dir, test_options};
+
+/// One test at a time owns the stand-in (an async mutex: the tests hold it across awaits, and a
+/// test that fails releases it as it unwinds).
+static STANDIN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
+/// Takes the stand-in: the backend is pointed at it and it is reset to a fresh device.
+async fn standin() -> (tokio::sync::MutexGuard<'static, ()>, StandIn) {
+    let guard = STANDIN.lock().await;
+    point_backend_at(standin_path());
+    let s = StandIn::load().unwrap();
+    s.reset();
+    // The stylus held pointing down, so the stand-in's hand presses the tool's tip straight
+    // into the object.
+    s.set_rotation(Some(stylus_rotation(DQuat::IDENTITY)));
+    (guard, s)
+}
+
+/// The stylus' rotation (column-major 3×3) that gives the tool the world orientation
+/// `tool_in_world` with the device's axes on the world's: the tool's +y is the stylus' +z.
+fn stylus_rotation(tool_in_world: DQuat) -> [f64; 9] {
+    let stylus = tool_in_world * DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2);
+    DMat3::from_quat(stylus).to_cols_array()
+}
+
+fn point_backend_at(path: &std::path::Path) {
+    // SAFETY: every test of this binary sets the variable while holding `STANDIN`, before it
+    // starts any thread that reads it.
+    unsafe { std::env::set_var(openhaptics::LIBRARY_ENV, path) };
+}
+
+/// The built-in scene driven through OpenHaptics, the device's origin on the liver's top
+/// (where the stand-in's own hand presses: along −y through the device's origin).
+fn liver_scene() -> Scene {
+    let mut scene = Scene::builtin_default().unwrap();
+    scene.choose_device(&DeviceChoice {
+        kind: DeviceKind::Openhaptics,
+        name: None,
+    });
+    let (point, _) = scene.press_site_in_object;
+    scene.world_from_device.position_m = scene.object_in_world.transform_point(point);
+    scene
+}
+
+/// A running server recording its session.
+struct Live {
+    server: RunningServer,
+    recording: LiveRecording,
+}
+
+async fn start(scene: Scene, name: &str) -> Live {
+    start_with(scene, name, |config| config).await
+}
+
+/// [`start`] with the device's configuration adjusted by `configure`.
+async fn start_with(
+    mut scene: Scene,
+    name: &str,
+    configure: impl FnOnce(OpenHapticsConfig) -> OpenHapticsConfig,
+) -> Live {
+    let config = configure(devices::openhaptics_config(&scene));
+    let opened = OpenHapticsDevice::open(&config).unwrap();
+    scene.device_limits = opened.limits();
+    scene.device_label = Some(format!("{} (OpenHaptics)", opened.description().model));
+    let device: Box<dyn HapticDevice> = Box::new(opened);
+    let args = RecordArgs {
+        no_record: false,
+        record_dir: scratch_dir(name),
+    };
+    let mut recording = LiveRecording::start(&args, &scene, None).unwrap().unwrap();
+    let mut options = test_options();
+    options.device = Some(device);
+    options.tick_sink = recording.take_tick_sink();
+    options.session_id = Some(recording.session_id().to_owned());
+    let server = app::start(scene, options).await.unwrap();
+    assert!(
+        server.scene_message().device.name.contains("OpenHaptics"),
+        "{}",
+        server.scene_message().device.name
+    );
+    recording.attach(&server);
+    Live { server, recording }
+}
+
+/// Stops the server and returns its loop's final statistics and the recording.
+async fn finish(live: Live) -> (softhaptic_device::stats::LoopStats, Recording) {
+    let stats = live.server.shutdown().await;
+    let (path, _) = live.recording.finish().unwrap();
+    (stats, Recording::open(&path).unwrap())
+}
+
+/// Waits (polling, generous deadline) until `condition` holds.
+async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !condition() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
+/// Waits for `n` more servo ticks of the stand-in.
+async fn wait_ticks(s: &StandIn, n: u64) {
+    let target = s.ticks() + n;
+    wait_until(&format!("{n} servo ticks"), || s.ticks() >= target).await;
+}
+
+/// Waits until the stand-in's motors are sent a force above `newtons` (the hand presses).
+async fn wait_pressing(s: &StandIn, newtons: f64) {
+    wait_until(&format!("a force above {newtons} N"), || {
+        DVec3::from_array(s.last_force_n()).length() > newtons
+    })
+    .await;
+}
+
+fn force(d: &DeviceRecord) -> f64 {
+    DVec3::from_array(d.force_n).length()
+}
+
+fn flags(d: &DeviceRecord) -> ContactFlags {
+    ContactFlags::from_bits_retain(d.flags)
+}
+
+/// The recording replays to its recorded forces bit for bit.
+fn assert_replays(r: &Recording) {
+    let report = check(r, CheckOverrides::default()).unwrap();
+    assert!(report.passed(), "{report}");
+    assert_eq!(report.ticks_compared, r.device.len() as u64);
+}
+
+/// After the run of faulted ticks starting at `first_fault`, the force comes back through the
+/// ramp: the first good tick is flagged `ramping` and small, and no later tick jumps.
+fn assert_ramps_in_after(device: &[DeviceRecord], first_fault: usize, before_n: f64) {
+    let back = first_fault
+        + device[first_fault..]
+            .iter()
+            .position(|d| !flags(d).contains(ContactFlags::DEVICE_FAULT))
+            .expect("the device came back");
+    let first = &device[back];
+    assert!(
+        flags(first).contains(ContactFlags::RAMPING) || force(first) < 1e-9,
+        "tick {}: {:?}",
+        first.tick,
+        flags(first)
+    );
+    assert!(
+        force(first) < 0.1 * before_n,
+        "tick {}: {} N right after the fault (before it: {before_n} N)",
+        first.tick,
+        force(first)
+    );
+    // The ramp lasts 80 ms: about 1/80 of the force per tick, plus what the hand moves; a
+    // force stepped back in would jump by the whole of it.
+    for w in device[back..].windows(2) {
+        let step = force(&w[1]) - force(&w[0]);
+        assert!(
+            step < 0.15 * before_n,
+            "a jump of {step} N at tick {}",
+            w[1].tick
+        );
+    }
+    assert!(
+        device[back..].iter().any(|d| force(d) > 0.5 * before_n),
+        "the force came back"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_press_through_the_stand_in_feels_like_a_press_through_the_simulator() {
+    let (_guard, s) = standin().await;
+    let scene = liver_scene();
+    // The hand of the simulated device, moved by the forces the stand-in sends its motors: the
+    // same hand, the same script, the same loop as a press through the simulator.
+    let script = devices::hand_script(&scene);
+    let params = SimParams {
+        limits: DeviceLimits::PHANTOM_DESKTOP,
+        ..SimParams::default()
+    };
+    let mut hand = SimulatedPhantom::with_params(script, params);
+    s.set_rotation(Some(stylus_rotation(script.tool_orientation())));
+    let mut first = true;
+    let to_device = |v: DVec3| -> [f64; 3] { (v * 1e3).to_array() };
+    let origin = scene.world_from_device.position_m;
+    s.set_hand(move |force_n, position_mm, velocity_mm_s| {
+        if !std::mem::replace(&mut first, false) {
+            hand.command_force(DVec3::from_array(force_n)).unwrap();
+        }
+        let sample = hand.read().unwrap();
+        *position_mm = to_device(sample.tip_in_world.position_m - origin);
+        *velocity_mm_s = to_device(sample.tip_velocity_m_s);
+    });
+    // The comparison is of forces, not of this machine's scheduling: a servo thread preempted
+    // for a whole period on a loaded test machine must not turn a tick into an overrun here
+    // (the overrun has its own test).
+    let live = start_with(scene.clone(), "openhaptics-press", |config| {
+        OpenHapticsConfig {
+            overrun_after_ns: 50_000_000,
+            ..config
+        }
+    })
+    .await;
+    s.reset_stats();
+    // One pass of the script: approach, press, hold, slide, release.
+    wait_ticks(&s, 3_600).await;
+    let latency = s.latency();
+    let (stats, recording) = finish(live).await;
+    s.builtin_hand();
+    println!(
+        "through the stand-in: period error p50 {} µs, p99 {} µs, max {} µs; read-to-command \
+         latency p50 {} µs, p99 {} µs, max {} µs over {} frames",
+        stats.period_error_p50_ns as f64 * 1e-3,
+        stats.period_error_p99_ns as f64 * 1e-3,
+        stats.period_error_max_ns as f64 * 1e-3,
+        latency.p50_us,
+        latency.p99_us,
+        latency.max_us,
+        latency.frames
+    );
+    // The force answers the reading of the same servo tick: at most one period from the
+    // state's latch to the force's send.
+    assert!(latency.frames >= 3_000, "{latency:?}");
+    assert!(latency.max_us > 0.0);
+
+    // The same press through the simulator, with the limits the session ran with.
+    let mut reference_scene = scene.clone();
+    reference_scene.device_limits = recording_limits(&recording, &scene);
+    let mut world = reference_scene.haptic_world();
+    let mut simulated = SimulatedPhantom::with_params(script, params);
+    let device = &recording.device;
+    assert!(device.len() >= 3_000, "{} ticks recorded", device.len());
+    let reference: Vec<DVec3> = device
+        .iter()
+        .map(|_| world.tick(&mut simulated).state.force_n)
+        .collect();
+    let peak = reference.iter().map(|f| f.length()).fold(0.0, f64::max);
+    assert!(peak > 1.0, "a real press: peak {peak} N");
+    let worst = device
+        .iter()
+        .zip(&reference)
+        .map(|(d, r)| (DVec3::from_array(d.force_n) - *r).length())
+        .fold(0.0, f64::max);
+    println!("largest difference from the simulator: {worst:e} N of a {peak} N peak");
+    assert!(
+        worst <= 0.01 * peak,
+        "forces differ from the simulator's by {worst} N (peak {peak} N)"
+    );
+    assert!(device.iter().all(|d| d.device_error.is_none()));
+    assert_replays(&recording);
+}
+
+/// The limits the recording says the session ran with (the tighter of the preset's and the
+/// stand-in's).
+fn recording_limits(recording: &Recording, scene: &Scene) -> DeviceLimits {
+    let d = &recording.scene.message.device;
+    DeviceLimits {
+        peak_force_n: d.peak_force_n,
+        continuous_force_n: d.continuous_force_n,
+        max_stiffness_n_per_m: d.max_stiffness_n_per_m,
+        damping_n_s_per_m: d.damping_n_s_per_m,
+        workspace_radius_m: d.workspace_radius_m,
+        ..scene.device_limits
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_communication_error_mid_press_is_zero_force_on_its_ticks_then_a_ramp() {
+    let (_guard, s) = standin().await;
+    let live = start(liver_scene(), "openhaptics-comm").await;
+    wait_pressing(&s, 1.0).await;
+    s.inject_error(hd::HD_COMM_ERROR, 40);
+    wait_ticks(&s, 400).await;
+    let (stats, recording) = finish(live).await;
+    let device = &recording.device;
+    let first = device
+        .iter()
+        .position(|d| d.device_error.is_some())
+        .unwrap();
+    let run = device[first..]
+        .iter()
+        .take_while(|d| d.device_error.is_some())
+        .count();
+    assert_eq!(run, 40, "one faulted tick per injected servo tick");
+    for d in &device[first..first + run] {
+        assert_eq!(d.device_error, Some(DeviceErrorRecord::Disconnected));
+        assert!(d.device_fault && flags(d).contains(ContactFlags::DEVICE_FAULT));
+        assert_eq!(d.force_n, [0.0; 3], "tick {}", d.tick);
+    }
+    let before = force(&device[first - 1]);
+    assert!(before > 0.5, "{before} N before the fault");
+    assert_ramps_in_after(device, first, before);
+    // Ridden out without a reconnection.
+    assert_eq!(stats.watchdog_ticks, 0);
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_force_the_driver_refuses_is_zero_on_that_tick_and_ramps_in_after() {
+    let (_guard, s) = standin().await;
+    let live = start(liver_scene(), "openhaptics-maxforce").await;
+    wait_pressing(&s, 1.0).await;
+    // The driver's limit drops below the press: the next command exceeds it.
+    s.set_nominal_max_force(0.3);
+    wait_ticks(&s, 30).await;
+    s.set_nominal_max_force(7.9);
+    wait_ticks(&s, 400).await;
+    assert!(s.force_output_enabled(), "force output was enabled again");
+    let (stats, recording) = finish(live).await;
+    let device = &recording.device;
+    let first = device
+        .iter()
+        .position(|d| d.command_error.is_some())
+        .expect("a refused command");
+    let refused = &device[first];
+    assert_eq!(
+        refused.command_error,
+        Some(DeviceErrorRecord::ForceDisabled)
+    );
+    assert_eq!(refused.force_n, [0.0; 3], "zero on the refused tick itself");
+    assert!(refused.device_fault && flags(refused).contains(ContactFlags::DEVICE_FAULT));
+    assert!(stats.command_errors >= 1);
+    let before = force(&device[first - 1]);
+    assert_ramps_in_after(device, first, before);
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tick_that_overruns_its_servo_period_sends_zero_instead_of_a_late_force() {
+    let (_guard, s) = standin().await;
+    let live = start(liver_scene(), "openhaptics-overrun").await;
+    wait_pressing(&s, 1.0).await;
+    s.delay_timestamp(5, 2e-3);
+    wait_ticks(&s, 300).await;
+    let (_, recording) = finish(live).await;
+    let device = &recording.device;
+    let overran: Vec<&DeviceRecord> = device
+        .iter()
+        .filter(|d| d.command_error == Some(DeviceErrorRecord::Overrun))
+        .collect();
+    assert_eq!(overran.len(), 5);
+    for d in &overran {
+        assert_eq!(d.force_n, [0.0; 3]);
+        assert!(flags(d).contains(ContactFlags::DEVICE_FAULT));
+    }
+    let first = device
+        .iter()
+        .position(|d| d.command_error.is_some())
+        .unwrap();
+    assert_ramps_in_after(device, first, force(&device[first - 1]));
+    assert_replays(&recording);
+}
+
+/// Reads stats until one says the device is in `state`.
+async fn wait_for_device_state(viewer: &mut Viewer, state: DeviceStatus) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        assert!(Instant::now() < deadline, "no stats saying {state:?}");
+        if let Some(Ok(ServerMessage::Stats(m))) = viewer.next(Duration::from_secs(5)).await
+            && m.device == state
+        {
+            return;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unplugged_device_is_reconnected_and_the_force_ramps_in_again() {
+    let (_guard, s) = standin().await;
+    let live = start(liver_scene(), "openhaptics-unplug").await;
+    let mut viewer = Viewer::connect(live.server.local_addr()).await;
+    wait_pressing(&s, 1.0).await;
+    s.unplug();
+    wait_for_device_state(&mut viewer, DeviceStatus::Disconnected).await;
+    // The reconnection stops the driver's scheduler and retries while the cable is out.
+    wait_until("the scheduler stopped for the reconnection", || {
+        !s.scheduler_running()
+    })
+    .await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    s.replug();
+    wait_until("the scheduler restarted", || s.scheduler_running()).await;
+    wait_for_device_state(&mut viewer, DeviceStatus::Ok).await;
+    wait_ticks(&s, 1_500).await;
+    let (stats, recording) = finish(live).await;
+    assert!(
+        stats.watchdog_ticks > 100,
+        "the outage was ticked through: {} watchdog ticks",
+        stats.watchdog_ticks
+    );
+    let device = &recording.device;
+    let first = device
+        .iter()
+        .position(|d| d.device_error.is_some())
+        .unwrap();
+    let outage = device[first..]
+        .iter()
+        .take_while(|d| d.device_error.is_some())
+        .count();
+    assert!(
+        outage as u64
+            >= openhaptics::RECONNECT_AFTER_FAILED_TICKS as u64 + stats.watchdog_ticks / 2,
+        "{outage} faulted ticks"
+    );
+    assert!(
+        device[first..first + outage]
+            .iter()
+            .all(|d| d.force_n == [0.0; 3] && d.device_fault)
+    );
+    // Every tick index is there: the gap is marked by faulted ticks, not missing ones.
+    assert!(device.windows(2).all(|w| w[1].tick == w[0].tick + 1));
+    // The hand kept pressing through the outage: the force ramps in where it is.
+    let before = force(&device[first - 1]);
+    let back = first + outage;
+    assert!(
+        device[back..].iter().any(|d| d.in_contact),
+        "pressing again after the reconnection"
+    );
+    assert_ramps_in_after(device, first, before.max(force(&device[back + 100])));
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_that_needs_calibration_renders_no_force_until_it_is_calibrated() {
+    let (_guard, s) = standin().await;
+    s.require_calibration(hd::HD_CALIBRATION_NEEDS_MANUAL_INPUT);
+    let live = start(liver_scene(), "openhaptics-calibration").await;
+    let mut viewer = Viewer::connect(live.server.local_addr()).await;
+    wait_for_device_state(&mut viewer, DeviceStatus::NeedsCalibration).await;
+    // Through a whole press of the hand, nothing is sent.
+    for _ in 0..1_500 {
+        assert_eq!(s.last_force_n(), [0.0; 3]);
+        tokio::time::sleep(Duration::from_millis(1)).await;
+    }
+    s.complete_manual_calibration();
+    wait_for_device_state(&mut viewer, DeviceStatus::Ok).await;
+    wait_pressing(&s, 0.5).await;
+    let (_, recording) = finish(live).await;
+    let device = &recording.device;
+    let calibrated = device
+        .iter()
+        .position(|d| d.device_error.is_none())
+        .unwrap();
+    assert!(calibrated >= 1_000, "{calibrated} uncalibrated ticks");
+    assert!(device[..calibrated].iter().all(|d| {
+        d.device_error == Some(DeviceErrorRecord::NeedsCalibration) && d.force_n == [0.0; 3]
+    }));
+    assert!(device[calibrated..].iter().any(|d| force(d) > 0.5));
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stopping_the_server_sends_zero_force_and_stops_the_scheduler() {
+    let (_guard, s) = standin().await;
+    let live = start(liver_scene(), "openhaptics-stop").await;
+    wait_pressing(&s, 1.0).await;
+    let (stats, _) = finish(live).await;
+    assert_eq!(s.last_force_n(), [0.0; 3], "the last force sent is zero");
+    assert!(!s.scheduler_running(), "the scheduler stopped");
+    assert!(!s.device_open(), "the device was disabled");
+    assert_eq!(s.scheduled_callbacks(), 0);
+    assert!(stats.ticks > 100);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_library_without_an_hd_function_is_refused_by_name_and_nothing_starts() {
+    let (_guard, _s) = standin().await;
+    point_backend_at(missing_symbol_path());
+    let mut scene = liver_scene();
+    let e = devices::open(&mut scene).err().unwrap().to_string();
+    assert!(e.contains("hdGetSchedulerTimeStamp"), "{e}");
+    assert!(
+        e.contains(&missing_symbol_path().display().to_string()),
+        "{e}"
+    );
+    // The server refuses to start: it opens the device before it binds anything.
+    let e = app::start(liver_scene(), test_options())
+        .await
+        .err()
+        .unwrap();
+    assert!(e.to_string().contains("hdGetSchedulerTimeStamp"), "{e}");
+    // A file that is not a library at all.
+    let dir = scratch_dir("openhaptics-wrong-library");
+    let not_a_library: PathBuf = dir.join("libHD.so");
+    std::fs::write(&not_a_library, "not a shared library").unwrap();
+    point_backend_at(&not_a_library);
+    let e = devices::open(&mut liver_scene()).err().unwrap().to_string();
+    assert!(
+        e.contains("could not load") && e.contains(openhaptics::LIBRARY_ENV),
+        "{e}"
+    );
+    point_backend_at(standin_path());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_device_listing_shows_the_stand_in_with_its_limits_and_calibration() {
+    let (_guard, s) = standin().await;
+    let listing = devices::listing(&["Left".into()]);
+    assert!(
+        listing.contains(&standin_path().display().to_string()),
+        "{listing}"
+    );
+    assert!(listing.contains("PHANTOM Desktop"), "{listing}");
+    assert!(listing.contains("STANDIN-0001"), "{listing}");
+    assert!(listing.contains("7.90 N peak"), "{listing}");
+    assert!(listing.contains("calibrated"), "{listing}");
+    // A configuration the vendor's tool never made is named with the driver's reason.
+    assert!(listing.contains("\"Left\": cannot be opened"), "{listing}");
+    assert!(listing.contains("simulated: always available"), "{listing}");
+    assert!(!s.device_open(), "each probed device is closed again");
+    // The limits of an opened device are the tighter of its own and the preset's.
+    let device = OpenHapticsDevice::open(&OpenHapticsConfig::new(DeviceLimits::TOUCH)).unwrap();
+    assert_eq!(device.limits().peak_force_n, 3.3);
+    assert_eq!(device.description().max_stiffness_n_per_m, 1860.0);
+}
