@@ -189,8 +189,8 @@ fn severity(code: HdError) -> u8 {
 pub enum OpenHapticsError {
     /// No `libHD.so` anywhere it was looked for.
     #[error(
-        "the OpenHaptics HD library ({LIBRARY_FILE}) was not found; looked in: {}; {INSTALL_HINT}",
-        .tried.join("; ")
+        "the OpenHaptics HD library ({LIBRARY_FILE}) was not found; looked in:{}\n{INSTALL_HINT}",
+        .tried.iter().map(|t| format!("\n  - {t}")).collect::<String>()
     )]
     NotFound {
         /// Each place looked in, with why it was not used.

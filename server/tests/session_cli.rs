@@ -62,7 +62,9 @@ fn info_describes_the_fault_recording() {
     let text = String::from_utf8_lossy(&out.stdout);
     for expected in [
         "ticks:             3000 recorded, 0 missing",
-        "device faults:     200 ticks",
+        "device faults:     200 ticks in 1 gap of zero force, the longest 200 ticks at tick 1400",
+        "gap at 1.399 s (tick 1400): 200 ticks, device disconnected",
+        "device:            simulated PHANTOM Desktop",
         "device_fault (200 ticks)",
         "status:            complete",
         "peak force:",

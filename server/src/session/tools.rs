@@ -5,6 +5,7 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use softhaptic_proto::ContactFlags;
+use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
 use softhaptic_proto::wire::{ServerMessage, flag_names};
 
 use super::SessionError;
@@ -31,8 +32,12 @@ pub struct Info {
     pub contact_frames_dropped_reported: Option<u64>,
     /// Ticks in contact with the object.
     pub ticks_in_contact: u64,
+    /// The device the session ran with, as the viewers were told.
+    pub device: String,
     /// Ticks flagged as device faults.
     pub device_fault_ticks: u64,
+    /// The runs of consecutive faulted ticks: the gaps in the force the trainee felt.
+    pub fault_spans: Vec<FaultSpan>,
     /// Largest commanded force magnitude and its tick.
     pub peak_force_n: f64,
     pub peak_force_tick: Option<u64>,
@@ -43,6 +48,57 @@ pub struct Info {
     pub ending: Ending,
     pub recovery: String,
 }
+
+/// A run of consecutive ticks the device faulted on (zero force throughout).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaultSpan {
+    pub first_tick: u64,
+    pub ticks: u64,
+    /// Device time of the first tick, seconds.
+    pub start_s: f64,
+    /// Why, from the first tick of the run.
+    pub cause: String,
+}
+
+/// Why a recorded tick faulted, in words.
+fn fault_cause(d: &DeviceRecord) -> String {
+    let name = |e: &DeviceErrorRecord| match e {
+        DeviceErrorRecord::Disconnected => "device disconnected".to_owned(),
+        DeviceErrorRecord::Timeout => "device not answering".to_owned(),
+        DeviceErrorRecord::ForceDisabled => "force output disabled by the driver".to_owned(),
+        DeviceErrorRecord::Driver { code } => format!("driver error {code:#x}"),
+        DeviceErrorRecord::NeedsCalibration => "device needs calibration".to_owned(),
+        DeviceErrorRecord::Overrun => "tick overran its servo period".to_owned(),
+    };
+    match (&d.device_error, &d.command_error, &d.sample) {
+        (Some(e), _, _) => name(e),
+        (None, Some(e), _) => format!("command refused: {}", name(e)),
+        (None, None, Some(_)) => "sample refused (not finite, or outside the workspace)".into(),
+        (None, None, None) => "no reading".into(),
+    }
+}
+
+/// The runs of consecutive faulted ticks.
+fn fault_spans(device: &[DeviceRecord]) -> Vec<FaultSpan> {
+    let mut spans: Vec<FaultSpan> = Vec::new();
+    let mut previous: Option<u64> = None;
+    for d in device.iter().filter(|d| d.device_fault) {
+        match spans.last_mut() {
+            Some(span) if previous.is_some_and(|p| p + 1 == d.tick) => span.ticks += 1,
+            _ => spans.push(FaultSpan {
+                first_tick: d.tick,
+                ticks: 1,
+                start_s: d.time_ns as f64 * 1e-9,
+                cause: fault_cause(d),
+            }),
+        }
+        previous = Some(d.tick);
+    }
+    spans
+}
+
+/// At most this many fault spans are listed one by one.
+const FAULT_SPANS_LISTED: usize = 10;
 
 impl Info {
     pub fn of(r: &Recording) -> Info {
@@ -99,7 +155,9 @@ impl Info {
             contact_frames: r.contacts.len() as u64,
             contact_frames_dropped_reported: r.last_stats.map(|s| s.contact_frames_dropped),
             ticks_in_contact,
+            device: r.scene.message.device.name.clone(),
             device_fault_ticks,
+            fault_spans: fault_spans(&r.device),
             peak_force_n,
             peak_force_tick,
             max_depth_m,
@@ -160,7 +218,35 @@ impl fmt::Display for Info {
             )?,
             None => writeln!(f, "peak force:        none")?,
         }
-        writeln!(f, "device faults:     {} ticks", self.device_fault_ticks)?;
+        writeln!(f, "device:            {}", self.device)?;
+        match self.fault_spans.iter().max_by_key(|s| s.ticks) {
+            None => writeln!(f, "device faults:     none")?,
+            Some(longest) => {
+                let gaps = self.fault_spans.len();
+                writeln!(
+                    f,
+                    "device faults:     {} ticks in {gaps} {} of zero force, the longest {} ticks at tick {}",
+                    self.device_fault_ticks,
+                    if gaps == 1 { "gap" } else { "gaps" },
+                    longest.ticks,
+                    longest.first_tick
+                )?;
+                for span in self.fault_spans.iter().take(FAULT_SPANS_LISTED) {
+                    writeln!(
+                        f,
+                        "  gap at {:.3} s (tick {}): {} ticks, {}",
+                        span.start_s, span.first_tick, span.ticks, span.cause
+                    )?;
+                }
+                if self.fault_spans.len() > FAULT_SPANS_LISTED {
+                    writeln!(
+                        f,
+                        "  … and {} more",
+                        self.fault_spans.len() - FAULT_SPANS_LISTED
+                    )?;
+                }
+            }
+        }
         let mut flags = String::new();
         for (name, n) in &self.flags_seen {
             let _ = write!(flags, "{name} ({n} ticks) ");
