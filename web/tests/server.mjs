@@ -5,7 +5,8 @@
 // viewer URL it prints ("viewer: http://HOST:PORT/", or "replay: ..." for `softhaptic replay`).
 // SOFTHAPTIC_URL points the tests at a server that is already running instead (tests that need
 // a server of their own, such as a replay, say `external: false`); SOFTHAPTIC_BIN at a binary
-// that is already built.
+// that is already built. `hdStandinPath()` gives the stand-in for OpenHaptics' libHD that plays
+// a PHANTOM in tests (tests/standin/), for `env: { SOFTHAPTIC_HD_LIBRARY: ... }`.
 import { spawn, spawnSync } from 'node:child_process';
 import { existsSync } from 'node:fs';
 import path from 'node:path';
@@ -34,18 +35,42 @@ export function buildServer({ release = false } = {}) {
   return bin;
 }
 
+let standin = null;
+
+/**
+ * The path of the stand-in for OpenHaptics' libHD (built by the `softhaptic-tests` crate), as
+ * `cargo run -q -p softhaptic-tests --bin hd-standin-path` prints it; asked once per process.
+ */
+export function hdStandinPath() {
+  if (standin !== null) return standin;
+  const args = ['run', '-q', '-p', 'softhaptic-tests', '--bin', 'hd-standin-path'];
+  const result = spawnSync('cargo', args, { cwd: REPO, encoding: 'utf8', stdio: ['ignore', 'pipe', 'pipe'] });
+  if (result.error) throw new Error(`cannot run cargo: ${result.error.message}`);
+  if (result.status !== 0) {
+    throw new Error(`cargo ${args.join(' ')} failed with status ${result.status}:\n${result.stderr}`);
+  }
+  const found = result.stdout.trim();
+  if (!found || !existsSync(found)) {
+    throw new Error(`cargo ${args.join(' ')} printed ${JSON.stringify(found)}, which is not a file`);
+  }
+  standin = found;
+  return standin;
+}
+
 /**
  * Runs the server and resolves with `{url, stop, output}` once it prints its viewer URL.
  * `command` comes first (e.g. `['replay', 'tests/sessions/x.mcap']`; none runs a live
  * session), then `--addr` and `extraArgs` (e.g. a scene); paths are relative to the repository.
- * `addr` defaults to a free local port. With `external` (the default), SOFTHAPTIC_URL, when set,
- * is used instead of starting anything.
+ * `addr` defaults to a free local port. `env` is added to the server's environment (e.g. the
+ * OpenHaptics library). With `external` (the default), SOFTHAPTIC_URL, when set, is used instead
+ * of starting anything.
  */
 export async function startServer({
   release = false,
   command = [],
   extraArgs = [],
   addr = '127.0.0.1:0',
+  env = {},
   timeoutMs = 60000,
   external = true,
 } = {}) {
@@ -55,6 +80,7 @@ export async function startServer({
   const bin = buildServer({ release });
   const child = spawn(bin, [...command, '--addr', addr, ...extraArgs], {
     cwd: REPO,
+    env: { ...process.env, ...env },
     stdio: ['ignore', 'pipe', 'pipe'],
   });
   let output = '';
