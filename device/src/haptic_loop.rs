@@ -108,8 +108,11 @@ const SPIN_MAX_NS: u64 = 200_000;
 /// Stats are summarised for readers every this many ticks (percentiles scan the histogram).
 const STATS_EVERY_TICKS: u64 = 100;
 /// A device-clocked loop whose driver has not called for this many periods is taken to be down
-/// (reconnecting), and its watchdog starts running fault ticks.
-const WATCHDOG_SILENT_PERIODS: u64 = 10;
+/// (reconnecting), and its watchdog starts running fault ticks. Long enough that a servo thread
+/// the host merely held back (tens of milliseconds at worst, on a loaded machine without
+/// real-time scheduling) is waited for: a watchdog tick is a fault, and the force ramps in again
+/// after it.
+const WATCHDOG_SILENT_PERIODS: u64 = 100;
 
 /// A seqlock over plain `u64` words: one writer, any number of readers, no `unsafe`.
 ///
@@ -294,6 +297,11 @@ struct TickCore {
     /// Start of the last servo tick of a device-clocked loop, `None` before the first and after
     /// a watchdog tick (the driver's clock was down: its next interval is not a period).
     last_servo_start_ns: Option<u64>,
+    /// The run of servo ticks since the driver's clock (re)started: its first tick's start, the
+    /// ticks run, and the ticks the clock skipped (its grid's periods without a tick).
+    servo_run_start_ns: u64,
+    servo_run_ticks: u64,
+    servo_run_lost: u64,
 }
 
 /// The tick state, handed between the loop thread and its standby without either ever waiting.
@@ -770,6 +778,9 @@ impl TickCore {
             timing: Box::new(Timing::new()),
             next_tick: 0,
             last_servo_start_ns: None,
+            servo_run_start_ns: 0,
+            servo_run_ticks: 0,
+            servo_run_lost: 0,
         }
     }
 
@@ -807,14 +818,26 @@ impl TickCore {
     }
 
     /// Books a servo tick of the driver's clock that began at `tick_start_ns`: the period comes
-    /// from the device's clock, and servo ticks it skipped count as lost.
+    /// from the device's clock, and the periods of its grid that passed without a tick count as
+    /// lost (a late tick followed by an early one lost nothing).
     fn book_servo_tick(&mut self, tick_start_ns: u64, shared: &Shared, period_ns: u64) {
         let timing = &mut self.timing;
+        if self.last_servo_start_ns.is_none() {
+            self.servo_run_start_ns = tick_start_ns;
+            self.servo_run_ticks = 0;
+            self.servo_run_lost = 0;
+        }
+        self.servo_run_ticks += 1;
+        let periods =
+            (tick_start_ns.saturating_sub(self.servo_run_start_ns) + period_ns / 2) / period_ns;
+        let lost = (periods + 1).saturating_sub(self.servo_run_ticks);
+        if lost > self.servo_run_lost {
+            timing.overruns += lost - self.servo_run_lost;
+            self.servo_run_lost = lost;
+        }
         if let Some(previous) = self.last_servo_start_ns {
             let interval_ns = tick_start_ns.saturating_sub(previous);
             timing.period_error.record(interval_ns.abs_diff(period_ns));
-            let periods = (interval_ns + period_ns / 2) / period_ns;
-            timing.overruns += periods.saturating_sub(1);
             if interval_ns > period_ns + period_ns / 2 {
                 timing.late.push(LateWake {
                     deadline_ns: previous + period_ns,
@@ -1060,6 +1083,42 @@ mod tests {
         assert_eq!(t.ticks + t.overruns, core.next_tick);
         assert_eq!(core.world.ticks(), t.ticks, "one world step per tick");
         assert_eq!(shared.next_tick.load(Ordering::Relaxed), core.next_tick);
+    }
+
+    #[test]
+    fn servo_ticks_count_as_lost_only_the_periods_the_device_clock_skipped() {
+        const P: u64 = 1_000_000;
+        let mut core = grid_core();
+        let shared = Shared::new();
+        // On time, on time, 0.7 period late, then back on the grid (nothing lost), then two
+        // periods skipped.
+        for start in [0, P, 2 * P + 7 * P / 10, 3 * P, 6 * P] {
+            core.run_tick(
+                TickSource::Servo {
+                    tick_start_ns: 10 * P + start,
+                },
+                10 * P + start,
+                &shared,
+                P,
+            );
+        }
+        assert_eq!(core.timing.overruns, 2);
+        assert_eq!(core.timing.ticks, 5);
+        assert_eq!(core.timing.period_error.max_ns(), 2 * P);
+        // A watchdog tick while the driver's clock was down, then a new run of the clock: the
+        // gap is not a run of lost servo ticks.
+        core.run_tick(TickSource::Watchdog, 200 * P, &shared, P);
+        core.run_tick(
+            TickSource::Servo {
+                tick_start_ns: 500 * P,
+            },
+            500 * P,
+            &shared,
+            P,
+        );
+        assert_eq!(core.timing.overruns, 2);
+        assert_eq!(core.timing.watchdog_ticks, 1);
+        assert_eq!(core.next_tick, 7);
     }
 
     #[test]

@@ -37,6 +37,7 @@
 #include <errno.h>
 #include <math.h>
 #include <pthread.h>
+#include <sched.h>
 #include <stdatomic.h>
 #include <stdint.h>
 #include <stdio.h>
@@ -742,6 +743,12 @@ static void servo_tick(double period_s) {
 static void *scheduler_main(void *arg) {
     (void)arg;
     t_is_scheduler = 1;
+    /* The vendor's servo thread runs at a real-time priority; ask for one too, and carry on at
+     * normal priority where the process is not allowed it (a test machine without the rights).
+     * Without it the servo ticks here would stall behind ordinary work, which the real device's
+     * would not. */
+    struct sched_param param = {.sched_priority = 80};
+    (void)pthread_setschedparam(pthread_self(), SCHED_FIFO, &param);
     struct timespec next;
     now_monotonic(&next);
     while (!atomic_load(&g_stop)) {
