@@ -101,6 +101,7 @@ function init() {
     'v-rd',
     'v-force',
     'v-material',
+    'v-device',
     'v-model',
     'model-details',
     'm-corrections',
@@ -281,6 +282,11 @@ async function applyScene(scene) {
   state.tool = toolFromJson(scene.tool);
   plot.setPeakForce(scene.device.peak_force_n);
   dom['v-material'].textContent = `E ${formatPa(scene.material.youngs_modulus_pa)}, ν ${scene.material.poisson_ratio}`;
+  const device = scene.device;
+  dom['v-device'].textContent = device.name;
+  dom['v-device'].title =
+    `peak ${device.peak_force_n} N, continuous ${device.continuous_force_n} N, ` +
+    `stiffness ≤ ${device.max_stiffness_n_per_m} N/m, damping ≤ ${device.damping_n_s_per_m} N·s/m`;
   showContactModel(contactModelOf(scene));
   buildTool(scene.tool);
 
