@@ -1,0 +1,269 @@
+//! A loop on a device's own servo clock ([`ServoClock`], as OpenHaptics' scheduler is): every
+//! tick runs from the driver's calls, without allocating; while the clock is silent the watchdog
+//! keeps ticking and stands aside when it calls again; stopping stops the clock first and then
+//! commands zero force. The clock here is a plain thread calling the tick every millisecond (the
+//! OpenHaptics stand-in in `tests/` plays the vendor's library itself). One test per binary, so
+//! that only its allocations are counted.
+
+// Test code: a panic is how a failure is reported.
+#![allow(clippy::unwrap_used)]
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use glam::DVec3;
+use softhaptic_device::collision::{Collider, CollisionMode};
+use softhaptic_device::device::{
+    DeviceError, DeviceLimits, DeviceSample, HapticDevice, ServoClock,
+};
+use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
+use softhaptic_device::liver;
+use softhaptic_device::render::RenderConfig;
+use softhaptic_device::rt;
+use softhaptic_device::sim::{HandScript, SimulatedPhantom};
+use softhaptic_device::world::HapticWorld;
+use softhaptic_proto::{Material, Pose, ToolShape};
+
+struct Counting;
+
+static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
+
+// SAFETY: forwards every call unchanged to the system allocator, only counting.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// What the test sees of the clock and the device.
+#[derive(Default)]
+struct Probe {
+    /// The clock calls the tick (cleared: the driver's clock is down).
+    calling: AtomicBool,
+    /// The clock's calls so far.
+    calls: AtomicU64,
+    /// `ServoClock::stop` has returned.
+    stopped: AtomicBool,
+    /// Commands after the clock stopped, and whether any of them was not zero.
+    commands_after_stop: AtomicU64,
+    nonzero_after_stop: AtomicBool,
+    /// The device is inside a call of its clock (reads outside it fail, as a driver's do).
+    in_call: AtomicBool,
+}
+
+/// A servo clock: a thread calling the tick once per period while `calling` is set.
+struct ThreadClock {
+    probe: Arc<Probe>,
+    running: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl ServoClock for ThreadClock {
+    fn period_ns(&self) -> u64 {
+        1_000_000
+    }
+
+    fn start(&mut self, mut tick: Box<dyn FnMut(u64) + Send>) -> Result<(), DeviceError> {
+        let probe = Arc::clone(&self.probe);
+        let running = Arc::clone(&self.running);
+        running.store(true, Ordering::Release);
+        self.thread = Some(std::thread::spawn(move || {
+            let mut next = rt::now_ns();
+            while running.load(Ordering::Acquire) {
+                next += 1_000_000;
+                rt::sleep_until_ns(next);
+                next = next.max(rt::now_ns().saturating_sub(500_000));
+                if probe.calling.load(Ordering::Acquire) {
+                    probe.calls.fetch_add(1, Ordering::Relaxed);
+                    probe.in_call.store(true, Ordering::Release);
+                    tick(rt::now_ns());
+                    probe.in_call.store(false, Ordering::Release);
+                }
+            }
+        }));
+        Ok(())
+    }
+
+    fn stop(&mut self) {
+        self.running.store(false, Ordering::Release);
+        if let Some(thread) = self.thread.take() {
+            thread.join().unwrap();
+        }
+        self.probe.stopped.store(true, Ordering::Release);
+    }
+}
+
+/// The simulated PHANTOM behind a driver that owns the clock: readable only inside its calls.
+struct ClockedPhantom {
+    sim: SimulatedPhantom,
+    probe: Arc<Probe>,
+    clock_given: bool,
+}
+
+impl HapticDevice for ClockedPhantom {
+    fn limits(&self) -> DeviceLimits {
+        self.sim.limits()
+    }
+
+    fn read(&mut self) -> Result<DeviceSample, DeviceError> {
+        if !self.probe.in_call.load(Ordering::Acquire) {
+            return Err(DeviceError::Timeout);
+        }
+        self.sim.read()
+    }
+
+    fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+        if self.probe.stopped.load(Ordering::Acquire) {
+            self.probe
+                .commands_after_stop
+                .fetch_add(1, Ordering::Relaxed);
+            if force_n != DVec3::ZERO {
+                self.probe.nonzero_after_stop.store(true, Ordering::Relaxed);
+            }
+            return Ok(());
+        }
+        if self.probe.in_call.load(Ordering::Acquire) {
+            self.sim.command_force(force_n)
+        } else {
+            Ok(())
+        }
+    }
+
+    fn servo_clock(&mut self) -> Option<Box<dyn ServoClock>> {
+        if std::mem::replace(&mut self.clock_given, true) {
+            return None;
+        }
+        Some(Box::new(ThreadClock {
+            probe: Arc::clone(&self.probe),
+            running: Arc::new(AtomicBool::new(false)),
+            thread: None,
+        }))
+    }
+}
+
+fn wait_until(what: &str, condition: impl Fn() -> bool) {
+    let give_up = Instant::now() + Duration::from_secs(60);
+    while !condition() {
+        assert!(Instant::now() < give_up, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+#[test]
+fn a_device_clocked_loop_ticks_on_the_driver_s_calls_without_allocating_and_stops_with_zero_force()
+{
+    let top = liver::top_contact();
+    let mut script = HandScript::press(top.point_m, top.normal, 0.01);
+    script.repeat = true;
+    let tool = ToolShape::sphere(0.01).unwrap();
+    let world = HapticWorld::new(
+        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
+        Pose::IDENTITY,
+        tool,
+        Material::PAPER_SOFT,
+        RenderConfig::for_tool(&tool),
+        DeviceLimits::PHANTOM_DESKTOP,
+    );
+    let probe = Arc::new(Probe::default());
+    probe.calling.store(true, Ordering::Release);
+    let device = ClockedPhantom {
+        sim: SimulatedPhantom::new(script),
+        probe: Arc::clone(&probe),
+        clock_given: false,
+    };
+    let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(16);
+    let haptic = HapticLoop::spawn(
+        Box::new(device),
+        world,
+        LoopConfig {
+            // Ignored: the driver's clock sets the period.
+            period_ns: 7_000_000,
+            realtime: false,
+            tick_sink: Some(producer),
+            standby: true,
+        },
+    )
+    .unwrap();
+    assert!(haptic.device_clocked());
+    assert!(
+        haptic.standby().is_none(),
+        "the driver's thread runs the ticks"
+    );
+
+    // Every tick is one call of the clock, and none allocates.
+    wait_until("50 ticks", || haptic.latest_contact().tick >= 50);
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let (calls_before, tick_before) = (
+        probe.calls.load(Ordering::Relaxed),
+        haptic.latest_contact().tick,
+    );
+    let mut drained = 0;
+    while haptic.latest_contact().tick < tick_before + 500 {
+        while consumer.pop().is_ok() {
+            drained += 1;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    let after = ALLOCATIONS.load(Ordering::Relaxed);
+    assert_eq!(
+        after, before,
+        "allocations while the device clocked the loop"
+    );
+    assert!(drained > 0);
+    let ticks = haptic.latest_contact().tick - tick_before;
+    let calls = probe.calls.load(Ordering::Relaxed) - calls_before;
+    assert!(
+        calls.abs_diff(ticks) <= 2,
+        "{ticks} ticks for {calls} calls of the driver's clock"
+    );
+    assert_eq!(haptic.stats().watchdog_ticks, 0);
+    assert_eq!(haptic.device_error(), None);
+
+    // The driver's clock falls silent: after 100 periods the watchdog ticks, and the device
+    // (outside its driver's calls) reports the error that the loop publishes.
+    probe.calling.store(false, Ordering::Release);
+    wait_until("watchdog ticks", || haptic.stats().watchdog_ticks >= 50);
+    assert_eq!(haptic.device_error(), Some(DeviceError::Timeout));
+    let fault = haptic.latest_contact();
+    assert_eq!(fault.force_n, DVec3::ZERO);
+    // It calls again: the watchdog stands aside.
+    probe.calling.store(true, Ordering::Release);
+    wait_until("the device back", || haptic.device_error().is_none());
+    let watchdog = haptic.stats().watchdog_ticks;
+    let resumed = haptic.latest_contact().tick;
+    wait_until("200 more ticks", || {
+        haptic.latest_contact().tick >= resumed + 200
+    });
+    // Stats are published every 100 ticks, so at most one more watchdog tick shows up late.
+    assert!(haptic.stats().watchdog_ticks <= watchdog + 1);
+
+    let stats = haptic.stop();
+    assert!(probe.stopped.load(Ordering::Acquire));
+    assert_eq!(
+        probe.commands_after_stop.load(Ordering::Relaxed),
+        1,
+        "one command after the clock stopped"
+    );
+    assert!(
+        !probe.nonzero_after_stop.load(Ordering::Relaxed),
+        "and it was zero force"
+    );
+    assert!(stats.ticks >= 700);
+}
