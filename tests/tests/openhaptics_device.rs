@@ -477,9 +477,23 @@ async fn a_device_that_needs_calibration_renders_no_force_until_it_is_calibrated
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stopping_the_server_sends_zero_force_and_stops_the_scheduler() {
     let (_guard, s) = standin().await;
+    // The stylus' second button held through the session: on the wire and in the recording.
+    s.set_buttons(2);
     let live = start(liver_scene(), "openhaptics-stop").await;
     wait_pressing(&s, 1.0).await;
-    let (stats, _) = finish(live).await;
+    let (stats, recording) = finish(live).await;
+    assert!(
+        recording
+            .device
+            .iter()
+            .filter_map(|d| d.sample.as_ref())
+            .all(|sample| sample.buttons == 2)
+    );
+    let frame = recording.contacts.last().expect("contact frames recorded");
+    match ServerMessage::decode(&frame.json).unwrap() {
+        ServerMessage::Contact(c) => assert_eq!(c.buttons, 2),
+        other => panic!("{other:?}"),
+    }
     assert_eq!(s.last_force_n(), [0.0; 3], "the last force sent is zero");
     assert!(!s.scheduler_running(), "the scheduler stopped");
     assert!(!s.device_open(), "the device was disabled");
