@@ -6,6 +6,7 @@ import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 
 import {
+  DEVICE_STATUS_MESSAGES,
   ProtocolError,
   ViewerConnection,
   backoffDelayMs,
@@ -103,6 +104,8 @@ test('malformed messages are refused with the field and the value', () => {
     [JSON.stringify({ ...scene, render_meshes: [{ name: 'x' }] }), /scene.render_meshes\[0\].url/],
     [JSON.stringify({ ...scene, calibration: { ...scene.calibration, format: 'csv' } }), /scene.calibration.format/],
     [JSON.stringify({ ...stats, period_error_us: { p50: 1 } }), /stats.period_error_us.p99/],
+    [JSON.stringify({ ...stats, device: 'on fire' }), /stats.device: unknown device state "on fire"/],
+    [JSON.stringify(contact({ buttons: -1 })), /contact.buttons: expected a non-negative integer/],
   ];
   for (const [text, pattern] of cases) {
     assert.throws(
@@ -111,6 +114,26 @@ test('malformed messages are refused with the field and the value', () => {
       text,
     );
   }
+});
+
+test('every device state has words for the trainee, and a stats without one reads as ok', () => {
+  const states = [
+    'ok',
+    'disconnected',
+    'not_answering',
+    'force_disabled',
+    'needs_calibration',
+    'overrun',
+    'driver_error',
+  ];
+  assert.deepEqual(Object.keys(DEVICE_STATUS_MESSAGES), states);
+  for (const state of states) {
+    assert.equal(decodeMessage(JSON.stringify({ ...stats, device: state })).message.device, state);
+    assert.ok(DEVICE_STATUS_MESSAGES[state].startsWith('device '), state);
+  }
+  const older = { ...stats };
+  delete older.device;
+  assert.equal(decodeMessage(JSON.stringify(older)).message.device, undefined);
 });
 
 test('the WebSocket URL follows the page, query included', () => {
