@@ -452,8 +452,9 @@ async fn a_device_that_needs_calibration_renders_no_force_until_it_is_calibrated
     let live = start(liver_scene(), "openhaptics-calibration").await;
     let mut viewer = Viewer::connect(live.server.local_addr()).await;
     wait_for_device_state(&mut viewer, DeviceStatus::NeedsCalibration).await;
-    // Through a whole press of the hand, nothing is sent.
-    for _ in 0..1_500 {
+    // Through a whole press of the hand (1500 servo ticks), nothing is sent.
+    let target = s.ticks() + 1_500;
+    while s.ticks() < target {
         assert_eq!(s.last_force_n(), [0.0; 3]);
         tokio::time::sleep(Duration::from_millis(1)).await;
     }
