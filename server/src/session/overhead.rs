@@ -11,7 +11,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig};
-use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
+use softhaptic_device::sim::{SimParams, SimulatedPhantom};
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::record::{BuildRecord, SESSION_FORMAT_VERSION, SceneRecord};
 use softhaptic_proto::wire::PROTOCOL_VERSION;
@@ -47,14 +47,7 @@ fn run_once(
     realtime: bool,
     record_to: Option<&Path>,
 ) -> anyhow::Result<(RunFigures, bool)> {
-    let pose = scene.object_in_world;
-    let (point, normal) = scene.press_site_in_object;
-    let mut script = HandScript::press(
-        pose.transform_point(point),
-        pose.orientation * normal,
-        scene.press_depth_m,
-    );
-    script.repeat = true;
+    let script = crate::devices::hand_script(scene);
     let params = SimParams {
         limits: scene.device_limits,
         ..SimParams::default()

@@ -82,13 +82,8 @@ pub enum ScriptError {
 
 /// The hand's script for `name` at the scene's press site.
 fn hand_script(name: ScriptName, scene: &Scene) -> HandScript {
-    let pose = scene.object_in_world;
-    let (point, normal) = scene.press_site_in_object;
-    let mut script = HandScript::press(
-        pose.transform_point(point),
-        pose.orientation * normal,
-        scene.press_depth_m,
-    );
+    // The live demonstration's press, once.
+    let mut script = crate::devices::hand_script(scene);
     script.repeat = false;
     if name != ScriptName::Slide {
         script.slide_distance_m = 0.0;
