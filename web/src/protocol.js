@@ -1,6 +1,7 @@
 // The viewer's side of the WebSocket protocol (proto/WIRE.md): decoding and validating the
-// server's messages, encoding the one message a viewer sends (`replay_control`), the socket URL,
-// and a connection that reconnects with exponential backoff and jitter.
+// server's messages, encoding the messages a viewer sends (`auth`, `replay_control`), the socket
+// URL, and a connection that presents its token first, reconnects with exponential backoff and
+// jitter, and stops for good when the server says the token is missing or not valid (4401).
 //
 // Messages keep their wire names (snake_case, SI units in the names) so that what the viewer
 // reads can be compared with the contract line by line. A message that breaks the contract is
@@ -126,12 +127,52 @@ function version(value, field) {
   return value;
 }
 
+/**
+ * What a connection may do (`hello.role`): an `instructor` also moves a replay's shared timeline
+ * (and later issues' instructor-only actions); an `observer` only watches.
+ */
+export const ROLES = Object.freeze(['instructor', 'observer']);
+
+/** What the server serves (`hello.mode`): a `live` session or the `replay` of a recording. */
+export const MODES = Object.freeze(['live', 'replay']);
+
+/**
+ * The roles of servers before roles and tokens, which sent no `mode`: every connection was a
+ * `viewer` of a live session, or a `replay` viewer that anyone could control.
+ */
+const LEGACY_ROLES = Object.freeze({
+  viewer: { role: 'observer', mode: 'live' },
+  replay: { role: 'instructor', mode: 'replay' },
+});
+
 function validateHello(m) {
   version(m.protocol_version, 'hello.protocol_version');
   string(m.session_id, 'hello.session_id');
-  string(m.role, 'hello.role');
   string(m.server, 'hello.server');
+  string(m.role, 'hello.role');
+  if (m.mode === undefined) {
+    if (!ROLES.includes(m.role) && !Object.hasOwn(LEGACY_ROLES, m.role)) {
+      throw new ProtocolError('hello.role', `unknown role ${show(m.role)} (known: ${ROLES.join(', ')})`);
+    }
+  } else {
+    if (!MODES.includes(m.mode)) {
+      throw new ProtocolError('hello.mode', `unknown mode ${show(m.mode)} (known: ${MODES.join(', ')})`);
+    }
+    if (!ROLES.includes(m.role)) {
+      throw new ProtocolError('hello.role', `unknown role ${show(m.role)} (known: ${ROLES.join(', ')})`);
+    }
+  }
   return m;
+}
+
+/**
+ * The role and mode of a validated `hello`: `{role, mode}`, with `role` one of `ROLES` and
+ * `mode` one of `MODES`. A `hello` without `mode` (servers before roles) is read through its
+ * old role: `viewer` watches a live session, `replay` controls a replay.
+ */
+export function accessOf(hello) {
+  if (hello.mode === undefined && Object.hasOwn(LEGACY_ROLES, hello.role)) return { ...LEGACY_ROLES[hello.role] };
+  return { role: hello.role, mode: hello.mode ?? 'live' };
 }
 
 function validateCalibration(c, field) {
@@ -272,13 +313,32 @@ function validateReplay(m) {
   return m;
 }
 
+/** A request of this viewer that the server did not carry out (an observer's replay control). */
+function validateRefused(m) {
+  string(m.request, 'refused.request');
+  string(m.reason, 'refused.reason');
+  return m;
+}
+
 const VALIDATORS = {
   hello: validateHello,
   scene: validateScene,
   contact: validateContact,
   stats: validateStats,
   replay: validateReplay,
+  refused: validateRefused,
 };
+
+/**
+ * Encodes the `auth` message (viewer → server) that presents a token: the first message on
+ * every connection of a viewer that has one. A server without tokens ignores it.
+ */
+export function encodeAuth(token) {
+  if (typeof token !== 'string' || token.length === 0) {
+    throw new ProtocolError('auth.token', 'expected a non-empty token');
+  }
+  return JSON.stringify({ type: 'auth', token });
+}
 
 /** Slowest and fastest replay speeds the server accepts (`ReplayControl::SPEED_RANGE`). */
 export const REPLAY_SPEED_RANGE = Object.freeze([0.01, 100]);
@@ -374,11 +434,37 @@ export function decodeMessage(text) {
   return { kind: 'message', message };
 }
 
-/** The WebSocket URL of the server that served the page (wire contract), query passed through. */
+/**
+ * The WebSocket URL of the server that served the page (wire contract). The page's query is not
+ * passed on: the upgrade's URL reaches the server's and any proxy's request log, and the token
+ * travels in the `auth` message instead.
+ */
 export function webSocketUrl(location) {
   const scheme = location.protocol === 'https:' ? 'wss:' : 'ws:';
-  return `${scheme}//${location.host}/ws${location.search ?? ''}`;
+  return `${scheme}//${location.host}/ws`;
 }
+
+/**
+ * Close codes with a meaning of their own to the viewer (proto/WIRE.md). Any other close is
+ * retried with backoff.
+ */
+export const CLOSE_CODES = Object.freeze({
+  /** The server wants a token and none was presented, or the one presented is not valid: stop. */
+  unauthorized: 4401,
+  /** The server has as many viewers as it takes: say so and retry with backoff. */
+  tooManyViewers: 4429,
+  /** Policy violation: this connection sent messages faster than the server takes them. */
+  policy: 1008,
+  malformed: 1007,
+  normal: 1000,
+  noStatus: 1005,
+});
+
+/** Why the viewer stopped at a 4401: no token was presented, or the one presented was refused. */
+export const UNAUTHORIZED_REASONS = Object.freeze({
+  needs_token: 'this session needs the link you were given',
+  token_refused: 'this link is not valid for this server, or has expired',
+});
 
 /**
  * Delay before reconnection attempt `attempt` (0-based): exponential growth capped at `maxMs`,
@@ -392,15 +478,22 @@ export function backoffDelayMs(attempt, random, { initialMs = 250, maxMs = 8000,
 
 /**
  * One viewer's connection to the server. States: `idle` → `connecting` → `open` →
- * (`reconnecting` → `connecting` ...) and `stopped` after `stop()`.
+ * (`reconnecting` → `connecting` ...); `unauthorized` when the server closed with 4401 (no
+ * reconnection until `reconnectNow()`, usually with a new token from `setToken()`); `stopped`
+ * after `stop()`.
  *
- * Decoded messages go to `onMessage(message, receivedAtMs)`; state changes to
- * `onStateChange(state, detail)`. Everything outside the browser (socket class, timers, clock,
- * random numbers) can be injected, so the behaviour is tested without waiting.
+ * With a token (`token`, `setToken`), the first message on every connection is `auth`, sent as
+ * the socket opens, before anything else can be sent. Decoded messages go to
+ * `onMessage(message, receivedAtMs)`; state changes to `onStateChange(state, detail)`, where
+ * `detail` is `{delayMs, error}` for `reconnecting` and `{reason, code, serverReason}` for
+ * `unauthorized` (`reason`: a key of `UNAUTHORIZED_REASONS`). Everything outside the browser
+ * (socket class, timers, clock, random numbers) can be injected, so the behaviour is tested
+ * without waiting.
  */
 export class ViewerConnection {
   constructor({
     url,
+    token = null,
     onMessage = () => {},
     onStateChange = () => {},
     WebSocketImpl = globalThis.WebSocket,
@@ -412,6 +505,8 @@ export class ViewerConnection {
     warn = (...args) => console.warn(...args),
   }) {
     this.url = url;
+    /** The token presented on each connection; never logged, never in `lastError`. */
+    this.token = token || null;
     this.onMessage = onMessage;
     this.onStateChange = onStateChange;
     this.WebSocketImpl = WebSocketImpl;
@@ -423,12 +518,16 @@ export class ViewerConnection {
     this.warn = warn;
     this.state = 'idle';
     this.socket = null;
+    /** Whether `auth` went out on the current socket: a 4401 then means the token was refused. */
+    this.presented = false;
     this.timer = null;
     this.attempt = 0;
-    /** Counters shown by the viewer and read by tests. */
-    this.stats = { messages: 0, unknown: 0, malformed: 0, connects: 0, reconnects: 0, sent: 0 };
+    /** Counters shown by the viewer and read by tests; `sent` counts `send()`, not `auth`. */
+    this.stats = { messages: 0, unknown: 0, malformed: 0, connects: 0, reconnects: 0, sent: 0, auths: 0 };
     this.lastError = null;
     this.nextRetryMs = 0;
+    /** `{reason, code, serverReason}` of the last 4401, until the next `hello`. */
+    this.unauthorized = null;
   }
 
   /**
@@ -453,9 +552,31 @@ export class ViewerConnection {
     this.onStateChange(state, detail);
   }
 
+  /**
+   * The token to present from the next connection on (null: none). Does not reconnect by itself:
+   * `reconnectNow()` does.
+   */
+  setToken(token) {
+    this.token = token || null;
+  }
+
   /** Opens the first connection. */
   start() {
-    if (this.state !== 'idle' && this.state !== 'stopped') return;
+    if (this.state !== 'idle' && this.state !== 'stopped' && this.state !== 'unauthorized') return;
+    this.attempt = 0;
+    this.#open();
+  }
+
+  /**
+   * Drops the current connection, or the wait for the next attempt, and connects at once from
+   * the shortest backoff: a token just given should not wait for a retry timer.
+   */
+  reconnectNow() {
+    if (this.timer !== null) this.clearTimer(this.timer);
+    this.timer = null;
+    const socket = this.socket;
+    this.socket = null;
+    if (socket) socket.close(CLOSE_CODES.normal, 'viewer reconnects');
     this.attempt = 0;
     this.#open();
   }
@@ -467,11 +588,12 @@ export class ViewerConnection {
     const socket = this.socket;
     this.socket = null;
     this.#setState('stopped');
-    if (socket) socket.close(1000, 'viewer closed');
+    if (socket) socket.close(CLOSE_CODES.normal, 'viewer closed');
   }
 
   #open() {
     this.timer = null;
+    this.presented = false;
     this.#setState('connecting');
     let socket;
     try {
@@ -485,6 +607,17 @@ export class ViewerConnection {
     socket.onopen = () => {
       if (this.socket !== socket) return;
       this.stats.connects++;
+      // The token goes first, before `open` lets anything else be sent.
+      if (this.token !== null) {
+        try {
+          socket.send(encodeAuth(this.token));
+          this.presented = true;
+          this.stats.auths++;
+        } catch (e) {
+          // The close that follows a failed send reconnects.
+          this.lastError = `could not present the token: ${e.message}`;
+        }
+      }
       this.#setState('open');
     };
     socket.onmessage = (event) => this.#receive(socket, event.data);
@@ -494,11 +627,34 @@ export class ViewerConnection {
     socket.onclose = (event) => {
       if (this.socket !== socket) return;
       this.socket = null;
-      if (event && event.code !== 1000 && event.code !== 1005 && !this.lastError) {
-        this.lastError = `connection closed (code ${event.code}${event.reason ? `: ${event.reason}` : ''})`;
-      }
-      this.#scheduleReconnect();
+      this.#closed(event?.code, event?.reason ?? '');
     };
+  }
+
+  /** The server (or the network) closed the current socket with `code`. */
+  #closed(code, serverReason) {
+    const said = serverReason ? `: ${serverReason}` : '';
+    switch (code) {
+      case CLOSE_CODES.unauthorized: {
+        // Retrying would present the same token, or none, again: wait for a new one.
+        const reason = this.presented ? 'token_refused' : 'needs_token';
+        this.unauthorized = { reason, code, serverReason };
+        this.lastError = UNAUTHORIZED_REASONS[reason];
+        this.#setState('unauthorized', { ...this.unauthorized });
+        return;
+      }
+      case CLOSE_CODES.tooManyViewers:
+        this.lastError = `too many viewers on this server (code ${code}${said})`;
+        break;
+      case CLOSE_CODES.policy:
+        this.lastError = `the server closed this connection: too many messages (code ${code}${said})`;
+        break;
+      default:
+        if (code !== undefined && code !== CLOSE_CODES.normal && code !== CLOSE_CODES.noStatus && !this.lastError) {
+          this.lastError = `connection closed (code ${code}${said})`;
+        }
+    }
+    this.#scheduleReconnect();
   }
 
   #receive(socket, data) {
@@ -513,7 +669,7 @@ export class ViewerConnection {
       this.lastError = `malformed message: ${e.message}`;
       this.warn(`softhaptic: ${this.lastError}`);
       this.socket = null;
-      socket.close(1007, 'malformed message');
+      socket.close(CLOSE_CODES.malformed, 'malformed message');
       this.#scheduleReconnect();
       return;
     }
@@ -528,6 +684,7 @@ export class ViewerConnection {
       // A server that greets us is healthy: the next outage starts from the shortest delay.
       this.attempt = 0;
       this.lastError = null;
+      this.unauthorized = null;
     }
     this.onMessage(decoded.message, receivedAtMs);
   }

@@ -4,6 +4,16 @@ export const hello = {
   type: 'hello',
   protocol_version: 1,
   session_id: 's-1',
+  role: 'instructor',
+  mode: 'live',
+  server: 'softhaptic 0.1.0',
+};
+
+/** `hello` as servers before roles and tokens sent it: no `mode`, the role `viewer` or `replay`. */
+export const legacyHello = {
+  type: 'hello',
+  protocol_version: 1,
+  session_id: 's-1',
   role: 'viewer',
   server: 'softhaptic 0.1.0',
 };

@@ -1,5 +1,6 @@
 // Message decoding against the shared vectors and the wire contract; the WebSocket URL; the
-// connection's reconnection with backoff, driven by a scripted socket and mocked timers.
+// connection's reconnection with backoff, its token (`auth` first) and its answer to the close
+// codes of access and limits, driven by a scripted socket and mocked timers.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
@@ -8,14 +9,17 @@ import { fileURLToPath } from 'node:url';
 import {
   DEVICE_STATUS_MESSAGES,
   ProtocolError,
+  UNAUTHORIZED_REASONS,
   ViewerConnection,
+  accessOf,
   backoffDelayMs,
   contactModelOf,
   decodeMessage,
+  encodeAuth,
   encodeReplayControl,
   webSocketUrl,
 } from '../src/protocol.js';
-import { contact, contactModel, hello, scene, stats } from './fixtures.mjs';
+import { contact, contactModel, hello, legacyHello, scene, stats } from './fixtures.mjs';
 
 const VECTORS = fileURLToPath(new URL('../../proto/vectors/messages.json', import.meta.url));
 
@@ -136,11 +140,12 @@ test('every device state has words for the trainee, and a stats without one read
   assert.equal(decodeMessage(JSON.stringify(older)).message.device, undefined);
 });
 
-test('the WebSocket URL follows the page, query included', () => {
+test('the WebSocket URL follows the page, and carries neither its query nor its fragment', () => {
   assert.equal(webSocketUrl({ protocol: 'http:', host: '127.0.0.1:8080', search: '' }), 'ws://127.0.0.1:8080/ws');
+  // The upgrade's URL reaches request logs: a token pasted into the query must not go with it.
   assert.equal(
-    webSocketUrl({ protocol: 'https:', host: 'sim.example:443', search: '?token=abc' }),
-    'wss://sim.example:443/ws?token=abc',
+    webSocketUrl({ protocol: 'https:', host: 'sim.example:443', search: '?token=abc', hash: '#token=abc' }),
+    'wss://sim.example:443/ws',
   );
 });
 
@@ -174,7 +179,12 @@ class FakeSocket {
   constructor(url) {
     this.url = url;
     this.closed = null;
+    /** Text frames the viewer sent, parsed. */
+    this.sent = [];
     FakeSocket.instances.push(this);
+  }
+  send(text) {
+    this.sent.push(JSON.parse(text));
   }
   close(code, reason) {
     this.closed = { code, reason };
@@ -185,8 +195,8 @@ class FakeSocket {
   serverSend(message) {
     this.onmessage?.({ data: typeof message === 'string' ? message : JSON.stringify(message) });
   }
-  serverClose(code = 1006) {
-    this.onclose?.({ code, reason: '' });
+  serverClose(code = 1006, reason = '') {
+    this.onclose?.({ code, reason });
   }
 }
 
@@ -194,18 +204,22 @@ function connection(extra = {}) {
   FakeSocket.instances = [];
   const received = [];
   const states = [];
+  const details = [];
   const warnings = [];
   const conn = new ViewerConnection({
     url: 'ws://host/ws',
     WebSocketImpl: FakeSocket,
     onMessage: (m) => received.push(m),
-    onStateChange: (s) => states.push(s),
+    onStateChange: (s, d) => {
+      states.push(s);
+      details.push(d);
+    },
     random: () => 0.5,
     now: () => 0,
     warn: (w) => warnings.push(w),
     ...extra,
   });
-  return { conn, received, states, warnings };
+  return { conn, received, states, details, warnings };
 }
 
 test('connection delivers messages, counts unknown ones, and reconnects after a malformed one', (t) => {
@@ -359,4 +373,209 @@ test('a contact_model that breaks the contract is refused with the field', () =>
       JSON.stringify(c),
     );
   }
+});
+
+// ----- roles, tokens, refusals -----
+
+const TOKEN = '0123456789abcdef0123456789abcdef';
+
+test('hello says the role and the mode; one from before roles reads through its old role', () => {
+  for (const role of ['instructor', 'observer']) {
+    for (const mode of ['live', 'replay']) {
+      const m = decodeMessage(JSON.stringify({ ...hello, role, mode })).message;
+      assert.deepEqual(accessOf(m), { role, mode });
+    }
+  }
+  assert.deepEqual(accessOf(decodeMessage(JSON.stringify(legacyHello)).message), { role: 'observer', mode: 'live' });
+  const legacyReplay = decodeMessage(JSON.stringify({ ...legacyHello, role: 'replay' })).message;
+  assert.deepEqual(accessOf(legacyReplay), { role: 'instructor', mode: 'replay' }, 'anyone moved an old replay');
+  const noMode = { ...hello };
+  delete noMode.mode;
+  assert.deepEqual(accessOf(decodeMessage(JSON.stringify(noMode)).message), { role: 'instructor', mode: 'live' });
+});
+
+test('a hello with an unknown role or mode is refused with the field', () => {
+  const cases = [
+    [{ ...hello, role: 'admin' }, /hello.role: unknown role "admin" \(known: instructor, observer\)/],
+    [{ ...hello, role: 'replay' }, /hello.role: unknown role "replay"/], // the old names go without `mode` only
+    [{ ...hello, mode: 'rewind' }, /hello.mode: unknown mode "rewind" \(known: live, replay\)/],
+    [{ ...hello, mode: 1 }, /hello.mode: unknown mode 1/],
+    [{ ...legacyHello, role: 'admin' }, /hello.role: unknown role "admin"/],
+    [{ ...hello, role: 7 }, /hello.role: expected a string, got 7/],
+  ];
+  for (const [m, pattern] of cases) {
+    assert.throws(
+      () => decodeMessage(JSON.stringify(m)),
+      (e) => e instanceof ProtocolError && pattern.test(e.message),
+      JSON.stringify(m),
+    );
+  }
+});
+
+test('a refused request decodes with its reason; one without a reason or request is refused', () => {
+  const refused = { type: 'refused', request: 'replay_control', reason: 'observers cannot control the replay' };
+  assert.deepEqual(decodeMessage(JSON.stringify(refused)), { kind: 'message', message: refused });
+  assert.throws(
+    () => decodeMessage(JSON.stringify({ ...refused, reason: undefined })),
+    /refused.reason: expected a string/,
+  );
+  assert.throws(
+    () => decodeMessage(JSON.stringify({ ...refused, request: 3 })),
+    /refused.request: expected a string, got 3/,
+  );
+});
+
+test('the auth message carries the token as the server reads it; no token, no message', () => {
+  assert.deepEqual(JSON.parse(encodeAuth(TOKEN)), { type: 'auth', token: TOKEN });
+  for (const bad of ['', null, undefined, 42])
+    assert.throws(() => encodeAuth(bad), /auth.token: expected a non-empty token/);
+});
+
+test('with a token, auth is the first message on every connection, before anything the viewer sends', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  let conn;
+  const sentOnOpen = [];
+  ({ conn } = connection({
+    token: TOKEN,
+    // Whatever reacts to `open` (a control queued by the page) is sent after the token.
+    onStateChange: (s) => {
+      if (s === 'open') sentOnOpen.push(conn.send(encodeReplayControl('pause')));
+    },
+  }));
+  conn.start();
+  const s1 = FakeSocket.instances[0];
+  assert.deepEqual(s1.sent, [], 'nothing before the socket opens');
+  s1.serverOpen();
+  assert.deepEqual(s1.sent, [
+    { type: 'auth', token: TOKEN },
+    { type: 'replay_control', action: 'pause' },
+  ]);
+  assert.equal(conn.stats.auths, 1);
+  assert.equal(conn.stats.sent, 1, '`sent` counts the page’s messages, not the token');
+  s1.serverClose(1006);
+  t.mock.timers.tick(250);
+  const s2 = FakeSocket.instances[1];
+  s2.serverOpen();
+  assert.deepEqual(s2.sent[0], { type: 'auth', token: TOKEN }, 'presented again after a reconnection');
+  assert.ok(!JSON.stringify(conn.lastError ?? '').includes(TOKEN));
+  conn.stop();
+});
+
+test('without a token nothing is sent on open, and a server without tokens greets at once', () => {
+  const { conn, received } = connection();
+  conn.start();
+  const s = FakeSocket.instances[0];
+  s.serverOpen();
+  assert.deepEqual(s.sent, []);
+  s.serverSend(legacyHello);
+  assert.equal(received[0].type, 'hello');
+  conn.stop();
+});
+
+/** Runs timers until a new socket appears (or `limitMs` passes); returns the wait in ms. */
+function waitForRetry(t, limitMs = 20000) {
+  const before = FakeSocket.instances.length;
+  let waited = 0;
+  while (FakeSocket.instances.length === before && waited < limitMs) {
+    t.mock.timers.tick(1);
+    waited++;
+  }
+  return FakeSocket.instances.length === before ? null : waited;
+}
+
+test('a 4401 to a viewer without a token stops the retries: it needs a token', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  const { conn, states, details } = connection();
+  conn.start();
+  const s = FakeSocket.instances[0];
+  s.serverOpen();
+  s.serverClose(4401, 'no token presented');
+  assert.equal(conn.state, 'unauthorized');
+  assert.deepEqual(details.at(-1), { reason: 'needs_token', code: 4401, serverReason: 'no token presented' });
+  assert.equal(conn.lastError, UNAUTHORIZED_REASONS.needs_token);
+  assert.equal(waitForRetry(t, 60000), null, 'no reconnection: the same request would be refused again');
+  assert.deepEqual(states, ['connecting', 'open', 'unauthorized']);
+});
+
+test('a 4401 after a token says it was refused; a new token reconnects at once and is presented', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  const { conn, details, received } = connection({ token: TOKEN });
+  conn.start();
+  const s1 = FakeSocket.instances[0];
+  s1.serverOpen();
+  s1.serverClose(4401, 'token not valid for this server');
+  assert.equal(conn.state, 'unauthorized');
+  assert.equal(details.at(-1).reason, 'token_refused');
+  assert.match(conn.lastError, /not valid for this server, or has expired/);
+  assert.equal(waitForRetry(t, 60000), null);
+
+  const other = 'fedcba9876543210fedcba9876543210';
+  conn.setToken(other);
+  assert.equal(FakeSocket.instances.length, 1, 'setToken alone does not connect');
+  conn.reconnectNow();
+  const s2 = FakeSocket.instances[1];
+  assert.equal(conn.state, 'connecting');
+  s2.serverOpen();
+  assert.deepEqual(s2.sent, [{ type: 'auth', token: other }]);
+  s2.serverSend({ ...hello, role: 'observer' });
+  assert.equal(received.at(-1).role, 'observer');
+  assert.equal(conn.lastError, null);
+  assert.equal(conn.unauthorized, null);
+  conn.stop();
+});
+
+test('reconnectNow drops a waiting retry and an open socket and connects from the shortest backoff', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  const { conn } = connection({ random: () => 1 });
+  conn.start();
+  for (let k = 0; k < 4; k++) {
+    FakeSocket.instances.at(-1).serverClose(1006);
+    waitForRetry(t);
+  }
+  FakeSocket.instances.at(-1).serverClose(1006); // the next retry would wait 4 s
+  conn.reconnectNow();
+  assert.equal(FakeSocket.instances.length, 6, 'at once');
+  t.mock.timers.tick(10000);
+  assert.equal(FakeSocket.instances.length, 6, 'the dropped retry does not fire');
+  const open = FakeSocket.instances.at(-1);
+  open.serverOpen();
+  conn.reconnectNow();
+  assert.deepEqual(open.closed, { code: 1000, reason: 'viewer reconnects' });
+  open.serverClose(1000); // the old socket's close is not a new outage
+  assert.equal(FakeSocket.instances.length, 7);
+  FakeSocket.instances.at(-1).serverClose(1006);
+  assert.equal(waitForRetry(t), 250, 'the backoff starts over');
+  conn.stop();
+});
+
+test('a 4429 (too many viewers) is shown and retried with the growing backoff', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  const { conn, details } = connection({ random: () => 1 });
+  conn.start();
+  const delays = [];
+  for (let k = 0; k < 3; k++) {
+    const s = FakeSocket.instances.at(-1);
+    s.serverOpen();
+    s.serverClose(4429, 'too many viewers');
+    assert.equal(conn.state, 'reconnecting');
+    assert.equal(conn.lastError, 'too many viewers on this server (code 4429: too many viewers)');
+    assert.equal(details.at(-1).error, conn.lastError);
+    delays.push(waitForRetry(t));
+  }
+  assert.deepEqual(delays, [250, 500, 1000]);
+  conn.stop();
+});
+
+test('a 1008 (too many messages) is shown and retried with backoff', (t) => {
+  t.mock.timers.enable({ apis: ['setTimeout'] });
+  const { conn } = connection({ random: () => 1 });
+  conn.start();
+  const s = FakeSocket.instances[0];
+  s.serverOpen();
+  s.serverSend(hello);
+  s.serverClose(1008, 'message rate limit');
+  assert.equal(conn.state, 'reconnecting');
+  assert.match(conn.lastError, /too many messages \(code 1008: message rate limit\)/);
+  assert.equal(waitForRetry(t), 250);
+  conn.stop();
 });
