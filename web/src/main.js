@@ -6,10 +6,16 @@
 // `animate()` runs per screen refresh and allocates nothing; `exposeTestHook()` is what the
 // browser tests read. When the server replays a recording, the timeline panel (`replay.js`)
 // shows where the replay stands and sends the instructor's pause, play, seek and speed.
+//
+// Access (`access.js`): the token of the page's link is presented on every connection and with
+// every fetch from the server; `hello` says the role it grants (instructor or observer), shown
+// in the panel. When the server wants a token the viewer has not got, or refuses the one it
+// has (WebSocket close 4401, HTTP 401), the viewer stops and asks for the link in a prompt.
 
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
+import { AccessPrompt, TokenKeeper } from './access.js';
 import { MeshDeformer, depressionAt, profileSetup, toolFromJson } from './deformation.js';
 import { ForcePlot } from './forceplot.js';
 import { PlayoutBuffer, RenderedContact } from './interpolation.js';
@@ -18,7 +24,9 @@ import {
   CONTACT_FLAGS,
   DEVICE_STATUS_MESSAGES,
   ViewerConnection,
+  accessOf,
   contactModelOf,
+  encodeReplayControl,
   validateMessage,
   webSocketUrl,
 } from './protocol.js';
@@ -58,6 +66,9 @@ const state = {
   contactFrames: 0,
   /** While paused the view keeps drawing the last interpolated contact (inspection, tests). */
   paused: false,
+  /** What the last `hello` granted: `instructor` or `observer`, and `live` or `replay`. */
+  role: null,
+  mode: null,
 };
 const buffer = new PlayoutBuffer({ delayMs: PLAYOUT_DELAY_MS });
 const rendered = new RenderedContact();
@@ -72,6 +83,17 @@ const frameTimes = { ms: new Float64Array(128), head: 0, count: 0 };
 let plot = null;
 let connection = null;
 let timeline = null;
+let keeper = null;
+let prompt = null;
+
+/** A fetch the server answered 401: the token sent (null: none) was missing or not valid. */
+class Unauthorized extends Error {
+  constructor(url, token) {
+    super(`GET ${url} answered 401: a token is needed`);
+    this.name = 'Unauthorized';
+    this.token = token;
+  }
+}
 
 // Scratch objects reused every frame.
 const scratch = {
@@ -109,6 +131,14 @@ function init() {
     'm-inclination',
     'm-source',
     'mode',
+    'role',
+    'token-prompt',
+    'token-prompt-detail',
+    'token-input',
+    'token-connect',
+    'token-prompt-note',
+    'replay-hint',
+    'replay-refused',
     'replay-panel',
     'replay-play',
     'replay-speed',
@@ -145,10 +175,27 @@ function init() {
   initThree();
   exposeTestHook();
 
+  keeper = new TokenKeeper({ storage: sessionStorageOrNull() });
+  keeper.adopt(window.location, window.history);
+  prompt = new AccessPrompt({
+    panel: dom['token-prompt'],
+    detail: dom['token-prompt-detail'],
+    input: dom['token-input'],
+    button: dom['token-connect'],
+    note: dom['token-prompt-note'],
+    onToken: useToken,
+  });
+  // A new link opened in this tab changes only the fragment: the page is not reloaded.
+  window.addEventListener('hashchange', () => {
+    const token = keeper.takeFragment(window.location, window.history);
+    if (token !== null) useToken(token);
+  });
+
   connection = new ViewerConnection({
     url: webSocketUrl(window.location),
+    token: keeper.token,
     onMessage,
-    onStateChange: showConnectionState,
+    onStateChange: onConnectionState,
   });
   timeline = new ReplayTimeline({
     panel: dom['replay-panel'],
@@ -157,6 +204,8 @@ function init() {
     scrubber: dom['replay-scrubber'],
     timeText: dom['replay-time'],
     fileText: dom['replay-file'],
+    hintText: dom['replay-hint'],
+    refusedText: dom['replay-refused'],
     send: (text) => connection.send(text),
   });
   connection.start();
@@ -259,16 +308,90 @@ function onWindowResize() {
   view.renderer.setSize(window.innerWidth, window.innerHeight);
 }
 
+// ----- access: the token, the prompt, the role -----
+
+/** This tab's sessionStorage, or null where the browser gives none (it may throw on access). */
+function sessionStorageOrNull() {
+  try {
+    return window.sessionStorage ?? null;
+  } catch {
+    return null;
+  }
+}
+
+/** A token from the prompt or a new link: kept, presented on a fresh connection at once. */
+function useToken(token) {
+  keeper.set(token);
+  connection.setToken(token);
+  connection.reconnectNow();
+  loadSceneOverHttp();
+}
+
+/**
+ * The server wants a token the viewer has not got (`needs_token`) or refused the one it
+ * presented (`token_refused`): a refused token is forgotten, the connection stays closed, and
+ * the prompt asks for the link.
+ */
+function requireToken(reason) {
+  if (reason === 'token_refused') {
+    keeper.forget();
+    connection.setToken(null);
+  }
+  prompt.show(reason);
+}
+
+function onConnectionState(s, detail) {
+  if (s === 'unauthorized') requireToken(detail.reason);
+  showConnectionState(s, detail);
+}
+
+/**
+ * GETs `url`; a URL of the page's own server carries the token, when the viewer has one, in an
+ * `Authorization: Bearer` header (never to another origin). Throws `Unauthorized` on a 401.
+ */
+async function fetchFromServer(url) {
+  const token = keeper.token;
+  const ownServer = new URL(url, window.location.href).origin === window.location.origin;
+  const init = token !== null && ownServer ? { headers: { Authorization: `Bearer ${token}` } } : {};
+  const response = await fetch(url, init);
+  if (response.status === 401) throw new Unauthorized(url, token);
+  if (!response.ok) throw new Error(`GET ${url} answered ${response.status}`);
+  return response;
+}
+
+/** A failed load of the scene or a mesh: a 401 asks for the link, anything else is shown. */
+function sceneLoadFailed(e) {
+  if (e instanceof Unauthorized) {
+    // An answer to a token that was replaced meanwhile says nothing about the new one.
+    if (e.token !== keeper.token) return;
+    connection.stop();
+    requireToken(e.token === null ? 'needs_token' : 'token_refused');
+    showConnectionState(e.token === null ? 'needs token' : 'token refused', null);
+    return;
+  }
+  state.loadError = `scene: ${e.message}`;
+  console.warn(`softhaptic: ${state.loadError}`);
+}
+
+function showRole(role) {
+  state.role = role;
+  setBadge(dom.role, role ?? '—', role === 'instructor' ? 'active' : '');
+  dom.role.title =
+    role === 'instructor'
+      ? 'instructor: watches, and moves a replay for everyone'
+      : role === 'observer'
+        ? 'observer: watches; the instructor moves a replay'
+        : '';
+}
+
 async function loadSceneOverHttp() {
   try {
-    const response = await fetch('/api/scene');
-    if (!response.ok) throw new Error(`GET /api/scene answered ${response.status}`);
+    const response = await fetchFromServer('/api/scene');
     const scene = validateMessage({ type: 'scene', ...(await response.json()) });
     await applyScene(scene);
   } catch (e) {
     // The WebSocket's scene message will try again.
-    state.loadError = `scene: ${e.message}`;
-    console.warn(`softhaptic: ${state.loadError}`);
+    sceneLoadFailed(e);
   }
 }
 
@@ -299,8 +422,7 @@ async function applyScene(scene) {
   try {
     loaded = await Promise.all(
       scene.render_meshes.map(async (desc) => {
-        const response = await fetch(desc.url);
-        if (!response.ok) throw new Error(`GET ${desc.url} answered ${response.status}`);
+        const response = await fetchFromServer(desc.url);
         return { desc, data: parseRenderMesh(await response.arrayBuffer(), desc.name, desc.vertex_count) };
       }),
     );
@@ -445,11 +567,22 @@ function onMessage(message, receivedAtMs) {
         buffer.restartClock(receivedAtMs, 1);
         setMode(false);
       }
-      if (message.role === 'replay') {
-        timeline.show();
-        setMode(true);
+      {
+        const access = accessOf(message);
+        state.mode = access.mode;
+        showRole(access.role);
+        timeline.setControllable(access.role === 'instructor');
+        if (access.mode === 'replay') {
+          timeline.show();
+          setMode(true);
+        }
       }
+      prompt.hide();
       state.sessionId = message.session_id;
+      break;
+    case 'refused':
+      if (message.request === 'replay_control') timeline.showRefused(message.reason, receivedAtMs);
+      else console.warn(`softhaptic: the server refused ${message.request}: ${message.reason}`);
       break;
     case 'replay':
       if (timeline.onStatus(message, receivedAtMs)) {
@@ -459,10 +592,7 @@ function onMessage(message, receivedAtMs) {
       setMode(true);
       break;
     case 'scene':
-      applyScene(message).catch((e) => {
-        state.loadError = `scene: ${e.message}`;
-        console.warn(`softhaptic: ${state.loadError}`);
-      });
+      applyScene(message).catch(sceneLoadFailed);
       break;
     case 'contact':
       state.contactFrames++;
@@ -604,8 +734,10 @@ function setBadge(el, text, kind) {
 }
 
 function showConnectionState(s, detail) {
-  const kind = s === 'open' ? 'ok' : s === 'reconnecting' ? 'bad' : 'warn';
-  const text = s === 'reconnecting' && detail ? `reconnecting in ${(detail.delayMs / 1000).toFixed(1)} s` : s;
+  const kind = s === 'open' ? 'ok' : s === 'connecting' ? 'warn' : 'bad';
+  let text = s;
+  if (s === 'reconnecting' && detail) text = `reconnecting in ${(detail.delayMs / 1000).toFixed(1)} s`;
+  else if (s === 'unauthorized') text = detail?.reason === 'token_refused' ? 'token refused' : 'needs token';
   setBadge(dom['conn-state'], text, kind);
 }
 
@@ -796,9 +928,32 @@ function exposeTestHook() {
       timeText: dom['replay-time'].textContent,
       sent: timeline.sent.slice(),
       statusLog: timeline.statusLog.slice(),
+      controllable: timeline.controllable,
+      refusals: timeline.refusals.slice(),
+      refusedShown: !dom['replay-refused'].hidden,
+      refusedText: dom['replay-refused'].textContent,
       clockRestarts: buffer.clockRestarts,
     }),
     lastStats: () => state.lastStats,
+    /** The role the server granted (`instructor`, `observer`; null before a `hello`). */
+    role: () => state.role,
+    /** `live` or `replay`, as the server's `hello` said; null before one. */
+    mode: () => state.mode,
+    /** The prompt for a link or a token: whether it is shown, why, and what its note says. */
+    prompt: () => ({
+      shown: prompt.shown,
+      reason: prompt.reason,
+      detail: dom['token-prompt-detail'].textContent,
+      note: dom['token-prompt-note'].textContent,
+      visible: !dom['token-prompt'].hidden,
+    }),
+    /** Whether the viewer holds a token (never the token itself). */
+    hasToken: () => keeper.token !== null,
+    /**
+     * Sends a replay control past the page's controls, as a viewer of another role might: for
+     * the tests of the server's refusal. Returns whether it was sent.
+     */
+    sendReplayControl: (action, options) => connection.send(encodeReplayControl(action, options)),
     /** Freezes (true) or resumes (false) the drawn contact; frames keep arriving meanwhile. */
     pause: (paused) => {
       state.paused = Boolean(paused);

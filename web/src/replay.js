@@ -10,6 +10,12 @@
 // binds them to the page's controls. `ReplayTimeline.frame()` runs every animation frame and
 // allocates nothing: it writes numbers into the scrubber and rebuilds the time text only when
 // the tenths of a second it shows change, at most twenty times a second whatever the speed.
+//
+// Only an instructor moves the replay, for everyone watching it. An observer's timeline shows
+// the same position and follows every move, but its play button and speed selector are hidden
+// and its scrubber disabled (`setControllable(false)`), and it sends nothing. Should a control
+// be refused all the same (the server is the authority: a role can change on reconnection), the
+// server's reason is shown beside the controls for a few seconds.
 
 import { encodeReplayControl } from './protocol.js';
 
@@ -18,6 +24,9 @@ import { encodeReplayControl } from './protocol.js';
  * wall-clock time (times the speed) is a jump (a seek), not the drift between two clocks.
  */
 const JUMP_TOLERANCE_WALL_S = 0.25;
+
+/** How long a refused control's reason stays beside the controls. */
+const REFUSED_SHOWN_MS = 4000;
 
 /** How far (recording seconds) a status may be from the extrapolation and still be the same run. */
 function seekTolerance(speed) {
@@ -101,18 +110,42 @@ export function formatReplayTime(seconds) {
 /** The speeds offered by the selector (any other speed the server reports is added to it). */
 export const REPLAY_SPEEDS = Object.freeze([0.25, 0.5, 1, 2, 4]);
 
+/** What the line under the controls says to each role. */
+const HINTS = Object.freeze({
+  instructor: 'drag the slider and release to jump',
+  observer: 'the instructor moves the timeline',
+});
+
 /**
  * The timeline panel: play/pause button, speed selector, scrubber and time. Shown only while the
  * viewer watches a replay. `send(text)` sends one WebSocket text frame and returns whether it
- * could; `now()` is the local clock in ms.
+ * could; `now()` is the local clock in ms. `hintText` (what the controls do) and `refusedText`
+ * (a refused control's reason) are optional.
  */
 export class ReplayTimeline {
-  constructor({ panel, playButton, speedSelect, scrubber, timeText, fileText, send, now = () => performance.now() }) {
-    this.el = { panel, playButton, speedSelect, scrubber, timeText, fileText };
+  constructor({
+    panel,
+    playButton,
+    speedSelect,
+    scrubber,
+    timeText,
+    fileText,
+    hintText = null,
+    refusedText = null,
+    send,
+    now = () => performance.now(),
+  }) {
+    this.el = { panel, playButton, speedSelect, scrubber, timeText, fileText, hintText, refusedText };
     this.send = send;
     this.now = now;
     this.clock = new ReplayClock();
     this.visible = false;
+    /** False for an observer: the controls are hidden or disabled and nothing is sent. */
+    this.controllable = true;
+    /** When the refused control's reason is hidden again (local ms); 0 while none is shown. */
+    this.refusedUntilMs = 0;
+    /** Reasons of refused controls, newest last, the last 10 (browser tests). */
+    this.refusals = [];
     /** True while the user holds the scrubber: frames do not move it under the pointer. */
     this.dragging = false;
     /** The position asked for by the last seek, shown until the server's status answers. */
@@ -128,17 +161,19 @@ export class ReplayTimeline {
 
     playButton.addEventListener('click', () => this.#togglePlay());
     speedSelect.addEventListener('change', () => this.#setSpeed(Number(speedSelect.value)));
+    // A disabled scrubber (an observer's) may still see pointer events: it never starts a drag.
     scrubber.addEventListener('pointerdown', () => {
-      this.dragging = true;
+      if (this.controllable) this.dragging = true;
     });
     scrubber.addEventListener('input', () => {
+      if (!this.controllable) return;
       this.dragging = true;
       this.#showTime(scrubber.valueAsNumber, this.now(), true);
     });
     // `change` fires when the scrubber is released (or moved with the keyboard): seek then.
     scrubber.addEventListener('change', () => {
       this.dragging = false;
-      this.#seek(scrubber.valueAsNumber);
+      if (this.controllable) this.#seek(scrubber.valueAsNumber);
     });
     // A press on the thumb that does not move it ends without `change`: the release anywhere
     // ends the drag (`change`, when it comes, follows the release in the same task).
@@ -186,6 +221,38 @@ export class ReplayTimeline {
     this.shownTenths = -1;
   }
 
+  /**
+   * Gives (true: an instructor) or takes away (false: an observer) the controls: the play button
+   * and the speed selector are hidden, the scrubber only shows the position, nothing is sent.
+   */
+  setControllable(on) {
+    const { playButton, speedSelect, scrubber, hintText } = this.el;
+    this.controllable = Boolean(on);
+    playButton.hidden = !this.controllable;
+    speedSelect.hidden = !this.controllable;
+    scrubber.disabled = !this.controllable;
+    if (hintText) hintText.textContent = this.controllable ? HINTS.instructor : HINTS.observer;
+    if (!this.controllable) {
+      this.dragging = false;
+      this.pendingSeekS = null;
+    }
+  }
+
+  /**
+   * Shows why the server refused a control (`refused.reason`), received at `nowMs`, beside the
+   * controls for a few seconds; a seek it refused is no longer shown as pending.
+   */
+  showRefused(reason, nowMs) {
+    if (this.refusals.length >= 10) this.refusals.shift();
+    this.refusals.push(reason);
+    this.pendingSeekS = null;
+    this.refusedUntilMs = nowMs + REFUSED_SHOWN_MS;
+    const text = this.el.refusedText;
+    if (!text) return;
+    text.textContent = `refused: ${reason}`;
+    text.hidden = false;
+  }
+
   /** Hides the panel and forgets the replay (the viewer now watches another session). */
   hide() {
     this.visible = false;
@@ -203,6 +270,10 @@ export class ReplayTimeline {
 
   /** Once per animation frame: moves the scrubber and the time. Allocates nothing. */
   frame(nowMs) {
+    if (this.refusedUntilMs !== 0 && nowMs >= this.refusedUntilMs) {
+      this.refusedUntilMs = 0;
+      if (this.el.refusedText) this.el.refusedText.hidden = true;
+    }
     if (!this.visible || this.dragging) return;
     const t = this.positionS(nowMs);
     const scrubber = this.el.scrubber;
@@ -237,6 +308,7 @@ export class ReplayTimeline {
   }
 
   #control(action, options) {
+    if (!this.controllable) return false;
     let text;
     try {
       text = encodeReplayControl(action, options);

@@ -1,6 +1,7 @@
 // The replay timeline's pure parts: decoding the `replay` status, encoding `replay_control`,
 // extrapolating the position between statuses, the time format; and the timeline panel driven
-// through stand-ins of its controls (what it sends on play, speed and a scrubber release).
+// through stand-ins of its controls (what it sends on play, speed and a scrubber release, what
+// an observer's panel shows and does not send, how a refused control is shown).
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 
@@ -235,6 +236,8 @@ function timelinePanel(sendResult = true) {
     scrubber: new FakeElement(),
     timeText: new FakeElement(),
     fileText: new FakeElement(),
+    hintText: new FakeElement(),
+    refusedText: new FakeElement({ hidden: true }),
   };
   const timeline = new ReplayTimeline({
     ...el,
@@ -356,4 +359,59 @@ test('a press on the thumb released without moving it ends the drag', () => {
   assert.ok(near(el.scrubber.valueAsNumber, 1.5), 'follows the replay again');
   assert.equal(sent.length, 0, 'nothing sent');
   assert.deepEqual(timeline.statusLog, [status({ paused: false, time_s: 1 })]);
+});
+
+test('an observer’s timeline follows the instructor’s moves but hides its controls and sends nothing', () => {
+  const { timeline, el, sent } = timelinePanel();
+  timeline.setControllable(false);
+  assert.equal(el.playButton.hidden, true);
+  assert.equal(el.speedSelect.hidden, true);
+  assert.equal(el.scrubber.disabled, true, 'the scrubber only shows the position');
+  assert.equal(el.hintText.textContent, 'the instructor moves the timeline');
+  // The instructor plays from 0.5 s, then seeks back to 0.2 s: the observer's timeline follows.
+  timeline.onStatus(status({ paused: false, time_s: 0.5 }), 0);
+  timeline.frame(500);
+  assert.ok(near(el.scrubber.valueAsNumber, 1.0));
+  timeline.onStatus(status({ paused: false, time_s: 0.2 }), 600);
+  timeline.frame(600);
+  assert.ok(near(el.scrubber.valueAsNumber, 0.2));
+  // Events that still reach the controls send nothing and start no drag.
+  el.playButton.fire('click');
+  el.speedSelect.value = '2';
+  el.speedSelect.fire('change');
+  el.scrubber.fire('pointerdown');
+  assert.equal(timeline.dragging, false);
+  el.scrubber.valueAsNumber = 2.5;
+  el.scrubber.fire('input');
+  el.scrubber.fire('change');
+  assert.deepEqual(sent, []);
+  assert.equal(timeline.pendingSeekS, null);
+  timeline.frame(700);
+  assert.ok(near(el.scrubber.valueAsNumber, 0.3), 'the thumb is put back where the replay is');
+  // Given the controls back (an instructor's token), they work again.
+  timeline.setControllable(true);
+  assert.equal(el.playButton.hidden, false);
+  assert.equal(el.scrubber.disabled, false);
+  assert.equal(el.hintText.textContent, 'drag the slider and release to jump');
+  el.playButton.fire('click');
+  assert.deepEqual(sent, [{ type: 'replay_control', action: 'pause' }]);
+});
+
+test('a refused control’s reason shows beside the controls for a few seconds and ends a pending seek', () => {
+  const { timeline, el, setNow } = timelinePanel();
+  timeline.onStatus(status({ time_s: 1 }), 0);
+  setNow(100);
+  el.scrubber.valueAsNumber = 2;
+  el.scrubber.fire('change');
+  assert.equal(timeline.positionS(150), 2, 'the seek is shown while it waits for its answer');
+  timeline.showRefused('observers cannot control the replay', 200);
+  assert.equal(el.refusedText.hidden, false);
+  assert.equal(el.refusedText.textContent, 'refused: observers cannot control the replay');
+  assert.equal(timeline.positionS(250), 1, 'the replay did not move');
+  assert.deepEqual(timeline.refusals, ['observers cannot control the replay']);
+  timeline.frame(4100);
+  assert.equal(el.refusedText.hidden, false);
+  timeline.frame(4200);
+  assert.equal(el.refusedText.hidden, true);
+  assert.equal(timeline.refusedUntilMs, 0);
 });
