@@ -14,14 +14,11 @@ import assert from 'node:assert/strict';
 import { mkdirSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 
-import { depressionAt, profileSetup, toolFromJson } from '../src/deformation.js';
 import { launchBrowser } from './browser.mjs';
+import { assertPressBendsMesh, freezeOnPress } from './e2e-checks.mjs';
 import { startServer } from './server.mjs';
 
 const RESULTS = fileURLToPath(new URL('../test-results/', import.meta.url));
-// Vertex positions are float32 (≈ 1e-8 m at 0.1 m) and the displacement is recomputed from the
-// same contact, so 1 µm is far above rounding and far below any real error (δ is millimetres).
-const TOLERANCE_M = 1e-6;
 const SERVER_ARGS = ['--no-realtime', '--no-record'];
 
 let server;
@@ -42,26 +39,6 @@ after(async () => {
   await browser?.close();
   await server?.stop();
 });
-
-/**
- * Waits until the drawn contact is a press at least `minDepthM` deep and freezes the view on
- * that very frame (the check and the pause happen in the same page task, so no animation frame
- * can slip between them).
- */
-async function freezeOnPress(minDepthM) {
-  await page.evaluate(() => window.__softhaptic.pause(false));
-  await page.waitForFunction(
-    (d) => {
-      const h = window.__softhaptic;
-      const c = h.contact();
-      const pressed = c.valid && !c.stale && c.inContact && c.depthM >= d;
-      if (pressed) h.pause(true);
-      return pressed;
-    },
-    minDepthM,
-    { timeout: 120000, polling: 'raf' },
-  );
-}
 
 test('the page loads the scene and its render mesh and receives the stream', async () => {
   const info = await page.evaluate(() => ({
@@ -87,59 +64,8 @@ test('the page loads the scene and its render mesh and receives the stream', asy
 
 test('a press bends the render mesh exactly as the profile says, and only within R_d', async () => {
   // The default scene holds its press about 3 mm deep; 2 mm catches the hold, not the approach.
-  await freezeOnPress(2e-3);
-  const frozen = await page.evaluate(() => ({
-    contact: window.__softhaptic.contact(),
-    scene: window.__softhaptic.scene(),
-  }));
-  const c = frozen.contact;
-  const tool = toolFromJson(frozen.scene.tool);
-  const profile = profileSetup(tool, c.depthM, c.contactRadiusM, c.deformedRadiusM);
-  assert.ok(profile.rdEff > 0);
-  // Every vertex within 2·R_d_eff of the contact point: rest and drawn positions (world frame).
-  const near = await page.evaluate(
-    ({ point, radius }) => {
-      const h = window.__softhaptic;
-      const out = [];
-      for (let i = 0; i < h.vertexCount(); i++) {
-        const v = h.vertex(i);
-        const d = Math.hypot(v.rest[0] - point[0], v.rest[1] - point[1], v.rest[2] - point[2]);
-        if (d <= radius) out.push([i, ...v.rest, ...v.now]);
-      }
-      return out;
-    },
-    { point: c.point, radius: 2 * profile.rdEff },
-  );
-  const n = c.normal;
-  let inside = 0;
-  let beyond = 0;
-  let underTool = null;
-  for (const [i, rx, ry, rz, x, y, z] of near) {
-    const vx = rx - c.point[0];
-    const vy = ry - c.point[1];
-    const vz = rz - c.point[2];
-    const axial = vx * n[0] + vy * n[1] + vz * n[2];
-    const r = Math.hypot(vx - axial * n[0], vy - axial * n[1], vz - axial * n[2]);
-    const expected = Math.abs(axial) <= profile.rdEff ? depressionAt(profile, r) : 0;
-    // The drawn vertex must sit at rest − n·z(r).
-    const err = Math.hypot(x - (rx - n[0] * expected), y - (ry - n[1] * expected), z - (rz - n[2] * expected));
-    assert.ok(
-      err <= TOLERANCE_M,
-      `vertex ${i} at r = ${r} m, axial ${axial} m: off by ${err} m (profile ${expected} m)`,
-    );
-    if (r >= profile.rdEff) beyond++;
-    else if (expected > 0) inside++;
-    if (Math.abs(axial) < 2e-3 && (underTool === null || r < underTool.r))
-      underTool = { i, r, moved: Math.hypot(x - rx, y - ry, z - rz) };
-  }
-  assert.ok(inside > 20, `${inside} vertices inside R_d moved`);
-  assert.ok(beyond > 20, `${beyond} vertices beyond R_d were checked to be still`);
-  assert.ok(underTool !== null, 'a render vertex lies near the contact point');
-  // The vertex under the tool sank by about the depth: z(r) = δ − (R − √(R² − r²)) there.
-  assert.ok(
-    underTool.moved >= c.depthM - (underTool.r * underTool.r) / tool.radiusM - TOLERANCE_M,
-    `vertex ${underTool.i} under the tool (r = ${underTool.r} m) moved ${underTool.moved} m for δ = ${c.depthM} m`,
-  );
+  await freezeOnPress(page, 2e-3);
+  const { contact: c, scene } = await assertPressBendsMesh(page);
 
   // The force plot shows the press.
   const samples = await page.evaluate(() => window.__softhaptic.forcePlotSamples());
@@ -148,7 +74,7 @@ test('a press bends the render mesh exactly as the profile says, and only within
   assert.ok(c.forceMagnitudeN > 0, 'a press pushes back');
   assert.ok(maxPlotted >= 0.5 * c.forceMagnitudeN, `plot max ${maxPlotted} N vs drawn force ${c.forceMagnitudeN} N`);
   const peak = await page.evaluate(() => window.__softhaptic.peakForceN());
-  assert.equal(peak, frozen.scene.device.peak_force_n);
+  assert.equal(peak, scene.device.peak_force_n);
 
   // A screenshot of the press, close up and from low down, so the dimple shows beside the tool.
   await page.evaluate((p) => window.__softhaptic.focusCamera(p, 0.1, 0.3), c.point);
@@ -219,7 +145,7 @@ test('after a server restart the page reconnects by itself and draws the new ses
     { timeout: 60000 },
   );
   // The device clock of the new server started again; frames of the new run are drawn.
-  await freezeOnPress(1e-3);
+  await freezeOnPress(page, 1e-3);
   const c = await page.evaluate(() => window.__softhaptic.contact());
   assert.ok(c.inContact && c.depthM >= 1e-3);
   await page.evaluate(() => window.__softhaptic.pause(false));

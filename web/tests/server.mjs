@@ -3,6 +3,9 @@
 // `startServer()` builds the `softhaptic` binary with cargo (debug profile unless told
 // otherwise; into CARGO_TARGET_DIR when set), runs it on a free local port and resolves with the
 // viewer URL it prints ("viewer: http://HOST:PORT/", or "replay: ..." for `softhaptic replay`).
+// A server with tokens (`--tokens`) prints the instructor's link with its token in the fragment
+// ("viewer: http://HOST:PORT/#token=...") and the observer's ("observer: http://...#token=..."):
+// both are captured.
 // SOFTHAPTIC_URL points the tests at a server that is already running instead (tests that need
 // a server of their own, such as a replay, say `external: false`); SOFTHAPTIC_BIN at a binary
 // that is already built. `hdStandinPath()` gives the stand-in for OpenHaptics' libHD that plays
@@ -57,8 +60,18 @@ export function hdStandinPath() {
   return standin;
 }
 
+/** A printed URL with a trailing `/` on its path; its fragment (a token) is kept as printed. */
+function normaliseUrl(printed) {
+  const url = new URL(printed);
+  if (!url.pathname.endsWith('/')) url.pathname += '/';
+  return url.href;
+}
+
 /**
- * Runs the server and resolves with `{url, stop, output}` once it prints its viewer URL.
+ * Runs the server and resolves with `{url, observerUrl, baseUrl, stop, output}` once it prints
+ * its viewer URL: `url` as printed (with the instructor's token in the fragment when the server
+ * has tokens), `observerUrl` the observer's link (null without tokens), `baseUrl` the page
+ * without any fragment.
  * `command` comes first (e.g. `['replay', 'tests/sessions/x.mcap']`; none runs a live
  * session), then `--addr` and `extraArgs` (e.g. a scene); paths are relative to the repository.
  * `addr` defaults to a free local port. `env` is added to the server's environment (e.g. the
@@ -75,7 +88,8 @@ export async function startServer({
   external = true,
 } = {}) {
   if (external && process.env.SOFTHAPTIC_URL) {
-    return { url: process.env.SOFTHAPTIC_URL, stop: async () => {}, output: () => '' };
+    const url = process.env.SOFTHAPTIC_URL;
+    return { url, observerUrl: null, baseUrl: url.split('#')[0], stop: async () => {}, output: () => '' };
   }
   const bin = buildServer({ release });
   const child = spawn(bin, [...command, '--addr', addr, ...extraArgs], {
@@ -84,18 +98,20 @@ export async function startServer({
     stdio: ['ignore', 'pipe', 'pipe'],
   });
   let output = '';
-  const url = await new Promise((resolve, reject) => {
+  const { url, observerUrl } = await new Promise((resolve, reject) => {
     const timer = setTimeout(
       () => reject(new Error(`server printed no viewer URL within ${timeoutMs} ms:\n${output}`)),
       timeoutMs,
     );
     const onData = (chunk) => {
       output += chunk.toString();
-      const m = /(?:viewer|replay): (http:\/\/\S+)/.exec(output);
-      if (m) {
-        clearTimeout(timer);
-        resolve(m[1].endsWith('/') ? m[1] : `${m[1]}/`);
-      }
+      const m = /\b(?:viewer|replay|instructor): (https?:\/\/\S+)/.exec(output);
+      if (!m) return;
+      // A link with a token comes with the observer's, printed next.
+      const observer = /\bobserver: (https?:\/\/\S+)/.exec(output);
+      if (m[1].includes('#') && !observer) return;
+      clearTimeout(timer);
+      resolve({ url: normaliseUrl(m[1]), observerUrl: observer ? normaliseUrl(observer[1]) : null });
     };
     child.stdout.on('data', onData);
     child.stderr.on('data', onData);
@@ -111,5 +127,5 @@ export async function startServer({
       child.kill('SIGTERM');
       setTimeout(() => child.kill('SIGKILL'), 5000).unref();
     });
-  return { url, stop, output: () => output, child };
+  return { url, observerUrl, baseUrl: url.split('#')[0], stop, output: () => output, child };
 }

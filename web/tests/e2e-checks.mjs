@@ -1,0 +1,115 @@
+// Checks shared by the browser tests: a press drawn on the render mesh exactly as the profile
+// says, and the page's Content-Security-Policy violations. Each takes a Playwright page showing
+// the viewer.
+import assert from 'node:assert/strict';
+
+import { depressionAt, profileSetup, toolFromJson } from '../src/deformation.js';
+
+// Vertex positions are float32 (≈ 1e-8 m at 0.1 m) and the displacement is recomputed from the
+// same contact, so 1 µm is far above rounding and far below any real error (δ is millimetres).
+export const TOLERANCE_M = 1e-6;
+
+/**
+ * Waits until the drawn contact is a press at least `minDepthM` deep and freezes the view on
+ * that very frame (the check and the pause happen in the same page task, so no animation frame
+ * can slip between them).
+ */
+export async function freezeOnPress(page, minDepthM, { timeout = 120000 } = {}) {
+  await page.evaluate(() => window.__softhaptic.pause(false));
+  await page.waitForFunction(
+    (d) => {
+      const h = window.__softhaptic;
+      const c = h.contact();
+      const pressed = c.valid && !c.stale && c.inContact && c.depthM >= d;
+      if (pressed) h.pause(true);
+      return pressed;
+    },
+    minDepthM,
+    { timeout, polling: 'raf' },
+  );
+}
+
+/**
+ * On a page frozen on a press (`freezeOnPress`): every render vertex within 2·R_d,eff of the
+ * contact point sits where the JavaScript profile puts it for the drawn contact, the vertex
+ * under the tool sank by about δ, and vertices beyond R_d did not move. Returns the frozen
+ * `{contact, scene, inside, beyond}` for further checks.
+ */
+export async function assertPressBendsMesh(page) {
+  const frozen = await page.evaluate(() => ({
+    contact: window.__softhaptic.contact(),
+    scene: window.__softhaptic.scene(),
+  }));
+  const c = frozen.contact;
+  const tool = toolFromJson(frozen.scene.tool);
+  const profile = profileSetup(tool, c.depthM, c.contactRadiusM, c.deformedRadiusM);
+  assert.ok(profile.rdEff > 0);
+  // Every vertex within 2·R_d_eff of the contact point: rest and drawn positions (world frame).
+  const near = await page.evaluate(
+    ({ point, radius }) => {
+      const h = window.__softhaptic;
+      const out = [];
+      for (let i = 0; i < h.vertexCount(); i++) {
+        const v = h.vertex(i);
+        const d = Math.hypot(v.rest[0] - point[0], v.rest[1] - point[1], v.rest[2] - point[2]);
+        if (d <= radius) out.push([i, ...v.rest, ...v.now]);
+      }
+      return out;
+    },
+    { point: c.point, radius: 2 * profile.rdEff },
+  );
+  const n = c.normal;
+  let inside = 0;
+  let beyond = 0;
+  let underTool = null;
+  for (const [i, rx, ry, rz, x, y, z] of near) {
+    const vx = rx - c.point[0];
+    const vy = ry - c.point[1];
+    const vz = rz - c.point[2];
+    const axial = vx * n[0] + vy * n[1] + vz * n[2];
+    const r = Math.hypot(vx - axial * n[0], vy - axial * n[1], vz - axial * n[2]);
+    const expected = Math.abs(axial) <= profile.rdEff ? depressionAt(profile, r) : 0;
+    // The drawn vertex must sit at rest − n·z(r).
+    const err = Math.hypot(x - (rx - n[0] * expected), y - (ry - n[1] * expected), z - (rz - n[2] * expected));
+    assert.ok(
+      err <= TOLERANCE_M,
+      `vertex ${i} at r = ${r} m, axial ${axial} m: off by ${err} m (profile ${expected} m)`,
+    );
+    if (r >= profile.rdEff) beyond++;
+    else if (expected > 0) inside++;
+    if (Math.abs(axial) < 2e-3 && (underTool === null || r < underTool.r))
+      underTool = { i, r, moved: Math.hypot(x - rx, y - ry, z - rz) };
+  }
+  assert.ok(inside > 20, `${inside} vertices inside R_d moved`);
+  assert.ok(beyond > 20, `${beyond} vertices beyond R_d were checked to be still`);
+  assert.ok(underTool !== null, 'a render vertex lies near the contact point');
+  // The vertex under the tool sank by about the depth: z(r) = δ − (R − √(R² − r²)) there.
+  assert.ok(
+    underTool.moved >= c.depthM - (underTool.r * underTool.r) / tool.radiusM - TOLERANCE_M,
+    `vertex ${underTool.i} under the tool (r = ${underTool.r} m) moved ${underTool.moved} m for δ = ${c.depthM} m`,
+  );
+  return { contact: c, scene: frozen.scene, inside, beyond };
+}
+
+/**
+ * Collects a page's Content-Security-Policy violations from the moment it is called, both as
+ * Chromium reports them on the console ("Refused to ... because it violates the following
+ * Content Security Policy directive") and as the page's `securitypolicyviolation` events (the
+ * listener is installed before any of the page's scripts run, in every document it loads).
+ * `list()` resolves with both, newest last.
+ */
+export async function watchCsp(page) {
+  const fromConsole = [];
+  page.on('console', (message) => {
+    if (/Content Security Policy/i.test(message.text())) fromConsole.push(message.text());
+  });
+  await page.addInitScript(() => {
+    window.__cspViolations = [];
+    document.addEventListener('securitypolicyviolation', (e) => {
+      window.__cspViolations.push(`${e.violatedDirective} blocked ${e.blockedURI || '(inline)'}`);
+    });
+  });
+  return {
+    list: async () => [...fromConsole, ...(await page.evaluate(() => window.__cspViolations ?? []))],
+  };
+}
