@@ -11,6 +11,10 @@ pub enum MeshError {
     #[error("vertex {index} is not finite: {value:?}")]
     NonFiniteVertex { index: usize, value: [f64; 3] },
     #[error(
+        "vertex {index} is {value:?}: a haptic mesh's coordinates must lie within ±{MAX_COORDINATE_M} m of its origin (is the file in millimetres?)"
+    )]
+    CoordinateOutOfRange { index: usize, value: [f64; 3] },
+    #[error(
         "triangle {triangle} refers to vertex {vertex}, but the mesh has {vertex_count} vertices"
     )]
     IndexOutOfRange {
@@ -21,6 +25,12 @@ pub enum MeshError {
     #[error("the mesh has no triangles")]
     Empty,
 }
+
+/// Largest coordinate a haptic mesh may have, metres. The collision's bounding-volume tree stores
+/// boxes in `f32` (7 significant digits): at 100 m a box edge is still placed within 8 µm, well
+/// under any indentation felt, while a larger object (no haptic scene spans more than a room)
+/// would blur the contact, and coordinates past `f32`'s range (3.4e38) would not fit at all.
+pub const MAX_COORDINATE_M: f64 = 100.0;
 
 /// A triangle surface in the object's frame, with area-weighted vertex normals pointing out of
 /// the object.
@@ -41,6 +51,16 @@ impl HapticMesh {
         }
         if let Some((index, p)) = positions_m.iter().enumerate().find(|(_, p)| !p.is_finite()) {
             return Err(MeshError::NonFiniteVertex {
+                index,
+                value: p.to_array(),
+            });
+        }
+        if let Some((index, p)) = positions_m
+            .iter()
+            .enumerate()
+            .find(|(_, p)| p.abs().max_element() > MAX_COORDINATE_M)
+        {
+            return Err(MeshError::CoordinateOutOfRange {
                 index,
                 value: p.to_array(),
             });
@@ -235,5 +255,24 @@ mod tests {
         ));
         let oob = HapticMesh::new(vec![DVec3::ZERO, DVec3::X, DVec3::Z], vec![[0, 1, 7]]);
         assert!(oob.unwrap_err().to_string().contains("vertex 7"));
+        // Finite, but beyond what the f32 bounding-volume tree can hold (a grid spaced 1e39 m
+        // used to panic inside its builder) or place precisely.
+        for far_m in [1e39, 1e6, MAX_COORDINATE_M * 1.01] {
+            let far = HapticMesh::new(
+                vec![DVec3::ZERO, DVec3::X, DVec3::new(0.0, 0.0, -far_m)],
+                vec![[0, 1, 2]],
+            );
+            let e = far.unwrap_err();
+            assert!(
+                matches!(e, MeshError::CoordinateOutOfRange { index: 2, .. }),
+                "{e}"
+            );
+            assert!(e.to_string().contains("±100 m"), "{e}");
+        }
+        let edge = HapticMesh::new(
+            vec![DVec3::ZERO, DVec3::X, DVec3::splat(-MAX_COORDINATE_M)],
+            vec![[0, 1, 2]],
+        );
+        assert!(edge.is_ok());
     }
 }

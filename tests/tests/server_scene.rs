@@ -142,6 +142,17 @@ fn meshes_with_nan_vertices_are_refused_with_file_and_index() {
         &with_mesh("broken.obj"),
         &["object.haptic_mesh", "broken.obj", "vertex 2", "not finite"],
     );
+    // Finite coordinates that no haptic mesh has: refused at load, not a panic in the collision.
+    std::fs::write(
+        dir.join("huge.obj"),
+        "v 0 0 0\nv 1e39 0 0\nv 0 1e39 0\nv 0 0 1e39\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+    )
+    .unwrap();
+    refused(
+        &dir,
+        &with_mesh("huge.obj"),
+        &["object.haptic_mesh", "huge.obj", "vertex 1", "±100 m"],
+    );
     refused(
         &dir,
         &with_mesh("missing.obj"),
