@@ -364,9 +364,10 @@ function sceneLoadFailed(e) {
   if (e instanceof Unauthorized) {
     // An answer to a token that was replaced meanwhile says nothing about the new one.
     if (e.token !== keeper.token) return;
+    const reason = e.token === null ? 'needs_token' : 'token_refused';
     connection.stop();
-    requireToken(e.token === null ? 'needs_token' : 'token_refused');
-    showConnectionState(e.token === null ? 'needs token' : 'token refused', null);
+    requireToken(reason);
+    showConnectionState('unauthorized', { reason });
     return;
   }
   state.loadError = `scene: ${e.message}`;
