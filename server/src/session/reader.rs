@@ -1,9 +1,13 @@
 //! Reading a recorded session back, whole or as much of it as survived.
 //!
-//! [`Recording::open`] reads the file's messages in order and stops at the first damaged record:
-//! a file cut short by a crash (the writer writes one chunk per second of device time, whole)
-//! yields every complete chunk before the cut, and [`Recording::recovery`] says what was
-//! recovered and what was lost. Files that are not recordings, or not ones this build can read
+//! [`Recording::open`] first walks the file's records itself: every chunk is checked (its sizes,
+//! its decompression, its checksum, the lengths of the records inside) before the MCAP library
+//! parses it, and a damaged chunk is skipped, not trusted: the walk resumes at the next chunk
+//! that checks out, so one bad sector loses about a second of a session (the writer closes one
+//! chunk per second of device time), never the rest of it. The index and summary after the data
+//! are not needed and not read, so damage there hides nothing. A file cut short by a crash
+//! yields every complete chunk before the cut. [`Recording::recovery`] says what was recovered
+//! and what was lost, as device-time ranges. Files that are not recordings, or not ones this build can read
 //! (wrong magic, a channel with another schema, a newer format or protocol version, a message
 //! that does not parse) are refused with a [`SessionError`] naming the file and the cause.
 
@@ -56,6 +60,38 @@ pub struct Recording {
     /// Messages on topics this build does not know (a newer writer's additions), skipped.
     pub unknown_messages: u64,
     pub ending: Ending,
+    /// The damaged stretches of the file that were skipped, in file order.
+    pub lost: Vec<LostSpan>,
+}
+
+/// A stretch of a recording that could not be read and was skipped.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LostSpan {
+    /// Where it starts in the file, and how long it is, bytes.
+    pub first_byte: u64,
+    pub bytes: u64,
+    /// The device times its chunk said it held (first and last message), when it said so.
+    pub time_ns: Option<(u64, u64)>,
+    pub reason: String,
+}
+
+impl fmt::Display for LostSpan {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.time_ns {
+            Some((a, b)) => write!(
+                f,
+                "device time {:.3} s to {:.3} s ({})",
+                a as f64 * 1e-9,
+                b as f64 * 1e-9,
+                self.reason
+            ),
+            None => write!(
+                f,
+                "{} bytes at byte {} ({})",
+                self.bytes, self.first_byte, self.reason
+            ),
+        }
+    }
 }
 
 /// Which record kind a channel id carries.
@@ -98,11 +134,12 @@ impl Recording {
                 },
             });
         }
-        // Damage that would make the MCAP library allocate what a length field claims is cut
-        // off first; the stream then ends there like a truncated file.
-        let (bytes, damage) = cut_at_damaged_chunk(bytes);
+        // Damaged chunks are skipped before the MCAP library sees them (it would trust a damaged
+        // length and allocate what it claims); the library reads the rest, checking every
+        // chunk's checksum again.
+        let scanned = scan(bytes);
         let options = mcap::read::Options::ValidateChunkCrcs.into();
-        let stream = match mcap::MessageStream::new_with_options(bytes, options) {
+        let stream = match mcap::MessageStream::new_with_options(&scanned.data, options) {
             Ok(s) => s,
             Err(e) => {
                 return Err(SessionError::Mcap {
@@ -120,18 +157,23 @@ impl Recording {
         let mut loop_stats = Vec::new();
         let mut last_stats = None;
         let mut unknown_messages = 0;
-        let mut ending = Ending::Complete;
-        let file_len = bytes.len() as u64 + damage.as_ref().map_or(0, |(cut, _)| *cut);
+        let mut ending = match &scanned.tail {
+            Some(reason) => Ending::Truncated {
+                reason: reason.clone(),
+            },
+            None => Ending::Complete,
+        };
+        let file_len = bytes.len() as u64;
 
         for item in stream {
             let message = match item {
                 Ok(m) => m,
                 Err(e) => {
-                    let reason = match &damage {
-                        Some((_, why)) => why.clone(),
-                        None => e.to_string(),
+                    // The walk passed only records that check out, so this is damage the checks
+                    // cannot see; keep what was read before it.
+                    ending = Ending::Truncated {
+                        reason: e.to_string(),
                     };
-                    ending = Ending::Truncated { reason };
                     break;
                 }
             };
@@ -265,6 +307,7 @@ impl Recording {
             last_stats,
             unknown_messages,
             ending,
+            lost: scanned.lost,
         })
     }
 
@@ -302,9 +345,9 @@ impl Recording {
             .sum()
     }
 
-    /// Whether the file was closed by its writer.
+    /// Whether the file was closed by its writer and nothing in it was damaged.
     pub fn is_complete(&self) -> bool {
-        self.ending == Ending::Complete
+        self.ending == Ending::Complete && self.lost.is_empty()
     }
 
     /// What was recovered and what was lost, in a sentence or two.
@@ -323,27 +366,48 @@ impl fmt::Display for Recovery<'_> {
             Some((a, b)) => format!("{:.3} s to {:.3} s", a as f64 * 1e-9, b as f64 * 1e-9),
             None => "no device time".into(),
         };
+        let damaged = match r.lost.len() {
+            0 => String::new(),
+            1 => "1 damaged stretch skipped; ".to_owned(),
+            n => format!("{n} damaged stretches skipped; "),
+        };
+        let lost: Vec<String> = r.lost.iter().map(LostSpan::to_string).collect();
         match &r.ending {
-            Ending::Complete => write!(
+            Ending::Complete if r.lost.is_empty() => write!(
                 f,
                 "{}: complete; {} ticks ({span}), {} contact frames",
                 r.path.display(),
                 r.device.len(),
                 r.contacts.len()
             ),
+            Ending::Complete => write!(
+                f,
+                "{}: damaged, closed by its writer; {damaged}recovered {} ticks ({span}) and {} \
+                 contact frames from {} bytes; lost: {}",
+                r.path.display(),
+                r.device.len(),
+                r.contacts.len(),
+                r.file_len,
+                lost.join("; ")
+            ),
             Ending::Truncated { reason } => {
+                let mut lost = lost;
+                lost.push(format!(
+                    "whatever was recorded after {} (the chunk being written when the file was \
+                     cut: up to about a second)",
+                    r.time_span_ns()
+                        .map(|(_, b)| format!("{:.3} s", b as f64 * 1e-9))
+                        .unwrap_or_else(|| "the scene".into()),
+                ));
                 write!(
                     f,
-                    "{}: truncated ({reason}); recovered {} ticks ({span}) and {} contact frames \
-                     from {} bytes; lost: whatever was recorded after {} (the chunk being written \
-                     when the file was cut: up to about a second)",
+                    "{}: truncated ({reason}); {damaged}recovered {} ticks ({span}) and {} \
+                     contact frames from {} bytes; lost: {}",
                     r.path.display(),
                     r.device.len(),
                     r.contacts.len(),
                     r.file_len,
-                    r.time_span_ns()
-                        .map(|(_, b)| format!("{:.3} s", b as f64 * 1e-9))
-                        .unwrap_or_else(|| "the scene".into()),
+                    lost.join("; ")
                 )?;
                 if let Some(s) = r.last_stats {
                     write!(
@@ -502,28 +566,164 @@ fn chunk_damage(body: &[u8]) -> Option<String> {
     None
 }
 
-/// Walks the file's top-level records and returns the bytes up to the first damaged chunk (see
-/// [`chunk_damage`]), with `(bytes cut, reason)`. A record whose header or body runs past the end
-/// is left to the MCAP reader, which reports the truncation.
-fn cut_at_damaged_chunk(bytes: &[u8]) -> (&[u8], Option<(u64, String)>) {
+/// MCAP opcodes the walk tells apart.
+const OP_HEADER: u8 = 0x01;
+const OP_FOOTER: u8 = 0x02;
+const OP_SCHEMA: u8 = 0x03;
+const OP_CHANNEL: u8 = 0x04;
+const OP_MESSAGE: u8 = 0x05;
+const OP_MESSAGE_INDEX: u8 = 0x07;
+const OP_ATTACHMENT: u8 = 0x09;
+const OP_METADATA: u8 = 0x0C;
+const OP_DATA_END: u8 = 0x0F;
+
+/// What the walk kept of a file: the records to parse (closed with a data end, a footer and the
+/// magic, so the MCAP library reads them as a whole file), the stretches skipped, and why the
+/// file ended early, if it did.
+struct Scanned {
+    data: Vec<u8>,
+    lost: Vec<LostSpan>,
+    tail: Option<String>,
+}
+
+/// The record at `pos`: its opcode and body range, when its header is there and its body ends
+/// within the file.
+fn record_at(bytes: &[u8], pos: usize) -> Option<(u8, usize, usize)> {
+    let op = *bytes.get(pos)?;
+    let len = usize::try_from(read_u64(bytes, pos + 1)?).ok()?;
+    let body_start = pos + 9;
+    let body_end = body_start.checked_add(len)?;
+    (body_end <= bytes.len()).then_some((op, body_start, body_end))
+}
+
+/// The device times a chunk's header says it holds.
+fn chunk_times(body: &[u8]) -> Option<(u64, u64)> {
+    Some((read_u64(body, 0)?, read_u64(body, 8)?))
+}
+
+/// Where reading can resume after damage at `from`: the next chunk that checks out in full, or
+/// the data section's end record, whichever comes first. Damage may have hit a length, so the
+/// walk cannot step over it; a chunk is only trusted once its checksum matches.
+fn resume_after(bytes: &[u8], from: usize) -> Option<usize> {
+    (from..bytes.len()).find(|&p| match record_at(bytes, p) {
+        Some((OP_CHUNK, start, end)) => chunk_damage(&bytes[start..end]).is_none(),
+        Some((OP_DATA_END, start, end)) => end - start == 4,
+        _ => false,
+    })
+}
+
+/// Walks the file's top-level records: keeps the header, the schemas, channels and messages
+/// outside chunks, and every chunk that checks out ([`chunk_damage`]); skips a damaged chunk or
+/// record and resumes at the next good chunk ([`resume_after`]); stops at the data section's end
+/// (the summary and index after it are only for seeking).
+fn scan(bytes: &[u8]) -> Scanned {
+    let mut data = Vec::with_capacity(bytes.len());
+    data.extend_from_slice(mcap::MAGIC);
+    let mut lost = Vec::new();
+    let mut tail = None;
     let mut pos = mcap::MAGIC.len();
-    while let (Some(&op), Some(len)) = (bytes.get(pos), read_u64(bytes, pos + 1)) {
-        let body_start = pos + 9;
-        let Some(body_end) = usize::try_from(len)
-            .ok()
-            .and_then(|l| body_start.checked_add(l))
-            .filter(|end| *end <= bytes.len())
-        else {
+    let skip = |lost: &mut Vec<LostSpan>, pos: usize, time_ns, reason: String| {
+        let next = resume_after(bytes, pos + 1);
+        let end = next.unwrap_or(bytes.len());
+        lost.push(LostSpan {
+            first_byte: pos as u64,
+            bytes: (end - pos) as u64,
+            time_ns,
+            reason,
+        });
+        next
+    };
+    loop {
+        if pos >= bytes.len() {
+            tail = Some("the file ends without its data section's end and footer".to_owned());
             break;
+        }
+        let Some((op, start, end)) = record_at(bytes, pos) else {
+            // The chunk being written when the file was cut (a crash), or a damaged length:
+            // a good chunk further on tells the two apart.
+            match resume_after(bytes, pos + 1) {
+                Some(next) => {
+                    lost.push(LostSpan {
+                        first_byte: pos as u64,
+                        bytes: (next - pos) as u64,
+                        time_ns: None,
+                        reason: format!(
+                            "the record at byte {pos} claims a length past the file's end"
+                        ),
+                    });
+                    pos = next;
+                    continue;
+                }
+                None => {
+                    tail = Some(format!(
+                        "the record at byte {pos} runs past the end of the file"
+                    ));
+                    break;
+                }
+            }
         };
-        if op == OP_CHUNK {
-            let body = &bytes[body_start..body_end];
-            if let Some(why) = chunk_damage(body) {
-                let reason = format!("the chunk at byte {pos} is damaged: {why}");
-                return (&bytes[..pos], Some(((bytes.len() - pos) as u64, reason)));
+        match op {
+            OP_CHUNK => match chunk_damage(&bytes[start..end]) {
+                None => {
+                    data.extend_from_slice(&bytes[pos..end]);
+                    pos = end;
+                }
+                Some(why) => {
+                    let times = chunk_times(&bytes[start..end]);
+                    let reason = format!("the chunk at byte {pos} is damaged: {why}");
+                    match skip(&mut lost, pos, times, reason) {
+                        Some(next) => pos = next,
+                        None => {
+                            tail = Some("damage reaches the end of the data".to_owned());
+                            break;
+                        }
+                    }
+                }
+            },
+            OP_HEADER | OP_SCHEMA | OP_CHANNEL | OP_MESSAGE => {
+                data.extend_from_slice(&bytes[pos..end]);
+                pos = end;
+            }
+            // Needed only for seeking, or not written by this project.
+            OP_MESSAGE_INDEX | OP_ATTACHMENT | OP_METADATA => pos = end,
+            OP_DATA_END if end - start == 4 => {
+                // The writer closes a file with its summary, a footer and the magic; the data is
+                // whole either way, but a file without them was not closed.
+                let footer_at = bytes.len().checked_sub(mcap::MAGIC.len() + 29);
+                let closed = bytes.ends_with(mcap::MAGIC)
+                    && footer_at.is_some_and(|at| {
+                        at >= end && record_at(bytes, at) == Some((OP_FOOTER, at + 9, at + 29))
+                    });
+                if !closed {
+                    tail = Some(
+                        "the file's footer is missing or damaged (the data before it is whole)"
+                            .to_owned(),
+                    );
+                }
+                break;
+            }
+            // A record of a kind the data section does not hold: a damaged opcode.
+            other => {
+                let reason = format!("a record of kind {other:#04x} at byte {pos} (damaged)");
+                match skip(&mut lost, pos, None, reason) {
+                    Some(next) => pos = next,
+                    None => {
+                        tail = Some("damage reaches the end of the data".to_owned());
+                        break;
+                    }
+                }
             }
         }
-        pos = body_end;
     }
-    (bytes, None)
+    // Closed as a file without a summary: a data end (checksum 0: not computed) and a footer
+    // pointing at no summary.
+    let mut record = |op: u8, body: &[u8]| {
+        data.push(op);
+        data.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        data.extend_from_slice(body);
+    };
+    record(OP_DATA_END, &[0; 4]);
+    record(OP_FOOTER, &[0; 20]);
+    data.extend_from_slice(mcap::MAGIC);
+    Scanned { data, lost, tail }
 }

@@ -46,6 +46,8 @@ pub struct Info {
     /// Every flag seen on any tick, with how many ticks carried it.
     pub flags_seen: Vec<(&'static str, u64)>,
     pub ending: Ending,
+    /// Damaged stretches of the file that were skipped.
+    pub damaged_stretches: usize,
     pub recovery: String,
 }
 
@@ -163,6 +165,7 @@ impl Info {
             max_depth_m,
             flags_seen,
             ending: r.ending.clone(),
+            damaged_stretches: r.lost.len(),
             recovery: r.recovery().to_string(),
         }
     }
@@ -260,9 +263,13 @@ impl fmt::Display for Info {
                 flags.trim_end()
             }
         )?;
-        let status = match &self.ending {
-            Ending::Complete => "complete".to_owned(),
-            Ending::Truncated { .. } => "TRUNCATED, recovered".to_owned(),
+        let status = match (&self.ending, self.damaged_stretches) {
+            (Ending::Complete, 0) => "complete".to_owned(),
+            (Ending::Complete, n) => format!("DAMAGED, recovered around {n} damaged stretches"),
+            (Ending::Truncated { .. }, 0) => "TRUNCATED, recovered".to_owned(),
+            (Ending::Truncated { .. }, n) => {
+                format!("TRUNCATED and DAMAGED, recovered around {n} damaged stretches")
+            }
         };
         writeln!(f, "status:            {status}")?;
         write!(f, "recovery:          {}", self.recovery)
