@@ -16,10 +16,14 @@
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
 //! - [`session`]: recording sessions to MCAP files and reading them back; a replay check
 //!   rebuilds the recorded contact model from the recording's `scene` message.
+//! - [`tls`]: https and wss on the viewer's port (`--tls-cert`/`--tls-key`, or a kept
+//!   self-signed certificate and its fingerprint); why a plain-text or silent client cannot hold
+//!   the port.
 
 pub mod app;
 pub mod devices;
 pub mod scene;
 pub mod session;
 pub mod stream;
+pub mod tls;
 pub mod vectors;
