@@ -84,6 +84,9 @@ pub struct TickRecord {
     pub device_error: Option<DeviceError>,
     /// Why the device refused the command, when it did (the tick's force is then zero).
     pub command_error: Option<DeviceError>,
+    /// Ticks lost right before this one: deadlines (or periods of a device's servo clock) that
+    /// passed with no tick run.
+    pub lost_before: u64,
     /// What the world computed, including the force commanded.
     pub contact: ContactState,
 }
@@ -302,6 +305,8 @@ struct TickCore {
     servo_run_start_ns: u64,
     servo_run_ticks: u64,
     servo_run_lost: u64,
+    /// Ticks lost right before the tick being run, for its record.
+    lost_before: u64,
 }
 
 /// The tick state, handed between the loop thread and its standby without either ever waiting.
@@ -781,6 +786,7 @@ impl TickCore {
             servo_run_start_ns: 0,
             servo_run_ticks: 0,
             servo_run_lost: 0,
+            lost_before: 0,
         }
     }
 
@@ -811,7 +817,8 @@ impl TickCore {
             shared.late.write(&timing.late.to_words());
         }
         // Deadlines that passed with no tick started before the next one.
-        timing.overruns += tick - self.next_tick;
+        self.lost_before = tick - self.next_tick;
+        timing.overruns += self.lost_before;
         if role == Role::Standby {
             timing.standby_ticks += 1;
         }
@@ -828,9 +835,11 @@ impl TickCore {
             self.servo_run_lost = 0;
         }
         self.servo_run_ticks += 1;
-        let periods =
-            (tick_start_ns.saturating_sub(self.servo_run_start_ns) + period_ns / 2) / period_ns;
+        // Whole periods since the run began: a tick late by less than a period still serves its
+        // own slot (the next tick, back on the grid, shows nothing was skipped).
+        let periods = tick_start_ns.saturating_sub(self.servo_run_start_ns) / period_ns;
         let lost = (periods + 1).saturating_sub(self.servo_run_ticks);
+        self.lost_before = lost.saturating_sub(self.servo_run_lost);
         if lost > self.servo_run_lost {
             timing.overruns += lost - self.servo_run_lost;
             self.servo_run_lost = lost;
@@ -858,6 +867,7 @@ impl TickCore {
             TickSource::Watchdog => {
                 self.last_servo_start_ns = None;
                 self.timing.watchdog_ticks += 1;
+                self.lost_before = 0;
             }
             // Booked by the caller, which knows the deadline.
             TickSource::Thread(_) => {}
@@ -890,6 +900,7 @@ impl TickCore {
                 device_fault,
                 device_error: read.err(),
                 command_error: command.err(),
+                lost_before: self.lost_before,
                 contact: state,
             };
             if sink.push(record).is_err() {
@@ -1089,6 +1100,8 @@ mod tests {
     fn servo_ticks_count_as_lost_only_the_periods_the_device_clock_skipped() {
         const P: u64 = 1_000_000;
         let mut core = grid_core();
+        let (producer, mut consumer) = rtrb::RingBuffer::new(16);
+        core.tick_sink = Some(producer);
         let shared = Shared::new();
         // On time, on time, 0.7 period late, then back on the grid (nothing lost), then two
         // periods skipped.
@@ -1104,6 +1117,11 @@ mod tests {
         }
         assert_eq!(core.timing.overruns, 2);
         assert_eq!(core.timing.ticks, 5);
+        // Each tick's record says how many were lost right before it.
+        let lost: Vec<u64> = std::iter::from_fn(|| consumer.pop().ok())
+            .map(|r| r.lost_before)
+            .collect();
+        assert_eq!(lost, [0, 0, 0, 0, 2]);
         assert_eq!(core.timing.period_error.max_ns(), 2 * P);
         // A watchdog tick while the driver's clock was down, then a new run of the clock: the
         // gap is not a run of lost servo ticks.

@@ -113,6 +113,7 @@ pub fn tick_device_record(t: &TickRecord) -> DeviceRecord {
     let mut r = device_record(&read, &t.contact);
     r.device_fault = t.device_fault;
     r.command_error = t.command_error.as_ref().map(error_record);
+    r.lost_before = t.lost_before;
     r
 }
 
@@ -134,6 +135,7 @@ pub fn device_record(
             .contains(softhaptic_proto::ContactFlags::DEVICE_FAULT),
         device_error,
         command_error: None,
+        lost_before: 0,
         in_contact: contact.in_contact,
         depth_m: contact.depth_m,
         force_n: contact.force_n.to_array(),

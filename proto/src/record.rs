@@ -102,6 +102,11 @@ pub struct DeviceRecord {
     /// `force_n` is then zero and `device_fault` set).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub command_error: Option<DeviceErrorRecord>,
+    /// Ticks the loop lost right before this one (deadlines, or periods of the device's servo
+    /// clock, that passed with no tick): the device held the previous force meanwhile. Absent
+    /// when none, and in recordings made before it existed.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub lost_before: u64,
     /// Whether the tool touched the object.
     pub in_contact: bool,
     /// Indentation depth along the contact normal.
@@ -112,6 +117,10 @@ pub struct DeviceRecord {
     pub force_n: [f64; 3],
     /// `ContactFlags` bits (see `proto::contact::ContactFlags`).
     pub flags: u32,
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 /// Why a device read failed, as recorded (mirrors the device crate's `DeviceError`).
@@ -399,6 +408,7 @@ pub mod schema {
     "device_error": {"type": "object", "description": "why the read failed", "properties": {
       "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun"]},
       "code": {"type": "integer"}}, "required": ["kind"]},
+    "lost_before": {"type": "integer", "minimum": 0, "description": "ticks the loop lost right before this one (absent: none)"},
     "command_error": {"type": "object", "description": "why the device refused the force command (it output zero)", "properties": {
       "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun"]},
       "code": {"type": "integer"}}, "required": ["kind"]},
@@ -543,6 +553,7 @@ mod tests {
             device_fault: false,
             device_error: None,
             command_error: None,
+            lost_before: 0,
             in_contact: true,
             depth_m: 0.0012345678901234567,
             force_n: [1e-300, -0.0, 7.9],

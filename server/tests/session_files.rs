@@ -20,6 +20,7 @@ use softhaptic_server::app::scene_message;
 use softhaptic_server::scene::Scene;
 use softhaptic_server::session::SessionError;
 use softhaptic_server::session::reader::{Ending, Recording};
+use softhaptic_server::session::tools::Info;
 use softhaptic_server::session::writer::{Recorder, SessionWriter};
 
 /// A fresh directory under the system's temporary directory, removed on drop.
@@ -92,6 +93,8 @@ fn tick(k: u64, fault: bool) -> TickRecord {
         device_fault: fault,
         device_error: fault.then_some(softhaptic_device::device::DeviceError::Disconnected),
         command_error: None,
+        // Now and then the loop lost ticks before this one.
+        lost_before: if k % 97 == 5 { k % 3 + 1 } else { 0 },
         contact: ContactState {
             tick: k,
             time_ns: k * 1_000_000,
@@ -151,6 +154,7 @@ fn recorder_thread_writes_every_tick_of_the_ring_bit_for_bit_and_counts_gaps() {
     assert_eq!(r.contacts.len(), 124);
     for (rec, t) in r.device.iter().zip(&pushed) {
         assert_eq!(rec.tick, t.contact.tick);
+        assert_eq!(rec.lost_before, t.lost_before, "tick {}", rec.tick);
         for (a, b) in rec.force_n.iter().zip(t.contact.force_n.to_array()) {
             assert_eq!(a.to_bits(), b.to_bits(), "tick {}", rec.tick);
         }
@@ -170,6 +174,19 @@ fn recorder_thread_writes_every_tick_of_the_ring_bit_for_bit_and_counts_gaps() {
     }
     assert_eq!(r.build.session_id, "test-session");
     assert_eq!(r.scene.message.tool, scene_record().message.tool);
+    // The loop's lost ticks are counted by info, with the longest run.
+    let info = Info::of(&r);
+    let lost: Vec<&TickRecord> = pushed.iter().filter(|t| t.lost_before > 0).collect();
+    assert_eq!(info.lost_runs, lost.len() as u64);
+    assert_eq!(
+        info.ticks_lost,
+        lost.iter().map(|t| t.lost_before).sum::<u64>()
+    );
+    assert_eq!(info.longest_lost_run.map(|(n, _)| n), Some(3));
+    assert!(info.to_string().contains(&format!(
+        "lost ticks:        {} in {} runs",
+        info.ticks_lost, info.lost_runs
+    )));
 }
 
 /// Cut the slide recording at many lengths: every cut either recovers a prefix of the ticks (more

@@ -28,6 +28,11 @@ pub struct Info {
     pub ticks_missing: u64,
     /// Ticks the recorder reported dropped in its last stats record.
     pub ticks_dropped_reported: Option<u64>,
+    /// Ticks the loop lost (deadlines that passed with no tick; the device held its force), in
+    /// how many runs, and the longest run with the tick that followed it.
+    pub ticks_lost: u64,
+    pub lost_runs: u64,
+    pub longest_lost_run: Option<(u64, u64)>,
     pub contact_frames: u64,
     pub contact_frames_dropped_reported: Option<u64>,
     /// Ticks in contact with the object.
@@ -110,7 +115,16 @@ impl Info {
         let mut flag_counts = [0u64; 32];
         let mut ticks_in_contact = 0;
         let mut device_fault_ticks = 0;
+        let (mut ticks_lost, mut lost_runs) = (0, 0);
+        let mut longest_lost_run: Option<(u64, u64)> = None;
         for d in &r.device {
+            if d.lost_before > 0 {
+                ticks_lost += d.lost_before;
+                lost_runs += 1;
+                if longest_lost_run.is_none_or(|(n, _)| d.lost_before > n) {
+                    longest_lost_run = Some((d.lost_before, d.tick));
+                }
+            }
             let f = glam::DVec3::from_array(d.force_n).length();
             if f.is_finite() && (peak_force_tick.is_none() || f > peak_force_n) {
                 peak_force_n = f;
@@ -154,6 +168,9 @@ impl Info {
             ticks: r.device.len() as u64,
             ticks_missing: r.missing_ticks(),
             ticks_dropped_reported: r.last_stats.map(|s| s.ticks_dropped),
+            ticks_lost,
+            lost_runs,
+            longest_lost_run,
             contact_frames: r.contacts.len() as u64,
             contact_frames_dropped_reported: r.last_stats.map(|s| s.contact_frames_dropped),
             ticks_in_contact,
@@ -201,6 +218,16 @@ impl fmt::Display for Info {
             self.ticks_missing,
             opt(self.ticks_dropped_reported)
         )?;
+        match self.longest_lost_run {
+            None => writeln!(f, "lost ticks:        none")?,
+            Some((longest, tick)) => writeln!(
+                f,
+                "lost ticks:        {} in {} {} (deadlines with no tick; the device held its force), the longest {longest} before tick {tick}",
+                self.ticks_lost,
+                self.lost_runs,
+                if self.lost_runs == 1 { "run" } else { "runs" },
+            )?,
+        }
         writeln!(
             f,
             "contact frames:    {} recorded (recorder reported {} dropped)",
