@@ -11,6 +11,7 @@
 //!   proto/WIRE.md; the `scene` message, whose `contact_model` names the active model and its limits.
 //! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
 //!   reports) and the `softhaptic devices` listing.
+//! - [`files`]: reading the files users name: regular files only, each kind bounded in size.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
@@ -22,6 +23,7 @@
 
 pub mod app;
 pub mod devices;
+pub mod files;
 pub mod scene;
 pub mod session;
 pub mod stream;

@@ -73,6 +73,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::files::{self, FileKind, ReadError};
+
 use glam::{DQuat, DVec3};
 use serde::Deserialize;
 use softhaptic_device::collision::{Collider, CollisionMode};
@@ -125,12 +127,10 @@ pub fn source_tree_scenes_dir() -> PathBuf {
 /// field and the value.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
-    #[error("{path}: {source}")]
-    Read {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    /// The file could not be read. The OS's text is part of this message, not a separate
+    /// cause, so that an error chain prints it once.
+    #[error("{path}: {reason}")]
+    Read { path: PathBuf, reason: ReadError },
     /// Syntax, an unknown field, a wrong type, or a value refused by its type (material, tool):
     /// toml's message shows the line, the column and the offending text.
     #[error("{path}: {message}")]
@@ -503,9 +503,9 @@ impl Scene {
 
     /// Reads and loads a scene file. Relative mesh and table paths are relative to the file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Read {
+        let text = files::read_text(path, FileKind::Scene).map_err(|reason| SceneError::Read {
             path: path.to_owned(),
-            source,
+            reason,
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         Self::from_toml(&text, path, Some(base))
@@ -785,12 +785,13 @@ impl Scene {
             let (full, text) = match files {
                 FileBase::Dir(_) => {
                     let full = resolve(&table_path);
-                    let text =
-                        std::fs::read_to_string(&full).map_err(|e| SceneError::Calibration {
+                    let text = files::read_text(&full, FileKind::Table).map_err(|e| {
+                        SceneError::Calibration {
                             path: path.to_owned(),
                             table: full.clone(),
                             reason: e.to_string(),
-                        })?;
+                        }
+                    })?;
                     (full, text)
                 }
                 FileBase::BuiltIn => {
@@ -890,9 +891,9 @@ fn load_limits(
         file: full.clone(),
         reason,
     };
-    let text = match std::fs::read_to_string(&full) {
+    let text = match files::read_text(&full, FileKind::Table) {
         Ok(text) => text,
-        Err(e) if named.is_none() && e.kind() == std::io::ErrorKind::NotFound => {
+        Err(ReadError::Io(e)) if named.is_none() && e.kind() == std::io::ErrorKind::NotFound => {
             tracing::info!(
                 scene = %scene.display(),
                 file = %full.display(),
@@ -965,7 +966,7 @@ fn load_obj(mesh: &Path, scene: &Path, field: &'static str) -> Result<HapticMesh
         mesh: mesh.to_owned(),
         reason,
     };
-    let text = std::fs::read_to_string(mesh).map_err(|e| error(e.to_string()))?;
+    let text = files::read_text(mesh, FileKind::Mesh).map_err(|e| error(e.to_string()))?;
     let mut vertex = 0usize;
     for (line_index, line) in text.lines().enumerate() {
         let mut words = line.split_whitespace();

@@ -238,6 +238,20 @@ fn truncated_files_recover_complete_chunks_and_say_what_was_lost() {
 }
 
 #[test]
+fn a_recording_path_that_is_not_a_regular_file_is_refused_before_it_is_read() {
+    let e = Recording::open(Path::new("/dev/zero"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("/dev/zero") && e.contains("character device"),
+        "{e}"
+    );
+    let dir = TempDir::new("not-regular");
+    let e = Recording::open(&dir.0).unwrap_err().to_string();
+    assert!(e.contains("is a directory, not a regular file"), "{e}");
+}
+
+#[test]
 fn a_file_that_is_not_mcap_is_refused_naming_its_first_bytes() {
     let dir = TempDir::new("magic");
     let path = dir.join("notes.mcap");

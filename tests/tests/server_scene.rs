@@ -45,6 +45,31 @@ fn refused(dir: &Path, text: &str, expected: &[&str]) {
 }
 
 #[test]
+fn a_scene_path_that_is_not_a_regular_file_is_refused_at_once() {
+    // /dev/zero would grow the process without end; a directory or a FIFO would fail late or
+    // block the start.
+    let e = Scene::load(Path::new("/dev/zero")).unwrap_err().to_string();
+    assert_eq!(e, "/dev/zero: is a character device, not a regular file");
+    let dir = scratch("not-regular");
+    let e = Scene::load(&dir).unwrap_err().to_string();
+    assert!(e.ends_with("is a directory, not a regular file"), "{e}");
+    // A mesh named by a scene goes through the same check.
+    refused(
+        &dir,
+        &GOOD.replace(
+            "builtin = \"liver\"",
+            "haptic_mesh = \"/dev/zero\"\nposition_m = [0.0, 0.01, 0.0]",
+        ),
+        &["object.haptic_mesh", "/dev/zero", "character device"],
+    );
+    // The OS's reason once, not twice.
+    let e = Scene::load(&dir.join("missing.toml"))
+        .unwrap_err()
+        .to_string();
+    assert_eq!(e.matches("No such file or directory").count(), 1, "{e}");
+}
+
+#[test]
 fn shipped_scenes_load() {
     let default = Scene::load(&repo_scenes().join("default.toml")).unwrap();
     assert_eq!(default.tool, ToolShape::sphere(0.01).unwrap());

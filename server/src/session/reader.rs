@@ -109,9 +109,11 @@ enum Kind {
 impl Recording {
     /// Reads `path`. Refuses files it cannot trust; recovers what it can from truncated ones.
     pub fn open(path: &Path) -> Result<Recording, SessionError> {
-        let bytes = std::fs::read(path).map_err(|source| SessionError::Io {
-            path: path.to_path_buf(),
-            source,
+        let bytes = crate::files::read(path, crate::files::FileKind::Recording).map_err(|e| {
+            SessionError::Io {
+                path: path.to_path_buf(),
+                source: e.into(),
+            }
         })?;
         Self::from_bytes(path, &bytes)
     }
