@@ -597,6 +597,29 @@ mod tests {
     /// Each schema parses, and every field a serialised record has is a property its schema
     /// declares, and every required property is present: the schemas cannot drift from the types.
     #[test]
+    fn the_device_schema_names_every_contact_flag_with_its_bit() {
+        // The schema is written by hand for MCAP viewers; the flags it lists must follow the
+        // type, or a viewer of the file misreads a bit.
+        let schema: Value = serde_json::from_str(schema::DEVICE).unwrap();
+        let described = schema["properties"]["flags"]["description"]
+            .as_str()
+            .unwrap();
+        for (flag, name) in crate::wire::FLAG_NAMES {
+            let entry = format!("{} {name}", flag.bits());
+            assert!(
+                described.contains(&entry),
+                "{entry:?} missing from the device schema's flags: {described}"
+            );
+        }
+        let listed = described.matches(|c: char| c == ',').count() + 1;
+        assert_eq!(listed, crate::wire::FLAG_NAMES.len(), "{described}");
+        assert_eq!(
+            crate::wire::FLAG_NAMES.len() as u32,
+            crate::ContactFlags::all().bits().count_ones()
+        );
+    }
+
+    #[test]
     fn schemas_match_the_serialised_records() {
         let scene_message = crate::wire::message_vectors()
             .unwrap()
