@@ -41,8 +41,8 @@ use softhaptic_proto::{Material, Pose, ToolShape};
 #[derive(Parser, Debug)]
 #[command(about = "Measure the period error and compute time of the 1 kHz haptic loop")]
 struct Args {
-    /// How long to run, seconds.
-    #[arg(long, default_value_t = 10.0)]
+    /// How long to run, seconds (0.1 to 86 400: a day).
+    #[arg(long, default_value_t = 10.0, value_parser = parse_seconds)]
     seconds: f64,
     /// Start a CPU-burning neighbour process for every core beside the loop.
     #[arg(long)]
@@ -50,8 +50,8 @@ struct Args {
     /// Burn a CPU until killed or until the parent exits (how `--burn` runs its neighbours).
     #[arg(long, hide = true)]
     burner: bool,
-    /// Loop period in microseconds.
-    #[arg(long, default_value_t = 1000)]
+    /// Loop period in microseconds (100 to 100 000: 10 kHz to 10 Hz).
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(100..=100_000))]
     period_us: u64,
     /// Do not ask for SCHED_FIFO and locked memory.
     #[arg(long)]
@@ -71,6 +71,19 @@ struct Args {
 
 fn parse_cpu(text: &str) -> Result<CpuChoice, String> {
     text.parse()
+}
+
+/// A run length a person would ask for: long enough to fill the histograms, at most a day (a
+/// longer one is a typo, and would overflow the tick counts' clock arithmetic long before).
+fn parse_seconds(text: &str) -> Result<f64, String> {
+    let seconds: f64 = text
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if (0.1..=86_400.0).contains(&seconds) {
+        Ok(seconds)
+    } else {
+        Err(format!("{seconds} s is outside 0.1 to 86 400 s"))
+    }
 }
 
 /// What the kernel counts for one thread, from `/proc/self/task/<id>/`.

@@ -262,7 +262,20 @@ fn row(vertices: usize, triangles: usize, build_ms: f64, c: Timing, p: Timing, t
     );
 }
 
+/// Times one haptic step (collision, contact law, damping) on the paper's Table 1 surfaces and
+/// beyond, in both collision modes, beside the paper's figures; then the contact model's costs.
+/// Run it on a release build: `cargo run --release -p softhaptic-device --bin step-report`.
+#[derive(clap::Parser)]
+#[command(name = "step-report", version)]
+struct Args {}
+
 fn main() {
+    use clap::Parser as _;
+    Args::parse();
+    // A report piped into `head` ends when the reader does, as other command-line tools do,
+    // instead of panicking on the closed pipe.
+    // SAFETY: restores the default action of one signal before any other thread exists.
+    unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     let bench = Bench {
         // A constant, valid radius: cannot fail.
         tool: ToolShape::sphere(0.01).expect("a 10 mm sphere is a valid tool"),
