@@ -204,17 +204,39 @@ mod tests {
     use super::*;
 
     #[test]
-    fn limits_are_consistent() {
+    fn every_preset_gives_a_heating_model_and_a_stiffness_cap_the_renderer_can_use() {
+        use crate::render::{ForceRenderer, RenderConfig};
+        use softhaptic_proto::{Material, ToolShape};
+        let tool = ToolShape::sphere(0.01).unwrap();
         for l in [
             DeviceLimits::PHANTOM_DESKTOP,
             DeviceLimits::TOUCH,
             DeviceLimits::OMNI,
         ] {
-            assert!(l.continuous_force_n < l.peak_force_n, "{}", l.name);
-            assert!(l.max_stiffness_n_per_m > 0.0 && l.workspace_radius_m > 0.0);
-            assert!(l.thermal_time_constant_s > 0.0, "{}", l.name);
+            // A continuous rating the heating model accepts (below the peak, positive time
+            // constant): otherwise the continuous-force limit would silently be off.
+            assert!(
+                crate::thermal::ContinuousForceLimiter::for_device(&l).is_ok(),
+                "{}",
+                l.name
+            );
+            // A stable stiffness that puts the cap's depth δ* inside the tool's reach on soft
+            // tissue, and a force there below the peak.
+            let r =
+                ForceRenderer::new(tool, Material::PAPER_SOFT, RenderConfig::for_tool(&tool), l);
+            let cap = r.cap_depth_m();
+            assert!(
+                cap.is_finite() && cap > 0.0 && cap < 0.02,
+                "{}: δ* = {cap}",
+                l.name
+            );
+            let (force_at_cap, _) = r.elastic_force_n(cap);
+            assert!(
+                force_at_cap < l.peak_force_n,
+                "{}: {force_at_cap} N",
+                l.name
+            );
         }
-        assert_eq!(DeviceLimits::PHANTOM_DESKTOP.peak_force_n, 7.9);
     }
 
     #[test]

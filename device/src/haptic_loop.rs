@@ -1065,15 +1065,31 @@ mod tests {
         let baton = Baton::new(grid_core());
         let shared = Shared::new();
         let origin = rt::now_ns();
+        let released = AtomicBool::new(false);
+        let published = || LoopStats::from_words(&shared.stats.read());
+        let wait_for = |what: &str, done: &dyn Fn(&LoopStats) -> bool| {
+            let give_up = std::time::Instant::now() + std::time::Duration::from_secs(30);
+            while !done(&published()) {
+                assert!(std::time::Instant::now() < give_up, "timed out: {what}");
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+        };
         std::thread::scope(|s| {
-            // The loop thread is held back for its first 40 periods, as a CPU busy in the kernel
-            // would hold it; then it runs as usual.
+            // The loop thread is held back until the standby has run ticks in its place, as a CPU
+            // busy in the kernel would hold it; then it runs as usual.
             s.spawn(|| {
-                std::thread::sleep(std::time::Duration::from_nanos(40 * P));
+                while !released.load(Ordering::Acquire) {
+                    std::thread::sleep(std::time::Duration::from_millis(1));
+                }
                 run(&baton, &shared, Role::Loop, origin, P);
             });
             s.spawn(|| run(&baton, &shared, Role::Standby, origin, P));
-            std::thread::sleep(std::time::Duration::from_nanos(100 * P));
+            // Stats are published every 100 ticks: polled, however loaded the machine is.
+            wait_for("the standby's ticks", &|st| st.standby_ticks >= 5);
+            released.store(true, Ordering::Release);
+            wait_for("the loop thread's ticks", &|st| {
+                st.ticks - st.standby_ticks >= 5
+            });
             shared.stop.store(true, Ordering::Release);
         });
         let core = baton.try_take().unwrap();

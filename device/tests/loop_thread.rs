@@ -130,7 +130,16 @@ fn loop_runs_publishes_and_stops_with_zero_force() {
     let stats = haptic.stop();
     println!("{stats:?}");
     assert!(stats.ticks > late.tick, "{stats:?}");
-    assert!(stats.loop_rate_hz > 0.0 && stats.loop_rate_hz < 1100.0);
+    assert!(stats.loop_rate_hz > 0.0);
+    // Every tick run and every tick lost answers a deadline that has passed: the loop never
+    // runs ahead of its clock (a property of the code, not of this machine's speed).
+    let deadlines_passed = (softhaptic_device::rt::now_ns() - stats.deadline_origin_ns) / 1_000_000;
+    assert!(
+        stats.ticks + stats.overruns <= deadlines_passed,
+        "{} ticks and {} lost for {deadlines_passed} deadlines",
+        stats.ticks,
+        stats.overruns
+    );
     assert!(stats.dropped_tick_records > 0);
     assert!(stats.compute_max_ns > 0 && stats.compute_p50_ns <= stats.compute_max_ns);
     assert!(stats.period_error_p50_ns <= stats.period_error_max_ns);
@@ -161,8 +170,8 @@ fn zero_period_is_refused() {
 }
 
 #[test]
-fn dropping_the_loop_stops_the_thread() {
-    let (device, world, _, commands) = setup();
+fn dropping_the_loop_stops_the_thread_and_releases_the_device() {
+    let (device, world, last_force_bits, commands) = setup();
     let haptic = HapticLoop::spawn(
         Box::new(device),
         world,
@@ -172,12 +181,22 @@ fn dropping_the_loop_stops_the_thread() {
         },
     )
     .unwrap();
-    std::thread::sleep(Duration::from_millis(20));
+    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    // Pressing with a force by now.
+    while f64::from_bits(last_force_bits.load(Ordering::Relaxed)) == 0.0 {
+        assert!(std::time::Instant::now() < give_up, "no force commanded");
+        std::thread::sleep(Duration::from_millis(5));
+    }
     drop(haptic);
-    let after_drop = commands.load(Ordering::Relaxed);
-    assert!(after_drop > 0);
-    std::thread::sleep(Duration::from_millis(20));
-    assert_eq!(commands.load(Ordering::Relaxed), after_drop);
+    // The threads are gone with the device they held (their handles to the counters with it),
+    // and the device's last command was zero force.
+    assert_eq!(
+        Arc::strong_count(&commands),
+        1,
+        "a thread still holds the device"
+    );
+    assert_eq!(Arc::strong_count(&last_force_bits), 1);
+    assert_eq!(f64::from_bits(last_force_bits.load(Ordering::Relaxed)), 0.0);
 }
 
 /// A device whose every 50th read takes 2.5 ms, as a driver stalling on its bus would.
