@@ -23,7 +23,11 @@ use crate::tool::ToolShape;
 pub const PROTOCOL_VERSION: u32 = 1;
 
 /// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
-pub const SERVER_MESSAGE_TYPES: [&str; 4] = ["hello", "scene", "contact", "stats"];
+pub const SERVER_MESSAGE_TYPES: [&str; 5] = ["hello", "scene", "contact", "stats", "refused"];
+
+/// The `type` names of every viewer → server message: [`Auth`] and
+/// [`crate::record::ReplayControl`].
+pub const CLIENT_MESSAGE_TYPES: [&str; 2] = ["auth", "replay_control"];
 
 /// A message from the server to a viewer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -37,27 +41,76 @@ pub enum ServerMessage {
     Contact(ContactFrame),
     /// 1 Hz: loop timing and stream health.
     Stats(StatsMessage),
+    /// The answer to a request the connection's role (or the server) does not allow; the
+    /// connection stays open.
+    Refused(Refused),
 }
 
-/// The role a connection plays.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// What a connection may do, decided by the token it presented (proto/WIRE.md, "Roles and
+/// tokens").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Role {
-    /// Watches the session: receives scene, contact and stats, sends nothing that matters.
-    Viewer,
-    /// Watches a recorded session (`softhaptic replay`): also receives `replay` status messages
-    /// and may send `replay_control` (play, pause, seek, speed).
+    /// Everything an observer may, and also control a replay (play, pause, seek, speed).
+    Instructor,
+    /// Read-only: receives the scene, the frames, the stats and the replay's status.
+    Observer,
+}
+
+impl Role {
+    /// The role's name on the wire.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Instructor => "instructor",
+            Role::Observer => "observer",
+        }
+    }
+}
+
+/// What the server streams: a live session, or a recording (`softhaptic replay`), which also
+/// sends `replay` status messages and accepts `replay_control` from an instructor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    Live,
     Replay,
 }
 
-/// `hello`: the protocol version, this connection's id and role, and the server's name.
+/// `hello`: the protocol version, this connection's id, role and mode, and the server's name.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Hello {
     pub protocol_version: u32,
     pub session_id: String,
     pub role: Role,
+    pub mode: Mode,
     /// `"softhaptic <version>"`.
     pub server: String,
+}
+
+/// `refused`: a request the server did not carry out, and why, in words a person reads.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Refused {
+    /// The `type` of the refused message, e.g. `"replay_control"`.
+    pub request: String,
+    pub reason: String,
+}
+
+/// `auth` (viewer → server): the token of the viewer's link, the first message on a
+/// connection to a server that has tokens.
+///
+/// `Debug` never shows the token, so a logged or panicking value cannot leak it.
+#[derive(Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "type", rename = "auth")]
+pub struct Auth {
+    pub token: String,
+}
+
+impl std::fmt::Debug for Auth {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Auth")
+            .field("token", &"<redacted>")
+            .finish()
+    }
 }
 
 /// The contact model the loop runs and its validity bounds (beyond them the contact frame's
@@ -494,6 +547,7 @@ impl ServerMessage {
             ServerMessage::Scene(_) => "scene",
             ServerMessage::Contact(_) => "contact",
             ServerMessage::Stats(_) => "stats",
+            ServerMessage::Refused(_) => "refused",
         }
     }
 
@@ -537,7 +591,8 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
     let hello = ServerMessage::Hello(Hello {
         protocol_version: PROTOCOL_VERSION,
         session_id: "3f2a9c1e".into(),
-        role: Role::Viewer,
+        role: Role::Instructor,
+        mode: Mode::Live,
         server: "softhaptic 0.1.0".into(),
     });
     let tool = ToolShape::Sphere { radius_m: 0.01 };
@@ -689,6 +744,24 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             ServerMessage::Contact(ContactFrame::from_state(&free, 9, 0.0, 0)),
         ),
         ("stats", stats),
+        (
+            "hello_observer",
+            ServerMessage::Hello(Hello {
+                protocol_version: PROTOCOL_VERSION,
+                session_id: "3f2a9c1e".into(),
+                role: Role::Observer,
+                mode: Mode::Live,
+                server: "softhaptic 0.1.0".into(),
+            }),
+        ),
+        (
+            "refused_replay_control",
+            ServerMessage::Refused(Refused {
+                request: "replay_control".into(),
+                reason: "an observer cannot control the replay: only an instructor's link can"
+                    .into(),
+            }),
+        ),
     ];
     let mut out = Vec::new();
     for (name, message) in valid {
@@ -750,7 +823,8 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             serde_json::to_value(ServerMessage::Hello(Hello {
                 protocol_version: PROTOCOL_VERSION,
                 session_id: "19abc0de123-4242".into(),
-                role: Role::Replay,
+                role: Role::Instructor,
+                mode: Mode::Replay,
                 server: "softhaptic 0.1.0".into(),
             }))?,
         ),
@@ -801,6 +875,14 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             })?,
         });
     }
+    // The first message of a viewer to a server with tokens (the viewer's encoder must produce
+    // exactly this).
+    out.push(MessageVector::Valid {
+        name: "auth".into(),
+        json: serde_json::to_value(Auth {
+            token: "0123456789abcdef0123456789abcdef".into(),
+        })?,
+    });
     // Well-formed but of a type no viewer knows: to be ignored and counted, not refused.
     out.push(MessageVector::Valid {
         name: "unknown_type".into(),
@@ -870,6 +952,10 @@ mod tests {
                                 let status: crate::record::ReplayStatus =
                                     serde_json::from_str(&text).unwrap();
                                 assert_eq!(serde_json::to_value(&status).unwrap(), json);
+                            } else if name == "auth" {
+                                let auth: Auth = serde_json::from_str(&text).unwrap();
+                                assert_eq!(serde_json::to_value(&auth).unwrap(), json);
+                                assert!(CLIENT_MESSAGE_TYPES.contains(&"auth"));
                             } else if name.starts_with("replay_control") {
                                 let control: crate::record::ReplayControl =
                                     serde_json::from_str(&text).unwrap();
@@ -896,15 +982,45 @@ mod tests {
         let text = ServerMessage::Hello(Hello {
             protocol_version: PROTOCOL_VERSION,
             session_id: "s1".into(),
-            role: Role::Viewer,
+            role: Role::Observer,
+            mode: Mode::Replay,
             server: "softhaptic 0.1.0".into(),
         })
         .encode()
         .unwrap();
         assert_eq!(
             text,
-            r#"{"type":"hello","protocol_version":1,"session_id":"s1","role":"viewer","server":"softhaptic 0.1.0"}"#
+            r#"{"type":"hello","protocol_version":1,"session_id":"s1","role":"observer","mode":"replay","server":"softhaptic 0.1.0"}"#
         );
+    }
+
+    #[test]
+    fn refused_and_auth_have_the_wire_layout_and_auth_hides_its_token_from_debug() {
+        let text = ServerMessage::Refused(Refused {
+            request: "replay_control".into(),
+            reason: "no".into(),
+        })
+        .encode()
+        .unwrap();
+        assert_eq!(
+            text,
+            r#"{"type":"refused","request":"replay_control","reason":"no"}"#
+        );
+        let auth = Auth {
+            token: "0123456789abcdef0123456789abcdef".into(),
+        };
+        assert_eq!(
+            serde_json::to_string(&auth).unwrap(),
+            r#"{"type":"auth","token":"0123456789abcdef0123456789abcdef"}"#
+        );
+        let shown = format!("{auth:?}");
+        assert!(!shown.contains("0123456789abcdef"), "{shown}");
+        for role in [Role::Instructor, Role::Observer] {
+            assert_eq!(
+                serde_json::to_value(role).unwrap(),
+                serde_json::Value::from(role.as_str())
+            );
+        }
     }
 
     #[test]

@@ -5,6 +5,11 @@
 //! [`RunningServer`] that knows its real address (port 0 is allowed) and shuts everything down
 //! in order: stop producing frames, close every viewer, stop the HTTP server, and finally stop
 //! the haptic loop (which commands zero force first).
+//!
+//! Every route passes the access rules of [`crate::access`]: the Host rule on every request,
+//! the security headers on every response, a bearer token on the session data (`/api/scene`,
+//! `/meshes/*`) when the server has tokens, and at the WebSocket upgrade the Origin rule and the
+//! connection limits.
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -14,9 +19,10 @@ use std::time::Duration;
 
 use axum::Router;
 use axum::body::Bytes;
+use axum::extract::connect_info::ConnectInfo;
 use axum::extract::ws::{Utf8Bytes, WebSocketUpgrade};
 use axum::extract::{Path as UrlPath, State};
-use axum::http::{StatusCode, header};
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, get_service};
 use softhaptic_device::device::HapticDevice;
@@ -25,15 +31,19 @@ use softhaptic_device::openhaptics::OpenHapticsError;
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::ToolShape;
 use softhaptic_proto::wire::{
-    DeviceInfo, Hello, ModelInfo, PROTOCOL_VERSION, RenderMeshInfo, Role, SceneMessage,
+    DeviceInfo, Hello, Mode, ModelInfo, PROTOCOL_VERSION, RenderMeshInfo, Role, SceneMessage,
     ServerMessage,
 };
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tower_http::services::{ServeDir, ServeFile};
 
+use crate::access::{self, Access, AccessConfig, AccessError, Connection};
 use crate::scene::Scene;
-use crate::stream::{self, StreamHub, ViewerLimits};
+use crate::stream::{self, StreamHub, ViewerEnd, ViewerLimits};
+
+/// How long a shutdown waits for the viewers' connections to close.
+pub(crate) const VIEWERS_CLOSE_WAIT: Duration = Duration::from_secs(3);
 
 /// The server's name in `hello`.
 pub const SERVER_NAME: &str = concat!("softhaptic ", env!("CARGO_PKG_VERSION"));
@@ -51,6 +61,8 @@ pub enum ServerError {
     Loop(#[from] LoopError),
     #[error("haptic device: {0}")]
     Device(#[from] OpenHapticsError),
+    #[error(transparent)]
+    Access(#[from] AccessError),
     #[error("could not encode the {what} message: {source}")]
     Encode {
         what: &'static str,
@@ -92,6 +104,9 @@ pub struct ServerOptions {
     /// line opens it before the recording starts, so the recording names the limits it really
     /// runs with); opened by [`start`] when `None`.
     pub device: Option<Box<dyn HapticDevice>>,
+    /// Who may connect (tokens, origins, host names, limits); the loopback quick start by
+    /// default. [`start`] refuses an address beyond loopback without tokens.
+    pub access: AccessConfig,
 }
 
 impl ServerOptions {
@@ -110,6 +125,7 @@ impl ServerOptions {
             tick_sink: None,
             session_id: None,
             device: None,
+            access: AccessConfig::default(),
         }
     }
 }
@@ -166,6 +182,10 @@ impl RunningServer {
         for task in self.tasks {
             let _ = task.await;
         }
+        // Every viewer is being closed; wait (briefly) for them to be gone, so that each one's
+        // audit line is written before the process ends.
+        let _ =
+            tokio::time::timeout(VIEWERS_CLOSE_WAIT, self.hub.access.until_no_connections()).await;
         // Viewer tasks see the flag and close; give them a moment, then stop accepting.
         let _ = tokio::time::timeout(Duration::from_secs(5), self.http).await;
         drop(self.hub);
@@ -254,6 +274,8 @@ pub async fn start(
     mut scene: Scene,
     mut options: ServerOptions,
 ) -> Result<RunningServer, ServerError> {
+    // Before the device is touched: a server that may not serve this address starts nothing.
+    options.access.check_bind(options.addr)?;
     let device = match options.device.take() {
         Some(device) => device,
         None => crate::devices::open(&mut scene)?,
@@ -264,15 +286,14 @@ pub async fn start(
             .map_err(|source| ServerError::Encode { what, source })
     };
     let scene_text = encode("scene", ServerMessage::Scene(Box::new(message.clone())))?;
-    let hello_text = encode(
-        "hello",
-        ServerMessage::Hello(Hello {
-            protocol_version: PROTOCOL_VERSION,
-            session_id: options.session_id.clone().unwrap_or_else(new_session_id),
-            role: Role::Viewer,
-            server: SERVER_NAME.into(),
-        }),
-    )?;
+    let hello = Hello {
+        protocol_version: PROTOCOL_VERSION,
+        session_id: options.session_id.clone().unwrap_or_else(new_session_id),
+        // Set per connection by the stream hub.
+        role: Role::Instructor,
+        mode: Mode::Live,
+        server: SERVER_NAME.into(),
+    };
     let mut meshes = HashMap::new();
     meshes.insert(
         scene.object_name.clone(),
@@ -305,13 +326,21 @@ pub async fn start(
     )?);
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
-    let hub = Arc::new(StreamHub::new(
-        Utf8Bytes::from(hello_text),
-        Utf8Bytes::from(scene_text.clone()),
-        options.viewer_limits,
-        shutdown_rx.clone(),
-        None,
-    ));
+    let access = Arc::new(Access::new(options.access, &options.web_dir));
+    let hub = Arc::new(
+        StreamHub::new(
+            &hello,
+            Utf8Bytes::from(scene_text.clone()),
+            options.viewer_limits,
+            shutdown_rx.clone(),
+            None,
+            access,
+        )
+        .map_err(|source| ServerError::Encode {
+            what: "hello",
+            source,
+        })?,
+    );
     let tasks = vec![
         tokio::spawn(stream::frame_task(
             Arc::clone(&haptic_loop),
@@ -365,13 +394,16 @@ fn bind(
 }
 
 /// Serves `app` on `listener` until `shutdown` turns true, then lets open requests finish; the
-/// live server and the replay server both run their HTTP side this way.
+/// live server and the replay server both run their HTTP side this way. Each request carries
+/// its client's address (`ConnectInfo<SocketAddr>`): the per-address limit and the audit and
+/// refusal log lines use it.
 pub(crate) fn serve_http(
     listener: tokio::net::TcpListener,
     app: Router,
     mut shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
     tokio::spawn(async move {
+        let app = app.into_make_service_with_connect_info::<SocketAddr>();
         let served = axum::serve(listener, app)
             .with_graceful_shutdown(async move {
                 let _ = shutdown.wait_for(|stop| *stop).await;
@@ -401,10 +433,19 @@ pub fn viewer_router(
     )
 }
 
-/// The routes of proto/WIRE.md.
+/// The routes of proto/WIRE.md, behind the access rules of the hub's [`Access`].
 fn router(web_dir: &Path, state: AppState) -> Router {
     let three = web_dir.join("node_modules").join("three");
-    Router::new()
+    let access = Arc::clone(&state.hub.access);
+    // The session's data needs a token (when the server has tokens); the viewer's files do not.
+    let session_data = Router::new()
+        .route("/api/scene", get(api_scene))
+        .route("/meshes/{file}", get(mesh))
+        .route_layer(axum::middleware::from_fn_with_state(
+            Arc::clone(&access),
+            access::require_token,
+        ));
+    let routes = Router::new()
         .route_service("/", get_service(ServeFile::new(web_dir.join("index.html"))))
         .nest_service("/src", ServeDir::new(web_dir.join("src")))
         .nest_service(
@@ -412,10 +453,15 @@ fn router(web_dir: &Path, state: AppState) -> Router {
             ServeDir::new(three.join("examples").join("jsm")),
         )
         .nest_service("/vendor/three", ServeDir::new(three.join("build")))
-        .route("/api/scene", get(api_scene))
-        .route("/meshes/{file}", get(mesh))
+        .merge(session_data)
         .route("/ws", get(ws))
         .with_state(state)
+        .layer(axum::middleware::from_fn_with_state(
+            Arc::clone(&access),
+            access::guard_host,
+        ));
+    // Outermost, so that refusals (421, 401, 403) carry the headers too.
+    access::with_security_headers(routes, access.csp().clone())
 }
 
 async fn api_scene(State(state): State<AppState>) -> Response {
@@ -440,9 +486,29 @@ async fn mesh(State(state): State<AppState>, UrlPath(file): UrlPath<String>) -> 
     }
 }
 
-async fn ws(State(state): State<AppState>, upgrade: WebSocketUpgrade) -> Response {
-    let limits = state.hub.limits;
+/// The WebSocket upgrade: the Origin rule (403 before upgrading), the connection limits (4429
+/// right after it, so a browser can tell the viewer why), then the viewer's stream; one audit
+/// line when the connection ends.
+async fn ws(
+    State(state): State<AppState>,
+    connect_info: Option<axum::Extension<ConnectInfo<SocketAddr>>>,
+    headers: HeaderMap,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    let peer = connect_info.map(|info| info.0.0);
     let hub = state.hub;
+    let origin = match hub.access.check_origin(&headers) {
+        Ok(origin) => origin,
+        Err(reason) => {
+            tracing::warn!(
+                client = %peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+                "WebSocket upgrade refused (403): {reason}"
+            );
+            return access::json_error(StatusCode::FORBIDDEN, "origin not allowed");
+        }
+    };
+    let admission = hub.access.admit(peer.map(|p| p.ip()));
+    let limits = hub.limits;
     upgrade
         .max_message_size(limits.max_incoming_bytes)
         .max_frame_size(limits.max_incoming_bytes)
@@ -450,8 +516,17 @@ async fn ws(State(state): State<AppState>, upgrade: WebSocketUpgrade) -> Respons
         .write_buffer_size(0)
         .max_write_buffer_size(1 << 20)
         .on_upgrade(move |socket| async move {
-            let end = stream::serve_viewer(socket, hub).await;
-            tracing::debug!(?end, "viewer left");
+            match admission {
+                Ok(admission) => {
+                    let mut connection = Connection::new(peer, origin, Some(admission));
+                    let end = stream::serve_viewer(socket, hub, &mut connection).await;
+                    connection.finish(&end);
+                }
+                Err(refusal) => {
+                    stream::refuse_connection(socket, &hub, refusal).await;
+                    Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                }
+            }
         })
 }
 

@@ -2,6 +2,9 @@
 //! 50 Hz contact frames to WebSocket viewers and serves the web viewer.
 //!
 //! # Layout
+//! - [`access`]: who may connect and how much: the roles' tokens (generated, from a file or the
+//!   environment; compared in constant time), the Origin and Host rules, the security headers
+//!   and their Content-Security-Policy, the connection limits and the per-connection audit line.
 //! - [`scene`]: scene files (TOML), their validation and loading (meshes, calibration table,
 //!   the object's contact model `[object.model]` built for the scene's tool only, and its
 //!   validity limits from the measured limits file or the paper's), the haptic world a scene
@@ -21,6 +24,7 @@
 //!   self-signed certificate and its fingerprint); why a plain-text or silent client cannot hold
 //!   the port.
 
+pub mod access;
 pub mod app;
 pub mod devices;
 pub mod files;

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand};
+use softhaptic_server::access::AccessArgs;
 use softhaptic_server::app::{self, ServerOptions};
 use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, Scene};
@@ -93,6 +94,8 @@ struct RunArgs {
     no_loop_standby: bool,
     #[command(flatten)]
     record: session::cli::RecordArgs,
+    #[command(flatten)]
+    access: AccessArgs,
 }
 
 fn main() -> std::process::ExitCode {
@@ -113,6 +116,8 @@ fn try_main() -> anyhow::Result<()> {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        // Colour codes only for a person at a terminal, not in a log file or a pipe.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
     match cli.command {
@@ -141,6 +146,9 @@ fn try_main() -> anyhow::Result<()> {
 }
 
 fn run(args: RunArgs) -> anyhow::Result<()> {
+    // Refuse to serve an address beyond loopback without tokens, and bad token sources, before
+    // anything starts.
+    let access = args.access.resolve(args.addr)?;
     // Refuse a bad scene before anything starts.
     let mut scene = match &args.scene {
         Some(path) => Scene::load(path)?,
@@ -175,12 +183,21 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.tick_sink = recording.as_mut().and_then(|r| r.take_tick_sink());
         options.session_id = recording.as_ref().map(|r| r.session_id().to_owned());
         options.device = Some(device);
+        options.access = access.clone();
         let server = app::start(scene, options).await?;
         if let Some(r) = &recording {
             r.attach(&server);
             println!("recording: {}", r.path().display());
         }
-        println!("viewer: {}", server.viewer_url());
+        // The token is in the fragment, which no request carries; printed on stdout only.
+        let base = server.viewer_url();
+        match access.links(&base) {
+            Some((instructor, observer)) => {
+                println!("viewer: {instructor}");
+                println!("observer: {observer}");
+            }
+            None => println!("viewer: {base}"),
+        }
         shutdown_signal().await?;
         tracing::info!("shutting down");
         let stats = server.shutdown().await;

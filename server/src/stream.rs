@@ -13,10 +13,17 @@
 //! closes the connection (`stalled_closes`).
 //! The haptic loop is never touched by any of this: the frame task only reads its wait-free
 //! publication.
+//!
+//! Each connection first gets its role ([`crate::access`]): with tokens, its first message must
+//! be an `auth` with a valid token within the auth timeout, before anything is sent to it; without
+//! tokens it is an instructor at once. A request its role may not make gets a `refused` reply and
+//! the connection stays open; a connection that sends more than its message rate allows is
+//! closed. Both are decided by the connection's own task, so a misbehaving client delays no one.
 
+use std::fmt;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, close_code};
 use softhaptic_device::device::DeviceError;
@@ -25,9 +32,15 @@ use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::CalibrationTable;
 use softhaptic_proto::record::ReplayControl;
 use softhaptic_proto::wire::{
-    ComputeUs, ContactFrame, DeviceStatus, PeriodErrorUs, ServerMessage, StatsMessage, message_type,
+    Auth, ComputeUs, ContactFrame, DeviceStatus, Hello, PeriodErrorUs, Refused, Role,
+    ServerMessage, StatsMessage, message_type,
 };
 use tokio::sync::{broadcast, watch};
+
+use crate::access::{
+    Access, CLOSE_UNAUTHORIZED, Connection, LimitRefusal, MessageRate, REASON_BAD_TOKEN,
+    REASON_NO_TOKEN, Tokens,
+};
 
 /// Frames a viewer may fall behind before it skips to the newest (80 ms at 50 Hz): enough to
 /// ride out a scheduling hiccup without loss, short enough that a lagging viewer shows the
@@ -124,11 +137,21 @@ pub struct StreamCounters {
     /// Connections closed because a send did not complete within the send timeout (the viewer
     /// stopped reading).
     pub stalled_closes: AtomicU64,
+    /// Connections closed for presenting no token, or a wrong one (4401).
+    pub unauthorized_closes: AtomicU64,
+    /// Connections closed for sending more messages than their rate allows (1008).
+    pub flood_closes: AtomicU64,
+    /// Connections refused by a limit on connections (4429).
+    pub limit_refusals: AtomicU64,
+    /// Requests answered with `refused` (the connection stayed open).
+    pub refused_requests: AtomicU64,
 }
 
 /// What every viewer connection needs.
 pub struct StreamHub {
-    pub hello: Utf8Bytes,
+    /// `hello` for an instructor and for an observer, encoded once.
+    hello_instructor: Utf8Bytes,
+    hello_observer: Utf8Bytes,
     pub scene: Utf8Bytes,
     pub frames: broadcast::Sender<Arc<EncodedFrame>>,
     pub stats: broadcast::Sender<Utf8Bytes>,
@@ -138,20 +161,33 @@ pub struct StreamHub {
     /// Where viewers' `replay_control` messages go when the source is a recording (see
     /// `session::replay`); `None` on a live session, where they are unknown messages.
     pub replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
+    /// Who may connect: tokens, Origin and Host rules, connection limits.
+    pub access: Arc<Access>,
 }
 
 impl StreamHub {
     /// A hub with empty frame and stats channels of the standard backlogs, for a live session
-    /// (`replay_control` `None`) or a replay (the player's control queue).
+    /// (`replay_control` `None`) or a replay (the player's control queue). `hello` gives the
+    /// session id and mode; its role is set per connection.
     pub fn new(
-        hello: Utf8Bytes,
+        hello: &Hello,
         scene: Utf8Bytes,
         limits: ViewerLimits,
         shutdown: watch::Receiver<bool>,
         replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
-    ) -> Self {
-        Self {
-            hello,
+        access: Arc<Access>,
+    ) -> Result<Self, serde_json::Error> {
+        let hello_for = |role| {
+            ServerMessage::Hello(Hello {
+                role,
+                ..hello.clone()
+            })
+            .encode()
+            .map(Utf8Bytes::from)
+        };
+        Ok(Self {
+            hello_instructor: hello_for(Role::Instructor)?,
+            hello_observer: hello_for(Role::Observer)?,
             scene,
             frames: broadcast::channel(FRAME_BACKLOG).0,
             stats: broadcast::channel(STATS_BACKLOG).0,
@@ -159,6 +195,15 @@ impl StreamHub {
             limits,
             shutdown,
             replay_control,
+            access,
+        })
+    }
+
+    /// The `hello` of a connection with `role`.
+    pub fn hello(&self, role: Role) -> &Utf8Bytes {
+        match role {
+            Role::Instructor => &self.hello_instructor,
+            Role::Observer => &self.hello_observer,
         }
     }
 }
@@ -298,26 +343,81 @@ pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, perio
     }
 }
 
-/// Why a viewer connection ended (logged at debug level; counted where it matters).
-#[derive(Debug, PartialEq, Eq)]
+/// Why a viewer connection ended (in its audit line; counted where it matters).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ViewerEnd {
     Closed,
     Malformed,
     SendFailed,
     Shutdown,
+    /// No `auth` with a token within the auth timeout, or a first message that was not one
+    /// (4401).
+    NoToken,
+    /// A token that is neither role's (4401).
+    BadToken,
+    /// More messages than the connection's rate allows (1008).
+    Flooded,
+    /// Refused at the upgrade by a limit on connections (4429).
+    Limit(LimitRefusal),
 }
 
-/// Serves one viewer: `hello` and `scene`, then every contact frame and stats message, until
-/// the viewer leaves, misbehaves, stops reading, or the server shuts down.
-pub async fn serve_viewer(mut socket: WebSocket, hub: Arc<StreamHub>) -> ViewerEnd {
+impl fmt::Display for ViewerEnd {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ViewerEnd::Closed => f.write_str("closed by the viewer"),
+            ViewerEnd::Malformed => f.write_str("closed: malformed or oversized message"),
+            ViewerEnd::SendFailed => {
+                f.write_str("closed: the viewer stopped reading or the link failed")
+            }
+            ViewerEnd::Shutdown => f.write_str("closed: server shutting down (1001)"),
+            ViewerEnd::NoToken => write!(f, "refused: {REASON_NO_TOKEN} ({CLOSE_UNAUTHORIZED})"),
+            ViewerEnd::BadToken => write!(f, "refused: {REASON_BAD_TOKEN} ({CLOSE_UNAUTHORIZED})"),
+            ViewerEnd::Flooded => write!(f, "closed: {REASON_FLOOD} (1008)"),
+            ViewerEnd::Limit(refusal) => {
+                write!(
+                    f,
+                    "refused: {} ({})",
+                    refusal.reason(),
+                    crate::access::CLOSE_TOO_MANY
+                )
+            }
+        }
+    }
+}
+
+/// The close reason of a connection that sent more messages than its rate allows.
+pub const REASON_FLOOD: &str = "too many messages";
+/// The `refused` reason of a `replay_control` from an observer.
+pub const REFUSED_OBSERVER: &str =
+    "an observer cannot control the replay: only an instructor's link can";
+/// The `refused` reason of a `replay_control` sent to a live session.
+pub const REFUSED_LIVE: &str = "this is a live session: there is no replay to control";
+
+/// Serves one viewer: its role (see the module doc), `hello` and `scene`, then every contact
+/// frame and stats message, until the viewer leaves, misbehaves, stops reading, or the server
+/// shuts down. `connection` learns the role, for the audit line its owner logs.
+pub async fn serve_viewer(
+    mut socket: WebSocket,
+    hub: Arc<StreamHub>,
+    connection: &mut Connection,
+) -> ViewerEnd {
+    let timeout = hub.limits.send_timeout;
+    let mut rate = MessageRate::new(&hub.access.config.limits, Instant::now());
+    let role = match hub.access.tokens() {
+        None => Role::Instructor,
+        Some(tokens) => match authenticate(&mut socket, &hub, tokens, &mut rate).await {
+            Ok(role) => role,
+            Err(end) => return end,
+        },
+    };
+    connection.authenticated(role);
     let _guard = ViewerGuard::new(&hub.counters);
     // Subscribe before sending the greeting, so no frame produced meanwhile is missed.
     let mut frames = hub.frames.subscribe();
     let mut stats = hub.stats.subscribe();
     let mut shutdown = hub.shutdown.clone();
-    let timeout = hub.limits.send_timeout;
 
-    for greeting in [&hub.hello, &hub.scene] {
+    for greeting in [hub.hello(role), &hub.scene] {
         if !send(
             &mut socket,
             Message::Text(greeting.clone()),
@@ -350,60 +450,13 @@ pub async fn serve_viewer(mut socket: WebSocket, hub: Arc<StreamHub>) -> ViewerE
                     return ViewerEnd::Shutdown;
                 }
             }
-            incoming = socket.recv() => match incoming {
-                None | Some(Ok(Message::Close(_))) => return ViewerEnd::Closed,
-                Some(Err(e)) => {
-                    // Protocol violations and oversized messages end up here.
-                    tracing::debug!(error = %e, "viewer connection failed");
-                    hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
-                    close(&mut socket, close_code::SIZE, "invalid or oversized message", timeout)
-                        .await;
-                    return ViewerEnd::Malformed;
+            incoming = socket.recv() => {
+                if let Some(end) =
+                    handle_incoming(&mut socket, &hub, connection, role, &mut rate, incoming).await
+                {
+                    return end;
                 }
-                Some(Ok(Message::Text(text))) => match message_type(&text) {
-                    Ok(kind) if kind == "replay_control" && hub.replay_control.is_some() => {
-                        let control = serde_json::from_str::<ReplayControl>(&text)
-                            .map_err(|e| e.to_string())
-                            .and_then(|c| c.validate().map(|()| c).map_err(|e| e.to_string()));
-                        match (control, &hub.replay_control) {
-                            (Ok(c), Some(tx)) => {
-                                // A full queue means controls arrive faster than they matter.
-                                let _ = tx.try_send(c);
-                            }
-                            (Ok(_), None) => {}
-                            (Err(reason), _) => {
-                                tracing::debug!(reason, "invalid replay_control message");
-                                hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
-                                close(&mut socket, close_code::INVALID, "invalid replay_control message", timeout).await;
-                                return ViewerEnd::Malformed;
-                            }
-                        }
-                    }
-                    Ok(kind) => {
-                        // No viewer → server message is defined yet: every type is unknown.
-                        let n = hub.counters.unknown_messages.fetch_add(1, Ordering::Relaxed);
-                        if n == 0 {
-                            tracing::warn!(kind, "ignoring a viewer message of unknown type");
-                        } else {
-                            tracing::debug!(kind, "ignoring a viewer message of unknown type");
-                        }
-                    }
-                    Err(e) => {
-                        tracing::debug!(error = %e, "malformed viewer message");
-                        hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
-                        close(&mut socket, close_code::INVALID, "malformed message", timeout).await;
-                        return ViewerEnd::Malformed;
-                    }
-                },
-                Some(Ok(Message::Binary(_))) => {
-                    hub.counters.malformed_closes.fetch_add(1, Ordering::Relaxed);
-                    close(&mut socket, close_code::UNSUPPORTED, "binary messages are not accepted", timeout)
-                        .await;
-                    return ViewerEnd::Malformed;
-                }
-                // Pings are answered by the WebSocket layer.
-                Some(Ok(Message::Ping(_) | Message::Pong(_))) => {}
-            },
+            }
             frame = frames.recv() => {
                 let frame = match frame {
                     Ok(frame) => frame,
@@ -446,6 +499,259 @@ pub async fn serve_viewer(mut socket: WebSocket, hub: Arc<StreamHub>) -> ViewerE
     }
 }
 
+/// Waits for the connection's `auth` (nothing is sent before it): the role of its token, or
+/// the connection closed with 4401 (no valid `auth` first, or none within the auth timeout).
+async fn authenticate(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    tokens: &Tokens,
+    rate: &mut MessageRate,
+) -> Result<Role, ViewerEnd> {
+    let timeout = hub.limits.send_timeout;
+    let deadline = tokio::time::Instant::now() + hub.access.config.limits.auth_timeout;
+    let mut shutdown = hub.shutdown.clone();
+    loop {
+        if *shutdown.borrow() {
+            close(socket, close_code::AWAY, "server shutting down", timeout).await;
+            return Err(ViewerEnd::Shutdown);
+        }
+        let incoming = tokio::select! {
+            _ = shutdown.changed() => continue,
+            incoming = tokio::time::timeout_at(deadline, socket.recv()) => incoming,
+        };
+        let message = match incoming {
+            Err(_) => {
+                hub.counters
+                    .unauthorized_closes
+                    .fetch_add(1, Ordering::Relaxed);
+                close(socket, CLOSE_UNAUTHORIZED, REASON_NO_TOKEN, timeout).await;
+                return Err(ViewerEnd::NoToken);
+            }
+            Ok(None | Some(Ok(Message::Close(_)))) => return Err(ViewerEnd::Closed),
+            Ok(Some(Err(e))) => {
+                tracing::debug!(error = %e, "viewer connection failed before presenting a token");
+                hub.counters
+                    .malformed_closes
+                    .fetch_add(1, Ordering::Relaxed);
+                close(
+                    socket,
+                    close_code::SIZE,
+                    "invalid or oversized message",
+                    timeout,
+                )
+                .await;
+                return Err(ViewerEnd::Malformed);
+            }
+            Ok(Some(Ok(message))) => message,
+        };
+        if !rate.allow(Instant::now()) {
+            return Err(flooded(socket, hub).await);
+        }
+        match message {
+            Message::Ping(_) | Message::Pong(_) => continue,
+            Message::Binary(_) => {
+                hub.counters
+                    .malformed_closes
+                    .fetch_add(1, Ordering::Relaxed);
+                close(
+                    socket,
+                    close_code::UNSUPPORTED,
+                    "binary messages are not accepted",
+                    timeout,
+                )
+                .await;
+                return Err(ViewerEnd::Malformed);
+            }
+            Message::Close(_) => return Err(ViewerEnd::Closed),
+            Message::Text(text) => {
+                // Anything but an `auth` with a string token is no token presented.
+                let role = serde_json::from_str::<Auth>(&text)
+                    .ok()
+                    .map(|auth| tokens.role_of(&auth.token));
+                let (reason, end) = match role {
+                    Some(Some(role)) => return Ok(role),
+                    Some(None) => (REASON_BAD_TOKEN, ViewerEnd::BadToken),
+                    None => (REASON_NO_TOKEN, ViewerEnd::NoToken),
+                };
+                hub.counters
+                    .unauthorized_closes
+                    .fetch_add(1, Ordering::Relaxed);
+                close(socket, CLOSE_UNAUTHORIZED, reason, timeout).await;
+                return Err(end);
+            }
+        }
+    }
+}
+
+/// Closes a connection that sent more than its rate allows.
+async fn flooded(socket: &mut WebSocket, hub: &StreamHub) -> ViewerEnd {
+    hub.counters.flood_closes.fetch_add(1, Ordering::Relaxed);
+    close(
+        socket,
+        close_code::POLICY,
+        REASON_FLOOD,
+        hub.limits.send_timeout,
+    )
+    .await;
+    ViewerEnd::Flooded
+}
+
+/// Handles one incoming message of a connection that has its `role`; `Some` when the
+/// connection ends.
+async fn handle_incoming(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    connection: &Connection,
+    role: Role,
+    rate: &mut MessageRate,
+    incoming: Option<Result<Message, axum::Error>>,
+) -> Option<ViewerEnd> {
+    let timeout = hub.limits.send_timeout;
+    let message = match incoming {
+        None | Some(Ok(Message::Close(_))) => return Some(ViewerEnd::Closed),
+        Some(Err(e)) => {
+            // Protocol violations and oversized messages end up here.
+            tracing::debug!(error = %e, "viewer connection failed");
+            hub.counters
+                .malformed_closes
+                .fetch_add(1, Ordering::Relaxed);
+            close(
+                socket,
+                close_code::SIZE,
+                "invalid or oversized message",
+                timeout,
+            )
+            .await;
+            return Some(ViewerEnd::Malformed);
+        }
+        Some(Ok(message)) => message,
+    };
+    if !rate.allow(Instant::now()) {
+        return Some(flooded(socket, hub).await);
+    }
+    let text = match message {
+        Message::Text(text) => text,
+        Message::Binary(_) => {
+            hub.counters
+                .malformed_closes
+                .fetch_add(1, Ordering::Relaxed);
+            close(
+                socket,
+                close_code::UNSUPPORTED,
+                "binary messages are not accepted",
+                timeout,
+            )
+            .await;
+            return Some(ViewerEnd::Malformed);
+        }
+        // Pings are answered by the WebSocket layer.
+        Message::Ping(_) | Message::Pong(_) | Message::Close(_) => return None,
+    };
+    match message_type(&text) {
+        Ok(kind) if kind == "replay_control" => {
+            let tx = match (&hub.replay_control, role) {
+                (Some(tx), Role::Instructor) => tx,
+                (None, _) => return refuse(socket, hub, connection, &kind, REFUSED_LIVE).await,
+                (Some(_), Role::Observer) => {
+                    return refuse(socket, hub, connection, &kind, REFUSED_OBSERVER).await;
+                }
+            };
+            let control = serde_json::from_str::<ReplayControl>(&text)
+                .map_err(|e| e.to_string())
+                .and_then(|c| c.validate().map(|()| c).map_err(|e| e.to_string()));
+            match control {
+                // A full queue means controls arrive faster than they matter.
+                Ok(c) => {
+                    let _ = tx.try_send(c);
+                }
+                Err(reason) => {
+                    tracing::debug!(reason, "invalid replay_control message");
+                    hub.counters
+                        .malformed_closes
+                        .fetch_add(1, Ordering::Relaxed);
+                    close(
+                        socket,
+                        close_code::INVALID,
+                        "invalid replay_control message",
+                        timeout,
+                    )
+                    .await;
+                    return Some(ViewerEnd::Malformed);
+                }
+            }
+        }
+        // The connection has its role already (or the server has no tokens): a later `auth`
+        // changes nothing and is ignored.
+        Ok(kind) if kind == "auth" => {}
+        Ok(kind) => {
+            let n = hub
+                .counters
+                .unknown_messages
+                .fetch_add(1, Ordering::Relaxed);
+            if n == 0 {
+                tracing::warn!(kind, "ignoring a viewer message of unknown type");
+            } else {
+                tracing::debug!(kind, "ignoring a viewer message of unknown type");
+            }
+        }
+        Err(e) => {
+            tracing::debug!(error = %e, "malformed viewer message");
+            hub.counters
+                .malformed_closes
+                .fetch_add(1, Ordering::Relaxed);
+            close(socket, close_code::INVALID, "malformed message", timeout).await;
+            return Some(ViewerEnd::Malformed);
+        }
+    }
+    None
+}
+
+/// Answers a request the connection may not make with `refused`, logs it, and keeps the
+/// connection open (`Some` only when the reply cannot be sent).
+async fn refuse(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    connection: &Connection,
+    request: &str,
+    reason: &str,
+) -> Option<ViewerEnd> {
+    hub.counters
+        .refused_requests
+        .fetch_add(1, Ordering::Relaxed);
+    tracing::info!(
+        client = %connection.peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+        role = connection.role.map_or("none", Role::as_str),
+        request,
+        "request refused: {reason}"
+    );
+    let reply = ServerMessage::Refused(Refused {
+        request: request.to_owned(),
+        reason: reason.to_owned(),
+    });
+    match reply.encode() {
+        Ok(text) => {
+            let message = Message::Text(Utf8Bytes::from(text));
+            if !send(socket, message, hub.limits.send_timeout, &hub.counters).await {
+                return Some(ViewerEnd::SendFailed);
+            }
+        }
+        Err(e) => tracing::error!(error = %e, "could not encode a refused message"),
+    }
+    None
+}
+
+/// Closes a connection refused by a limit on connections, with 4429 and the limit's reason.
+pub async fn refuse_connection(mut socket: WebSocket, hub: &StreamHub, refusal: LimitRefusal) {
+    hub.counters.limit_refusals.fetch_add(1, Ordering::Relaxed);
+    close(
+        &mut socket,
+        crate::access::CLOSE_TOO_MANY,
+        refusal.reason(),
+        hub.limits.send_timeout,
+    )
+    .await;
+}
+
 /// Sends with a deadline; false when the connection is unusable. A send that times out is
 /// counted in `stalled_closes`.
 async fn send(
@@ -465,13 +771,34 @@ async fn send(
     }
 }
 
+/// How long a closing connection's remaining messages are read and discarded, waiting for the
+/// peer's close frame.
+const CLOSE_DRAIN: Duration = Duration::from_secs(1);
+
+/// Sends a close frame, then reads (and discards) what the peer still sends until its own close
+/// frame, for at most [`CLOSE_DRAIN`]. Dropping a socket with unread data makes the kernel
+/// reset the connection, and a reset can reach the peer before it has read our close frame:
+/// a flooding client would then never learn its close code.
 async fn close(socket: &mut WebSocket, code: u16, reason: &'static str, timeout: Duration) {
     let frame = CloseFrame {
         code,
         reason: Utf8Bytes::from_static(reason),
     };
     // The peer may already be gone; nothing more to do either way.
-    let _ = tokio::time::timeout(timeout, socket.send(Message::Close(Some(frame)))).await;
+    if !matches!(
+        tokio::time::timeout(timeout, socket.send(Message::Close(Some(frame)))).await,
+        Ok(Ok(()))
+    ) {
+        return;
+    }
+    let _ = tokio::time::timeout(CLOSE_DRAIN, async {
+        while let Some(Ok(message)) = socket.recv().await {
+            if matches!(message, Message::Close(_)) {
+                break;
+            }
+        }
+    })
+    .await;
 }
 
 #[cfg(test)]

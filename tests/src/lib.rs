@@ -4,8 +4,9 @@
 //! - `tests/server_*.rs`: the real server (library [`start`](softhaptic_server::app::start) on
 //!   127.0.0.1:0, the real haptic loop thread and simulated device) spoken to by real WebSocket
 //!   and HTTP clients.
-//! - this library: the helpers those tests share ([`start_default`], [`Viewer`], [`http_get`],
-//!   [`scratch_dir`], [`repo_scenes`]).
+//! - this library: the helpers those tests share ([`start_default`], [`Viewer`] with
+//!   [`Viewer::connect_with`] for the access tests' Origin, Host and token, [`http_get`] and
+//!   [`http_request`], [`scratch_dir`], [`repo_scenes`]).
 //! - [`standin`] and `tests/hd_standin.rs`: the HD API stand-in (`standin/hd_standin.c`, built by
 //!   `build.rs` into a `libHD.so` the OpenHaptics backend loads in place of the vendor's), its
 //!   path and a handle on its test controls; the test file checks the stand-in keeps the HD
@@ -13,7 +14,7 @@
 
 pub mod standin;
 
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
@@ -22,6 +23,8 @@ use softhaptic_server::app::{self, RunningServer, ServerOptions};
 use softhaptic_server::scene::Scene;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::http::HeaderValue;
 
 /// The server options every test starts from: port 0, no real-time request (tests share the
 /// machine), the source tree's web directory.
@@ -70,6 +73,100 @@ impl Viewer {
         Viewer { socket }
     }
 
+    /// Connects as a browser page of `origin` would (no `Origin` header when `None`), naming
+    /// the server `host` in the `Host` header (its address when `None`), and presents `token`
+    /// in an `auth` message first when given. `Err` is the HTTP status of a refused upgrade.
+    pub async fn connect_with(
+        addr: SocketAddr,
+        origin: Option<&str>,
+        host: Option<&str>,
+        token: Option<&str>,
+    ) -> Result<Viewer, u16> {
+        Self::connect_from(addr, None, origin, host, token).await
+    }
+
+    /// [`Viewer::connect_with`] from the local address `from` (another loopback address, such
+    /// as 127.0.0.2, is another client address to the server).
+    pub async fn connect_from(
+        addr: SocketAddr,
+        from: Option<IpAddr>,
+        origin: Option<&str>,
+        host: Option<&str>,
+        token: Option<&str>,
+    ) -> Result<Viewer, u16> {
+        let mut request = format!("ws://{addr}/ws")
+            .into_client_request()
+            .expect("a WebSocket request");
+        let headers = request.headers_mut();
+        if let Some(origin) = origin {
+            headers.insert(
+                "origin",
+                HeaderValue::from_str(origin).expect("an Origin value"),
+            );
+        }
+        if let Some(host) = host {
+            headers.insert("host", HeaderValue::from_str(host).expect("a Host value"));
+        }
+        let tcp = match from {
+            Some(ip) => {
+                let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+                socket
+                    .bind(SocketAddr::new(ip, 0))
+                    .expect("bind the client address");
+                socket.connect(addr).await.expect("TCP connects")
+            }
+            None => tokio::net::TcpStream::connect(addr)
+                .await
+                .expect("TCP connects"),
+        };
+        let result =
+            tokio_tungstenite::client_async(request, tokio_tungstenite::MaybeTlsStream::Plain(tcp))
+                .await;
+        let socket = match result {
+            Ok((socket, _)) => socket,
+            Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+                return Err(response.status().as_u16());
+            }
+            Err(e) => panic!("WebSocket handshake failed: {e}"),
+        };
+        let mut viewer = Viewer { socket };
+        if let Some(token) = token {
+            viewer.authenticate(token).await;
+        }
+        Ok(viewer)
+    }
+
+    /// Sends `{"type":"auth","token":...}`.
+    pub async fn authenticate(&mut self, token: &str) {
+        let auth = serde_json::json!({"type": "auth", "token": token}).to_string();
+        self.send_text(&auth).await;
+    }
+
+    /// Reads until the server closes the connection: its close code and reason (`None` for a
+    /// connection that ended without a close frame), and the text messages received before.
+    /// Panics after `timeout` without the end.
+    pub async fn until_closed(
+        &mut self,
+        timeout: Duration,
+    ) -> (Option<(u16, String)>, Vec<String>) {
+        let mut texts = Vec::new();
+        let deadline = tokio::time::Instant::now() + timeout;
+        loop {
+            let message = tokio::time::timeout_at(deadline, self.socket.next())
+                .await
+                .expect("the connection ends within the timeout");
+            match message {
+                Some(Ok(Message::Text(text))) => texts.push(text.to_string()),
+                Some(Ok(Message::Close(frame))) => {
+                    let close = frame.map(|f| (u16::from(f.code), f.reason.to_string()));
+                    return (close, texts);
+                }
+                None | Some(Err(_)) => return (None, texts),
+                Some(Ok(_)) => continue,
+            }
+        }
+    }
+
     /// The next text message decoded, `None` when the connection ended (close or error).
     /// Panics after `timeout` without a message.
     pub async fn next(&mut self, timeout: Duration) -> Option<Result<ServerMessage, DecodeError>> {
@@ -103,10 +200,46 @@ impl Viewer {
 
 /// A plain HTTP/1.1 GET over a real TCP connection: status code and body.
 pub async fn http_get(addr: SocketAddr, path: &str) -> (u16, Vec<u8>) {
+    let response = http_request(addr, path, &[]).await;
+    (response.status, response.body)
+}
+
+/// An HTTP response: status, headers (names in lower case) and body.
+#[derive(Debug)]
+pub struct HttpResponse {
+    pub status: u16,
+    pub headers: Vec<(String, String)>,
+    pub body: Vec<u8>,
+}
+
+impl HttpResponse {
+    /// The value of header `name` (lower case), if present.
+    pub fn header(&self, name: &str) -> Option<&str> {
+        self.headers
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_str())
+    }
+}
+
+/// A GET of `path` with extra request `headers` (a `Host` among them replaces the default, the
+/// server's address): status, headers and body.
+pub async fn http_request(addr: SocketAddr, path: &str, headers: &[(&str, &str)]) -> HttpResponse {
     let mut stream = tokio::net::TcpStream::connect(addr)
         .await
         .expect("TCP connects");
-    let request = format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+    let host = headers
+        .iter()
+        .find(|(n, _)| n.eq_ignore_ascii_case("host"))
+        .map_or_else(|| addr.to_string(), |(_, v)| (*v).to_owned());
+    let mut request = format!("GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n");
+    for (name, value) in headers
+        .iter()
+        .filter(|(n, _)| !n.eq_ignore_ascii_case("host"))
+    {
+        request.push_str(&format!("{name}: {value}\r\n"));
+    }
+    request.push_str("\r\n");
     stream
         .write_all(request.as_bytes())
         .await
@@ -127,10 +260,20 @@ pub async fn http_get(addr: SocketAddr, path: &str) -> (u16, Vec<u8>) {
         .and_then(|s| s.parse().ok())
         .expect("a status code");
     let body = response[header_end + 4..].to_vec();
-    let chunked = head
-        .to_ascii_lowercase()
-        .contains("transfer-encoding: chunked");
-    (status, if chunked { dechunk(&body) } else { body })
+    let headers: Vec<(String, String)> = head
+        .lines()
+        .skip(1)
+        .filter_map(|line| line.split_once(':'))
+        .map(|(n, v)| (n.trim().to_ascii_lowercase(), v.trim().to_owned()))
+        .collect();
+    let chunked = headers
+        .iter()
+        .any(|(n, v)| n == "transfer-encoding" && v.eq_ignore_ascii_case("chunked"));
+    HttpResponse {
+        status,
+        headers,
+        body: if chunked { dechunk(&body) } else { body },
+    }
 }
 
 /// Decodes a chunked HTTP body.

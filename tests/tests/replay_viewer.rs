@@ -108,6 +108,7 @@ async fn start(speed: f64, paused: bool) -> (replay::RunningReplay, SocketAddr) 
             speed,
             start_paused: paused,
             viewer_limits: ViewerLimits::default(),
+            access: Default::default(),
         },
     )
     .await
@@ -134,7 +135,8 @@ async fn replay_sends_hello_scene_and_the_recorded_frames_in_order() {
         panic!("hello first")
     };
     assert_eq!(hello.session_id, r.build.session_id);
-    assert_eq!(hello.role, softhaptic_proto::wire::Role::Replay);
+    assert_eq!(hello.role, softhaptic_proto::wire::Role::Instructor);
+    assert_eq!(hello.mode, softhaptic_proto::wire::Mode::Replay);
     let Received::Wire(ServerMessage::Scene(scene)) = receive(&mut socket).await else {
         panic!("scene second")
     };

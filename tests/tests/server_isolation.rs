@@ -60,6 +60,8 @@ async fn two_hundred_viewers_and_a_stalled_one_leave_rates_and_forces_unchanged(
     options.send_buffer_bytes = Some(8 * 1024);
     // The stalled viewer's connection is cut once a send has waited this long.
     options.viewer_limits.send_timeout = Duration::from_secs(1);
+    // All 200 viewers come from this machine's one address.
+    options.access.limits.max_per_address = 200;
     let server = start_default(options).await;
     let addr = server.local_addr();
 

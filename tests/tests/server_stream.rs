@@ -5,7 +5,7 @@
 
 use std::time::{Duration, Instant};
 
-use softhaptic_proto::wire::{PROTOCOL_VERSION, Role, ServerMessage};
+use softhaptic_proto::wire::{Mode, PROTOCOL_VERSION, Role, ServerMessage};
 use softhaptic_proto::{CalibrationSource, ContactFlags};
 use softhaptic_tests::{Viewer, start_default, test_options};
 
@@ -20,7 +20,9 @@ async fn viewer_gets_hello_scene_then_contact_frames_showing_the_press() {
         panic!("first message is hello")
     };
     assert_eq!(hello.protocol_version, PROTOCOL_VERSION);
-    assert_eq!(hello.role, Role::Viewer);
+    // A loopback server without tokens: every viewer is an instructor.
+    assert_eq!(hello.role, Role::Instructor);
+    assert_eq!(hello.mode, Mode::Live);
     assert!(hello.server.starts_with("softhaptic "));
     assert!(!hello.session_id.is_empty());
 

@@ -16,6 +16,7 @@ use super::replay::{self, ReplayOptions};
 use super::script::{ScriptName, record_script};
 use super::tools::{Info, export};
 use super::writer::{Recorder, StreamTap, recording_file_name};
+use crate::access::AccessArgs;
 use crate::app::{RunningServer, SERVER_NAME, scene_message};
 use crate::scene::Scene;
 use crate::stream::{EncodedFrame, ViewerLimits};
@@ -80,6 +81,8 @@ pub enum SessionCommand {
         /// Directory of the web viewer [default: as for `run`].
         #[arg(long, value_name = "DIR")]
         web_dir: Option<PathBuf>,
+        #[command(flatten)]
+        access: AccessArgs,
     },
     /// Record a scripted session with the simulated device, tick by tick without a clock (the
     /// test recordings of tests/sessions/).
@@ -156,7 +159,11 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             paused,
             addr,
             web_dir,
+            access,
         } => {
+            // Before the recording is read: a replay that may not serve this address starts
+            // nothing.
+            let access = access.resolve(addr)?;
             let recording = Recording::open(&file)?;
             if !recording.is_complete() {
                 eprintln!("{}", recording.recovery());
@@ -167,12 +174,21 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
                 speed,
                 start_paused: paused,
                 viewer_limits: ViewerLimits::default(),
+                access: access.clone(),
             };
             let runtime =
                 tokio::runtime::Runtime::new().context("could not start the async runtime")?;
             runtime.block_on(async move {
                 let replay = replay::start(recording, options).await?;
-                println!("replay: {}", replay.viewer_url());
+                // The token is in the fragment, which no request carries; stdout only.
+                let base = replay.viewer_url();
+                match access.links(&base) {
+                    Some((instructor, observer)) => {
+                        println!("replay: {instructor}");
+                        println!("observer: {observer}");
+                    }
+                    None => println!("replay: {base}"),
+                }
                 shutdown_signal().await?;
                 replay.shutdown().await;
                 Ok(())

@@ -6,7 +6,10 @@
 //! and `/loop_stats` messages on the recording's device-time axis, at `speed` times real time.
 //! Viewers send `replay_control` messages (pause, play, seek, speed) and receive `replay` status
 //! messages (duration, position, paused, speed) after each control and once a second, so a viewer
-//! that connects learns the replay's state within a second; their `hello` says role `replay`.
+//! that connects learns the replay's state within a second; their `hello` says mode `replay`.
+//! The access rules are the live server's ([`crate::access`]): the timeline is shared, so only an
+//! instructor moves it; an observer's `replay_control` is answered with `refused`, and the
+//! observer sees the timeline move with everyone else's.
 //!
 //! Frames keep their recorded content; only `seq` is renumbered (+1 per frame sent, across
 //! seeks), so a viewer's loss detection works as live, and `dropped` is the viewer's own count.
@@ -21,13 +24,14 @@ use std::time::Duration;
 use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_proto::record::{ReplayAction, ReplayControl, ReplayStatus};
-use softhaptic_proto::wire::{Hello, PROTOCOL_VERSION, Role, ServerMessage};
+use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
 use super::check::recorded_scene;
 use super::reader::{RecordedMessage, Recording};
+use crate::access::{Access, AccessConfig, AccessError};
 use crate::app::{SERVER_NAME, serve_http, viewer_router};
 use crate::stream::{EncodedFrame, FRAME_BACKLOG, StreamHub, ViewerLimits};
 
@@ -46,6 +50,9 @@ pub struct ReplayOptions {
     /// Start paused at the beginning (a viewer presses play).
     pub start_paused: bool,
     pub viewer_limits: ViewerLimits,
+    /// Who may connect, as for a live server; [`start`] refuses an address beyond loopback
+    /// without tokens.
+    pub access: AccessConfig,
 }
 
 /// Why a replay could not start.
@@ -57,6 +64,8 @@ pub enum ReplayError {
     Speed(f64),
     #[error(transparent)]
     Check(#[from] super::check::CheckError),
+    #[error(transparent)]
+    Access(#[from] AccessError),
     #[error("could not listen on {addr}: {source}")]
     Bind {
         addr: SocketAddr,
@@ -100,6 +109,11 @@ impl RunningReplay {
     pub async fn shutdown(self) {
         let _ = self.shutdown_tx.send(true);
         let _ = self.player.await;
+        let _ = tokio::time::timeout(
+            crate::app::VIEWERS_CLOSE_WAIT,
+            self.hub.access.until_no_connections(),
+        )
+        .await;
         let _ = tokio::time::timeout(Duration::from_secs(5), self.http).await;
     }
 }
@@ -109,6 +123,7 @@ pub async fn start(
     recording: Recording,
     options: ReplayOptions,
 ) -> Result<RunningReplay, ReplayError> {
+    options.access.check_bind(options.addr)?;
     let speed = options.speed;
     if !(speed.is_finite()
         && (ReplayControl::SPEED_RANGE.0..=ReplayControl::SPEED_RANGE.1).contains(&speed))
@@ -133,15 +148,14 @@ pub async fn start(
             .map_err(|source| ReplayError::Encode { what, source })
     };
     let scene_text = encode("scene", ServerMessage::Scene(Box::new(message.clone())))?;
-    let hello_text = encode(
-        "hello",
-        ServerMessage::Hello(Hello {
-            protocol_version: PROTOCOL_VERSION,
-            session_id: recording.build.session_id.clone(),
-            role: Role::Replay,
-            server: SERVER_NAME.into(),
-        }),
-    )?;
+    let hello = Hello {
+        protocol_version: PROTOCOL_VERSION,
+        session_id: recording.build.session_id.clone(),
+        // Set per connection by the stream hub.
+        role: Role::Instructor,
+        mode: Mode::Replay,
+        server: SERVER_NAME.into(),
+    };
 
     let listener = tokio::net::TcpListener::bind(options.addr)
         .await
@@ -156,13 +170,21 @@ pub async fn start(
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
-    let hub = Arc::new(StreamHub::new(
-        Utf8Bytes::from(hello_text),
-        Utf8Bytes::from(scene_text.clone()),
-        options.viewer_limits,
-        shutdown_rx.clone(),
-        Some(control_tx),
-    ));
+    let access = Arc::new(Access::new(options.access, &options.web_dir));
+    let hub = Arc::new(
+        StreamHub::new(
+            &hello,
+            Utf8Bytes::from(scene_text.clone()),
+            options.viewer_limits,
+            shutdown_rx.clone(),
+            Some(control_tx),
+            access,
+        )
+        .map_err(|source| ReplayError::Encode {
+            what: "hello",
+            source,
+        })?,
+    );
     let player = Player::new(&recording, speed, options.start_paused);
     let player = tokio::spawn(player.run(Arc::clone(&hub), control_rx));
 

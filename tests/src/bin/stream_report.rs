@@ -50,6 +50,8 @@ async fn run(readers: usize, stalled: bool, seconds: f64, standby: bool) -> Run 
     let mut options = test_options();
     options.realtime = true;
     options.loop_standby = standby;
+    // Every viewer of this measurement comes from this machine's one address.
+    options.access.limits.max_per_address = options.access.limits.max_viewers;
     let server = start_default(options).await;
     let addr = server.local_addr();
     let _stalled = if stalled {

@@ -1,0 +1,479 @@
+//! The real `softhaptic` binary's access rules: serving beyond loopback without tokens stops the
+//! start with what to do (`run` and `replay`), unless `--insecure-no-tokens`; tokens from
+//! `--tokens` or the environment are printed in the links on stdout and nowhere else: not in
+//! its log (stderr, at debug level), not in the recording (its bytes, and every message
+//! decompressed), not in an error; a wrong token source stops the start naming the file, the
+//! line and the problem, without the token.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use softhaptic_server::access::{INSTRUCTOR_TOKEN_ENV, OBSERVER_TOKEN_ENV};
+
+const DEADLINE: Duration = Duration::from_secs(60);
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("softhaptic-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn repo(path: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("..")
+        .join(path)
+        .display()
+        .to_string()
+}
+
+/// The binary with `args`, with none of the token variables unless `env` sets them.
+fn command(args: &[&str], env: &[(&str, &str)]) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_softhaptic"));
+    command
+        .args(args)
+        .env_remove("RUST_BACKTRACE")
+        .env_remove(INSTRUCTOR_TOKEN_ENV)
+        .env_remove(OBSERVER_TOKEN_ENV)
+        .envs(env.iter().copied())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    command
+}
+
+/// Runs a command that must stop by itself; one still running after the deadline started a
+/// server it should not have.
+fn run_to_end(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut child = command(args, env).spawn().expect("softhaptic runs");
+    let started = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > DEADLINE {
+            child.kill().unwrap();
+            let out = child.wait_with_output().unwrap();
+            panic!(
+                "softhaptic {args:?} still running after {DEADLINE:?}: it started instead of refusing\n{}",
+                String::from_utf8_lossy(&out.stdout)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// A server started from the binary: its stdout lines as they come, its stderr collected.
+struct Server {
+    child: Child,
+    lines: mpsc::Receiver<String>,
+    stdout: Vec<String>,
+    stderr: std::thread::JoinHandle<String>,
+}
+
+impl Server {
+    fn start(args: &[&str], env: &[(&str, &str)]) -> Server {
+        let mut child = command(args, env).spawn().expect("softhaptic runs");
+        let out = child.stdout.take().unwrap();
+        let mut err = child.stderr.take().unwrap();
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(out).lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = err.read_to_string(&mut text);
+            text
+        });
+        Server {
+            child,
+            lines,
+            stdout: Vec::new(),
+            stderr,
+        }
+    }
+
+    /// The rest of the first stdout line starting with `prefix`.
+    fn line(&mut self, prefix: &str) -> String {
+        loop {
+            let line = self
+                .lines
+                .recv_timeout(DEADLINE)
+                .unwrap_or_else(|_| panic!("no {prefix:?} line on stdout: {:?}", self.stdout));
+            self.stdout.push(line.clone());
+            if let Some(rest) = line.strip_prefix(prefix) {
+                return rest.to_owned();
+            }
+        }
+    }
+
+    /// Stops the server with SIGTERM (an orderly shutdown: the recording is closed) and returns
+    /// its whole stdout and stderr.
+    fn stop(mut self) -> (Vec<String>, String) {
+        let status = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status()
+            .expect("kill runs");
+        assert!(status.success());
+        let started = Instant::now();
+        while self.child.try_wait().unwrap().is_none() {
+            if started.elapsed() > DEADLINE {
+                self.child.kill().unwrap();
+                panic!("the server did not stop on SIGTERM");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        while let Ok(line) = self.lines.recv_timeout(Duration::from_secs(5)) {
+            self.stdout.push(line);
+        }
+        (self.stdout, self.stderr.join().unwrap())
+    }
+}
+
+/// `http://HOST:PORT/#token=T` → (`HOST:PORT`, `T`).
+fn split_link(link: &str) -> (String, String) {
+    let rest = link.strip_prefix("http://").expect("an http link");
+    let (addr, token) = rest
+        .split_once("/#token=")
+        .expect("a token in the fragment");
+    (addr.to_owned(), token.to_owned())
+}
+
+fn is_generated_token(token: &str) -> bool {
+    token.len() == 32
+        && token
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
+/// A WebSocket to `addr`; presents `token` when given.
+fn connect(
+    addr: &str,
+    token: Option<&str>,
+) -> tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>> {
+    let (mut socket, _) = tungstenite::connect(format!("ws://{addr}/ws")).expect("connects");
+    if let Some(token) = token {
+        let auth = serde_json::json!({"type": "auth", "token": token}).to_string();
+        socket.send(tungstenite::Message::text(auth)).unwrap();
+    }
+    socket
+}
+
+/// The next text message as JSON; `None` at the close (with its code in the second place).
+fn next_json(
+    socket: &mut tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>,
+) -> Result<serde_json::Value, Option<u16>> {
+    loop {
+        match socket.read() {
+            Ok(tungstenite::Message::Text(text)) => return Ok(serde_json::from_str(&text).unwrap()),
+            Ok(tungstenite::Message::Close(frame)) => return Err(frame.map(|f| u16::from(f.code))),
+            Ok(_) => continue,
+            Err(_) => return Err(None),
+        }
+    }
+}
+
+/// A GET with an optional bearer token over a plain TCP connection: the whole response.
+fn http_get(addr: &str, path: &str, token: Option<&str>) -> String {
+    let mut stream = std::net::TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(DEADLINE)).unwrap();
+    let auth = token.map_or_else(String::new, |t| format!("Authorization: Bearer {t}\r\n"));
+    write!(
+        stream,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Connection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut response = Vec::new();
+    stream.read_to_end(&mut response).unwrap();
+    String::from_utf8_lossy(&response).into_owned()
+}
+
+#[test]
+fn serving_every_address_without_tokens_refuses_to_start_and_says_what_to_do() {
+    let record_dir = scratch("access-refused");
+    let record = record_dir.display().to_string();
+    let recording = repo("tests/sessions/sphere-press.mcap");
+    let runs: [Vec<&str>; 3] = [
+        vec![
+            "--addr",
+            "0.0.0.0:0",
+            "--no-realtime",
+            "--record-dir",
+            &record,
+        ],
+        vec![
+            "run",
+            "--addr",
+            "[::]:0",
+            "--no-realtime",
+            "--record-dir",
+            &record,
+        ],
+        vec!["replay", &recording, "--addr", "0.0.0.0:0"],
+    ];
+    for args in runs {
+        let out = run_to_end(&args, &[]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        for says in [
+            "without tokens",
+            "--tokens",
+            "--token-file",
+            INSTRUCTOR_TOKEN_ENV,
+            OBSERVER_TOKEN_ENV,
+            "--insecure-no-tokens",
+        ] {
+            assert!(stderr.contains(says), "{args:?}: {says:?} not in: {stderr}");
+        }
+        assert!(
+            !stdout.contains("viewer:") && !stdout.contains("replay:"),
+            "{stdout}"
+        );
+        assert!(!stdout.contains("recording:"), "{stdout}");
+        assert!(!record_dir.exists(), "a recording was started in {record}");
+    }
+}
+
+#[test]
+fn with_insecure_no_tokens_it_serves_every_address_and_warns_loudly() {
+    let mut server = Server::start(
+        &[
+            "--addr",
+            "0.0.0.0:0",
+            "--insecure-no-tokens",
+            "--no-record",
+            "--no-realtime",
+        ],
+        &[],
+    );
+    let url = server.line("viewer: ");
+    assert!(!url.contains("#token="), "{url}");
+    let port = url
+        .trim_end_matches('/')
+        .rsplit(':')
+        .next()
+        .unwrap()
+        .to_owned();
+    let mut socket = connect(&format!("127.0.0.1:{port}"), None);
+    let hello = next_json(&mut socket).unwrap();
+    assert_eq!(hello["type"], "hello");
+    assert_eq!(hello["role"], "instructor");
+    drop(socket);
+    let (_, stderr) = server.stop();
+    assert!(
+        stderr.contains("INSECURE") && stderr.contains("WITHOUT TOKENS"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn tokens_appear_only_in_the_printed_links_never_in_the_log_the_recording_or_an_error() {
+    let record_dir = scratch("access-tokens");
+    let record = record_dir.display().to_string();
+    let mut server = Server::start(
+        &[
+            "--tokens",
+            "--addr",
+            "127.0.0.1:0",
+            "--no-realtime",
+            "--record-dir",
+            &record,
+        ],
+        // Debug level: every line the server could log about a connection.
+        &[("RUST_LOG", "debug")],
+    );
+    let recording = PathBuf::from(server.line("recording: "));
+    let (addr, instructor) = split_link(&server.line("viewer: "));
+    let (observer_addr, observer) = split_link(&server.line("observer: "));
+    assert_eq!(addr, observer_addr);
+    assert!(is_generated_token(&instructor) && is_generated_token(&observer));
+    assert_ne!(instructor, observer);
+
+    // Every way a token travels to the server: WebSocket auth (right, wrong, twice) and HTTP.
+    for (token, role) in [(&instructor, "instructor"), (&observer, "observer")] {
+        let mut socket = connect(&addr, Some(token));
+        let hello = next_json(&mut socket).unwrap();
+        assert_eq!(
+            (hello["type"].as_str(), hello["role"].as_str()),
+            (Some("hello"), Some(role))
+        );
+        let auth = serde_json::json!({"type": "auth", "token": token}).to_string();
+        socket.send(tungstenite::Message::text(auth)).unwrap();
+        let control = r#"{"type":"replay_control","action":"pause"}"#;
+        socket.send(tungstenite::Message::text(control)).unwrap();
+        loop {
+            let m = next_json(&mut socket).unwrap();
+            if m["type"] == "refused" {
+                assert!(!m.to_string().contains(token.as_str()));
+                break;
+            }
+        }
+        socket.close(None).unwrap();
+        while socket.read().is_ok() {}
+    }
+    let wrong: String = instructor.chars().rev().collect();
+    let mut socket = connect(&addr, Some(&wrong));
+    assert_eq!(next_json(&mut socket), Err(Some(4401)));
+    drop(socket);
+    for token in [Some(instructor.as_str()), Some(observer.as_str())] {
+        let response = http_get(&addr, "/api/scene", token);
+        assert!(response.starts_with("HTTP/1.1 200"), "{response}");
+        assert!(!response.contains(&instructor) && !response.contains(&observer));
+    }
+    for token in [None, Some(wrong.as_str())] {
+        let response = http_get(&addr, "/api/scene", token);
+        assert!(response.starts_with("HTTP/1.1 401"), "{response}");
+        assert!(!response.contains(&instructor) && !response.contains(&observer));
+    }
+    let (stdout, stderr) = server.stop();
+
+    for token in [&instructor, &observer] {
+        assert!(
+            !stderr.contains(token.as_str()),
+            "a token is in the log:\n{stderr}"
+        );
+        let lines: Vec<_> = stdout
+            .iter()
+            .filter(|l| l.contains(token.as_str()))
+            .collect();
+        assert_eq!(
+            lines.len(),
+            1,
+            "the token is printed once, in its link: {stdout:?}"
+        );
+    }
+    // The log has the audit line of each connection and the refusals (without the tokens).
+    for expected in [
+        "viewer connection ended",
+        "role=\"instructor\"",
+        "role=\"observer\"",
+        "token not valid for this server",
+        "request refused",
+        "request refused (401)",
+    ] {
+        assert!(
+            stderr.contains(expected),
+            "{expected:?} not in the log:\n{stderr}"
+        );
+    }
+
+    let bytes = std::fs::read(&recording).unwrap();
+    let mut messages = 0;
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        let mut texts = vec![
+            message.data.to_vec(),
+            message.channel.topic.as_bytes().to_vec(),
+        ];
+        if let Some(schema) = &message.channel.schema {
+            texts.push(schema.data.to_vec());
+        }
+        for text in texts {
+            for token in [&instructor, &observer] {
+                assert!(
+                    !contains(&text, token.as_bytes()),
+                    "a token is in the recording's {} channel",
+                    message.channel.topic
+                );
+            }
+        }
+        messages += 1;
+    }
+    assert!(
+        messages >= 10,
+        "the recording holds the session: {messages} messages"
+    );
+    for token in [&instructor, &observer] {
+        assert!(
+            !contains(&bytes, token.as_bytes()),
+            "a token is in the recording's bytes"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&record_dir);
+}
+
+fn contains(haystack: &[u8], needle: &[u8]) -> bool {
+    haystack.windows(needle.len()).any(|w| w == needle)
+}
+
+#[test]
+fn stable_tokens_from_the_environment_are_the_ones_in_the_links_and_not_in_the_log() {
+    let instructor = "lab-instructor-0123456789abcdefghij";
+    let observer = "lab-observer-0123456789abcdefghijkl";
+    let mut server = Server::start(
+        &["--addr", "127.0.0.1:0", "--no-record", "--no-realtime"],
+        &[
+            (INSTRUCTOR_TOKEN_ENV, instructor),
+            (OBSERVER_TOKEN_ENV, observer),
+            ("RUST_LOG", "debug"),
+        ],
+    );
+    let (addr, from_link) = split_link(&server.line("viewer: "));
+    assert_eq!(from_link, instructor);
+    assert_eq!(split_link(&server.line("observer: ")).1, observer);
+    let mut socket = connect(&addr, Some(observer));
+    assert_eq!(next_json(&mut socket).unwrap()["role"], "observer");
+    drop(socket);
+    let (_, stderr) = server.stop();
+    assert!(
+        !stderr.contains(instructor) && !stderr.contains(observer),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn a_wrong_token_source_stops_the_start_naming_the_problem_without_the_token() {
+    let dir = scratch("access-token-file");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("tokens.txt");
+    let short = "abcdef0123456789";
+    std::fs::write(
+        &file,
+        format!("# lab links\ninstructor = {short}\nobserver = 00112233445566778899aabbccddeeff\n"),
+    )
+    .unwrap();
+    let path = file.display().to_string();
+    let out = run_to_end(
+        &["--token-file", &path, "--no-record", "--no-realtime"],
+        &[],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "{path}:2: the instructor token is 16 characters long"
+        )),
+        "{stderr}"
+    );
+    assert!(!stderr.contains(short), "{stderr}");
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("viewer:"));
+
+    let out = run_to_end(
+        &[
+            "--token-file",
+            &dir.join("missing.txt").display().to_string(),
+        ],
+        &[],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("could not read the token file") && stderr.contains("missing.txt"));
+
+    let only = "00112233445566778899aabbccddeeff";
+    let out = run_to_end(&["--no-record"], &[(INSTRUCTOR_TOKEN_ENV, only)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("SOFTHAPTIC_INSTRUCTOR_TOKEN is set but SOFTHAPTIC_OBSERVER_TOKEN is not"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains(only), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
