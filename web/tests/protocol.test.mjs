@@ -37,7 +37,7 @@ test('every shared message vector decodes or is refused as the Rust side says', 
     const decoded = decodeMessage(text);
     const type = (v.json ?? JSON.parse(v.raw)).type;
     if (decoded.kind === 'unknown') {
-      assert.ok(!['hello', 'scene', 'contact', 'stats', 'replay'].includes(type), `${v.name}`);
+      assert.ok(!['hello', 'scene', 'contact', 'stats', 'replay', 'refused'].includes(type), `${v.name}`);
     } else {
       assert.equal(decoded.message.type, type, v.name);
       seen.add(type);
@@ -54,8 +54,36 @@ test('every shared message vector decodes or is refused as the Rust side says', 
       }
     }
   }
-  for (const type of ['hello', 'scene', 'contact', 'stats', 'replay'])
+  for (const type of ['hello', 'scene', 'contact', 'stats', 'replay', 'refused'])
     assert.ok(seen.has(type), `vectors cover ${type}`);
+});
+
+test('the auth message is encoded exactly as the Rust side reads it; the hello and refused vectors decode', () => {
+  const list = JSON.parse(readFileSync(VECTORS, 'utf8'));
+  const auth = list.find((v) => v.json?.type === 'auth');
+  assert.ok(auth, 'the vectors hold the auth message');
+  assert.deepEqual(JSON.parse(encodeAuth(auth.json.token)), auth.json);
+  // A viewer → server message is not one the viewer receives: unknown, ignored, not refused.
+  assert.equal(decodeMessage(JSON.stringify(auth.json)).kind, 'unknown');
+  const access = list
+    .filter((v) => v.json?.type === 'hello')
+    .map((v) => accessOf(decodeMessage(JSON.stringify(v.json)).message));
+  for (const expected of [
+    { role: 'instructor', mode: 'live' },
+    { role: 'observer', mode: 'live' },
+    { role: 'instructor', mode: 'replay' },
+  ]) {
+    assert.ok(
+      access.some((a) => a.role === expected.role && a.mode === expected.mode),
+      `a hello vector for ${JSON.stringify(expected)}`,
+    );
+  }
+  const refused = list.find((v) => v.json?.type === 'refused');
+  assert.ok(refused, 'the vectors hold a refused message');
+  const decoded = decodeMessage(JSON.stringify(refused.json));
+  assert.equal(decoded.kind, 'message');
+  assert.equal(decoded.message.request, 'replay_control');
+  assert.ok(decoded.message.reason.length > 0);
 });
 
 test('replay controls are encoded exactly as the Rust side writes them', () => {
