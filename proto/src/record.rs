@@ -611,7 +611,7 @@ mod tests {
                 "{entry:?} missing from the device schema's flags: {described}"
             );
         }
-        let listed = described.matches(|c: char| c == ',').count() + 1;
+        let listed = described.matches(',').count() + 1;
         assert_eq!(listed, crate::wire::FLAG_NAMES.len(), "{described}");
         assert_eq!(
             crate::wire::FLAG_NAMES.len() as u32,
