@@ -107,6 +107,9 @@ pub struct ServerOptions {
     /// Who may connect (tokens, origins, host names, limits); the loopback quick start by
     /// default. [`start`] refuses an address beyond loopback without tokens.
     pub access: AccessConfig,
+    /// Serve https and wss with this configuration ([`crate::tls::server_config`]); plain http
+    /// when `None`.
+    pub tls: Option<Arc<rustls::ServerConfig>>,
 }
 
 impl ServerOptions {
@@ -126,6 +129,7 @@ impl ServerOptions {
             session_id: None,
             device: None,
             access: AccessConfig::default(),
+            tls: None,
         }
     }
 }
@@ -140,6 +144,8 @@ pub struct RunningServer {
     haptic_loop: Arc<HapticLoop>,
     hub: Arc<StreamHub>,
     scene_message: SceneMessage,
+    /// Served over TLS: the viewer's URL is https.
+    tls: bool,
 }
 
 impl RunningServer {
@@ -150,7 +156,8 @@ impl RunningServer {
 
     /// The viewer's URL.
     pub fn viewer_url(&self) -> String {
-        format!("http://{}/", self.local_addr)
+        let scheme = if self.tls { "https" } else { "http" };
+        format!("{scheme}://{}/", self.local_addr)
     }
 
     /// The scene as sent to viewers.
@@ -326,6 +333,8 @@ pub async fn start(
     )?);
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    // The page's own origin is https when the server serves TLS.
+    options.access.secure_transport = options.tls.is_some();
     let access = Arc::new(Access::new(options.access, &options.web_dir));
     let hub = Arc::new(
         StreamHub::new(
@@ -362,7 +371,8 @@ pub async fn start(
         hub: Arc::clone(&hub),
     };
     let app = router(&options.web_dir, state);
-    let http = serve_http(listener, app, shutdown_rx);
+    let tls = options.tls.is_some();
+    let http = serve_http(listener, app, options.tls, shutdown_rx);
 
     Ok(RunningServer {
         local_addr,
@@ -372,6 +382,7 @@ pub async fn start(
         haptic_loop,
         hub,
         scene_message: message,
+        tls,
     })
 }
 
@@ -394,25 +405,16 @@ fn bind(
 }
 
 /// Serves `app` on `listener` until `shutdown` turns true, then lets open requests finish; the
-/// live server and the replay server both run their HTTP side this way. Each request carries
-/// its client's address (`ConnectInfo<SocketAddr>`): the per-address limit and the audit and
-/// refusal log lines use it.
+/// live server and the replay server both run their HTTP side this way, over TLS when `tls` is
+/// given ([`crate::tls::serve`]). Each request carries its client's address
+/// (`ConnectInfo<SocketAddr>`): the per-address limit and the audit and refusal log lines use it.
 pub(crate) fn serve_http(
     listener: tokio::net::TcpListener,
     app: Router,
-    mut shutdown: watch::Receiver<bool>,
+    tls: Option<Arc<rustls::ServerConfig>>,
+    shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
-    tokio::spawn(async move {
-        let app = app.into_make_service_with_connect_info::<SocketAddr>();
-        let served = axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                let _ = shutdown.wait_for(|stop| *stop).await;
-            })
-            .await;
-        if let Err(e) = served {
-            tracing::error!(error = %e, "HTTP server failed");
-        }
-    })
+    crate::tls::serve(listener, app, tls, shutdown)
 }
 
 /// The routes of proto/WIRE.md over an existing stream hub, for another source of frames than the

@@ -96,6 +96,8 @@ struct RunArgs {
     record: session::cli::RecordArgs,
     #[command(flatten)]
     access: AccessArgs,
+    #[command(flatten)]
+    tls: softhaptic_server::tls::TlsArgs,
 }
 
 fn main() -> std::process::ExitCode {
@@ -149,6 +151,11 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     // Refuse to serve an address beyond loopback without tokens, and bad token sources, before
     // anything starts.
     let access = args.access.resolve(args.addr)?;
+    // A certificate that does not load stops the start too, before a recording is begun.
+    let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
+    if let Some(t) = &tls {
+        println!("{t}");
+    }
     // Refuse a bad scene before anything starts.
     let mut scene = match &args.scene {
         Some(path) => Scene::load(path)?,
@@ -184,6 +191,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.session_id = recording.as_ref().map(|r| r.session_id().to_owned());
         options.device = Some(device);
         options.access = access.clone();
+        options.tls = tls.map(|t| t.config);
         let server = app::start(scene, options).await?;
         if let Some(r) = &recording {
             r.attach(&server);

@@ -109,6 +109,7 @@ async fn start(speed: f64, paused: bool) -> (replay::RunningReplay, SocketAddr) 
             start_paused: paused,
             viewer_limits: ViewerLimits::default(),
             access: Default::default(),
+            tls: None,
         },
     )
     .await

@@ -233,6 +233,7 @@ async fn on_a_replay_an_observer_is_refused_and_sees_the_timeline_the_instructor
                 tokens: Some(tokens()),
                 ..AccessConfig::default()
             },
+            tls: None,
         },
     )
     .await

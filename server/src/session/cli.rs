@@ -38,6 +38,8 @@ pub struct RecordArgs {
 }
 
 /// The session subcommands.
+// Parsed once, at start: a larger variant costs nothing worth boxing it for.
+#[allow(clippy::large_enum_variant)]
 #[derive(clap::Subcommand, Debug, Clone)]
 pub enum SessionCommand {
     /// What a recording holds: duration, ticks, losses, contacts, peak force, flags, and whether
@@ -83,6 +85,8 @@ pub enum SessionCommand {
         web_dir: Option<PathBuf>,
         #[command(flatten)]
         access: AccessArgs,
+        #[command(flatten)]
+        tls: crate::tls::TlsArgs,
     },
     /// Record a scripted session with the simulated device, tick by tick without a clock (the
     /// test recordings of tests/sessions/).
@@ -160,10 +164,15 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             addr,
             web_dir,
             access,
+            tls,
         } => {
-            // Before the recording is read: a replay that may not serve this address starts
-            // nothing.
+            // Before the recording is read: a replay that may not serve this address, or whose
+            // certificate does not load, starts nothing.
             let access = access.resolve(addr)?;
+            let tls = crate::tls::server_config(&tls, addr.ip())?;
+            if let Some(t) = &tls {
+                println!("{t}");
+            }
             let recording = Recording::open(&file)?;
             if !recording.is_complete() {
                 eprintln!("{}", recording.recovery());
@@ -175,6 +184,7 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
                 start_paused: paused,
                 viewer_limits: ViewerLimits::default(),
                 access: access.clone(),
+                tls: tls.map(|t| t.config),
             };
             let runtime =
                 tokio::runtime::Runtime::new().context("could not start the async runtime")?;

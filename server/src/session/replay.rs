@@ -53,6 +53,8 @@ pub struct ReplayOptions {
     /// Who may connect, as for a live server; [`start`] refuses an address beyond loopback
     /// without tokens.
     pub access: AccessConfig,
+    /// Serve https and wss with this configuration; plain http when `None`.
+    pub tls: Option<Arc<rustls::ServerConfig>>,
 }
 
 /// Why a replay could not start.
@@ -87,6 +89,8 @@ pub struct RunningReplay {
     http: JoinHandle<()>,
     player: JoinHandle<()>,
     hub: Arc<StreamHub>,
+    /// Served over TLS: the viewer's URL is https.
+    tls: bool,
 }
 
 impl RunningReplay {
@@ -97,7 +101,8 @@ impl RunningReplay {
 
     /// The viewer's URL.
     pub fn viewer_url(&self) -> String {
-        format!("http://{}/", self.local_addr)
+        let scheme = if self.tls { "https" } else { "http" };
+        format!("{scheme}://{}/", self.local_addr)
     }
 
     /// The stream's counters.
@@ -121,7 +126,7 @@ impl RunningReplay {
 /// Starts serving `recording` to viewers.
 pub async fn start(
     recording: Recording,
-    options: ReplayOptions,
+    mut options: ReplayOptions,
 ) -> Result<RunningReplay, ReplayError> {
     options.access.check_bind(options.addr)?;
     let speed = options.speed;
@@ -170,6 +175,8 @@ pub async fn start(
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
+    // The page's own origin is https when the replay serves TLS.
+    options.access.secure_transport = options.tls.is_some();
     let access = Arc::new(Access::new(options.access, &options.web_dir));
     let hub = Arc::new(
         StreamHub::new(
@@ -195,13 +202,15 @@ pub async fn start(
         meshes,
         Arc::clone(&hub),
     );
-    let http = serve_http(listener, app, shutdown_rx);
+    let tls = options.tls.is_some();
+    let http = serve_http(listener, app, options.tls, shutdown_rx);
     Ok(RunningReplay {
         local_addr,
         shutdown_tx,
         http,
         player,
         hub,
+        tls,
     })
 }
 
