@@ -579,6 +579,23 @@ impl AccessConfig {
 
     /// The links to print: the instructor's and the observer's, the token in the fragment (a
     /// fragment never reaches a server's log or a proxy). `None` without tokens.
+    /// The base of the links to hand out for a server at `base_url`: an address bound to every
+    /// interface (`0.0.0.0`, `::`) names no machine a viewer can reach, so the first
+    /// `--host-name` takes its place when there is one.
+    pub fn public_base(&self, base_url: &str, local_addr: std::net::SocketAddr) -> String {
+        match self.host_names.first() {
+            Some(name) if local_addr.ip().is_unspecified() => {
+                let scheme = if self.secure_transport {
+                    "https"
+                } else {
+                    "http"
+                };
+                format!("{scheme}://{name}:{}/", local_addr.port())
+            }
+            _ => base_url.to_owned(),
+        }
+    }
+
     pub fn links(&self, base_url: &str) -> Option<(String, String)> {
         let tokens = self.tokens.as_ref()?;
         let link = |t: &Token| format!("{base_url}#token={}", t.expose_secret());
@@ -1187,6 +1204,35 @@ mod tests {
 
     fn access(config: AccessConfig) -> Arc<Access> {
         Arc::new(Access::new(config, Path::new("/nonexistent")))
+    }
+
+    #[test]
+    fn links_name_the_host_name_when_the_server_listens_on_every_interface() {
+        let mut config = AccessConfig {
+            host_names: vec!["lab-pc.example".into()],
+            ..AccessConfig::default()
+        };
+        let any: SocketAddr = ([0, 0, 0, 0], 8443).into();
+        assert_eq!(
+            config.public_base("http://0.0.0.0:8443/", any),
+            "http://lab-pc.example:8443/"
+        );
+        config.secure_transport = true;
+        assert_eq!(
+            config.public_base("https://0.0.0.0:8443/", any),
+            "https://lab-pc.example:8443/"
+        );
+        // A specific address is reachable as printed.
+        let one: SocketAddr = ([192, 0, 2, 10], 8443).into();
+        assert_eq!(
+            config.public_base("https://192.0.2.10:8443/", one),
+            "https://192.0.2.10:8443/"
+        );
+        config.host_names.clear();
+        assert_eq!(
+            config.public_base("http://0.0.0.0:8443/", any),
+            "http://0.0.0.0:8443/"
+        );
     }
 
     #[test]

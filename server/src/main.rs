@@ -198,7 +198,9 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             println!("recording: {}", r.path().display());
         }
         // The token is in the fragment, which no request carries; printed on stdout only.
-        let base = server.viewer_url();
+        let mut access = access;
+        access.secure_transport = server.viewer_url().starts_with("https:");
+        let base = access.public_base(&server.viewer_url(), server.local_addr());
         match access.links(&base) {
             Some((instructor, observer)) => {
                 println!("viewer: {instructor}");

@@ -191,7 +191,9 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             runtime.block_on(async move {
                 let replay = replay::start(recording, options).await?;
                 // The token is in the fragment, which no request carries; stdout only.
-                let base = replay.viewer_url();
+                let mut access = access;
+                access.secure_transport = replay.viewer_url().starts_with("https:");
+                let base = access.public_base(&replay.viewer_url(), replay.local_addr());
                 match access.links(&base) {
                     Some((instructor, observer)) => {
                         println!("replay: {instructor}");
