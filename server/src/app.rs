@@ -51,7 +51,10 @@ pub const SERVER_NAME: &str = concat!("softhaptic ", env!("CARGO_PKG_VERSION"));
 /// Why the server could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum ServerError {
-    #[error("could not listen on {addr}: {source}")]
+    // The OS's reason is the error's source: an error chain prints it once, after this.
+    #[error(
+        "could not listen on {addr} (another server on that port? `--addr 127.0.0.1:0` picks a free one)"
+    )]
     Bind {
         addr: SocketAddr,
         #[source]
@@ -549,4 +552,22 @@ pub fn default_web_dir() -> PathBuf {
         .into_iter()
         .find(|dir| dir.join("index.html").is_file())
         .unwrap_or(source_tree)
+}
+
+/// Resolves with the signal's name when the process is asked to stop: Ctrl-C (SIGINT), SIGTERM
+/// (a service manager, `kill`), SIGHUP (the terminal or the SSH session closed) or SIGQUIT
+/// (Ctrl-\). Each ends the session the same way: zero force, viewers closed, the recording
+/// closed; none may leave the file unclosed.
+pub async fn shutdown_signal() -> std::io::Result<&'static str> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut interrupt = signal(SignalKind::interrupt())?;
+    let mut terminate = signal(SignalKind::terminate())?;
+    let mut hangup = signal(SignalKind::hangup())?;
+    let mut quit = signal(SignalKind::quit())?;
+    Ok(tokio::select! {
+        _ = interrupt.recv() => "SIGINT",
+        _ = terminate.recv() => "SIGTERM",
+        _ = hangup.recv() => "SIGHUP",
+        _ = quit.recv() => "SIGQUIT",
+    })
 }

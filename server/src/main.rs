@@ -141,8 +141,7 @@ fn try_main() -> anyhow::Result<()> {
         }
         Some(Command::Session(command)) => session::cli::run(command),
         Some(Command::Devices { name }) => {
-            print!("{}", devices::listing(&name));
-            Ok(())
+            session::cli::print_report(format_args!("{}", devices::listing(&name)))
         }
     }
 }
@@ -192,7 +191,15 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.device = Some(device);
         options.access = access.clone();
         options.tls = tls.map(|t| t.config);
-        let server = app::start(scene, options).await?;
+        let server = match app::start(scene, options).await {
+            Ok(server) => server,
+            Err(e) => {
+                if let Some(r) = recording {
+                    r.abandon();
+                }
+                return Err(e.into());
+            }
+        };
         if let Some(r) = &recording {
             r.attach(&server);
             println!("recording: {}", r.path().display());
@@ -208,8 +215,10 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             }
             None => println!("viewer: {base}"),
         }
-        shutdown_signal().await?;
-        tracing::info!("shutting down");
+        let signal = app::shutdown_signal()
+            .await
+            .context("could not listen for the stop signals")?;
+        tracing::info!(signal, "shutting down");
         let stats = server.shutdown().await;
         tracing::info!(
             ticks = stats.ticks,
@@ -230,14 +239,4 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         Ok(())
     })
-}
-
-/// Resolves on Ctrl-C or SIGTERM.
-async fn shutdown_signal() -> anyhow::Result<()> {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("could not listen for SIGTERM")?;
-    tokio::select! {
-        r = tokio::signal::ctrl_c() => r.context("could not listen for Ctrl-C"),
-        _ = term.recv() => Ok(()),
-    }
 }

@@ -171,3 +171,29 @@ fn record_script_writes_the_same_bytes_twice() {
     assert_eq!(again.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&again.stderr).contains("a.mcap"));
 }
+
+#[test]
+fn a_reader_that_closes_early_ends_the_report_quietly() {
+    // `softhaptic info FILE | head`: the pipe's reader is gone before anything is written.
+    for args in [
+        vec!["info".into(), recording("slide.mcap").into_os_string()],
+        vec![
+            "check".into(),
+            recording("cone-press.mcap").into_os_string(),
+        ],
+        vec!["devices".into()],
+    ] {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let out = Command::new(env!("CARGO_BIN_EXE_softhaptic"))
+            .args(&args)
+            .env("SOFTHAPTIC_HD_LIBRARY", "/nonexistent/libHD.so")
+            .stdout(writer)
+            .stderr(std::process::Stdio::piped())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{args:?}: {:?} {err}", out.status);
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}

@@ -122,12 +122,22 @@ pub enum SessionCommand {
 }
 
 /// Runs a session subcommand.
+/// Prints a report on stdout. A reader that stops early (`softhaptic info FILE | head`) ends
+/// the output, not the program with a panic, as with other command-line tools.
+pub fn print_report(text: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    match out.write_fmt(text).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other.context("could not write to stdout"),
+    }
+}
+
 pub fn run(command: SessionCommand) -> anyhow::Result<()> {
     match command {
         SessionCommand::Info { file } => {
             let recording = Recording::open(&file)?;
-            println!("{}", Info::of(&recording));
-            Ok(())
+            print_report(format_args!("{}\n", Info::of(&recording)))
         }
         SessionCommand::Export { file, out } => {
             let recording = Recording::open(&file)?;
@@ -151,8 +161,7 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
                 },
             )?;
             if report.passed() {
-                println!("{report}");
-                Ok(())
+                print_report(format_args!("{report}\n"))
             } else {
                 anyhow::bail!("replay check failed: {report}")
             }
@@ -201,7 +210,9 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
                     }
                     None => println!("replay: {base}"),
                 }
-                shutdown_signal().await?;
+                crate::app::shutdown_signal()
+                    .await
+                    .context("could not listen for the stop signals")?;
                 replay.shutdown().await;
                 Ok(())
             })
@@ -251,19 +262,8 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             dir,
         } => {
             let report = super::overhead::measure(seconds, !no_realtime, &dir)?;
-            print!("{report}");
-            Ok(())
+            print_report(format_args!("{report}"))
         }
-    }
-}
-
-/// Resolves on Ctrl-C or SIGTERM.
-async fn shutdown_signal() -> anyhow::Result<()> {
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("could not listen for SIGTERM")?;
-    tokio::select! {
-        r = tokio::signal::ctrl_c() => r.context("could not listen for Ctrl-C"),
-        _ = term.recv() => Ok(()),
     }
 }
 
@@ -357,6 +357,16 @@ impl LiveRecording {
         let path = self.recorder.path().to_path_buf();
         let stats = self.recorder.finish()?;
         Ok((path, stats))
+    }
+
+    /// Closes and removes the file of a session that never started (the server could not
+    /// start): an empty recording would read as a complete session of nothing.
+    pub fn abandon(self) {
+        let path = self.recorder.path().to_path_buf();
+        let _ = self.recorder.finish();
+        if let Err(e) = std::fs::remove_file(&path) {
+            tracing::warn!(file = %path.display(), error = %e, "could not remove the recording of a session that did not start");
+        }
     }
 }
 
