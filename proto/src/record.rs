@@ -150,6 +150,33 @@ pub struct SceneRecord {
     pub scene_file: Option<String>,
     /// Haptic loop period the session ran at.
     pub period_ns: u64,
+    /// The object's meshes as the session loaded them from the files its scene names, so that a
+    /// check or a replay uses these and never reads a path a recording names. Absent for a
+    /// built-in object (its meshes are the build's) and from recordings made before they were
+    /// kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meshes: Option<RecordedMeshes>,
+}
+
+/// The meshes of a session's object.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordedMeshes {
+    /// The coarse haptic mesh the collision used.
+    pub haptic: MeshRecord,
+    /// The fine render mesh the viewers drew, or `None` when they drew the haptic mesh.
+    pub render: Option<MeshRecord>,
+}
+
+/// A triangle mesh, object frame, with the hash of its content.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshRecord {
+    pub positions_m: Vec<[f64; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+    /// SHA-256 (hex) of the positions' little-endian f64 bytes followed by the indices'
+    /// little-endian u32 bytes: a reader refuses a mesh that does not match it.
+    pub sha256: String,
 }
 
 /// Who wrote a recording and in which formats.
@@ -458,7 +485,10 @@ pub mod schema {
     "message": {"type": "object", "description": "the scene wire message"},
     "scene_toml": {"type": "string", "description": "the scene file's text"},
     "scene_file": {"type": ["string", "null"], "description": "absolute path of the scene file, null for a built-in scene"},
-    "period_ns": {"type": "integer", "minimum": 1, "description": "haptic loop period"}
+    "period_ns": {"type": "integer", "minimum": 1, "description": "haptic loop period"},
+    "meshes": {"type": "object", "description": "the object's meshes as the session loaded them from files (absent for a built-in object)", "properties": {
+      "haptic": {"type": "object", "properties": {"positions_m": {"type": "array"}, "triangles": {"type": "array"}, "sha256": {"type": "string"}}, "required": ["positions_m", "triangles", "sha256"]},
+      "render": {"type": ["object", "null"]}}, "required": ["haptic", "render"]}
   },
   "required": ["message", "scene_toml", "scene_file", "period_ns"]
 }"##;
@@ -639,6 +669,7 @@ mod tests {
             scene_toml: "[object]\nname = \"liver\"\n".into(),
             scene_file: None,
             period_ns: 1_000_000,
+            meshes: None,
         })
         .unwrap();
         let build = BuildRecord {

@@ -84,6 +84,7 @@ use softhaptic_device::model::ForceModel;
 use softhaptic_device::render::RenderConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
+use softhaptic_proto::record::{MeshRecord, RecordedMeshes, SceneRecord};
 use softhaptic_proto::wire::ContactModelInfo;
 use softhaptic_proto::{
     CalibrationError, CalibrationTable, Material, ModelError, ModelLimitsFile, ModelSpec, Pose,
@@ -452,6 +453,8 @@ pub struct Scene {
     pub device_scale: f64,
     /// The opened device as viewers are told it (model, serial); `None` before it is opened.
     pub device_label: Option<String>,
+    /// The object's meshes came from files (and go into the recording, [`Scene::recorded_meshes`]).
+    pub meshes_from_files: bool,
     pub press_depth_m: f64,
     /// Where the simulated hand presses, object frame: a surface point and its outward normal.
     pub press_site_in_object: (DVec3, DVec3),
@@ -487,8 +490,9 @@ impl FileBase<'_> {
 enum ModelSource<'a> {
     /// The scene file's `[object.model]` and limits file.
     File,
-    /// A recording's `scene` message: the model and limits the session ran with.
-    Recorded(&'a ContactModelInfo),
+    /// A recording: the model and limits its `scene` message says the session ran with, its
+    /// calibration table, and the meshes it holds (never the files its scene names).
+    Recorded(&'a SceneRecord),
 }
 
 impl Scene {
@@ -518,17 +522,34 @@ impl Scene {
         Self::from_file(file, path, base, ModelSource::File)
     }
 
-    /// Loads the scene text of a recording with the contact model and limits the recording's
-    /// `scene` message says the session ran with (so a replay rebuilds the same model even if
-    /// the scene's defaults or the limits file have changed since); the limits file is not read.
-    pub fn from_recorded_toml(
-        text: &str,
-        path: &Path,
-        base: Option<&Path>,
-        contact_model: &ContactModelInfo,
-    ) -> Result<Scene, SceneError> {
-        let file = Self::parse(text, path)?;
-        Self::from_file(file, path, base, ModelSource::Recorded(contact_model))
+    /// Loads the scene a recording ran with, from what the recording holds alone: its scene
+    /// text, the contact model and limits and the calibration table of its `scene` message (so a
+    /// replay rebuilds the same model even if the scene's defaults, the limits file or the table
+    /// have changed since), and the meshes it kept. No file is read: a recording's scene cannot
+    /// make a check read a local file, and an edited mesh on disk does not change a check.
+    /// `path` names the recording's scene in errors.
+    pub fn from_recording(record: &SceneRecord, path: &Path) -> Result<Scene, SceneError> {
+        let file = Self::parse(&record.scene_toml, path)?;
+        let mut scene = Self::from_file(file, path, None, ModelSource::Recorded(record))?;
+        scene.meshes_from_files = record.meshes.is_some();
+        Ok(scene)
+    }
+
+    /// The object's meshes for the recording, when they came from files (a built-in object's
+    /// are the build's own).
+    pub fn recorded_meshes(&self) -> Option<RecordedMeshes> {
+        if !self.meshes_from_files {
+            return None;
+        }
+        let haptic = mesh_record(self.haptic_mesh.positions_m(), self.haptic_mesh.triangles());
+        let render = mesh_record(
+            &self.render_surface.positions_m,
+            &self.render_surface.triangles,
+        );
+        Some(RecordedMeshes {
+            render: (render != haptic).then_some(render),
+            haptic,
+        })
     }
 
     fn parse(text: &str, path: &Path) -> Result<SceneFile, SceneError> {
@@ -619,55 +640,81 @@ impl Scene {
             orientation,
         };
 
-        let (haptic_mesh, render_surface, press_site_in_object) =
-            match (object.builtin, &object.haptic_mesh) {
-                (Some(Builtin::Liver), None) => {
-                    if object.render_mesh.is_some() {
-                        return Err(field(
-                            "object.render_mesh",
-                            "cannot be combined with builtin = \"liver\" (it brings its own)"
-                                .into(),
-                        ));
-                    }
-                    let (positions, triangles) = softhaptic_device::liver::render_surface();
-                    let render = HapticMesh::new(positions, triangles)
-                        .map_err(|e| field("object.builtin", e.to_string()))?;
-                    let top = softhaptic_device::liver::top_contact();
-                    (
-                        softhaptic_device::liver::haptic_mesh(),
-                        RenderSurface::from_mesh(&render),
-                        (top.point_m, top.normal),
-                    )
-                }
-                (Some(_), Some(_)) => {
+        let (haptic_mesh, render_surface, press_site_in_object) = match (
+            object.builtin,
+            &object.haptic_mesh,
+        ) {
+            (Some(Builtin::Liver), None) => {
+                if object.render_mesh.is_some() {
                     return Err(field(
-                        "object.haptic_mesh",
-                        "give either builtin or haptic_mesh, not both".into(),
+                        "object.render_mesh",
+                        "cannot be combined with builtin = \"liver\" (it brings its own)".into(),
                     ));
                 }
-                (None, None) => {
-                    return Err(field(
-                        "object",
-                        "needs builtin = \"liver\" or haptic_mesh = \"<file.obj>\"".into(),
-                    ));
-                }
-                (None, Some(haptic_path)) => {
-                    if base.is_none() {
-                        return Err(field(
-                            "object.haptic_mesh",
-                            "the built-in scene cannot name files".into(),
-                        ));
+                let (positions, triangles) = softhaptic_device::liver::render_surface();
+                let render = HapticMesh::new(positions, triangles)
+                    .map_err(|e| field("object.builtin", e.to_string()))?;
+                let top = softhaptic_device::liver::top_contact();
+                (
+                    softhaptic_device::liver::haptic_mesh(),
+                    RenderSurface::from_mesh(&render),
+                    (top.point_m, top.normal),
+                )
+            }
+            (Some(_), Some(_)) => {
+                return Err(field(
+                    "object.haptic_mesh",
+                    "give either builtin or haptic_mesh, not both".into(),
+                ));
+            }
+            (None, None) => {
+                return Err(field(
+                    "object",
+                    "needs builtin = \"liver\" or haptic_mesh = \"<file.obj>\"".into(),
+                ));
+            }
+            (None, Some(haptic_path)) => {
+                let (haptic, render) = match model_source {
+                    ModelSource::Recorded(record) => {
+                        let Some(meshes) = &record.meshes else {
+                            return Err(field(
+                                "object.haptic_mesh",
+                                format!(
+                                    "{} is not in the recording (it was made before recordings kept their meshes), and a check never reads a file a recording names",
+                                    haptic_path.display()
+                                ),
+                            ));
+                        };
+                        let haptic = mesh_from_record(&meshes.haptic)
+                            .map_err(|e| field("object.haptic_mesh", e))?;
+                        let render = match &meshes.render {
+                            Some(r) => {
+                                mesh_from_record(r).map_err(|e| field("object.render_mesh", e))?
+                            }
+                            None => haptic.clone(),
+                        };
+                        (haptic, render)
                     }
-                    let haptic = load_obj(&resolve(haptic_path), path, "object.haptic_mesh")?;
-                    let render = match &object.render_mesh {
-                        Some(p) => load_obj(&resolve(p), path, "object.render_mesh")?,
-                        None => haptic.clone(),
-                    };
-                    let surface = RenderSurface::from_mesh(&render);
-                    let site = highest_vertex(&haptic, &object_in_world);
-                    (haptic, surface, site)
-                }
-            };
+                    ModelSource::File => {
+                        if base.is_none() {
+                            return Err(field(
+                                "object.haptic_mesh",
+                                "the built-in scene cannot name files".into(),
+                            ));
+                        }
+                        let haptic = load_obj(&resolve(haptic_path), path, "object.haptic_mesh")?;
+                        let render = match &object.render_mesh {
+                            Some(p) => load_obj(&resolve(p), path, "object.render_mesh")?,
+                            None => haptic.clone(),
+                        };
+                        (haptic, render)
+                    }
+                };
+                let surface = RenderSurface::from_mesh(&render);
+                let site = highest_vertex(&haptic, &object_in_world);
+                (haptic, surface, site)
+            }
+        };
 
         let tool = file.tool.0;
         let material = file.material;
@@ -755,14 +802,17 @@ impl Scene {
             render.damping_n_s_per_m = d;
         }
 
-        let calibration = if file.calibration.table == "half_space" {
+        let calibration = if let ModelSource::Recorded(record) = model_source {
+            // The table the session ran with, as its viewers were sent it.
+            record.message.calibration.clone()
+        } else if file.calibration.table == "half_space" {
             // An object that is a layer on a rigid base gets the half-space profile with the far
             // field the base removes, which is much closer to an FEM table of that layer than the
             // plain half-space (CalibrationTable::half_space_on_base); the model is the one the
             // session runs with, from the file or the recording.
             let layer = match model_source {
                 ModelSource::File => file.object.model.thickness,
-                ModelSource::Recorded(info) => info.spec.thickness,
+                ModelSource::Recorded(record) => record.message.contact_model.spec.thickness,
             };
             match layer {
                 Some(layer) => CalibrationTable::half_space_on_base(
@@ -838,7 +888,10 @@ impl Scene {
                 let validity = ValidityLimits::of(limits.as_ref(), &tool, &spec);
                 (spec, validity)
             }
-            ModelSource::Recorded(info) => (info.spec, info.validity()),
+            ModelSource::Recorded(record) => {
+                let info = &record.message.contact_model;
+                (info.spec, info.validity())
+            }
         };
         let contact_model = ForceModel::new(tool, material, spec).map_err(|e| {
             let name = match e {
@@ -867,6 +920,7 @@ impl Scene {
             },
             device_scale: placement.scale,
             device_label: None,
+            meshes_from_files: object.haptic_mesh.is_some(),
             press_depth_m,
             press_site_in_object,
             calibration,
@@ -955,6 +1009,43 @@ fn highest_vertex(mesh: &HapticMesh, object_in_world: &Pose) -> (DVec3, DVec3) {
         .map(|(p, n)| (*p, *n))
         // A validated mesh has triangles, hence vertices; the fallback is never used.
         .unwrap_or((DVec3::ZERO, DVec3::Y))
+}
+
+/// A mesh as a recording keeps it, with the hash of its content.
+fn mesh_record(positions_m: &[DVec3], triangles: &[[u32; 3]]) -> MeshRecord {
+    let positions_m: Vec<[f64; 3]> = positions_m.iter().map(|p| p.to_array()).collect();
+    let sha256 = mesh_hash(&positions_m, triangles);
+    MeshRecord {
+        positions_m,
+        triangles: triangles.to_vec(),
+        sha256,
+    }
+}
+
+/// SHA-256 (hex) of the positions' little-endian f64 bytes, then the indices' u32 bytes.
+fn mesh_hash(positions_m: &[[f64; 3]], triangles: &[[u32; 3]]) -> String {
+    use sha2::Digest as _;
+    let mut hash = sha2::Sha256::new();
+    for c in positions_m.iter().flatten() {
+        hash.update(c.to_le_bytes());
+    }
+    for i in triangles.iter().flatten() {
+        hash.update(i.to_le_bytes());
+    }
+    hash.finalize().iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The mesh a recording kept, once its hash and its geometry check out.
+fn mesh_from_record(r: &MeshRecord) -> Result<HapticMesh, String> {
+    if mesh_hash(&r.positions_m, &r.triangles) != r.sha256 {
+        return Err("the recording's copy of the mesh does not match its hash (damaged)".into());
+    }
+    let positions = r
+        .positions_m
+        .iter()
+        .map(|p| DVec3::from_array(*p))
+        .collect();
+    HapticMesh::new(positions, r.triangles.clone()).map_err(|e| e.to_string())
 }
 
 /// Loads an OBJ (polygons triangulated) as a mesh. Non-finite vertices are refused with their
@@ -1150,18 +1241,19 @@ mod tests {
             },
             &ValidityLimits::paper(&tool),
         );
-        let replay =
-            Scene::from_recorded_toml(&text, Path::new("<test>"), None, &recorded).unwrap();
-        assert_eq!(
-            replay.calibration,
-            CalibrationTable::half_space_on_base(
-                tool,
-                Material::PAPER_SOFT,
-                PAPER_THRESHOLD_M,
-                0.03
-            )
-            .unwrap()
-        );
+        // The table the session ran with is the recording's: a replay never recomputes or
+        // reads it.
+        let table = CalibrationTable::half_space_on_base(
+            tool,
+            Material::PAPER_SOFT,
+            PAPER_THRESHOLD_M,
+            0.03,
+        )
+        .unwrap();
+        let mut record = recording_of(&text, recorded);
+        record.message.calibration = table.clone();
+        let replay = Scene::from_recording(&record, Path::new("<test>")).unwrap();
+        assert_eq!(replay.calibration, table);
     }
 
     #[test]
@@ -1209,6 +1301,21 @@ mod tests {
         );
     }
 
+    /// The scene record a session of `text` (a built-in-object scene) writes, with the recorded
+    /// model `model`.
+    fn recording_of(text: &str, model: ContactModelInfo) -> SceneRecord {
+        let scene = Scene::from_toml(text, Path::new("<test>"), None).unwrap();
+        let mut message = crate::app::scene_message(&scene);
+        message.contact_model = model;
+        SceneRecord {
+            message,
+            scene_toml: text.to_owned(),
+            scene_file: None,
+            period_ns: 1_000_000,
+            meshes: scene.recorded_meshes(),
+        }
+    }
+
     #[test]
     fn a_recorded_model_overrides_the_scene_file() {
         // A replay runs the model the session ran, whatever the scene text's defaults say now.
@@ -1223,7 +1330,8 @@ mod tests {
                 source: "recorded".into(),
             },
         );
-        let s = Scene::from_recorded_toml(text, Path::new("<test>"), None, &recorded).unwrap();
+        let s = Scene::from_recording(&recording_of(text, recorded.clone()), Path::new("<test>"))
+            .unwrap();
         assert!(s.contact_model.spec().is_paper());
         assert_eq!(s.render.valid_depth_m, 0.002);
         assert_eq!(s.render.valid_inclination_rad, 0.1);
@@ -1243,11 +1351,9 @@ mod tests {
             },
             &ValidityLimits::paper(&cone.tool),
         );
-        let err = Scene::from_recorded_toml(
-            include_str!("../../scenes/cone.toml"),
+        let err = Scene::from_recording(
+            &recording_of(include_str!("../../scenes/cone.toml"), exact),
             Path::new("<test>"),
-            None,
-            &exact,
         )
         .unwrap_err()
         .to_string();

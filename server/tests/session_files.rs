@@ -74,6 +74,7 @@ fn scene_record() -> SceneRecord {
         scene_toml: text.into(),
         scene_file: None,
         period_ns: 1_000_000,
+        meshes: None,
     }
 }
 
@@ -547,4 +548,140 @@ fn a_hundred_random_bit_flips_each_lose_at_most_the_chunk_they_hit() {
         full.device.len(),
         total as f64 / (100 - refused).max(1) as f64
     );
+}
+
+/// A 10 cm flat grid as an OBJ file, 11 × 11 vertices at y = 0, normals up.
+fn grid_obj() -> String {
+    let mut text = String::new();
+    for k in 0..11 {
+        for i in 0..11 {
+            text.push_str(&format!(
+                "v {} 0 {}\n",
+                -0.05 + 0.01 * i as f64,
+                -0.05 + 0.01 * k as f64
+            ));
+        }
+    }
+    for k in 0..10 {
+        for i in 0..10 {
+            let v = |i: usize, k: usize| k * 11 + i + 1;
+            text.push_str(&format!("f {} {} {}\n", v(i, k), v(i, k + 1), v(i + 1, k)));
+            text.push_str(&format!(
+                "f {} {} {}\n",
+                v(i + 1, k),
+                v(i, k + 1),
+                v(i + 1, k + 1)
+            ));
+        }
+    }
+    text
+}
+
+/// Records a press of the simulated hand on `scene`, tick by tick, to `path`.
+fn record_press(scene: &Scene, scene_record: &SceneRecord, path: &Path) {
+    use softhaptic_device::sim::{SimParams, SimulatedPhantom};
+    let mut writer = SessionWriter::create(path, &build(1, 1), scene_record).unwrap();
+    let mut world = scene.haptic_world();
+    let mut script = softhaptic_server::devices::hand_script(scene);
+    script.repeat = false;
+    let mut sim = SimulatedPhantom::with_params(
+        script,
+        SimParams {
+            limits: scene.device_limits,
+            ..SimParams::default()
+        },
+    );
+    for _ in 0..2000 {
+        let t = world.tick(&mut sim);
+        writer
+            .write_tick(&TickRecord {
+                sample: t.read.ok(),
+                device_fault: t.state.flags.contains(ContactFlags::DEVICE_FAULT),
+                device_error: t.read.err(),
+                command_error: t.command.err(),
+                lost_before: 0,
+                contact: t.state,
+            })
+            .unwrap();
+    }
+    writer.finish().unwrap();
+}
+
+#[test]
+fn a_recording_keeps_its_meshes_and_checks_without_reading_the_files_its_scene_names() {
+    use softhaptic_server::session::check::{CheckOverrides, check};
+    let dir = TempDir::new("self-contained");
+    std::fs::write(dir.join("grid.obj"), grid_obj()).unwrap();
+    let scene_toml = include_str!("../../scenes/default.toml")
+        .replace("builtin = \"liver\"", "haptic_mesh = \"grid.obj\"")
+        .replace("curvature = true", "curvature = false")
+        .replace("calibration/sphere10_50kpa.json", "half_space");
+    let scene_path = dir.join("grid.toml");
+    std::fs::write(&scene_path, &scene_toml).unwrap();
+    let scene = Scene::load(&scene_path).unwrap();
+    let meshes = scene.recorded_meshes().expect("meshes from files are kept");
+    assert_eq!(meshes.haptic.positions_m.len(), 121);
+    assert!(meshes.render.is_none(), "the haptic mesh is drawn");
+    let record = SceneRecord {
+        message: scene_message(&scene),
+        scene_toml: scene_toml.clone(),
+        scene_file: Some(scene_path.display().to_string()),
+        period_ns: 1_000_000,
+        meshes: Some(meshes),
+    };
+    let recording_path = dir.join("press.mcap");
+    record_press(&scene, &record, &recording_path);
+    let r = Recording::open(&recording_path).unwrap();
+    assert!(
+        r.device.iter().any(|d| d.in_contact),
+        "the hand pressed the grid"
+    );
+    let report = check(&r, CheckOverrides::default()).unwrap();
+    assert!(report.passed(), "{report}");
+
+    // The mesh on disk edited, then gone: the check runs on the recording's own copy.
+    std::fs::write(
+        dir.join("grid.obj"),
+        grid_obj().replace("v -0.05 0", "v -0.05 0.003"),
+    )
+    .unwrap();
+    assert!(check(&r, CheckOverrides::default()).unwrap().passed());
+    std::fs::remove_file(dir.join("grid.obj")).unwrap();
+    assert!(check(&r, CheckOverrides::default()).unwrap().passed());
+
+    // A recording without the meshes (as older ones were) is refused, not read from disk.
+    let older_path = dir.join("older.mcap");
+    record_press(
+        &scene,
+        &SceneRecord {
+            meshes: None,
+            ..record.clone()
+        },
+        &older_path,
+    );
+    let e = check(
+        &Recording::open(&older_path).unwrap(),
+        CheckOverrides::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("grid.obj") && e.contains("not in the recording"),
+        "{e}"
+    );
+
+    // A damaged copy (one coordinate changed, its hash not) is refused.
+    let mut damaged = record.clone();
+    if let Some(m) = damaged.meshes.as_mut() {
+        m.haptic.positions_m[5][1] += 1e-3;
+    }
+    let damaged_path = dir.join("damaged.mcap");
+    record_press(&scene, &damaged, &damaged_path);
+    let e = check(
+        &Recording::open(&damaged_path).unwrap(),
+        CheckOverrides::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("does not match its hash"), "{e}");
 }

@@ -8,7 +8,7 @@
 //! and reported at its first tick.
 
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use glam::DVec3;
 use softhaptic_device::replay::ReplayDevice;
@@ -125,29 +125,18 @@ pub fn haptic_world(scene: &Scene) -> HapticWorld {
     scene.haptic_world()
 }
 
-/// Loads the scene a recording was made with: the scene text it stores, with the contact model
-/// and validity limits of its `scene` message (a recording made before the message named its
-/// model reads as the paper's law, which is what those servers ran).
+/// Loads the scene a recording was made with, from the recording alone
+/// ([`Scene::from_recording`]): the scene text it stores, the contact model, validity limits and
+/// calibration table of its `scene` message (a recording made before the message named its
+/// model reads as the paper's law, which is what those servers ran), and the meshes it kept.
 pub fn recorded_scene(recording: &Recording) -> Result<Scene, CheckError> {
     let s = &recording.scene;
-    let (label, base) = match &s.scene_file {
-        Some(file) => {
-            let p = PathBuf::from(file);
-            let base = p.parent().map(Path::to_path_buf);
-            (p, base)
-        }
-        None => (
-            PathBuf::from(format!("<scene of {}>", recording.path.display())),
-            None,
-        ),
-    };
-    let mut scene = Scene::from_recorded_toml(
-        &s.scene_toml,
-        &label,
-        base.as_deref(),
-        &s.message.contact_model,
-    )
-    .map_err(|e| CheckError::Scene {
+    // Names the scene in errors only: nothing is read from where the scene file was.
+    let label = PathBuf::from(match &s.scene_file {
+        Some(file) => format!("{file} (as recorded in {})", recording.path.display()),
+        None => format!("<scene of {}>", recording.path.display()),
+    });
+    let mut scene = Scene::from_recording(s, &label).map_err(|e| CheckError::Scene {
         path: recording.path.clone(),
         source: Box::new(e),
     })?;

@@ -68,6 +68,7 @@ fn run_once(
                 scene_toml: include_str!("../../../scenes/default.toml").into(),
                 scene_file: None,
                 period_ns: params.period_ns,
+                meshes: scene.recorded_meshes(),
             };
             let (producer, consumer) = rtrb::RingBuffer::new(TICK_RING_CAPACITY);
             let recorder = Recorder::start(path, &build, &scene_record, consumer)?;

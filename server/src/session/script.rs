@@ -134,6 +134,7 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
         scene_toml: name.scene_toml().to_owned(),
         scene_file: None,
         period_ns: params.period_ns,
+        meshes: scene.recorded_meshes(),
     };
     let mut writer = SessionWriter::create(out, &build, &scene_record)?;
 
