@@ -100,7 +100,8 @@ pub enum SessionError {
 }
 
 /// The git commit this binary was built from, when the build environment gave it
-/// (`SOFTHAPTIC_GIT_COMMIT` at compile time).
+/// (found by `server/build.rs` with git at compile time, or `SOFTHAPTIC_GIT_COMMIT` in the build's
+/// environment for a tree without `.git`).
 pub fn git_commit() -> Option<String> {
     option_env!("SOFTHAPTIC_GIT_COMMIT")
         .filter(|c| !c.is_empty())
