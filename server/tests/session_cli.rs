@@ -197,3 +197,11 @@ fn a_reader_that_closes_early_ends_the_report_quietly() {
         assert!(!err.contains("panicked"), "{args:?}: {err}");
     }
 }
+
+#[test]
+fn an_os_error_is_printed_once() {
+    let out = softhaptic(&["info".as_ref(), "/nonexistent/session.mcap".as_ref()]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+}

@@ -368,6 +368,7 @@ fn the_writer_refuses_to_overwrite_a_recording() {
         .err()
         .expect("a second create fails");
     assert!(e.to_string().contains("a.mcap"), "{e}");
+    assert!(e.to_string().contains("--replace"), "the fix is named: {e}");
 }
 
 #[test]

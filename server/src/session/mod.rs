@@ -36,12 +36,16 @@ use std::path::PathBuf;
 /// Why a recording could not be written or read. Every variant names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum SessionError {
-    #[error("{path}: {source}")]
+    /// The OS's reason is part of this message rather than a separate cause, so that an error
+    /// chain prints it once.
+    #[error("{path}: {reason}")]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        reason: std::io::Error,
     },
+    /// A recording is never written over by accident.
+    #[error("{path} exists already and is kept (record-script --replace writes over a recording)")]
+    Exists { path: PathBuf },
     #[error("{path}: MCAP error: {source}")]
     Mcap {
         path: PathBuf,

@@ -112,7 +112,7 @@ impl Recording {
         let bytes = crate::files::read(path, crate::files::FileKind::Recording).map_err(|e| {
             SessionError::Io {
                 path: path.to_path_buf(),
-                source: e.into(),
+                reason: e.into(),
             }
         })?;
         Self::from_bytes(path, &bytes)

@@ -307,7 +307,7 @@ impl fmt::Display for Info {
 pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf), SessionError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
-        move |source| SessionError::Io { path, source }
+        move |reason| SessionError::Io { path, reason }
     };
     std::fs::create_dir_all(out_dir).map_err(io(out_dir))?;
     let device_path = out_dir.join("device.csv");
@@ -401,14 +401,14 @@ fn flags_field(flags: ContactFlags) -> String {
 }
 
 fn write_file(path: &Path, bytes: &[u8]) -> Result<(), SessionError> {
-    let mut f = std::fs::File::create(path).map_err(|source| SessionError::Io {
+    let mut f = std::fs::File::create(path).map_err(|reason| SessionError::Io {
         path: path.to_path_buf(),
-        source,
+        reason,
     })?;
     f.write_all(bytes)
         .and_then(|()| f.flush())
-        .map_err(|source| SessionError::Io {
+        .map_err(|reason| SessionError::Io {
             path: path.to_path_buf(),
-            source,
+            reason,
         })
 }

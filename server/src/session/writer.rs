@@ -82,15 +82,20 @@ impl SessionWriter {
         build: &BuildRecord,
         scene: &SceneRecord,
     ) -> Result<Self, SessionError> {
-        let io_err = |source| SessionError::Io {
+        let io_err = |reason| SessionError::Io {
             path: path.to_path_buf(),
-            source,
+            reason,
         };
         let file = File::options()
             .write(true)
             .create_new(true)
             .open(path)
-            .map_err(io_err)?;
+            .map_err(|e| match e.kind() {
+                std::io::ErrorKind::AlreadyExists => SessionError::Exists {
+                    path: path.to_path_buf(),
+                },
+                _ => io_err(e),
+            })?;
         let options = mcap::WriteOptions::new()
             .profile(record::MCAP_PROFILE)
             .library(concat!("softhaptic ", env!("CARGO_PKG_VERSION")))
@@ -213,7 +218,7 @@ impl SessionWriter {
             .into_inner()
             .into_inner()
             .flush()
-            .map_err(|source| SessionError::Io { path, source })?;
+            .map_err(|reason| SessionError::Io { path, reason })?;
         Ok(stats)
     }
 
@@ -403,9 +408,9 @@ impl Recorder {
                     result
                 }
             })
-            .map_err(|source| SessionError::Io {
+            .map_err(|reason| SessionError::Io {
                 path: path.to_path_buf(),
-                source,
+                reason,
             })?;
         Ok(Recorder {
             path: path.to_path_buf(),
