@@ -35,12 +35,19 @@ async fn viewer_gets_hello_scene_then_contact_frames_showing_the_press() {
     assert_eq!(scene.render_meshes[0].url, "/meshes/liver.bin");
     assert_eq!(scene.device.name, "simulated PHANTOM Desktop");
 
-    // The demonstration approaches for 0.5 s and presses for 0.5 s: within 3 s of frames the
-    // tip is in contact, pressed, and pushed back along the normal.
+    // The demonstration approaches for 0.5 s and presses for 0.5 s: among the frames of its
+    // first pass the tip is in contact, pressed, and pushed back along the normal. Frames are
+    // read until the press is past its deepest (device time, however slowly a loaded machine
+    // runs the loop), with a generous deadline; the frame rate itself is checked on virtual
+    // time below.
     let started = Instant::now();
-    let mut frames = Vec::new();
+    let mut frames: Vec<softhaptic_proto::wire::ContactFrame> = Vec::new();
     let mut stats = 0;
-    while started.elapsed() < Duration::from_secs(3) {
+    while frames.last().is_none_or(|f| f.time_ns < 2_500_000_000) {
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "the press did not come"
+        );
         match viewer.expect_message(WAIT).await {
             ServerMessage::Contact(f) => frames.push(f),
             ServerMessage::Stats(s) => {
@@ -50,13 +57,10 @@ async fn viewer_gets_hello_scene_then_contact_frames_showing_the_press() {
             other => panic!("unexpected {other:?}"),
         }
     }
-    let seconds = started.elapsed().as_secs_f64();
-    let rate = frames.len() as f64 / seconds;
     assert!(
-        (35.0..=65.0).contains(&rate),
-        "{rate} frames/s over {seconds} s"
+        stats >= 1,
+        "at least one stats message over 2.5 s of the session"
     );
-    assert!(stats >= 1, "at least one stats message in 3 s");
     for pair in frames.windows(2) {
         assert_eq!(
             pair[1].seq,
@@ -87,6 +91,26 @@ async fn viewer_gets_hello_scene_then_contact_frames_showing_the_press() {
             .any(|f| !f.in_contact && f.deformed_radius_m == 0.0)
     );
 
+    server.shutdown().await;
+}
+
+/// The frame task sends one contact frame every 20 ms: counted on tokio's virtual clock, so a
+/// loaded machine cannot make it look slower or faster.
+#[tokio::test(start_paused = true)]
+async fn frames_are_produced_at_50_hz_of_the_server_s_clock() {
+    use std::sync::atomic::Ordering;
+    let server = start_default(test_options()).await;
+    let sent = || server.counters().frames_sent.load(Ordering::Relaxed);
+    // Let the first tick of the frame interval pass, then count over one virtual second.
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    let (before, counted_from) = (sent(), tokio::time::Instant::now());
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let produced = sent() - before;
+    assert_eq!(counted_from.elapsed(), Duration::from_secs(1));
+    assert!(
+        (49..=51).contains(&produced),
+        "{produced} frames in one second of the server's clock"
+    );
     server.shutdown().await;
 }
 
