@@ -18,9 +18,10 @@ struct Cli {
     /// Coarse meshes and fewer samples: the whole suite in about a minute (numbers not to quote).
     #[arg(long, global = true)]
     quick: bool,
-    /// Directory for the report, CSV and SVG files.
-    #[arg(long, global = true, default_value = "calibration/report")]
-    out: PathBuf,
+    /// Directory for the report, CSV and SVG files [default: calibration/report, the committed
+    /// report; with --quick, target/calibration-quick, so that quick numbers never replace it].
+    #[arg(long, global = true)]
+    out: Option<PathBuf>,
     /// Directory the R_d tables and (by `all`) the model limits are written to (full mode).
     /// Quick runs write theirs under `<out>/tables` instead, so a quick run never replaces the
     /// scenes' files.
@@ -125,8 +126,12 @@ fn main() -> Result<()> {
     let started = Instant::now();
     let cli = Cli::parse();
     let mode = if cli.quick { Mode::Quick } else { Mode::Full };
+    let out = cli.out.clone().unwrap_or_else(|| match mode {
+        Mode::Quick => PathBuf::from("target/calibration-quick"),
+        Mode::Full => PathBuf::from("calibration/report"),
+    });
     let tables_dir = match mode {
-        Mode::Quick => cli.out.join("tables"),
+        Mode::Quick => out.join("tables"),
         Mode::Full => cli.tables.clone(),
     };
     let threads = cli.threads.unwrap_or_else(|| {
@@ -157,7 +162,7 @@ fn main() -> Result<()> {
     // leaves the finished parts behind.
     if plan.verify {
         results.verification = Some(experiments::verification(mode, &cache).context("verify")?);
-        report::write_report(&cli.out, mode, &results)?;
+        report::write_report(&out, mode, &results)?;
     }
     if plan.rd {
         let studies = experiments::rd_table(mode, &cache).context("rd-table")?;
@@ -165,17 +170,17 @@ fn main() -> Result<()> {
             tracing::info!(path = %path.display(), "calibration table written");
         }
         results.rd = Some(studies);
-        report::write_report(&cli.out, mode, &results)?;
+        report::write_report(&out, mode, &results)?;
     }
     if plan.force {
         results.force = Some(experiments::force_depth(mode, &cache).context("force-depth")?);
-        report::write_report(&cli.out, mode, &results)?;
+        report::write_report(&out, mode, &results)?;
     }
     if plan.speed {
         results.hyperelastic =
             Some(experiments::hyperelastic_fit(mode, &cache).context("hyperelastic fit")?);
         results.speed = Some(experiments::speed_accuracy(mode, &cache).context("speed-accuracy")?);
-        report::write_report(&cli.out, mode, &results)?;
+        report::write_report(&out, mode, &results)?;
     }
     if let Some(rd) = &results.rd {
         results.transfer =
@@ -183,11 +188,11 @@ fn main() -> Result<()> {
     }
     if plan.curvature {
         results.curvature = Some(experiments::curvature(mode, &cache).context("curvature")?);
-        report::write_report(&cli.out, mode, &results)?;
+        report::write_report(&out, mode, &results)?;
     }
     if plan.inclination {
         results.inclination = Some(experiments::inclination(mode, &cache).context("inclination")?);
-        report::write_report(&cli.out, mode, &results)?;
+        report::write_report(&out, mode, &results)?;
     }
     if results.speed.is_some() || results.curvature.is_some() {
         let limits = experiments::model_limits(
@@ -201,14 +206,14 @@ fn main() -> Result<()> {
         let path = if cli.command == Command::All {
             tables_dir.join("model_limits.json")
         } else {
-            cli.out.join("model_limits.json")
+            out.join("model_limits.json")
         };
         report::write_json(&path, &limits)?;
         tracing::info!(path = %path.display(), entries = limits.limits.len(), "model limits written");
         results.limits = Some(limits);
     }
     results.wall_seconds = started.elapsed().as_secs_f64();
-    let path = report::write_report(&cli.out, mode, &results)?;
+    let path = report::write_report(&out, mode, &results)?;
     tracing::info!(
         path = %path.display(),
         wall_s = results.wall_seconds,
