@@ -205,3 +205,19 @@ fn an_os_error_is_printed_once() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
 }
+
+#[test]
+fn a_negative_damping_is_refused_with_the_reason() {
+    let out = softhaptic(&[
+        "check".as_ref(),
+        recording("slide.mcap").as_os_str(),
+        "--damping".as_ref(),
+        "-5".as_ref(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--damping must be finite and >= 0, got -5"),
+        "{err}"
+    );
+}

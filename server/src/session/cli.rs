@@ -63,7 +63,9 @@ pub enum SessionCommand {
         file: PathBuf,
         /// Replace the scene's damping (N·s/m) for the replay: a deliberate change to test the
         /// check itself.
-        #[arg(long, value_name = "N_S_PER_M")]
+        // A negative number is this option's value (refused with the reason), not another
+        // option: clap's own hint for it would be wrong here.
+        #[arg(long, value_name = "N_S_PER_M", allow_negative_numbers = true)]
         damping: Option<f64>,
     },
     /// Stream a recording to web viewers exactly as a live session, with pause, play and seek
