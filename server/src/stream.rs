@@ -163,6 +163,10 @@ pub struct StreamHub {
     pub replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
     /// Who may connect: tokens, Origin and Host rules, connection limits.
     pub access: Arc<Access>,
+    /// The frame a replay shows now, sent to a viewer as it connects so that a paused replay
+    /// draws the tool where the recording has it rather than nowhere; `None` on a live session,
+    /// whose next frame is 20 ms away. A lock held only to swap or clone an `Arc`.
+    held_frame: std::sync::Mutex<Option<Arc<EncodedFrame>>>,
 }
 
 impl StreamHub {
@@ -196,6 +200,7 @@ impl StreamHub {
             shutdown,
             replay_control,
             access,
+            held_frame: std::sync::Mutex::new(None),
         })
     }
 
@@ -205,6 +210,19 @@ impl StreamHub {
             Role::Instructor => &self.hello_instructor,
             Role::Observer => &self.hello_observer,
         }
+    }
+
+    /// Sets the frame a viewer gets as it connects ([`StreamHub::held_frame`]).
+    pub fn hold_frame(&self, frame: Arc<EncodedFrame>) {
+        *self.held_frame.lock().unwrap_or_else(|p| p.into_inner()) = Some(frame);
+    }
+
+    /// The frame a viewer gets as it connects, if any.
+    pub fn held_frame(&self) -> Option<Arc<EncodedFrame>> {
+        self.held_frame
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 }
 
@@ -428,6 +446,19 @@ pub async fn serve_viewer(
         {
             return ViewerEnd::SendFailed;
         }
+    }
+    // A replay's current frame, unless a newer one is already queued for this viewer.
+    if frames.is_empty()
+        && let Some(held) = hub.held_frame()
+        && !send(
+            &mut socket,
+            Message::Text(held.text_for(0)),
+            timeout,
+            &hub.counters,
+        )
+        .await
+    {
+        return ViewerEnd::SendFailed;
     }
 
     let mut dropped: u64 = 0;

@@ -275,3 +275,18 @@ async fn viewer_pauses_seeks_and_plays() {
     );
     replay.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_viewer_of_a_paused_replay_is_shown_the_recording_s_first_frame() {
+    let r = recording();
+    let frames = recorded_frames(&r);
+    let (replay, addr) = start(1.0, true).await;
+    let mut viewer = connect(addr).await;
+    // Right after hello and scene: the tool where the session began, not at the origin.
+    let shown = next_frame(&mut viewer).await;
+    assert!(same_content(&shown, &frames[0]), "{shown:?}");
+    // Paused, nothing else comes but statuses.
+    let status = next_status(&mut viewer).await;
+    assert!(status.paused && status.time_s == 0.0, "{status:?}");
+    replay.shutdown().await;
+}

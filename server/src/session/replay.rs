@@ -343,7 +343,10 @@ impl Player {
         self.seq += 1;
         match EncodedFrame::new(&frame) {
             Ok(encoded) => {
-                let _ = hub.frames.send(Arc::new(encoded));
+                let encoded = Arc::new(encoded);
+                // A viewer that connects now (a paused replay sends nothing more) starts here.
+                hub.hold_frame(Arc::clone(&encoded));
+                let _ = hub.frames.send(encoded);
                 hub.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
             }
             Err(e) => tracing::error!(error = %e, "could not encode a replayed frame"),
@@ -394,6 +397,14 @@ impl Player {
         let mut status_tick = tokio::time::interval(STATUS_PERIOD);
         status_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         self.anchor = Instant::now();
+        // The recording's first frame, so that a replay started paused shows the tool where the
+        // session began (no viewer is connected yet: it is held for the viewers to come).
+        if self.paused
+            && let Some(first) = self.contacts.first().cloned()
+        {
+            self.send_frame(&hub, &first);
+            self.next_contact = 1;
+        }
         loop {
             let now = Instant::now();
             if !self.paused {
