@@ -963,7 +963,8 @@ fn load_limits(
 }
 
 /// Checks what serde cannot: the version, and that every limit is a usable positive number.
-fn validate_limits(file: &ModelLimitsFile) -> Result<(), String> {
+/// Public so the fuzz targets (`tests/src/fuzz.rs`) run the same check the loader does.
+pub fn validate_limits(file: &ModelLimitsFile) -> Result<(), String> {
     if file.version != ModelLimitsFile::VERSION {
         return Err(format!(
             "version: this build reads version {}, got {}",
@@ -1048,8 +1049,7 @@ fn mesh_from_record(r: &MeshRecord) -> Result<HapticMesh, String> {
     HapticMesh::new(positions, r.triangles.clone()).map_err(|e| e.to_string())
 }
 
-/// Loads an OBJ (polygons triangulated) as a mesh. Non-finite vertices are refused with their
-/// line and their index in the file (0-based), found before the OBJ reader reorders anything.
+/// Reads an OBJ file and parses it as a mesh ([`parse_obj`]).
 fn load_obj(mesh: &Path, scene: &Path, field: &'static str) -> Result<HapticMesh, SceneError> {
     let error = |reason: String| SceneError::Mesh {
         path: scene.to_owned(),
@@ -1058,6 +1058,25 @@ fn load_obj(mesh: &Path, scene: &Path, field: &'static str) -> Result<HapticMesh
         reason,
     };
     let text = files::read_text(mesh, FileKind::Mesh).map_err(|e| error(e.to_string()))?;
+    parse_obj(&text, mesh, scene, field)
+}
+
+/// Parses OBJ text (polygons triangulated) into a mesh; `mesh`, `scene` and `field` only name
+/// the file in errors. Non-finite vertices are refused with their line and their index in the
+/// file (0-based), found before the OBJ reader reorders anything. Public so the fuzz targets
+/// (`tests/src/fuzz.rs`) reach the parser without a file.
+pub fn parse_obj(
+    text: &str,
+    mesh: &Path,
+    scene: &Path,
+    field: &'static str,
+) -> Result<HapticMesh, SceneError> {
+    let error = |reason: String| SceneError::Mesh {
+        path: scene.to_owned(),
+        field,
+        mesh: mesh.to_owned(),
+        reason,
+    };
     let mut vertex = 0usize;
     for (line_index, line) in text.lines().enumerate() {
         let mut words = line.split_whitespace();

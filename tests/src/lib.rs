@@ -11,7 +11,11 @@
 //!   `build.rs` into a `libHD.so` the OpenHaptics backend loads in place of the vendor's), its
 //!   path and a handle on its test controls; the test file checks the stand-in keeps the HD
 //!   API's rules.
+//! - [`fuzz`]: a mutation fuzzer of every parser that takes outside input (scene, OBJ,
+//!   calibration and limits JSON, recordings, wire messages), run offline by `fuzz-report` and
+//!   briefly by `tests/fuzz_seeded.rs`.
 
+pub mod fuzz;
 pub mod standin;
 
 use std::net::{IpAddr, SocketAddr};
