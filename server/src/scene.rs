@@ -1049,6 +1049,62 @@ fn mesh_from_record(r: &MeshRecord) -> Result<HapticMesh, String> {
     HapticMesh::new(positions, r.triangles.clone()).map_err(|e| e.to_string())
 }
 
+/// Refuses a face, line or point whose texture-coordinate or normal index falls outside the
+/// file's `vt` or `vn` lines. The OBJ reader refuses these too, but only after multiplying the
+/// index (`vt * 2`, `vn * 3`): a relative index reaching before the first `vt` (`f 1/-9 ...`)
+/// or a huge one overflows there, which panics in a build with overflow checks and in release
+/// silently wraps. Indices are resolved as the reader resolves them (1-based; negative counts
+/// back from the lines read so far; 0 and empty mean none) and checked, as it checks them,
+/// against the whole file's count when the file has any.
+fn check_attribute_indices(text: &str) -> Result<(), String> {
+    let count = |kind: &str| {
+        text.lines()
+            .filter(|l| l.split_whitespace().next() == Some(kind))
+            .count()
+    };
+    let totals = [count("vt"), count("vn")];
+    let names = ["texture coordinate", "normal"];
+    let mut so_far = [0usize; 2];
+    for (line_index, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("vt") => so_far[0] += 1,
+            Some("vn") => so_far[1] += 1,
+            Some("f" | "l" | "p") => {
+                for word in words {
+                    // Part 0 is the position (the reader checks it without overflow).
+                    for (slot, part) in word.split('/').skip(1).take(2).enumerate() {
+                        // Not a number: the reader refuses the face itself.
+                        let Ok(x) = part.parse::<i128>() else {
+                            continue;
+                        };
+                        let index = if x < 0 {
+                            so_far[slot] as i128 + x
+                        } else {
+                            x - 1
+                        };
+                        // -1 from a 0 is the reader's "missing"; with no such lines at all the
+                        // reader ignores the index.
+                        if x == 0 || totals[slot] == 0 {
+                            continue;
+                        }
+                        if !(0..totals[slot] as i128).contains(&index) {
+                            return Err(format!(
+                                "line {}: {word:?} names {} {x}, but the file has {} of them",
+                                line_index + 1,
+                                names[slot],
+                                totals[slot]
+                            ));
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Reads an OBJ file and parses it as a mesh ([`parse_obj`]).
 fn load_obj(mesh: &Path, scene: &Path, field: &'static str) -> Result<HapticMesh, SceneError> {
     let error = |reason: String| SceneError::Mesh {
@@ -1097,6 +1153,7 @@ pub fn parse_obj(
         }
         vertex += 1;
     }
+    check_attribute_indices(text).map_err(error)?;
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: true,

@@ -83,3 +83,50 @@ fn the_same_seed_and_index_make_the_same_input() {
     // And the mutator changes something: not every input is a seed as it was.
     assert!(inputs.iter().any(|i| !target.seeds.contains(i)));
 }
+
+/// Parses OBJ text as the server does, naming it `<test>.obj` in errors.
+fn parse_obj(text: &str) -> Result<softhaptic_device::mesh::HapticMesh, String> {
+    softhaptic_server::scene::parse_obj(
+        text,
+        std::path::Path::new("<test>.obj"),
+        std::path::Path::new("<test>"),
+        "object.haptic_mesh",
+    )
+    .map_err(|e| e.to_string())
+}
+
+const TRIANGLE: &str = "v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nvt 0 0\nvn 0 0 1\n";
+
+/// Found by the fuzzer: the OBJ reader multiplied a texture-coordinate or normal index before
+/// checking it, so an index reaching before the first `vt`/`vn` line, or a huge one, overflowed
+/// (a panic in a build with overflow checks).
+#[test]
+fn an_obj_face_with_a_texture_or_normal_index_out_of_range_is_refused_not_a_panic() {
+    for face in [
+        "f 1/-9 2/1 3/1",
+        "f 1//-2 2//1 3//1",
+        "f 1/1/9223372036854775807 2/1/1 3/1/1",
+        "f 1/4611686018427387904 2/1 3/1",
+        "l 1/-3 2/1",
+        "p 1/1/-7",
+    ] {
+        let reason = parse_obj(&format!("{TRIANGLE}{face}\n")).unwrap_err();
+        assert!(
+            reason.contains("line 6") && reason.contains("the file has 1"),
+            "{face}: {reason}"
+        );
+    }
+}
+
+#[test]
+fn an_obj_face_with_texture_and_normal_indices_in_range_still_loads() {
+    for face in [
+        "f 1/1/1 2/1/1 3/1/1",
+        "f -3/-1/-1 -2/-1/-1 -1/-1/-1",
+        "f 1//1 2//1 3//1",
+        "f 1/0 2/0 3/0",
+    ] {
+        let mesh = parse_obj(&format!("{TRIANGLE}{face}\n")).unwrap();
+        assert_eq!(mesh.triangles().len(), 1, "{face}");
+    }
+}
