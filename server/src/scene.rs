@@ -163,16 +163,106 @@ pub enum SceneError {
     },
 }
 
-/// A tool checked on deserialisation, so a bad radius is reported with toml's span.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(try_from = "ToolShape")]
-pub struct ValidTool(pub ToolShape);
+/// A value refused where it stands in the file: its byte range and why.
+type Refusal = (std::ops::Range<usize>, String);
 
-impl TryFrom<ToolShape> for ValidTool {
-    type Error = softhaptic_proto::ToolError;
-    fn try_from(tool: ToolShape) -> Result<Self, Self::Error> {
-        tool.validate().map(|()| ValidTool(tool))
+/// The `[material]` table as written, each value with its place in the file, so that a refused
+/// value is shown on its own line (a check of the whole table would point at its header).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialSection {
+    pub youngs_modulus_pa: toml::Spanned<f64>,
+    pub poisson_ratio: toml::Spanned<f64>,
+}
+
+impl MaterialSection {
+    /// The material, or the value that breaks it.
+    pub fn material(&self) -> Result<Material, Refusal> {
+        let (e, nu) = (&self.youngs_modulus_pa, &self.poisson_ratio);
+        Material::new(*e.get_ref(), *nu.get_ref()).map_err(|err| {
+            let span = match err {
+                softhaptic_proto::MaterialError::PoissonRatio(_) => nu.span(),
+                _ => e.span(),
+            };
+            (span, err.to_string())
+        })
     }
+}
+
+/// The tip's shape, as `[tool] shape` names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ToolKind {
+    Sphere,
+    Cone,
+}
+
+/// The `[tool]` table as written, each value with its place in the file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ToolSection {
+    pub shape: toml::Spanned<ToolKind>,
+    pub radius_m: toml::Spanned<f64>,
+    /// The cone's half-angle (axis to flank); a cone only.
+    #[serde(default)]
+    pub half_angle_rad: Option<toml::Spanned<f64>>,
+}
+
+impl ToolSection {
+    /// The tool, or the value that breaks it.
+    pub fn tool(&self) -> Result<ToolShape, Refusal> {
+        let radius_m = *self.radius_m.get_ref();
+        let tool = match (self.shape.get_ref(), &self.half_angle_rad) {
+            (ToolKind::Sphere, None) => ToolShape::Sphere { radius_m },
+            (ToolKind::Sphere, Some(angle)) => {
+                return Err((
+                    angle.span(),
+                    "half_angle_rad: only a cone has a half-angle".into(),
+                ));
+            }
+            (ToolKind::Cone, Some(angle)) => ToolShape::Cone {
+                half_angle_rad: *angle.get_ref(),
+                radius_m,
+            },
+            (ToolKind::Cone, None) => {
+                return Err((
+                    self.shape.span(),
+                    "a cone needs half_angle_rad (axis to flank, radians)".into(),
+                ));
+            }
+        };
+        tool.validate().map(|()| tool).map_err(|err| {
+            let span = match err {
+                softhaptic_proto::ToolError::HalfAngle(_) => self
+                    .half_angle_rad
+                    .as_ref()
+                    .map_or(self.shape.span(), |a| a.span()),
+                _ => self.radius_m.span(),
+            };
+            (span, err.to_string())
+        })
+    }
+}
+
+/// A refusal shown as toml shows its own errors: the line and column, the line, a caret under
+/// the value, and why.
+fn located(text: &str, (span, reason): Refusal) -> String {
+    let start = span.start.min(text.len());
+    let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+    let line_end = text[start..].find('\n').map_or(text.len(), |i| start + i);
+    let line_number = text[..start].matches('\n').count() + 1;
+    let column = text[line_start..start].chars().count() + 1;
+    let width = text[start..span.end.clamp(start, line_end)]
+        .chars()
+        .count()
+        .max(1);
+    let gutter = " ".repeat(line_number.to_string().len());
+    format!(
+        "TOML parse error at line {line_number}, column {column}\n{gutter} |\n{line_number} | {}\n{gutter} | {}{}\n{reason}",
+        &text[line_start..line_end],
+        " ".repeat(column - 1),
+        "^".repeat(width)
+    )
 }
 
 /// The scene file as written.
@@ -180,8 +270,8 @@ impl TryFrom<ToolShape> for ValidTool {
 #[serde(deny_unknown_fields)]
 pub struct SceneFile {
     pub object: ObjectSection,
-    pub material: Material,
-    pub tool: ValidTool,
+    pub material: MaterialSection,
+    pub tool: ToolSection,
     #[serde(default)]
     pub device: DeviceSection,
     pub calibration: CalibrationSection,
@@ -553,10 +643,18 @@ impl Scene {
     }
 
     fn parse(text: &str, path: &Path) -> Result<SceneFile, SceneError> {
-        toml::from_str(text).map_err(|e| SceneError::Parse {
+        let refused = |message: String| SceneError::Parse {
             path: path.to_owned(),
-            message: e.to_string().trim_end().to_owned(),
-        })
+            message,
+        };
+        let file: SceneFile =
+            toml::from_str(text).map_err(|e| refused(e.to_string().trim_end().to_owned()))?;
+        // Checked here, where the text is, so that a refused value is shown on its line.
+        file.material
+            .material()
+            .map_err(|r| refused(located(text, r)))?;
+        file.tool.tool().map_err(|r| refused(located(text, r)))?;
+        Ok(file)
     }
 
     /// Replaces the scene's device with `--device`'s choice.
@@ -716,8 +814,15 @@ impl Scene {
             }
         };
 
-        let tool = file.tool.0;
-        let material = file.material;
+        // Both were checked when the text was parsed.
+        let tool = file
+            .tool
+            .tool()
+            .map_err(|(_, reason)| field("tool", reason))?;
+        let material = file
+            .material
+            .material()
+            .map_err(|(_, reason)| field("material", reason))?;
         let press_depth_m = file.device.press_depth_m;
         if !(press_depth_m.is_finite() && (0.0..=0.05).contains(&press_depth_m)) {
             return Err(field(

@@ -91,17 +91,23 @@ fn invalid_values_name_the_field_and_value() {
     refused(
         &dir,
         &GOOD.replace("50000.0", "-5.0"),
-        &["youngs_modulus_pa", "-5", "line"],
+        // The value's own line and column, not the table's header.
+        &[
+            "youngs_modulus_pa",
+            "-5",
+            "line 7, column 21",
+            "7 | youngs_modulus_pa = -5.0",
+        ],
     );
     refused(
         &dir,
         &GOOD.replace("0.33", "0.5"),
-        &["poisson_ratio", "0.5"],
+        &["poisson_ratio", "0.5", "line 8, column 17"],
     );
     refused(
         &dir,
         &GOOD.replace("radius_m = 0.01", "radius_m = -0.01"),
-        &["radius_m", "-0.01"],
+        &["radius_m", "-0.01", "line 12, column 12"],
     );
     refused(
         &dir,
@@ -109,7 +115,12 @@ fn invalid_values_name_the_field_and_value() {
             "shape = \"sphere\"\nradius_m = 0.01",
             "shape = \"cone\"\nhalf_angle_rad = 2.0\nradius_m = 0.01",
         ),
-        &["half_angle_rad", "2"],
+        &["half_angle_rad", "2", "line 12, column 18"],
+    );
+    refused(
+        &dir,
+        &GOOD.replace("shape = \"sphere\"", "shape = \"cone\""),
+        &["a cone needs half_angle_rad", "line 11"],
     );
     refused(
         &dir,
