@@ -561,17 +561,7 @@ async fn authenticate(
             Ok(None | Some(Ok(Message::Close(_)))) => return Err(ViewerEnd::Closed),
             Ok(Some(Err(e))) => {
                 tracing::debug!(error = %e, "viewer connection failed before presenting a token");
-                hub.counters
-                    .malformed_closes
-                    .fetch_add(1, Ordering::Relaxed);
-                close(
-                    socket,
-                    close_code::SIZE,
-                    "invalid or oversized message",
-                    timeout,
-                )
-                .await;
-                return Err(ViewerEnd::Malformed);
+                return Err(malformed(socket, hub).await);
             }
             Ok(Some(Ok(message))) => message,
         };
@@ -614,6 +604,21 @@ async fn authenticate(
     }
 }
 
+/// Closes a connection whose message broke the WebSocket protocol or its size limit.
+async fn malformed(socket: &mut WebSocket, hub: &StreamHub) -> ViewerEnd {
+    hub.counters
+        .malformed_closes
+        .fetch_add(1, Ordering::Relaxed);
+    close(
+        socket,
+        close_code::SIZE,
+        "invalid or oversized message",
+        hub.limits.send_timeout,
+    )
+    .await;
+    ViewerEnd::Malformed
+}
+
 /// Closes a connection that sent more than its rate allows.
 async fn flooded(socket: &mut WebSocket, hub: &StreamHub) -> ViewerEnd {
     hub.counters.flood_closes.fetch_add(1, Ordering::Relaxed);
@@ -643,17 +648,7 @@ async fn handle_incoming(
         Some(Err(e)) => {
             // Protocol violations and oversized messages end up here.
             tracing::debug!(error = %e, "viewer connection failed");
-            hub.counters
-                .malformed_closes
-                .fetch_add(1, Ordering::Relaxed);
-            close(
-                socket,
-                close_code::SIZE,
-                "invalid or oversized message",
-                timeout,
-            )
-            .await;
-            return Some(ViewerEnd::Malformed);
+            return Some(malformed(socket, hub).await);
         }
         Some(Ok(message)) => message,
     };
