@@ -561,7 +561,7 @@ async fn authenticate(
             Ok(None | Some(Ok(Message::Close(_)))) => return Err(ViewerEnd::Closed),
             Ok(Some(Err(e))) => {
                 tracing::debug!(error = %e, "viewer connection failed before presenting a token");
-                return Err(malformed(socket, hub).await);
+                return Err(malformed(socket, hub, close_code::SIZE, INVALID_REFUSED).await);
             }
             Ok(Some(Ok(message))) => message,
         };
@@ -571,17 +571,7 @@ async fn authenticate(
         match message {
             Message::Ping(_) | Message::Pong(_) => continue,
             Message::Binary(_) => {
-                hub.counters
-                    .malformed_closes
-                    .fetch_add(1, Ordering::Relaxed);
-                close(
-                    socket,
-                    close_code::UNSUPPORTED,
-                    "binary messages are not accepted",
-                    timeout,
-                )
-                .await;
-                return Err(ViewerEnd::Malformed);
+                return Err(malformed(socket, hub, close_code::UNSUPPORTED, BINARY_REFUSED).await);
             }
             Message::Close(_) => return Err(ViewerEnd::Closed),
             Message::Text(text) => {
@@ -604,18 +594,23 @@ async fn authenticate(
     }
 }
 
-/// Closes a connection whose message broke the WebSocket protocol or its size limit.
-async fn malformed(socket: &mut WebSocket, hub: &StreamHub) -> ViewerEnd {
+/// Close reason of a connection that sent a binary message.
+const BINARY_REFUSED: &str = "binary messages are not accepted";
+/// Close reason of a connection whose message broke the WebSocket protocol or its size limit.
+const INVALID_REFUSED: &str = "invalid or oversized message";
+
+/// Closes a connection that sent what the protocol does not accept (a binary message, a message
+/// that breaks WebSocket's rules or the size limit), with `code` and `reason`.
+async fn malformed(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    code: u16,
+    reason: &'static str,
+) -> ViewerEnd {
     hub.counters
         .malformed_closes
         .fetch_add(1, Ordering::Relaxed);
-    close(
-        socket,
-        close_code::SIZE,
-        "invalid or oversized message",
-        hub.limits.send_timeout,
-    )
-    .await;
+    close(socket, code, reason, hub.limits.send_timeout).await;
     ViewerEnd::Malformed
 }
 
@@ -648,7 +643,7 @@ async fn handle_incoming(
         Some(Err(e)) => {
             // Protocol violations and oversized messages end up here.
             tracing::debug!(error = %e, "viewer connection failed");
-            return Some(malformed(socket, hub).await);
+            return Some(malformed(socket, hub, close_code::SIZE, INVALID_REFUSED).await);
         }
         Some(Ok(message)) => message,
     };
@@ -658,17 +653,7 @@ async fn handle_incoming(
     let text = match message {
         Message::Text(text) => text,
         Message::Binary(_) => {
-            hub.counters
-                .malformed_closes
-                .fetch_add(1, Ordering::Relaxed);
-            close(
-                socket,
-                close_code::UNSUPPORTED,
-                "binary messages are not accepted",
-                timeout,
-            )
-            .await;
-            return Some(ViewerEnd::Malformed);
+            return Some(malformed(socket, hub, close_code::UNSUPPORTED, BINARY_REFUSED).await);
         }
         // Pings are answered by the WebSocket layer.
         Message::Ping(_) | Message::Pong(_) | Message::Close(_) => return None,
