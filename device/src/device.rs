@@ -181,6 +181,12 @@ pub trait HapticDevice: Send {
     fn servo_clock(&mut self) -> Option<Box<dyn ServoClock>> {
         None
     }
+    /// Whether the commanded force reaches a hand. False for an input-only device (a
+    /// SpaceMouse): the loop still computes, streams and records the force, and viewers are
+    /// told that the trainee does not feel it.
+    fn renders_force(&self) -> bool {
+        true
+    }
 }
 
 impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {
@@ -195,6 +201,9 @@ impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {
     }
     fn servo_clock(&mut self) -> Option<Box<dyn ServoClock>> {
         (**self).servo_clock()
+    }
+    fn renders_force(&self) -> bool {
+        (**self).renders_force()
     }
 }
 

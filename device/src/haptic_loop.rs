@@ -149,6 +149,19 @@ impl<const N: usize> SeqCell<N> {
         self.seq.store(s.wrapping_add(2), Ordering::Release);
     }
 
+    /// One attempt at a consistent copy: `None` when the writer is mid-write (or wrote during the
+    /// copy). Wait-free, for a reader that must never wait for its writer (the 1 kHz thread
+    /// reading what a lower-priority thread publishes keeps its previous copy instead).
+    pub fn try_read(&self) -> Option<[u64; N]> {
+        let before = self.seq.load(Ordering::Acquire);
+        if before & 1 == 1 {
+            return None;
+        }
+        let out = std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
+        fence(Ordering::Acquire);
+        (self.seq.load(Ordering::Relaxed) == before).then_some(out)
+    }
+
     /// Reads a consistent copy of the last published words.
     pub fn read(&self) -> [u64; N] {
         let mut attempts = 0u32;

@@ -23,6 +23,9 @@
 //! - [`openhaptics`]: a PHANTOM / Touch through OpenHaptics' HD API, loaded at run time; its
 //!   servo scheduler clocks the loop, faults give zero force and a reconnection off the servo
 //!   path.
+//! - [`spacemouse`]: a 3Dconnexion SpaceMouse through hidapi (feature `spacemouse`, on by
+//!   default): its reports read off the loop's thread, the puck's deflection as the tool's
+//!   velocity (rate control); it renders no force.
 //! - [`render`]: the scene's contact model at the contact's geometry (curvature, the tool's
 //!   inclination) + damping, then the safety layer (stiffness cap at the model's δ*, ramp,
 //!   passivity, saturation, fault guard) with a flag for every limit that acts, and the validity
@@ -54,6 +57,8 @@ pub mod replay;
 pub mod rt;
 pub mod shape;
 pub mod sim;
+#[cfg(feature = "spacemouse")]
+pub mod spacemouse;
 pub mod stats;
 pub mod thermal;
 pub mod tracking;

@@ -85,6 +85,15 @@ pub struct Hello {
     pub mode: Mode,
     /// `"softhaptic <version>"`.
     pub server: String,
+    /// Whether the trainee feels the force: false for an input-only device (a SpaceMouse), whose
+    /// force is computed, streamed and recorded but rendered by nothing. Absent from servers
+    /// that predate it: `true` (they drove force-rendering devices only).
+    #[serde(default = "renders_force")]
+    pub force_feedback: bool,
+}
+
+fn renders_force() -> bool {
+    true
 }
 
 /// `refused`: a request the server did not carry out, and why, in words a person reads.
@@ -187,6 +196,10 @@ pub struct RenderMeshInfo {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct DeviceInfo {
     pub name: String,
+    /// Whether the device renders the force (false for a SpaceMouse). Absent in recordings made
+    /// before it existed: `true`.
+    #[serde(default = "renders_force")]
+    pub force_feedback: bool,
     pub peak_force_n: f64,
     pub continuous_force_n: f64,
     pub max_stiffness_n_per_m: f64,
@@ -594,6 +607,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         role: Role::Instructor,
         mode: Mode::Live,
         server: "softhaptic 0.1.0".into(),
+        force_feedback: true,
     });
     let tool = ToolShape::Sphere { radius_m: 0.01 };
     let material = Material::PAPER_SOFT;
@@ -623,6 +637,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             }],
             device: DeviceInfo {
                 name: "simulated PHANTOM Desktop".into(),
+                force_feedback: true,
                 peak_force_n: 7.9,
                 continuous_force_n: 1.75,
                 max_stiffness_n_per_m: 1000.0,
@@ -752,6 +767,8 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 role: Role::Observer,
                 mode: Mode::Live,
                 server: "softhaptic 0.1.0".into(),
+                // An observer of a desk with a SpaceMouse: the force is not felt.
+                force_feedback: false,
             }),
         ),
         (
@@ -826,6 +843,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 role: Role::Instructor,
                 mode: Mode::Replay,
                 server: "softhaptic 0.1.0".into(),
+                force_feedback: true,
             }))?,
         ),
         (
@@ -985,13 +1003,20 @@ mod tests {
             role: Role::Observer,
             mode: Mode::Replay,
             server: "softhaptic 0.1.0".into(),
+            force_feedback: false,
         })
         .encode()
         .unwrap();
         assert_eq!(
             text,
-            r#"{"type":"hello","protocol_version":1,"session_id":"s1","role":"observer","mode":"replay","server":"softhaptic 0.1.0"}"#
+            r#"{"type":"hello","protocol_version":1,"session_id":"s1","role":"observer","mode":"replay","server":"softhaptic 0.1.0","force_feedback":false}"#
         );
+        // From a server that predates the field: a force-rendering device.
+        let old = r#"{"type":"hello","protocol_version":1,"session_id":"s1","role":"observer","mode":"replay","server":"softhaptic 0.1.0"}"#;
+        match ServerMessage::decode(old).unwrap() {
+            ServerMessage::Hello(h) => assert!(h.force_feedback),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]

@@ -27,7 +27,6 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, get_service};
 use softhaptic_device::device::HapticDevice;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
-use softhaptic_device::openhaptics::OpenHapticsError;
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::ToolShape;
 use softhaptic_proto::wire::{
@@ -63,7 +62,7 @@ pub enum ServerError {
     #[error("haptic loop: {0}")]
     Loop(#[from] LoopError),
     #[error("haptic device: {0}")]
-    Device(#[from] OpenHapticsError),
+    Device(#[from] crate::devices::DeviceOpenError),
     #[error(transparent)]
     Access(#[from] AccessError),
     #[error("could not encode the {what} message: {source}")]
@@ -248,6 +247,7 @@ pub fn scene_message(scene: &Scene) -> SceneMessage {
         }],
         device: DeviceInfo {
             name: device_name,
+            force_feedback: scene.device_renders_force,
             peak_force_n: limits.peak_force_n,
             continuous_force_n: limits.continuous_force_n,
             max_stiffness_n_per_m: limits.max_stiffness_n_per_m,
@@ -290,6 +290,7 @@ pub async fn start(
         Some(device) => device,
         None => crate::devices::open(&mut scene)?,
     };
+    scene.device_renders_force = device.renders_force();
     let message = scene_message(&scene);
     let encode = |what: &'static str, m: ServerMessage| {
         m.encode()
@@ -303,6 +304,7 @@ pub async fn start(
         role: Role::Instructor,
         mode: Mode::Live,
         server: SERVER_NAME.into(),
+        force_feedback: message.device.force_feedback,
     };
     let mut meshes = HashMap::new();
     meshes.insert(

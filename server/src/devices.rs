@@ -1,14 +1,15 @@
 //! The scene's haptic device: opening it, and `softhaptic devices`.
 //!
 //! [`open`] builds the device a scene names (the simulated PHANTOM moved by its scripted hand,
-//! or a PHANTOM / Touch through OpenHaptics) and writes back into the scene what the device
+//! a PHANTOM / Touch through OpenHaptics, or a SpaceMouse through hidapi) and writes back into the scene what the device
 //! really is: its limits (the tighter of the device's and the preset's) and its label for the
 //! viewers, before the recording and the `scene` message are made from the scene. A device that
 //! cannot be opened stops the start with the device backend's error (which library was looked
 //! for, where, and how to install it), before anything listens or records.
 //!
 //! [`listing`] is what `softhaptic devices` prints: the OpenHaptics library and each device it
-//! can open (model, serial, limits, calibration), and the simulated device.
+//! can open (model, serial, limits, calibration), the SpaceMice hidapi finds (and the udev rule
+//! when hidraw is not readable), and the simulated device.
 
 use std::fmt::Write as _;
 
@@ -18,6 +19,21 @@ use softhaptic_device::openhaptics::{
     OpenHapticsError,
 };
 use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
+use softhaptic_device::spacemouse::script::ReportScript;
+use softhaptic_device::spacemouse::{Connector, SpaceMouseDevice, SpaceMouseError, hid};
+
+/// Why the scene's device could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceOpenError {
+    #[error(transparent)]
+    OpenHaptics(#[from] OpenHapticsError),
+    #[error(
+        "{0}; plug one in (`softhaptic devices` lists what is found), or choose another device with --device"
+    )]
+    SpaceMouse(#[from] SpaceMouseError),
+    #[error("the SpaceMouse report script {0}")]
+    ReportScript(String),
+}
 
 use crate::scene::{DeviceKind, Scene};
 
@@ -46,7 +62,7 @@ pub fn openhaptics_config(scene: &Scene) -> OpenHapticsConfig {
 }
 
 /// Opens the scene's device and records in the scene the limits it runs with and its label.
-pub fn open(scene: &mut Scene) -> Result<Box<dyn HapticDevice>, OpenHapticsError> {
+pub fn open(scene: &mut Scene) -> Result<Box<dyn HapticDevice>, DeviceOpenError> {
     match scene.device_kind {
         DeviceKind::Simulated => {
             scene.device_label = Some(format!("simulated {}", scene.device_limits.name));
@@ -72,6 +88,30 @@ pub fn open(scene: &mut Scene) -> Result<Box<dyn HapticDevice>, OpenHapticsError
                 d.display_name(),
                 if d.serial.is_empty() { "?" } else { &d.serial },
             ));
+            Ok(Box::new(device))
+        }
+        DeviceKind::Spacemouse => {
+            let (connector, source): (Box<dyn Connector>, String) = match &scene.spacemouse_script {
+                Some(path) => (
+                    Box::new(
+                        ReportScript::from_file(path)
+                            .map_err(DeviceOpenError::ReportScript)?
+                            .connector(),
+                    ),
+                    format!("report stream {}", path.display()),
+                ),
+                None => (
+                    Box::new(hid::HidConnector::new(scene.device_name.clone())),
+                    "hidraw".to_owned(),
+                ),
+            };
+            let device =
+                SpaceMouseDevice::open(connector, scene.spacemouse_rate, scene.device_limits)?;
+            scene.device_label = Some(format!(
+                "{} (SpaceMouse, {source}; renders no force)",
+                device.model().name
+            ));
+            scene.device_renders_force = device.renders_force();
             Ok(Box::new(device))
         }
     }
@@ -102,6 +142,7 @@ pub fn listing(names: &[String]) -> String {
             }
         }
     }
+    spacemouse_listing(&mut out, &hid::list());
     let _ = writeln!(
         out,
         "simulated: always available (scene [device] kind = \"simulated\"; presets phantom_desktop, touch, omni)"
@@ -142,4 +183,99 @@ fn describe(out: &mut String, d: &DeviceDescription, calibration: Calibration) {
         }
     };
     let _ = writeln!(out, "    calibration: {state} (styles: {styles})");
+}
+
+/// The SpaceMouse part of `softhaptic devices`.
+pub fn spacemouse_listing(out: &mut String, listing: &hid::Listing) {
+    let _ = writeln!(
+        out,
+        "SpaceMouse (input only, renders no force): hidapi on hidraw"
+    );
+    if let Some(e) = &listing.error {
+        let _ = writeln!(out, "  hidapi could not list HID devices: {e}");
+    }
+    if listing.found.is_empty() && listing.error.is_none() {
+        let _ = writeln!(out, "  none found");
+    }
+    for f in &listing.found {
+        let name = f
+            .model
+            .unwrap_or("unknown 3Dconnexion product (not supported)");
+        let state = match &f.opens {
+            Ok(()) => "opens".to_owned(),
+            Err(e) => format!("cannot be opened: {e}"),
+        };
+        let _ = writeln!(
+            out,
+            "  {name} [{:04x}:{:04x}] at {}, serial {}: {state}",
+            f.vendor_id,
+            f.product_id,
+            f.path,
+            f.serial.as_deref().unwrap_or("?"),
+        );
+    }
+    let denied = listing.found.iter().any(|f| f.opens.is_err());
+    if listing.hidraw_unreadable || denied {
+        let _ = writeln!(
+            out,
+            "  /dev/hidraw* is not readable by this user: {}",
+            hid::udev_hint().replace('\n', "\n  ")
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_spacemouse_listing_names_models_paths_and_the_udev_fix() {
+        let mut out = String::new();
+        spacemouse_listing(
+            &mut out,
+            &hid::Listing {
+                found: vec![
+                    hid::Found {
+                        vendor_id: 0x256f,
+                        product_id: 0xc635,
+                        model: Some("SpaceMouse Compact"),
+                        path: "/dev/hidraw3".into(),
+                        serial: Some("A1B2".into()),
+                        opens: Ok(()),
+                    },
+                    hid::Found {
+                        vendor_id: 0x256f,
+                        product_id: 0xc6ff,
+                        model: None,
+                        path: "/dev/hidraw4".into(),
+                        serial: None,
+                        opens: Err("Permission denied".into()),
+                    },
+                ],
+                error: None,
+                hidraw_unreadable: false,
+            },
+        );
+        assert!(
+            out.contains("SpaceMouse Compact [256f:c635] at /dev/hidraw3, serial A1B2: opens"),
+            "{out}"
+        );
+        assert!(out.contains("unknown 3Dconnexion product"), "{out}");
+        assert!(out.contains("Permission denied"), "{out}");
+        assert!(out.contains(hid::UDEV_RULE_PATH), "{out}");
+
+        let mut none = String::new();
+        spacemouse_listing(
+            &mut none,
+            &hid::Listing {
+                found: vec![],
+                error: None,
+                hidraw_unreadable: true,
+            },
+        );
+        assert!(
+            none.contains("none found") && none.contains("udevadm"),
+            "{none}"
+        );
+    }
 }

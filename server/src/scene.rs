@@ -32,7 +32,8 @@
 //! radius_m = 0.01
 //!
 //! [device]
-//! kind = "simulated"               # or "openhaptics": a PHANTOM / Touch through OpenHaptics
+//! kind = "simulated"               # or "openhaptics": a PHANTOM / Touch through OpenHaptics,
+//!                                  # or "spacemouse": a 3Dconnexion puck (input only, no force)
 //! model = "phantom_desktop"        # phantom_desktop | touch | omni: the preset of limits (a real
 //!                                  # device's own nominal limits apply where tighter)
 //! press_depth_m = 0.008            # how deep the simulated hand aims
@@ -40,6 +41,20 @@
 //! world_from_device = { position_m = [0.0, 0.0, 0.0], orientation = [0.0, 0.0, 0.0, 1.0], scale = 1.0 }
 //!                                  # openhaptics: where the device's origin and axes are in the
 //!                                  # world, and world metres per metre of stylus motion
+//! serial = "..."                   # spacemouse: the one to open (default: the first found)
+//! report_script = "puck.hid"       # spacemouse: play a recorded report stream instead of a
+//!                                  # device (relative to this file)
+//!
+//! [device.rate]                    # spacemouse: the puck's deflection as the tool's velocity
+//! dead_band = 0.1                  # fraction of full deflection that commands nothing
+//! gain_m_s = 0.05                  # tool speed at full deflection of one axis
+//! max_speed_m_s = 0.05             # speed limit
+//! smoothing_s = 0.04               # time constant of the velocity's smoothing
+//! workspace_half_extent_m = [0.06, 0.06, 0.06]  # the box the tip stays in, around the press site
+//! home_height_m = 0.03             # the start (and reset) point above the press site
+//! rotation = false                 # whether the puck's twist turns the tool (not for a sphere)
+//! angular_gain_rad_s = 1.0         # turn rate at full twist
+//! reset_button = 0                 # the button that puts the tool back home
 //!
 //! [calibration]
 //! table = "half_space"             # or a path to a calibration JSON, relative to this file;
@@ -82,6 +97,7 @@ use softhaptic_device::device::DeviceLimits;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::render::RenderConfig;
+use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
 use softhaptic_proto::record::{MeshRecord, RecordedMeshes, SceneRecord};
@@ -318,6 +334,8 @@ pub enum DeviceKind {
     Simulated,
     /// A PHANTOM / Touch through OpenHaptics' HD library, loaded at run time.
     Openhaptics,
+    /// A 3Dconnexion SpaceMouse through hidapi: rate control, no force rendered.
+    Spacemouse,
 }
 
 impl DeviceKind {
@@ -326,12 +344,14 @@ impl DeviceKind {
         match self {
             DeviceKind::Simulated => "simulated",
             DeviceKind::Openhaptics => "openhaptics",
+            DeviceKind::Spacemouse => "spacemouse",
         }
     }
 }
 
-/// The device a run uses, as `--device` names it: `simulated`, `openhaptics` or
-/// `openhaptics:<configuration name>`; it replaces the scene's `[device] kind` (and `name`).
+/// The device a run uses, as `--device` names it: `simulated`, `openhaptics`,
+/// `openhaptics:<configuration name>`, `spacemouse` or `spacemouse:<serial>`; it replaces the
+/// scene's `[device] kind` (and `name` or `serial`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DeviceChoice {
     pub kind: DeviceKind,
@@ -348,9 +368,10 @@ impl std::str::FromStr for DeviceChoice {
         let kind = match kind.trim() {
             "simulated" => DeviceKind::Simulated,
             "openhaptics" => DeviceKind::Openhaptics,
+            "spacemouse" => DeviceKind::Spacemouse,
             other => {
                 return Err(format!(
-                    "unknown device kind {other:?}: expected simulated, openhaptics or \"openhaptics:<configuration name>\""
+                    "unknown device kind {other:?}: expected simulated, openhaptics, \"openhaptics:<configuration name>\", spacemouse or \"spacemouse:<serial>\""
                 ));
             }
         };
@@ -358,10 +379,15 @@ impl std::str::FromStr for DeviceChoice {
             return Err("the simulated device has no configuration name".into());
         }
         if name.as_deref() == Some("") {
-            return Err(
-                "an empty configuration name: write openhaptics alone for the default device"
-                    .into(),
-            );
+            return Err(format!(
+                "an empty {}: write {} alone for the default device",
+                if kind == DeviceKind::Spacemouse {
+                    "serial"
+                } else {
+                    "configuration name"
+                },
+                kind.name()
+            ));
         }
         Ok(DeviceChoice { kind, name })
     }
@@ -421,6 +447,49 @@ pub struct DeviceSection {
     /// Where an OpenHaptics device sits in the world (identity, one to one, when absent).
     #[serde(default)]
     pub world_from_device: Option<WorldFromDeviceSection>,
+    /// The SpaceMouse to open, by serial number (`None`: the first found).
+    #[serde(default)]
+    pub serial: Option<String>,
+    /// A recorded SpaceMouse report stream to play instead of a device.
+    #[serde(default)]
+    pub report_script: Option<PathBuf>,
+    /// How a SpaceMouse's puck drives the tool.
+    #[serde(default)]
+    pub rate: RateSection,
+}
+
+/// `[device.rate]`: the SpaceMouse's rate control (`softhaptic_device::spacemouse::rate`).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RateSection {
+    pub dead_band: f64,
+    pub gain_m_s: f64,
+    pub max_speed_m_s: f64,
+    pub smoothing_s: f64,
+    /// Half the size of the box the tip stays in, centred on the press site, world axes.
+    pub workspace_half_extent_m: [f64; 3],
+    /// Height of the start (and reset) point above the press site, along its normal.
+    pub home_height_m: f64,
+    pub rotation: bool,
+    pub angular_gain_rad_s: f64,
+    /// Index of the button that resets the tool (0 the first).
+    pub reset_button: u32,
+}
+
+impl Default for RateSection {
+    fn default() -> Self {
+        Self {
+            dead_band: 0.1,
+            gain_m_s: 0.05,
+            max_speed_m_s: 0.05,
+            smoothing_s: 0.04,
+            workspace_half_extent_m: [0.06; 3],
+            home_height_m: 0.03,
+            rotation: false,
+            angular_gain_rad_s: 1.0,
+            reset_button: 0,
+        }
+    }
 }
 
 fn default_press_depth_m() -> f64 {
@@ -435,6 +504,9 @@ impl Default for DeviceSection {
             press_depth_m: default_press_depth_m(),
             name: None,
             world_from_device: None,
+            serial: None,
+            report_script: None,
+            rate: RateSection::default(),
         }
     }
 }
@@ -535,7 +607,8 @@ pub struct Scene {
     /// device's own (`crate::devices::open`), and in a replay check the limits the recording
     /// ran with.
     pub device_limits: DeviceLimits,
-    /// The OpenHaptics device configuration name (`None`: the default device).
+    /// The OpenHaptics device configuration name, or the SpaceMouse's serial (`None`: the
+    /// default device, the first SpaceMouse found).
     pub device_name: Option<String>,
     /// Where a real device sits in the world.
     pub world_from_device: Pose,
@@ -543,6 +616,14 @@ pub struct Scene {
     pub device_scale: f64,
     /// The opened device as viewers are told it (model, serial); `None` before it is opened.
     pub device_label: Option<String>,
+    /// Whether the opened device renders force (false for a SpaceMouse).
+    pub device_renders_force: bool,
+    /// A SpaceMouse's rate control, in the world: the box around the press site, the home
+    /// above it.
+    pub spacemouse_rate: RateConfig,
+    /// The SpaceMouse report stream to play instead of a device, resolved against the scene's
+    /// directory (never read for a recording's check or replay).
+    pub spacemouse_script: Option<PathBuf>,
     /// The object's meshes came from files (and go into the recording, [`Scene::recorded_meshes`]).
     pub meshes_from_files: bool,
     pub press_depth_m: f64,
@@ -896,6 +977,74 @@ impl Scene {
                 ),
             ));
         }
+        if file.device.kind != DeviceKind::Spacemouse {
+            for (name, given) in [
+                ("device.serial", file.device.serial.is_some()),
+                ("device.report_script", file.device.report_script.is_some()),
+            ] {
+                if given {
+                    return Err(field(
+                        name,
+                        "is a SpaceMouse setting: only for kind = \"spacemouse\"".into(),
+                    ));
+                }
+            }
+        }
+        if file.device.serial.as_deref().is_some_and(str::is_empty) {
+            return Err(field(
+                "device.serial",
+                "must be a non-empty serial number; leave it out for the first SpaceMouse found"
+                    .into(),
+            ));
+        }
+        let spacemouse_rate = {
+            let r = file.device.rate;
+            let (point, normal) = press_site_in_object;
+            let normal_in_world = object_in_world.orientation * normal;
+            let site_in_world = object_in_world.transform_point(point);
+            let half = DVec3::from_array(r.workspace_half_extent_m);
+            if !(half.is_finite() && half.cmpgt(DVec3::ZERO).all() && half.cmple(DVec3::ONE).all())
+            {
+                return Err(field(
+                    "device.rate.workspace_half_extent_m",
+                    format!(
+                        "must be three finite values in (0, 1] m, got {:?}",
+                        r.workspace_half_extent_m
+                    ),
+                ));
+            }
+            if !(r.home_height_m.is_finite() && r.home_height_m >= 0.0) {
+                return Err(field(
+                    "device.rate.home_height_m",
+                    format!("must be finite and ≥ 0 m, got {}", r.home_height_m),
+                ));
+            }
+            if r.reset_button >= 32 {
+                return Err(field(
+                    "device.rate.reset_button",
+                    format!("must be a button index in 0..32, got {}", r.reset_button),
+                ));
+            }
+            let home = Pose {
+                position_m: site_in_world + normal_in_world * r.home_height_m,
+                orientation: DQuat::from_rotation_arc(DVec3::Y, normal_in_world),
+            };
+            let config = RateConfig {
+                dead_band: r.dead_band,
+                gain_m_s: r.gain_m_s,
+                max_speed_m_s: r.max_speed_m_s,
+                smoothing_s: r.smoothing_s,
+                rotation: r.rotation,
+                angular_gain_rad_s: r.angular_gain_rad_s,
+                reset_buttons: 1 << r.reset_button,
+                ..RateConfig::new(home, site_in_world - half, site_in_world + half)
+            };
+            if let Some(problem) = config.problem() {
+                return Err(field("device.rate", problem));
+            }
+            config
+        };
+        let spacemouse_script = file.device.report_script.as_deref().map(resolve);
         let mut render = RenderConfig::for_tool(&tool);
         if let Some(d) = file.haptics.damping_n_s_per_m {
             if !(d.is_finite() && d >= 0.0) {
@@ -1018,13 +1167,16 @@ impl Scene {
             tool,
             device_kind: file.device.kind,
             device_limits: file.device.model.limits(),
-            device_name: file.device.name.clone(),
+            device_name: file.device.name.clone().or(file.device.serial.clone()),
             world_from_device: Pose {
                 position_m: device_position_m,
                 orientation: device_orientation,
             },
             device_scale: placement.scale,
             device_label: None,
+            device_renders_force: true,
+            spacemouse_rate,
+            spacemouse_script,
             meshes_from_files: object.haptic_mesh.is_some(),
             press_depth_m,
             press_site_in_object,

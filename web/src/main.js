@@ -22,7 +22,8 @@ import { PlayoutBuffer, RenderedContact } from './interpolation.js';
 import { parseRenderMesh } from './mesh.js';
 import {
   CONTACT_FLAGS,
-  DEVICE_STATUS_MESSAGES,
+  deviceStatusMessage,
+  forceFeedbackOf,
   ViewerConnection,
   accessOf,
   contactModelOf,
@@ -68,6 +69,8 @@ const state = {
   paused: false,
   /** What the last `hello` granted: `instructor` or `observer`, and `live` or `replay`. */
   role: null,
+  /** Whether the trainee feels the force (`hello.force_feedback`); true until a `hello` says. */
+  forceFeedback: true,
   mode: null,
 };
 const buffer = new PlayoutBuffer({ delayMs: PLAYOUT_DELAY_MS });
@@ -131,6 +134,7 @@ function init() {
     'm-inclination',
     'm-source',
     'mode',
+    'feedback',
     'role',
     'token-prompt',
     'token-prompt-detail',
@@ -385,6 +389,15 @@ function showRole(role) {
         : '';
 }
 
+/** Whether the trainee feels the force: an input-only device (a SpaceMouse) renders none. */
+function showForceFeedback(felt) {
+  state.forceFeedback = felt;
+  setBadge(dom.feedback, felt ? 'felt' : 'not felt', felt ? '' : 'warn');
+  dom.feedback.title = felt
+    ? 'the haptic device renders the force to the trainee'
+    : 'input-only device (SpaceMouse): the force is computed, shown and recorded, but the trainee does not feel it';
+}
+
 async function loadSceneOverHttp() {
   try {
     const response = await fetchFromServer('/api/scene');
@@ -572,6 +585,7 @@ function onMessage(message, receivedAtMs) {
         const access = accessOf(message);
         state.mode = access.mode;
         showRole(access.role);
+        showForceFeedback(forceFeedbackOf(message));
         timeline.setControllable(access.role === 'instructor');
         if (access.mode === 'replay') {
           timeline.show();
@@ -799,7 +813,7 @@ function updatePanels() {
     setText(dom['s-overruns'], `${s.overruns} / ${s.standby_ticks}`);
     setText(dom['s-viewers'], `${s.viewers} / ${s.dropped_frames}`);
     const device = s.device ?? 'ok';
-    setText(dom['s-device'], DEVICE_STATUS_MESSAGES[device]);
+    setText(dom['s-device'], deviceStatusMessage(device, state.forceFeedback));
     const deviceClass = device === 'ok' ? '' : 'severe';
     if (dom['s-device'].className !== deviceClass) dom['s-device'].className = deviceClass;
   }
@@ -832,6 +846,8 @@ function exposeTestHook() {
       const status = state.lastStats ? (state.lastStats.device ?? 'ok') : null;
       return { status, shown: dom['s-device'].textContent };
     },
+    /** Whether `hello` said the force is felt, and the words the page shows for it. */
+    forceFeedback: () => ({ felt: state.forceFeedback, shown: dom.feedback.textContent }),
     sceneLoads: () => state.sceneLoads,
     connection: () => ({
       state: connection.state,

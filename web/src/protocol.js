@@ -41,6 +41,16 @@ export const DEVICE_STATUS_MESSAGES = Object.freeze({
   driver_error: 'device driver error',
 });
 
+/**
+ * What the viewer shows for a device state when the device is input only (a SpaceMouse,
+ * `hello.force_feedback` false): it has no motors, so only its connection can fail.
+ */
+export function deviceStatusMessage(status, forceFeedback) {
+  if (!forceFeedback && status === 'disconnected') return 'input device disconnected';
+  if (!forceFeedback && status === 'ok') return 'input device ok';
+  return DEVICE_STATUS_MESSAGES[status];
+}
+
 /** A message that breaks the contract; `field` is its dotted path. */
 export class ProtocolError extends Error {
   constructor(field, message) {
@@ -150,6 +160,7 @@ function validateHello(m) {
   string(m.session_id, 'hello.session_id');
   string(m.server, 'hello.server');
   string(m.role, 'hello.role');
+  if (m.force_feedback !== undefined) boolean(m.force_feedback, 'hello.force_feedback');
   if (m.mode === undefined) {
     if (!ROLES.includes(m.role) && !Object.hasOwn(LEGACY_ROLES, m.role)) {
       throw new ProtocolError('hello.role', `unknown role ${show(m.role)} (known: ${ROLES.join(', ')})`);
@@ -170,6 +181,14 @@ function validateHello(m) {
  * `mode` one of `MODES`. A `hello` without `mode` (servers before roles) is read through its
  * old role: `viewer` watches a live session, `replay` controls a replay.
  */
+/**
+ * Whether the trainee feels the force (`hello.force_feedback`): false for an input-only device,
+ * whose force is computed and shown but not rendered. Servers before the field: true.
+ */
+export function forceFeedbackOf(hello) {
+  return hello.force_feedback ?? true;
+}
+
 export function accessOf(hello) {
   if (hello.mode === undefined && Object.hasOwn(LEGACY_ROLES, hello.role)) return { ...LEGACY_ROLES[hello.role] };
   return { role: hello.role, mode: hello.mode ?? 'live' };
@@ -252,6 +271,7 @@ function validateScene(m) {
   }
   const device = object(m.device, 'scene.device');
   string(device.name, 'scene.device.name');
+  if (device.force_feedback !== undefined) boolean(device.force_feedback, 'scene.device.force_feedback');
   positive(device.peak_force_n, 'scene.device.peak_force_n');
   positive(device.continuous_force_n, 'scene.device.continuous_force_n');
   positive(device.max_stiffness_n_per_m, 'scene.device.max_stiffness_n_per_m');

@@ -15,6 +15,8 @@ import {
   backoffDelayMs,
   contactModelOf,
   decodeMessage,
+  deviceStatusMessage,
+  forceFeedbackOf,
   encodeAuth,
   encodeReplayControl,
   webSocketUrl,
@@ -606,4 +608,26 @@ test('a 1008 (too many messages) is shown and retried with backoff', (t) => {
   assert.match(conn.lastError, /too many messages \(code 1008: message rate limit\)/);
   assert.equal(waitForRetry(t), 250);
   conn.stop();
+});
+
+test('an input-only device says the force is not felt and names its unplug as the input device', () => {
+  const spacemouse = decodeMessage(JSON.stringify({ ...hello, force_feedback: false })).message;
+  assert.equal(forceFeedbackOf(spacemouse), false);
+  assert.equal(forceFeedbackOf(decodeMessage(JSON.stringify({ ...hello, force_feedback: true })).message), true);
+  // A server before the field drove force-rendering devices only.
+  const older = { ...hello };
+  delete older.force_feedback;
+  assert.equal(forceFeedbackOf(decodeMessage(JSON.stringify(older)).message), true);
+  assert.throws(
+    () => decodeMessage(JSON.stringify({ ...hello, force_feedback: 'no' })),
+    (e) => e instanceof ProtocolError && e.field === 'hello.force_feedback',
+  );
+  assert.throws(
+    () => decodeMessage(JSON.stringify({ ...scene, device: { ...scene.device, force_feedback: 0 } })),
+    (e) => e instanceof ProtocolError && e.field === 'scene.device.force_feedback',
+  );
+  assert.equal(deviceStatusMessage('disconnected', false), 'input device disconnected');
+  assert.equal(deviceStatusMessage('disconnected', true), 'device disconnected');
+  assert.equal(deviceStatusMessage('ok', false), 'input device ok');
+  assert.equal(deviceStatusMessage('not_answering', false), DEVICE_STATUS_MESSAGES.not_answering);
 });

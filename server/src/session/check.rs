@@ -149,6 +149,7 @@ pub fn recorded_scene(recording: &Recording) -> Result<Scene, CheckError> {
     scene.device_limits.damping_n_s_per_m = d.damping_n_s_per_m;
     scene.device_limits.workspace_radius_m = d.workspace_radius_m;
     scene.device_label = Some(d.name.clone());
+    scene.device_renders_force = d.force_feedback;
     Ok(scene)
 }
 

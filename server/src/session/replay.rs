@@ -160,6 +160,8 @@ pub async fn start(
         role: Role::Instructor,
         mode: Mode::Replay,
         server: SERVER_NAME.into(),
+        // As the recorded session's device was: a SpaceMouse session renders no force.
+        force_feedback: message.device.force_feedback,
     };
 
     let listener = tokio::net::TcpListener::bind(options.addr)

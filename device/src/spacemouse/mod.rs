@@ -1,0 +1,344 @@
+//! A 3Dconnexion SpaceMouse as the tool's input: a 6-DoF puck that renders no force.
+//!
+//! ```text
+//!  HID reports (~60 Hz)          reader thread                     1 kHz loop thread
+//!  ──────────────────► Transport ──► Parser ─► PuckState ─► SeqCell ─try_read─► RateControl ─► DeviceSample
+//!                      (hidraw,         (report.rs)          (wait-free      (rate.rs: dead band, gain,
+//!                       or a script)                          for the loop)   filter, box, reset)
+//! ```
+//!
+//! - [`report`]: the products, the two report layouts, normalisation per model.
+//! - [`rate`]: the deflection as a velocity, integrated and smoothed on the 1 kHz side.
+//! - [`hid`]: the hidapi transport (Linux hidraw) and the `softhaptic devices` listing.
+//! - [`script`]: a recorded report stream played back in real time (the tests' transport, and a
+//!   way to rehearse a scene with no device).
+//!
+//! The reader thread owns the transport: it blocks in the transport's read (with a timeout, so
+//! it notices a stop), parses each report and publishes the puck's state through a seqlock the
+//! loop only ever *tries* to read ([`SeqCell::try_read`]): the loop never waits for HID. A
+//! transport error is an unplug: the reader publishes "disconnected" and asks its connector for
+//! the device again every [`RECONNECT_INTERVAL`], so a replug is picked up without a restart.
+//! While disconnected, [`HapticDevice::read`] returns [`DeviceError::Disconnected`]: the loop
+//! gives zero force, flags the tick and holds the last pose, so the tool holds still.
+//!
+//! The force is computed, streamed and recorded as for any device;
+//! [`HapticDevice::renders_force`] is false, and [`HapticDevice::command_force`] accepts it
+//! without sending it anywhere.
+
+pub mod hid;
+pub mod rate;
+pub mod report;
+pub mod script;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use glam::DVec3;
+
+use crate::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
+use crate::haptic_loop::SeqCell;
+use crate::rt;
+use rate::{RateConfig, RateControl};
+use report::{Axes, Model, Parser, PuckState};
+
+/// How often the reader asks for an unplugged device again.
+pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
+/// How long one transport read may block before the reader checks for a stop.
+const READ_TIMEOUT_MS: i32 = 50;
+/// Reports older than this are taken to have stopped (a device sends ~60 a second while its puck
+/// is off centre): the target velocity is then zero and the tool comes to rest.
+pub const REPORTS_STALE_AFTER_NS: u64 = 250_000_000;
+/// The longest step the integration takes: a loop that lost ticks does not teleport the tool.
+const MAX_STEP_S: f64 = 0.02;
+
+/// Why the transport could not go on.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TransportError {
+    /// No listed SpaceMouse is plugged in (or it went away).
+    #[error("no SpaceMouse found: {0}")]
+    NotFound(String),
+    /// A SpaceMouse is there but could not be opened (permissions: see the udev rule).
+    #[error("{0}")]
+    Open(String),
+    /// The device stopped answering (unplugged).
+    #[error("SpaceMouse disconnected: {0}")]
+    Disconnected(String),
+}
+
+/// A source of HID reports from one device.
+pub trait Transport: Send {
+    /// Reads one report (the report id first) into `buf`, waiting at most `timeout_ms`;
+    /// `Ok(0)` when none came in time. An error means the device is gone.
+    fn read(&mut self, buf: &mut [u8], timeout_ms: i32) -> Result<usize, TransportError>;
+}
+
+/// Finds and opens the device, at the start and after every unplug.
+pub trait Connector: Send {
+    /// The opened device's transport and model.
+    fn connect(&mut self) -> Result<(Box<dyn Transport>, &'static Model), TransportError>;
+}
+
+/// Why the SpaceMouse backend could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum SpaceMouseError {
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    #[error("the SpaceMouse settings in the scene: {0}")]
+    Config(String),
+    #[error("could not start the SpaceMouse reader thread: {0}")]
+    Spawn(#[source] std::io::Error),
+}
+
+/// Words of the puck state shared with the loop: report count, connected, report time,
+/// translation (3), rotation (3), buttons.
+const PUCK_WORDS: usize = 10;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Shared {
+    /// Reports parsed since the start (a change tells the loop a new report came).
+    reports: u64,
+    connected: bool,
+    /// CLOCK_MONOTONIC of the last report.
+    report_ns: u64,
+    puck: PuckState,
+}
+
+impl Shared {
+    fn to_words(self) -> [u64; PUCK_WORDS] {
+        let t = self.puck.axes.translation;
+        let r = self.puck.axes.rotation;
+        [
+            self.reports,
+            u64::from(self.connected),
+            self.report_ns,
+            t[0].to_bits(),
+            t[1].to_bits(),
+            t[2].to_bits(),
+            r[0].to_bits(),
+            r[1].to_bits(),
+            r[2].to_bits(),
+            u64::from(self.puck.buttons),
+        ]
+    }
+
+    fn from_words(w: [u64; PUCK_WORDS]) -> Self {
+        Shared {
+            reports: w[0],
+            connected: w[1] != 0,
+            report_ns: w[2],
+            puck: PuckState {
+                axes: Axes {
+                    translation: [w[3], w[4], w[5]].map(f64::from_bits),
+                    rotation: [w[6], w[7], w[8]].map(f64::from_bits),
+                },
+                buttons: w[9] as u32,
+            },
+        }
+    }
+}
+
+/// The SpaceMouse as a [`HapticDevice`].
+pub struct SpaceMouseDevice {
+    rate: RateControl,
+    shared: Arc<SeqCell<PUCK_WORDS>>,
+    latest: Shared,
+    opened_ns: u64,
+    last_read_ns: Option<u64>,
+    limits: DeviceLimits,
+    model: &'static Model,
+    stop: Arc<AtomicBool>,
+    reader: Option<JoinHandle<()>>,
+}
+
+impl SpaceMouseDevice {
+    /// Opens the device through `connector` (an error when none answers: the start fails with
+    /// the reason) and starts the reader thread. `limits` are the scene's preset: the loop's
+    /// safety layer still bounds the force it computes, though none is rendered.
+    pub fn open(
+        mut connector: Box<dyn Connector>,
+        config: RateConfig,
+        limits: DeviceLimits,
+    ) -> Result<Self, SpaceMouseError> {
+        if let Some(problem) = config.problem() {
+            return Err(SpaceMouseError::Config(problem));
+        }
+        let (transport, model) = connector.connect()?;
+        let opened_ns = rt::now_ns();
+        let first = Shared {
+            reports: 0,
+            connected: true,
+            report_ns: opened_ns,
+            puck: PuckState::default(),
+        };
+        let shared = Arc::new(SeqCell::new(first.to_words()));
+        let stop = Arc::new(AtomicBool::new(false));
+        let reader = {
+            let shared = Arc::clone(&shared);
+            let stop = Arc::clone(&stop);
+            std::thread::Builder::new()
+                .name("softhaptic-spacemouse".into())
+                .spawn(move || {
+                    Reader {
+                        connector,
+                        shared,
+                        stop,
+                        state: first,
+                    }
+                    .run(transport, model)
+                })
+                .map_err(SpaceMouseError::Spawn)?
+        };
+        Ok(Self {
+            rate: RateControl::new(config),
+            shared,
+            latest: first,
+            opened_ns,
+            last_read_ns: None,
+            limits,
+            model,
+            stop,
+            reader: Some(reader),
+        })
+    }
+
+    /// The model that was opened.
+    pub fn model(&self) -> &'static Model {
+        self.model
+    }
+
+    /// The rate control's settings.
+    pub fn rate_config(&self) -> &RateConfig {
+        self.rate.config()
+    }
+}
+
+impl HapticDevice for SpaceMouseDevice {
+    fn limits(&self) -> DeviceLimits {
+        self.limits
+    }
+
+    fn read(&mut self) -> Result<DeviceSample, DeviceError> {
+        let now = rt::now_ns();
+        // Mid-write by the reader: this tick keeps the previous copy rather than wait.
+        if let Some(words) = self.shared.try_read() {
+            self.latest = Shared::from_words(words);
+        }
+        let dt_s = self
+            .last_read_ns
+            .map_or(0.0, |t| now.saturating_sub(t) as f64 * 1e-9)
+            .min(MAX_STEP_S);
+        self.last_read_ns = Some(now);
+        if !self.latest.connected {
+            self.rate.hold();
+            return Err(DeviceError::Disconnected);
+        }
+        let live = now.saturating_sub(self.latest.report_ns) <= REPORTS_STALE_AFTER_NS;
+        let puck = self.latest.puck;
+        self.rate.step(dt_s, &puck.axes, puck.buttons, live);
+        Ok(DeviceSample {
+            time_ns: now.saturating_sub(self.opened_ns),
+            tip_in_world: self.rate.pose(),
+            tip_velocity_m_s: self.rate.velocity_m_s(),
+            buttons: puck.buttons,
+        })
+    }
+
+    fn command_force(&mut self, _force_n: DVec3) -> Result<(), DeviceError> {
+        // No motors: the force is the loop's to show and record.
+        Ok(())
+    }
+
+    fn renders_force(&self) -> bool {
+        false
+    }
+}
+
+impl Drop for SpaceMouseDevice {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(reader) = self.reader.take() {
+            // The reader notices the stop within one read timeout or reconnect interval.
+            let _ = reader.join();
+        }
+    }
+}
+
+/// The reader thread: reports in, puck state out.
+struct Reader {
+    connector: Box<dyn Connector>,
+    shared: Arc<SeqCell<PUCK_WORDS>>,
+    stop: Arc<AtomicBool>,
+    state: Shared,
+}
+
+impl Reader {
+    fn run(mut self, transport: Box<dyn Transport>, model: &'static Model) {
+        let mut current = Some((transport, model));
+        while !self.stop.load(Ordering::Relaxed) {
+            match current.take() {
+                Some((transport, model)) => {
+                    if let Err(e) = self.read_until_gone(transport, model) {
+                        tracing::warn!("{e}; the tool holds still until it is plugged in again");
+                        self.publish_connected(false);
+                    }
+                }
+                None => {
+                    self.sleep(RECONNECT_INTERVAL);
+                    if self.stop.load(Ordering::Relaxed) {
+                        break;
+                    }
+                    if let Ok((transport, model)) = self.connector.connect() {
+                        tracing::info!("{} connected again", model.name);
+                        current = Some((transport, model));
+                    }
+                }
+            }
+        }
+    }
+
+    /// Reads reports until the transport fails (`Err`) or a stop is asked for (`Ok`).
+    fn read_until_gone(
+        &mut self,
+        mut transport: Box<dyn Transport>,
+        model: &'static Model,
+    ) -> Result<(), TransportError> {
+        let parser = Parser::new(model);
+        // A puck released while unplugged must not keep its old deflection.
+        self.state.puck = PuckState::default();
+        self.publish_connected(true);
+        let mut buf = [0u8; 64];
+        while !self.stop.load(Ordering::Relaxed) {
+            let n = transport.read(&mut buf, READ_TIMEOUT_MS)?;
+            if n == 0 {
+                continue;
+            }
+            match parser.parse(&buf[..n.min(buf.len())]) {
+                Ok(update) => {
+                    self.state.puck.apply(update);
+                    self.state.reports += 1;
+                    self.state.report_ns = rt::now_ns();
+                    self.shared.write(&self.state.to_words());
+                }
+                Err(e) => tracing::debug!("{} sent a report the parser refused: {e}", model.name),
+            }
+        }
+        Ok(())
+    }
+
+    fn publish_connected(&mut self, connected: bool) {
+        self.state.connected = connected;
+        self.state.report_ns = rt::now_ns();
+        self.shared.write(&self.state.to_words());
+    }
+
+    fn sleep(&self, total: Duration) {
+        let step = Duration::from_millis(20);
+        let mut slept = Duration::ZERO;
+        while slept < total && !self.stop.load(Ordering::Relaxed) {
+            std::thread::sleep(step);
+            slept += step;
+        }
+    }
+}

@@ -1,0 +1,338 @@
+//! The SpaceMouse backend end to end through a scripted transport: a recorded report stream with
+//! realistic timing (a report every 16 ms while the puck moves, silence at rest, an unplug and a
+//! replug, a button press) drives the tool into the liver through the whole server. The viewer
+//! is told that the force is not felt and sees contact, force and R_d as with any device; the
+//! tool path is smooth, stays in the scene's box, holds still while unplugged, and the recorded
+//! session replays bit for bit.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::time::{Duration, Instant};
+
+use glam::DVec3;
+use softhaptic_device::device::HapticDevice;
+use softhaptic_device::spacemouse::SpaceMouseDevice;
+use softhaptic_device::spacemouse::rate::RateControl;
+use softhaptic_device::spacemouse::report::{MODELS, find_model};
+use softhaptic_device::spacemouse::script::{ReportScript, axis_report};
+use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
+use softhaptic_proto::wire::{DeviceStatus, ServerMessage};
+use softhaptic_server::app;
+use softhaptic_server::devices;
+use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
+use softhaptic_server::session::check::{CheckOverrides, check};
+use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
+use softhaptic_server::session::reader::Recording;
+use softhaptic_tests::{Viewer, scratch_dir, test_options};
+
+/// A report every 16 ms, as a wired SpaceMouse sends them while its puck is off centre.
+const REPORT_EVERY_S: f64 = 0.016;
+/// Raw value of a full deflection (the SpaceNavigator's full scale).
+const FULL: i16 = 350;
+
+/// The built-in liver driven by a SpaceMouse; the box's floor 5 mm under the press site, so a
+/// push held as long as it likes ends pressing 5 mm deep.
+fn liver_scene() -> Scene {
+    let mut scene = Scene::builtin_default().unwrap();
+    scene.choose_device(&DeviceChoice {
+        kind: DeviceKind::Spacemouse,
+        name: None,
+    });
+    let (point, _) = scene.press_site_in_object;
+    let site = scene.object_in_world.transform_point(point);
+    scene.spacemouse_rate.workspace_min_m.y = site.y - 0.005;
+    scene
+}
+
+/// The session's puck: at rest, a push down held against the box's floor, a release, silence,
+/// an unplug and a replug, a pull up, and the reset button.
+fn puck_script() -> ReportScript {
+    let navigator = find_model(0x046d, 0xc626).unwrap();
+    let mut s = ReportScript::new(navigator).report(0.0, &axis_report(1, [0; 3]));
+    // Pushing the puck down is +z in the HID.
+    s = s.hold_translation(0.2, 2.4, REPORT_EVERY_S, [0, 0, FULL]);
+    // Silence at rest, then the cable is pulled and plugged back in.
+    // Unplugged for two seconds: longer than the 1 s between two `stats`.
+    s = s.unplug(2.9).replug(4.9);
+    s = s.hold_translation(5.2, 5.8, REPORT_EVERY_S, [0, 0, -FULL]);
+    s.report(6.1, &[3, 1]).report(6.4, &[3, 0])
+}
+
+async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !condition() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scripted_spacemouse_presses_the_liver_through_the_whole_server() {
+    let mut scene = liver_scene();
+    let rate = scene.spacemouse_rate;
+    let (connector, clock) = puck_script().connector_started_later();
+    let device = SpaceMouseDevice::open(Box::new(connector), rate, scene.device_limits).unwrap();
+    assert!(!device.renders_force());
+    scene.device_label = Some(format!("{} (SpaceMouse)", device.model().name));
+    scene.device_renders_force = device.renders_force();
+
+    let args = RecordArgs {
+        no_record: false,
+        record_dir: scratch_dir("spacemouse-press"),
+    };
+    let mut recording = LiveRecording::start(&args, &scene, None).unwrap().unwrap();
+    let mut options = test_options();
+    options.device = Some(Box::new(device));
+    options.tick_sink = recording.take_tick_sink();
+    options.session_id = Some(recording.session_id().to_owned());
+    let server = app::start(scene, options).await.unwrap();
+    recording.attach(&server);
+    assert!(!server.scene_message().device.force_feedback);
+
+    let mut viewer = Viewer::connect(server.local_addr()).await;
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => assert!(!h.force_feedback, "{h:?}"),
+        other => panic!("expected hello, got {other:?}"),
+    }
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Scene(s) => {
+            assert!(!s.device.force_feedback);
+            assert!(
+                s.device.name.contains("SpaceNavigator"),
+                "{}",
+                s.device.name
+            );
+        }
+        other => panic!("expected scene, got {other:?}"),
+    }
+    // The stream starts with the loop running.
+    clock.start();
+    let started = Instant::now();
+
+    // Contact, force and R_d on the wire, then the unplug and the replug in `stats`.
+    let (mut pressed, mut unplugged, mut back) = (None, false, false);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !(pressed.is_some() && unplugged && back) {
+        assert!(
+            Instant::now() < deadline,
+            "pressed {pressed:?}, unplugged {unplugged}, back {back}"
+        );
+        match viewer.next(Duration::from_secs(5)).await {
+            Some(Ok(ServerMessage::Contact(c))) if c.in_contact && c.depth_m > 0.003 => {
+                assert!(c.force_n.length() > 0.1, "{c:?}");
+                assert!(c.deformed_radius_m > c.depth_m, "{c:?}");
+                pressed.get_or_insert(c.depth_m);
+            }
+            Some(Ok(ServerMessage::Stats(s))) => {
+                if s.device == DeviceStatus::Disconnected {
+                    unplugged = true;
+                } else if unplugged && s.device == DeviceStatus::Ok {
+                    back = true;
+                }
+            }
+            _ => {}
+        }
+    }
+    // Until the reset button's press has been read.
+    wait_until("the script's end", || {
+        started.elapsed() > Duration::from_secs(7)
+    })
+    .await;
+    server.shutdown().await;
+    let (path, _) = recording.finish().unwrap();
+    let recorded = Recording::open(&path).unwrap();
+    assert!(!recorded.scene.message.device.force_feedback);
+
+    let report = check(&recorded, CheckOverrides::default()).unwrap();
+    assert!(report.passed(), "{report}");
+    assert_eq!(report.ticks_compared, recorded.device.len() as u64);
+
+    assert_path(&recorded.device, &RateControl::new(rate));
+}
+
+fn position(d: &DeviceRecord) -> Option<DVec3> {
+    d.sample.map(|s| DVec3::from_array(s.tip_position_m))
+}
+
+/// The recorded path: in the box, no velocity step beyond what the smoothing allows, still while
+/// unplugged, and home after the reset button.
+fn assert_path(device: &[DeviceRecord], rate: &RateControl) {
+    let c = rate.config();
+    let at_face = |p: DVec3| p.cmpeq(c.workspace_min_m).any() || p.cmpeq(c.workspace_max_m).any();
+    let mut steps_checked = 0;
+    for pair in device.windows(2) {
+        let (Some(a), Some(b)) = (pair[0].sample, pair[1].sample) else {
+            continue;
+        };
+        let p = DVec3::from_array(b.tip_position_m);
+        assert!(
+            p.cmpge(c.workspace_min_m - 1e-12).all() && p.cmple(c.workspace_max_m + 1e-12).all(),
+            "tick {} leaves the box: {p}",
+            pair[1].tick
+        );
+        let home = p == c.home_in_world.position_m;
+        if at_face(p) || at_face(DVec3::from_array(a.tip_position_m)) || home {
+            continue;
+        }
+        let dt_s = (b.time_ns - a.time_ns) as f64 * 1e-9;
+        let step = (DVec3::from_array(b.tip_velocity_m_s) - DVec3::from_array(a.tip_velocity_m_s))
+            .length();
+        assert!(
+            step <= rate.max_velocity_step_m_s(dt_s.min(0.02)) + 1e-12,
+            "tick {}: velocity step {step} m/s in {dt_s} s",
+            pair[1].tick
+        );
+        steps_checked += 1;
+    }
+    assert!(steps_checked > 1000, "{steps_checked}");
+
+    // The unplug: a run of faulted ticks with zero force, and the tool where it was.
+    let first = device
+        .iter()
+        .position(|d| d.device_error == Some(DeviceErrorRecord::Disconnected))
+        .expect("the unplug is recorded");
+    let last = first
+        + device[first..]
+            .iter()
+            .position(|d| d.device_error != Some(DeviceErrorRecord::Disconnected))
+            .expect("the replug is recorded");
+    assert!(last - first > 100, "{first}..{last}");
+    for d in &device[first..last] {
+        assert!(d.device_fault && d.force_n == [0.0; 3], "{d:?}");
+    }
+    let before = position(&device[first - 1]).unwrap();
+    let after = position(&device[last]).unwrap();
+    assert!(
+        (after - before).length() < 1e-4,
+        "the tool moved {} m across the unplug",
+        (after - before).length()
+    );
+
+    // The pull up after the replug moved it, and the button brought it home.
+    assert!(
+        device[last..]
+            .iter()
+            .filter_map(position)
+            .any(|p| p.y > before.y + 0.01)
+    );
+    assert_eq!(
+        position(device.last().unwrap()).unwrap(),
+        c.home_in_world.position_m
+    );
+}
+
+#[test]
+fn the_scene_opens_a_spacemouse_from_its_report_script_and_names_a_missing_one() {
+    let dir = scratch_dir("spacemouse-scene");
+    let script = dir.join("puck.hid");
+    std::fs::write(
+        &script,
+        "model 256f:c635\n0 01 00 00 00 00 00 00 00 00 00 00 00 00\n",
+    )
+    .unwrap();
+    let mut scene = liver_scene();
+    scene.spacemouse_script = Some(script.clone());
+    let device = devices::open(&mut scene).unwrap();
+    assert!(!device.renders_force());
+    assert!(!scene.device_renders_force);
+    let label = scene.device_label.clone().unwrap();
+    assert!(
+        label.contains("SpaceMouse Compact") && label.contains("renders no force"),
+        "{label}"
+    );
+    drop(device);
+
+    let mut scene = liver_scene();
+    scene.spacemouse_script = Some(dir.join("missing.hid"));
+    let e = devices::open(&mut scene).err().unwrap().to_string();
+    assert!(e.contains("missing.hid"), "{e}");
+
+    std::fs::write(&script, "0 01 00\n5 zz\n").unwrap();
+    let mut scene = liver_scene();
+    scene.spacemouse_script = Some(script);
+    let e = devices::open(&mut scene).err().unwrap().to_string();
+    assert!(e.contains("puck.hid") && e.contains("line 2"), "{e}");
+    assert!(MODELS.len() > 10);
+}
+
+/// The default scene's text with `device` as its `[device]` section.
+fn scene_with_device(device: &str) -> String {
+    let text =
+        std::fs::read_to_string(softhaptic_tests::repo_scenes().join("default.toml")).unwrap();
+    let start = text
+        .find("[device]")
+        .expect("the default scene has a [device] section");
+    let end = text[start + 1..]
+        .find("\n[")
+        .map_or(text.len(), |i| start + 2 + i);
+    // The table by its absolute path: the scene is written outside `scenes/`.
+    let table = softhaptic_tests::repo_scenes().join("calibration/sphere10_50kpa.json");
+    format!("{}{device}\n{}", &text[..start], &text[end..]).replace(
+        "\"calibration/sphere10_50kpa.json\"",
+        &format!("{:?}", table.display().to_string()),
+    )
+}
+
+#[test]
+fn a_scene_file_sets_the_rate_control_and_refuses_bad_values_by_field() {
+    let dir = scratch_dir("spacemouse-rate");
+    let text = scene_with_device(
+        "[device]\nkind = \"spacemouse\"\nserial = \"A1\"\nreport_script = \"puck.hid\"\n\n\
+         [device.rate]\ndead_band = 0.2\ngain_m_s = 0.02\nhome_height_m = 0.05\nreset_button = 2\n",
+    );
+    let scene = softhaptic_tests::load_scene_text(&dir, &text).unwrap();
+    assert_eq!(scene.device_kind, DeviceKind::Spacemouse);
+    assert_eq!(scene.device_name.as_deref(), Some("A1"));
+    assert_eq!(scene.spacemouse_script, Some(dir.join("puck.hid")));
+    let r = scene.spacemouse_rate;
+    assert_eq!((r.dead_band, r.gain_m_s, r.reset_buttons), (0.2, 0.02, 4));
+    let (point, normal) = scene.press_site_in_object;
+    let home = scene.object_in_world.transform_point(point)
+        + scene.object_in_world.orientation * normal * 0.05;
+    assert!(r.home_in_world.position_m.abs_diff_eq(home, 1e-12));
+
+    for (device, expected) in [
+        (
+            "[device]\nkind = \"spacemouse\"\n[device.rate]\ndead_band = 1.5\n",
+            &["device.rate", "dead_band", "1.5"][..],
+        ),
+        (
+            "[device]\nkind = \"spacemouse\"\n[device.rate]\nworkspace_half_extent_m = [0.1, 0.0, 0.1]\n",
+            &["device.rate.workspace_half_extent_m"],
+        ),
+        (
+            "[device]\nkind = \"spacemouse\"\n[device.rate]\nhome_height_m = 2.0\n",
+            &["device.rate", "home"],
+        ),
+        (
+            "[device]\nkind = \"spacemouse\"\n[device.rate]\nreset_button = 40\n",
+            &["device.rate.reset_button", "40"],
+        ),
+        (
+            "[device]\nkind = \"spacemouse\"\n[device.rate]\nspeed = 1\n",
+            &["unknown field", "speed"],
+        ),
+        (
+            "[device]\nkind = \"simulated\"\nreport_script = \"x.hid\"\n",
+            &["device.report_script", "spacemouse"],
+        ),
+        (
+            "[device]\nkind = \"spacemouse\"\nserial = \"\"\n",
+            &["device.serial"],
+        ),
+    ] {
+        softhaptic_tests::assert_scene_refused(&dir, &scene_with_device(device), expected);
+    }
+}
+
+#[test]
+fn device_choice_names_a_spacemouse_and_its_serial() {
+    let c: DeviceChoice = "spacemouse".parse().unwrap();
+    assert_eq!((c.kind, c.name), (DeviceKind::Spacemouse, None));
+    let c: DeviceChoice = "spacemouse:1234ABCD".parse().unwrap();
+    assert_eq!(c.name.as_deref(), Some("1234ABCD"));
+    let e = "spacemouse:".parse::<DeviceChoice>().unwrap_err();
+    assert!(e.contains("empty serial"), "{e}");
+    let e = "joystick".parse::<DeviceChoice>().unwrap_err();
+    assert!(e.contains("spacemouse"), "{e}");
+}
