@@ -184,3 +184,35 @@ pub fn hidraw_unreadable(dir: &Path) -> bool {
         .collect();
     !nodes.is_empty() && nodes.iter().all(|e| std::fs::File::open(e.path()).is_err())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hidraw_is_unreadable_only_when_nodes_exist_and_none_opens() {
+        let dir = std::env::temp_dir().join(format!("softhaptic-hidraw-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("scratch directory");
+        assert!(!hidraw_unreadable(&dir), "no nodes at all");
+        // A node that cannot be opened (whoever runs the test, root included).
+        std::os::unix::fs::symlink(dir.join("gone"), dir.join("hidraw0")).expect("symlink");
+        std::fs::write(dir.join("other"), b"").expect("file");
+        assert!(hidraw_unreadable(&dir));
+        std::fs::write(dir.join("hidraw1"), b"").expect("file");
+        assert!(!hidraw_unreadable(&dir), "one node opens");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn the_udev_rule_covers_both_vendor_ids() {
+        assert!(UDEV_RULE.contains("\"256f\"") && UDEV_RULE.contains("\"046d\""));
+        assert!(udev_hint().contains(UDEV_RULE_PATH) && udev_hint().contains("udevadm"));
+        // Every listed Logitech-era product matches the rule's product pattern c6[0-5]?.
+        for m in super::super::report::MODELS {
+            if m.vendor_id == super::super::report::VENDOR_LOGITECH {
+                assert!((0xc600..=0xc65f).contains(&m.product_id), "{m:?}");
+            }
+        }
+    }
+}

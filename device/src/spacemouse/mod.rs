@@ -208,6 +208,11 @@ impl SpaceMouseDevice {
         self.model
     }
 
+    /// CLOCK_MONOTONIC when the device was opened: its samples' `time_ns` count from it.
+    pub fn opened_ns(&self) -> u64 {
+        self.opened_ns
+    }
+
     /// The rate control's settings.
     pub fn rate_config(&self) -> &RateConfig {
         self.rate.config()
