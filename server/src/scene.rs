@@ -52,7 +52,8 @@
 //! smoothing_s = 0.04               # time constant of the velocity's smoothing
 //! workspace_half_extent_m = [0.06, 0.06, 0.06]  # the box the tip stays in, around the press site
 //! home_height_m = 0.03             # the start (and reset) point above the press site
-//! rotation = false                 # whether the puck's twist turns the tool (not for a sphere)
+//! rotation = false                 # whether the puck's twist turns the tool (default: on for
+//!                                  # a cone, off for a sphere, whose force it does not change)
 //! angular_gain_rad_s = 1.0         # turn rate at full twist
 //! reset_button = 0                 # the button that puts the tool back home
 //!
@@ -470,7 +471,9 @@ pub struct RateSection {
     pub workspace_half_extent_m: [f64; 3],
     /// Height of the start (and reset) point above the press site, along its normal.
     pub home_height_m: f64,
-    pub rotation: bool,
+    /// Whether the puck's twist turns the tool; by default on for a cone (its force depends on
+    /// its inclination) and off for a sphere (it does not).
+    pub rotation: Option<bool>,
     pub angular_gain_rad_s: f64,
     /// Index of the button that resets the tool (0 the first).
     pub reset_button: u32,
@@ -485,7 +488,7 @@ impl Default for RateSection {
             smoothing_s: 0.04,
             workspace_half_extent_m: [0.06; 3],
             home_height_m: 0.03,
-            rotation: false,
+            rotation: None,
             angular_gain_rad_s: 1.0,
             reset_button: 0,
         }
@@ -1034,7 +1037,7 @@ impl Scene {
                 gain_m_s: r.gain_m_s,
                 max_speed_m_s: r.max_speed_m_s,
                 smoothing_s: r.smoothing_s,
-                rotation: r.rotation,
+                rotation: r.rotation.unwrap_or(matches!(tool, ToolShape::Cone { .. })),
                 angular_gain_rad_s: r.angular_gain_rad_s,
                 reset_buttons: 1 << r.reset_button,
                 ..RateConfig::new(home, site_in_world - half, site_in_world + half)

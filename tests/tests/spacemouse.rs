@@ -336,3 +336,10 @@ fn device_choice_names_a_spacemouse_and_its_serial() {
     let e = "joystick".parse::<DeviceChoice>().unwrap_err();
     assert!(e.contains("spacemouse"), "{e}");
 }
+
+#[test]
+fn the_twist_turns_a_cone_by_default_and_not_a_sphere() {
+    let cone = Scene::load(&softhaptic_tests::repo_scenes().join("cone.toml")).unwrap();
+    assert!(cone.spacemouse_rate.rotation);
+    assert!(!liver_scene().spacemouse_rate.rotation);
+}
