@@ -104,6 +104,29 @@ fn kind_of(file_type: std::fs::FileType) -> &'static str {
     }
 }
 
+/// Opens `path`, a regular file of at most `kind`'s size limit, for a reader that takes it a
+/// piece at a time; with its length when opened (the part to read, should it grow).
+pub fn open(path: &Path, kind: FileKind) -> Result<(std::fs::File, u64), ReadError> {
+    // Looked at before it is opened: opening a FIFO would block until a writer came.
+    let meta = std::fs::metadata(path).map_err(ReadError::Io)?;
+    if !meta.file_type().is_file() {
+        return Err(ReadError::NotRegular(kind_of(meta.file_type())));
+    }
+    let file = std::fs::File::open(path).map_err(ReadError::Io)?;
+    // What was opened, not what the path named a moment before.
+    let meta = file.metadata().map_err(ReadError::Io)?;
+    if !meta.file_type().is_file() {
+        return Err(ReadError::NotRegular(kind_of(meta.file_type())));
+    }
+    if meta.len() > kind.max_bytes() {
+        return Err(ReadError::TooLarge {
+            len: meta.len(),
+            kind,
+        });
+    }
+    Ok((file, meta.len()))
+}
+
 /// Reads `path`, a regular file of at most `kind`'s size limit.
 pub fn read(path: &Path, kind: FileKind) -> Result<Vec<u8>, ReadError> {
     // Looked at before it is opened: opening a FIFO would block until a writer came.

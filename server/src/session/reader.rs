@@ -108,21 +108,35 @@ enum Kind {
 
 impl Recording {
     /// Reads `path`. Refuses files it cannot trust; recovers what it can from truncated ones.
+    /// The file is read as a stream, a record at a time: what stays in memory is what was
+    /// decoded, never the file.
     pub fn open(path: &Path) -> Result<Recording, SessionError> {
-        let bytes = crate::files::read(path, crate::files::FileKind::Recording).map_err(|e| {
-            SessionError::Io {
-                path: path.to_path_buf(),
-                reason: e.into(),
-            }
-        })?;
-        Self::from_bytes(path, &bytes)
+        let io = |e: crate::files::ReadError| SessionError::Io {
+            path: path.to_path_buf(),
+            reason: e.into(),
+        };
+        let (file, len) =
+            crate::files::open(path, crate::files::FileKind::Recording).map_err(io)?;
+        Self::from_source(path, &FileSource { file, len })
     }
 
     /// Reads a recording held in memory; `path` names it in messages.
     pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<Recording, SessionError> {
+        Self::from_source(path, bytes)
+    }
+
+    fn from_source<S: Source + ?Sized>(path: &Path, src: &S) -> Result<Recording, SessionError> {
         let path_buf = path.to_path_buf();
-        if bytes.len() < mcap::MAGIC.len() || &bytes[..mcap::MAGIC.len()] != mcap::MAGIC {
-            let found = bytes[..bytes.len().min(8)]
+        let io = |e: std::io::Error| SessionError::Io {
+            path: path.to_path_buf(),
+            reason: e,
+        };
+        let mut start = [0u8; 8];
+        let head = (src.len() as usize).min(start.len());
+        src.read_at(0, &mut start[..head]).map_err(io)?;
+        let bytes = &start[..head];
+        if bytes.len() < mcap::MAGIC.len() || bytes[..mcap::MAGIC.len()] != mcap::MAGIC[..] {
+            let found = bytes
                 .iter()
                 .map(|b| format!("{b:02x}"))
                 .collect::<Vec<_>>()
@@ -139,15 +153,27 @@ impl Recording {
         // Damaged chunks are skipped before the MCAP library sees them (it would trust a damaged
         // length and allocate what it claims); the library reads the rest, checking every
         // chunk's checksum again.
-        let scanned = scan(bytes);
-        let options = mcap::read::Options::ValidateChunkCrcs.into();
-        let stream = match mcap::MessageStream::new_with_options(&scanned.data, options) {
-            Ok(s) => s,
-            Err(e) => {
-                return Err(SessionError::Mcap {
-                    path: path_buf,
-                    source: e,
-                });
+        let scanned = scan(src).map_err(io)?;
+        let options = mcap::sans_io::LinearReaderOptions::default()
+            .with_validate_chunk_crcs(true)
+            .with_record_length_limit(MAX_RECORD_BYTES as usize);
+        let mut reader = mcap::sans_io::MessageReader::new_with_options(options);
+        let mut feed = Feed::new(src, &scanned.keep);
+        let mut read_error = None;
+        let mut next_message = || loop {
+            match reader.next_event()? {
+                Ok(mcap::sans_io::MessageReadEvent::ReadRequest(n)) => {
+                    let buf = reader.insert(n);
+                    match feed.fill(buf) {
+                        Ok(written) => reader.notify_read(written),
+                        Err(e) => {
+                            read_error = Some(e);
+                            return None;
+                        }
+                    }
+                }
+                Ok(mcap::sans_io::MessageReadEvent::Message(m)) => return Some(Ok(m)),
+                Err(e) => return Some(Err(e)),
             }
         };
 
@@ -165,9 +191,9 @@ impl Recording {
             },
             None => Ending::Complete,
         };
-        let file_len = bytes.len() as u64;
+        let file_len = src.len();
 
-        for item in stream {
+        while let Some(item) = next_message() {
             let message = match item {
                 Ok(m) => m,
                 Err(e) => {
@@ -275,6 +301,9 @@ impl Recording {
             }
         }
 
+        if let Some(e) = read_error {
+            return Err(io(e));
+        }
         let cut_short = |reason: &str| SessionError::TruncatedBeforeStart {
             path: path_buf.clone(),
             file_len,
@@ -579,75 +608,187 @@ const OP_ATTACHMENT: u8 = 0x09;
 const OP_METADATA: u8 = 0x0C;
 const OP_DATA_END: u8 = 0x0F;
 
-/// What the walk kept of a file: the records to parse (closed with a data end, a footer and the
-/// magic, so the MCAP library reads them as a whole file), the stretches skipped, and why the
-/// file ended early, if it did.
+/// Random access to a recording's bytes: the file itself (read a record at a time, never whole)
+/// or bytes already in memory.
+pub(crate) trait Source {
+    fn len(&self) -> u64;
+    /// Fills `buf` from `pos`; the range lies within [`Source::len`].
+    fn read_at(&self, pos: u64, buf: &mut [u8]) -> std::io::Result<()>;
+}
+
+impl Source for [u8] {
+    fn len(&self) -> u64 {
+        <[u8]>::len(self) as u64
+    }
+    fn read_at(&self, pos: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        let start = usize::try_from(pos).map_err(std::io::Error::other)?;
+        let src = start
+            .checked_add(buf.len())
+            .and_then(|end| self.get(start..end))
+            .ok_or_else(|| std::io::Error::from(std::io::ErrorKind::UnexpectedEof))?;
+        buf.copy_from_slice(src);
+        Ok(())
+    }
+}
+
+/// A recording file, of the length it had when it was opened (a live recording read while it
+/// is written is read as far as it went then).
+struct FileSource {
+    file: std::fs::File,
+    len: u64,
+}
+
+impl Source for FileSource {
+    fn len(&self) -> u64 {
+        self.len
+    }
+    fn read_at(&self, pos: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        use std::os::unix::fs::FileExt;
+        self.file.read_exact_at(buf, pos)
+    }
+}
+
+/// Largest top-level record read: a chunk the writer closes at about 1 MiB (compressed, less),
+/// or the scene record with its meshes. A length beyond it is damage, never allocated.
+const MAX_RECORD_BYTES: u64 = 256 << 20;
+/// The window the search for a resumption point reads at a time.
+const RESUME_WINDOW_BYTES: usize = 64 << 10;
+
+/// What the walk kept of a file: the byte ranges of the records to parse (in file order), the
+/// stretches skipped, and why the file ended early, if it did.
 struct Scanned {
-    data: Vec<u8>,
+    keep: Vec<std::ops::Range<u64>>,
     lost: Vec<LostSpan>,
     tail: Option<String>,
 }
 
 /// The record at `pos`: its opcode and body range, when its header is there and its body ends
 /// within the file.
-fn record_at(bytes: &[u8], pos: usize) -> Option<(u8, usize, usize)> {
-    let op = *bytes.get(pos)?;
-    let len = usize::try_from(read_u64(bytes, pos + 1)?).ok()?;
-    let body_start = pos + 9;
-    let body_end = body_start.checked_add(len)?;
-    (body_end <= bytes.len()).then_some((op, body_start, body_end))
+fn record_at<S: Source + ?Sized>(src: &S, pos: u64) -> std::io::Result<Option<(u8, u64, u64)>> {
+    let mut header = [0u8; 9];
+    if pos.checked_add(9).is_none_or(|end| end > src.len()) {
+        return Ok(None);
+    }
+    src.read_at(pos, &mut header)?;
+    Ok(header_fits(src.len(), pos, &header))
 }
 
-/// The device times a chunk's header says it holds.
-fn chunk_times(body: &[u8]) -> Option<(u64, u64)> {
-    Some((read_u64(body, 0)?, read_u64(body, 8)?))
+/// The record whose 9-byte header (opcode, u64 length) is `header`, at `pos` of a file `len`
+/// bytes long: its opcode and body range, when its body ends within the file.
+fn header_fits(len: u64, pos: u64, header: &[u8; 9]) -> Option<(u8, u64, u64)> {
+    let body_len = read_u64(header, 1)?;
+    let body_start = pos + 9;
+    let body_end = body_start.checked_add(body_len)?;
+    (body_end <= len).then_some((header[0], body_start, body_end))
+}
+
+/// Why the chunk whose body is `start..end` cannot be trusted (reading it into `scratch`), if
+/// it cannot.
+fn chunk_damage_at<S: Source + ?Sized>(
+    src: &S,
+    start: u64,
+    end: u64,
+    scratch: &mut Vec<u8>,
+) -> std::io::Result<Option<String>> {
+    let len = end - start;
+    if len > MAX_RECORD_BYTES {
+        return Ok(Some(format!("it claims {len} bytes")));
+    }
+    scratch.clear();
+    scratch.resize(len as usize, 0);
+    src.read_at(start, scratch)?;
+    Ok(chunk_damage(scratch))
+}
+
+/// The device times the chunk whose body starts at `start` says it holds.
+fn chunk_times_at<S: Source + ?Sized>(src: &S, start: u64) -> Option<(u64, u64)> {
+    let mut times = [0u8; 16];
+    src.read_at(start, &mut times).ok()?;
+    Some((read_u64(&times, 0)?, read_u64(&times, 8)?))
 }
 
 /// Where reading can resume after damage at `from`: the next chunk that checks out in full, or
 /// the data section's end record, whichever comes first. Damage may have hit a length, so the
-/// walk cannot step over it; a chunk is only trusted once its checksum matches.
-fn resume_after(bytes: &[u8], from: usize) -> Option<usize> {
-    (from..bytes.len()).find(|&p| match record_at(bytes, p) {
-        Some((OP_CHUNK, start, end)) => chunk_damage(&bytes[start..end]).is_none(),
-        Some((OP_DATA_END, start, end)) => end - start == 4,
-        _ => false,
-    })
+/// walk cannot step over it; a chunk is only trusted once its checksum matches. Reads the file
+/// a window at a time and looks closer only where a byte could start such a record.
+fn resume_after<S: Source + ?Sized>(
+    src: &S,
+    from: u64,
+    scratch: &mut Vec<u8>,
+) -> std::io::Result<Option<u64>> {
+    let len = src.len();
+    let mut window = vec![0u8; RESUME_WINDOW_BYTES + 8];
+    let mut base = from;
+    while base < len {
+        // The window overlaps the next by a header's length, so a header across the seam is seen.
+        let n = ((len - base) as usize).min(window.len());
+        src.read_at(base, &mut window[..n])?;
+        let candidates = n.min(RESUME_WINDOW_BYTES);
+        for i in 0..candidates {
+            let op = window[i];
+            if op != OP_CHUNK && op != OP_DATA_END {
+                continue;
+            }
+            let pos = base + i as u64;
+            let header: Option<[u8; 9]> = window.get(i..i + 9).and_then(|h| h.try_into().ok());
+            let Some(header) = header else {
+                continue;
+            };
+            match header_fits(len, pos, &header) {
+                Some((OP_DATA_END, start, end)) if end - start == 4 => return Ok(Some(pos)),
+                Some((OP_CHUNK, start, end))
+                    if chunk_damage_at(src, start, end, scratch)?.is_none() =>
+                {
+                    return Ok(Some(pos));
+                }
+                _ => {}
+            }
+        }
+        base += candidates as u64;
+    }
+    Ok(None)
 }
 
 /// Walks the file's top-level records: keeps the header, the schemas, channels and messages
 /// outside chunks, and every chunk that checks out ([`chunk_damage`]); skips a damaged chunk or
 /// record and resumes at the next good chunk ([`resume_after`]); stops at the data section's end
-/// (the summary and index after it are only for seeking).
-fn scan(bytes: &[u8]) -> Scanned {
-    let mut data = Vec::with_capacity(bytes.len());
-    data.extend_from_slice(mcap::MAGIC);
+/// (the summary and index after it are only for seeking). Holds one record at a time.
+fn scan<S: Source + ?Sized>(src: &S) -> std::io::Result<Scanned> {
+    let len = src.len();
+    let mut keep = Vec::new();
     let mut lost = Vec::new();
     let mut tail = None;
-    let mut pos = mcap::MAGIC.len();
-    let skip = |lost: &mut Vec<LostSpan>, pos: usize, time_ns, reason: String| {
-        let next = resume_after(bytes, pos + 1);
-        let end = next.unwrap_or(bytes.len());
+    let mut scratch = Vec::new();
+    let mut pos = mcap::MAGIC.len() as u64;
+    let skip = |lost: &mut Vec<LostSpan>,
+                scratch: &mut Vec<u8>,
+                pos: u64,
+                time_ns,
+                reason: String|
+     -> std::io::Result<Option<u64>> {
+        let next = resume_after(src, pos + 1, scratch)?;
+        let end = next.unwrap_or(len);
         lost.push(LostSpan {
-            first_byte: pos as u64,
-            bytes: (end - pos) as u64,
+            first_byte: pos,
+            bytes: end - pos,
             time_ns,
             reason,
         });
-        next
+        Ok(next)
     };
     loop {
-        if pos >= bytes.len() {
+        if pos >= len {
             tail = Some("the file ends without its data section's end and footer".to_owned());
             break;
         }
-        let Some((op, start, end)) = record_at(bytes, pos) else {
+        let Some((op, start, end)) = record_at(src, pos)? else {
             // The chunk being written when the file was cut (a crash), or a damaged length:
             // a good chunk further on tells the two apart.
-            match resume_after(bytes, pos + 1) {
+            match resume_after(src, pos + 1, &mut scratch)? {
                 Some(next) => {
                     lost.push(LostSpan {
-                        first_byte: pos as u64,
-                        bytes: (next - pos) as u64,
+                        first_byte: pos,
+                        bytes: next - pos,
                         time_ns: None,
                         reason: format!(
                             "the record at byte {pos} claims a length past the file's end"
@@ -665,15 +806,15 @@ fn scan(bytes: &[u8]) -> Scanned {
             }
         };
         match op {
-            OP_CHUNK => match chunk_damage(&bytes[start..end]) {
+            OP_CHUNK => match chunk_damage_at(src, start, end, &mut scratch)? {
                 None => {
-                    data.extend_from_slice(&bytes[pos..end]);
+                    keep.push(pos..end);
                     pos = end;
                 }
                 Some(why) => {
-                    let times = chunk_times(&bytes[start..end]);
+                    let times = chunk_times_at(src, start);
                     let reason = format!("the chunk at byte {pos} is damaged: {why}");
-                    match skip(&mut lost, pos, times, reason) {
+                    match skip(&mut lost, &mut scratch, pos, times, reason)? {
                         Some(next) => pos = next,
                         None => {
                             tail = Some("damage reaches the end of the data".to_owned());
@@ -682,8 +823,8 @@ fn scan(bytes: &[u8]) -> Scanned {
                     }
                 }
             },
-            OP_HEADER | OP_SCHEMA | OP_CHANNEL | OP_MESSAGE => {
-                data.extend_from_slice(&bytes[pos..end]);
+            OP_HEADER | OP_SCHEMA | OP_CHANNEL | OP_MESSAGE if end - start <= MAX_RECORD_BYTES => {
+                keep.push(pos..end);
                 pos = end;
             }
             // Needed only for seeking, or not written by this project.
@@ -691,11 +832,19 @@ fn scan(bytes: &[u8]) -> Scanned {
             OP_DATA_END if end - start == 4 => {
                 // The writer closes a file with its summary, a footer and the magic; the data is
                 // whole either way, but a file without them was not closed.
-                let footer_at = bytes.len().checked_sub(mcap::MAGIC.len() + 29);
-                let closed = bytes.ends_with(mcap::MAGIC)
-                    && footer_at.is_some_and(|at| {
-                        at >= end && record_at(bytes, at) == Some((OP_FOOTER, at + 9, at + 29))
-                    });
+                let magic_len = mcap::MAGIC.len() as u64;
+                let mut end_magic = [0u8; 8];
+                let ends_with_magic = len >= end + magic_len
+                    && src.read_at(len - magic_len, &mut end_magic).is_ok()
+                    && end_magic[..] == mcap::MAGIC[..];
+                let footer_at = len.checked_sub(magic_len + 29);
+                let closed = ends_with_magic
+                    && match footer_at {
+                        Some(at) if at >= end => {
+                            record_at(src, at)? == Some((OP_FOOTER, at + 9, at + 29))
+                        }
+                        _ => false,
+                    };
                 if !closed {
                     tail = Some(
                         "the file's footer is missing or damaged (the data before it is whole)"
@@ -704,10 +853,11 @@ fn scan(bytes: &[u8]) -> Scanned {
                 }
                 break;
             }
-            // A record of a kind the data section does not hold: a damaged opcode.
+            // A record of a kind the data section does not hold (a damaged opcode), or one far
+            // larger than any the writer makes (a damaged length).
             other => {
                 let reason = format!("a record of kind {other:#04x} at byte {pos} (damaged)");
-                match skip(&mut lost, pos, None, reason) {
+                match skip(&mut lost, &mut scratch, pos, None, reason)? {
                     Some(next) => pos = next,
                     None => {
                         tail = Some("damage reaches the end of the data".to_owned());
@@ -717,15 +867,69 @@ fn scan(bytes: &[u8]) -> Scanned {
             }
         }
     }
-    // Closed as a file without a summary: a data end (checksum 0: not computed) and a footer
-    // pointing at no summary.
-    let mut record = |op: u8, body: &[u8]| {
-        data.push(op);
-        data.extend_from_slice(&(body.len() as u64).to_le_bytes());
-        data.extend_from_slice(body);
-    };
-    record(OP_DATA_END, &[0; 4]);
-    record(OP_FOOTER, &[0; 20]);
-    data.extend_from_slice(mcap::MAGIC);
-    Scanned { data, lost, tail }
+    Ok(Scanned { keep, lost, tail })
+}
+
+/// The bytes the MCAP library reads: the magic, the kept records read from the source as it
+/// asks for them, and a closing data end (checksum 0: not computed), a footer pointing at no
+/// summary and the magic, so that it reads them as a whole file.
+struct Feed<'a, S: ?Sized> {
+    src: &'a S,
+    parts: Vec<FeedPart>,
+    part: usize,
+    offset: u64,
+}
+
+enum FeedPart {
+    Bytes(Vec<u8>),
+    Range(std::ops::Range<u64>),
+}
+
+impl<'a, S: Source + ?Sized> Feed<'a, S> {
+    fn new(src: &'a S, keep: &[std::ops::Range<u64>]) -> Self {
+        let mut closing = Vec::new();
+        let mut record = |op: u8, body: &[u8]| {
+            closing.push(op);
+            closing.extend_from_slice(&(body.len() as u64).to_le_bytes());
+            closing.extend_from_slice(body);
+        };
+        record(OP_DATA_END, &[0; 4]);
+        record(OP_FOOTER, &[0; 20]);
+        closing.extend_from_slice(mcap::MAGIC);
+        let mut parts = vec![FeedPart::Bytes(mcap::MAGIC.to_vec())];
+        parts.extend(keep.iter().cloned().map(FeedPart::Range));
+        parts.push(FeedPart::Bytes(closing));
+        Self {
+            src,
+            parts,
+            part: 0,
+            offset: 0,
+        }
+    }
+
+    /// Fills as much of `buf` as the next part allows; 0 at the end.
+    fn fill(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        while let Some(part) = self.parts.get(self.part) {
+            let part_len = match part {
+                FeedPart::Bytes(b) => b.len() as u64,
+                FeedPart::Range(r) => r.end - r.start,
+            };
+            if self.offset >= part_len {
+                self.part += 1;
+                self.offset = 0;
+                continue;
+            }
+            let n = ((part_len - self.offset) as usize).min(buf.len());
+            match part {
+                FeedPart::Bytes(b) => {
+                    let at = self.offset as usize;
+                    buf[..n].copy_from_slice(&b[at..at + n]);
+                }
+                FeedPart::Range(r) => self.src.read_at(r.start + self.offset, &mut buf[..n])?,
+            }
+            self.offset += n as u64;
+            return Ok(n);
+        }
+        Ok(0)
+    }
 }
