@@ -287,6 +287,33 @@ pub struct ReplayStatus {
     pub speed: f64,
     /// The recording's file name (no directories).
     pub file: String,
+    /// Stretches of the recording with no ticks in it, for the timeline to mark; absent when
+    /// there are none (and from servers before it).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub gaps: Vec<ReplayGap>,
+}
+
+/// A stretch of a replayed recording without ticks: the loop lost them (deadlines that passed
+/// with no tick; the device held its last force), or the file lost them (a damaged stretch the
+/// reader skipped).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReplayGap {
+    /// Where it starts and ends, seconds from the recording's start.
+    pub start_s: f64,
+    pub end_s: f64,
+    /// Ticks missing in it.
+    pub ticks: u64,
+    pub cause: GapCause,
+}
+
+/// Why a [`ReplayGap`] has no ticks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GapCause {
+    /// The loop lost them (recorded as lost ticks).
+    LostTicks,
+    /// The recording lost them (damage the reader skipped).
+    Damaged,
 }
 
 /// Serde helpers for f64 fields that must survive JSON bit for bit, including NaN and infinities.
@@ -767,6 +794,7 @@ mod tests {
             paused: true,
             speed: 1.0,
             file: "a.mcap".into(),
+            gaps: Vec::new(),
         };
         let v = serde_json::to_value(&status).unwrap();
         assert_eq!(v["type"], "replay");

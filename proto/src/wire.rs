@@ -854,6 +854,31 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 paused: false,
                 speed: 0.5,
                 file: "sphere-press.mcap".into(),
+                gaps: Vec::new(),
+            })?,
+        ),
+        (
+            "replay_status_with_gaps",
+            serde_json::to_value(crate::record::ReplayStatus {
+                duration_s: 12.5,
+                time_s: 0.0,
+                paused: true,
+                speed: 1.0,
+                file: "lab-station-3.mcap".into(),
+                gaps: vec![
+                    crate::record::ReplayGap {
+                        start_s: 3.25,
+                        end_s: 3.272,
+                        ticks: 22,
+                        cause: crate::record::GapCause::LostTicks,
+                    },
+                    crate::record::ReplayGap {
+                        start_s: 7.0,
+                        end_s: 8.0,
+                        ticks: 1000,
+                        cause: crate::record::GapCause::Damaged,
+                    },
+                ],
             })?,
         ),
     ];
@@ -966,7 +991,7 @@ mod tests {
                             // The replay messages travel beside the server messages; each
                             // decodes as its own type and re-encodes to the same JSON.
                             let text = json.to_string();
-                            if name == "replay_status" {
+                            if name.starts_with("replay_status") {
                                 let status: crate::record::ReplayStatus =
                                     serde_json::from_str(&text).unwrap();
                                 assert_eq!(serde_json::to_value(&status).unwrap(), json);

@@ -149,6 +149,7 @@ function init() {
     'replay-scrubber',
     'replay-time',
     'replay-file',
+    'replay-gaps',
     'flags',
     's-rate',
     's-jitter',
@@ -210,6 +211,7 @@ function init() {
     fileText: dom['replay-file'],
     hintText: dom['replay-hint'],
     refusedText: dom['replay-refused'],
+    gapLayer: dom['replay-gaps'],
     send: (text) => connection.send(text),
   });
   connection.start();
@@ -950,6 +952,12 @@ function exposeTestHook() {
       refusedShown: !dom['replay-refused'].hidden,
       refusedText: dom['replay-refused'].textContent,
       clockRestarts: buffer.clockRestarts,
+      /** The gap marks drawn on the track: cause, title, and the left edge in percent. */
+      gaps: [...dom['replay-gaps'].children].map((m) => ({
+        cause: m.classList.contains('damaged') ? 'damaged' : 'lost_ticks',
+        title: m.title,
+        leftPct: parseFloat(m.style.left),
+      })),
     }),
     lastStats: () => state.lastStats,
     /** The role the server granted (`instructor`, `observer`; null before a `hello`). */

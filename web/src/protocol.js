@@ -51,6 +51,12 @@ export function deviceStatusMessage(status, forceFeedback) {
   return DEVICE_STATUS_MESSAGES[status];
 }
 
+/**
+ * Why a stretch of a replayed recording has no ticks (`replay.gaps[].cause`): the loop lost
+ * them, or the file did (damage the reader skipped).
+ */
+export const GAP_CAUSES = Object.freeze(['lost_ticks', 'damaged']);
+
 /** A message that breaks the contract; `field` is its dotted path. */
 export class ProtocolError extends Error {
   constructor(field, message) {
@@ -330,6 +336,20 @@ function validateReplay(m) {
   boolean(m.paused, 'replay.paused');
   positive(m.speed, 'replay.speed');
   string(m.file, 'replay.file');
+  if (m.gaps !== undefined) {
+    if (!Array.isArray(m.gaps)) throw new ProtocolError('replay.gaps', `expected an array, got ${show(m.gaps)}`);
+    m.gaps.forEach((g, i) => {
+      const field = `replay.gaps[${i}]`;
+      object(g, field);
+      nonNegative(g.start_s, `${field}.start_s`);
+      nonNegative(g.end_s, `${field}.end_s`);
+      if (g.end_s < g.start_s) throw new ProtocolError(`${field}.end_s`, `before start_s (${g.start_s})`);
+      count(g.ticks, `${field}.ticks`);
+      if (!GAP_CAUSES.includes(g.cause)) {
+        throw new ProtocolError(`${field}.cause`, `unknown cause ${show(g.cause)} (known: ${GAP_CAUSES.join(', ')})`);
+      }
+    });
+  }
   return m;
 }
 

@@ -33,6 +33,27 @@ function seekTolerance(speed) {
   return JUMP_TOLERANCE_WALL_S * Math.max(1, speed);
 }
 
+/**
+ * The marks of a recording's stretches without ticks (`replay.gaps`) on a timeline of
+ * `durationS`: left edge and width in percent of the track (a gap too short to see still gets
+ * the track's thinnest mark, in CSS), the cause, and a title in words.
+ */
+export function gapMarkers(gaps, durationS) {
+  if (!Array.isArray(gaps) || !(durationS > 0)) return [];
+  return gaps.map((g) => {
+    const start = Math.min(Math.max(g.start_s / durationS, 0), 1);
+    const end = Math.min(Math.max(g.end_s / durationS, start), 1);
+    const what = g.cause === 'damaged' ? 'not in the file (damaged)' : 'lost by the loop';
+    const ticks = g.ticks === 1 ? '1 tick' : `${g.ticks} ticks`;
+    return {
+      leftPct: start * 100,
+      widthPct: (end - start) * 100,
+      cause: g.cause,
+      title: `${ticks} ${what} at ${formatReplayTime(g.start_s)}`,
+    };
+  });
+}
+
 /** Where a replay stands, from its last status; all times in seconds of recording time. */
 export class ReplayClock {
   constructor() {
@@ -132,10 +153,14 @@ export class ReplayTimeline {
     fileText,
     hintText = null,
     refusedText = null,
+    gapLayer = null,
     send,
     now = () => performance.now(),
   }) {
-    this.el = { panel, playButton, speedSelect, scrubber, timeText, fileText, hintText, refusedText };
+    this.el = { panel, playButton, speedSelect, scrubber, timeText, fileText, hintText, refusedText, gapLayer };
+    /** The gaps drawn on the track (the status's, as JSON: redrawn only when they change). */
+    this.gapsKey = '';
+    this.gapsShown = [];
     this.send = send;
     this.now = now;
     this.clock = new ReplayClock();
@@ -208,9 +233,31 @@ export class ReplayTimeline {
     }
     this.#showSpeed(status.speed);
     if (fileText.textContent !== status.file) fileText.textContent = status.file;
+    this.#showGaps(status.gaps ?? [], status.duration_s);
     this.shownTenths = -1; // redraw the text now
     this.frame(nowMs);
     return broke;
+  }
+
+  /** Marks the stretches without ticks on the track, when they changed. */
+  #showGaps(gaps, durationS) {
+    const key = JSON.stringify([gaps, durationS]);
+    if (key === this.gapsKey) return;
+    this.gapsKey = key;
+    this.gapsShown = gapMarkers(gaps, durationS);
+    const layer = this.el.gapLayer;
+    if (!layer) return;
+    const doc = layer.ownerDocument;
+    layer.replaceChildren(
+      ...this.gapsShown.map((m) => {
+        const mark = doc.createElement('div');
+        mark.className = `replay-gap ${m.cause}`;
+        mark.style.left = `${m.leftPct}%`;
+        mark.style.width = `${m.widthPct}%`;
+        mark.title = m.title;
+        return mark;
+      }),
+    );
   }
 
   /** Shows the panel before the first status (the server's `hello` said it serves a replay). */

@@ -7,7 +7,7 @@ import assert from 'node:assert/strict';
 
 import { ProtocolError, ViewerConnection, decodeMessage, encodeReplayControl } from '../src/protocol.js';
 import { PlayoutBuffer, RenderedContact } from '../src/interpolation.js';
-import { ReplayClock, ReplayTimeline, formatReplayTime } from '../src/replay.js';
+import { ReplayClock, ReplayTimeline, formatReplayTime, gapMarkers } from '../src/replay.js';
 import { contact, hello } from './fixtures.mjs';
 
 /** A status as `softhaptic replay` sends it (proto `ReplayStatus`). */
@@ -414,4 +414,42 @@ test('a refused control’s reason shows beside the controls for a few seconds a
   timeline.frame(4200);
   assert.equal(el.refusedText.hidden, true);
   assert.equal(timeline.refusedUntilMs, 0);
+});
+
+test('gaps are marked where they are on the track, in words', () => {
+  const gaps = [
+    { start_s: 3.25, end_s: 3.272, ticks: 22, cause: 'lost_ticks' },
+    { start_s: 7, end_s: 8, ticks: 1000, cause: 'damaged' },
+    { start_s: 12, end_s: 14, ticks: 1, cause: 'lost_ticks' },
+  ];
+  const marks = gapMarkers(gaps, 12.5);
+  assert.equal(marks.length, 3);
+  assert.ok(Math.abs(marks[0].leftPct - 26) < 1e-9);
+  assert.ok(Math.abs(marks[0].widthPct - 0.176) < 1e-9);
+  assert.equal(marks[0].title, '22 ticks lost by the loop at 0:03.2');
+  assert.equal(marks[1].cause, 'damaged');
+  assert.equal(marks[1].title, '1000 ticks not in the file (damaged) at 0:07.0');
+  // Past the end: held on the track.
+  assert.ok(Math.abs(marks[2].leftPct - 96) < 1e-9 && Math.abs(marks[2].widthPct - 4) < 1e-9);
+  assert.equal(marks[2].title.startsWith('1 tick '), true);
+  assert.deepEqual(gapMarkers([], 10), []);
+  assert.deepEqual(gapMarkers(gaps, 0), []);
+  assert.deepEqual(gapMarkers(undefined, 10), []);
+});
+
+test('a status with gaps decodes and one with a broken gap is refused by field', () => {
+  const base = { type: 'replay', duration_s: 10, time_s: 0, paused: true, speed: 1, file: 'a.mcap' };
+  const ok = decodeMessage(JSON.stringify({ ...base, gaps: [{ start_s: 1, end_s: 2, ticks: 3, cause: 'damaged' }] }));
+  assert.equal(ok.message.gaps.length, 1);
+  for (const [gap, field] of [
+    [{ start_s: 2, end_s: 1, ticks: 3, cause: 'damaged' }, 'replay.gaps[0].end_s'],
+    [{ start_s: 1, end_s: 2, ticks: 3, cause: 'gremlins' }, 'replay.gaps[0].cause'],
+    [{ start_s: 1, end_s: 2, ticks: -1, cause: 'damaged' }, 'replay.gaps[0].ticks'],
+  ]) {
+    assert.throws(
+      () => decodeMessage(JSON.stringify({ ...base, gaps: [gap] })),
+      (e) => e instanceof ProtocolError && e.field === field,
+      field,
+    );
+  }
 });

@@ -23,7 +23,9 @@ use std::time::Duration;
 
 use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
-use softhaptic_proto::record::{ReplayAction, ReplayControl, ReplayStatus};
+use softhaptic_proto::record::{
+    DeviceRecord, GapCause, ReplayAction, ReplayControl, ReplayGap, ReplayStatus,
+};
 use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
@@ -216,6 +218,53 @@ pub async fn start(
     })
 }
 
+/// Most gaps a status lists (the longest, in time order): hours of a machine that loses a tick
+/// every few seconds would otherwise make every status long.
+const MAX_GAPS: usize = 200;
+/// The loop's period: a lost tick is this much device time.
+const PERIOD_S: f64 = 1e-3;
+
+/// The stretches of `device` (in tick order) without ticks, in seconds from `start_ns`: ticks
+/// the loop lost (`lost_before`), and ticks missing from the file (numbers skipped: a damaged
+/// stretch the reader left out).
+fn gaps(device: &[DeviceRecord], start_ns: u64) -> Vec<ReplayGap> {
+    let seconds = |t: u64| t.saturating_sub(start_ns) as f64 * 1e-9;
+    let mut out: Vec<ReplayGap> = device
+        .windows(2)
+        .filter_map(|pair| {
+            let (a, b) = (&pair[0], &pair[1]);
+            let start_s = seconds(a.time_ns);
+            let missing = b.tick.saturating_sub(a.tick.saturating_add(1));
+            if missing > 0 {
+                Some(ReplayGap {
+                    start_s,
+                    end_s: seconds(b.time_ns).max(start_s),
+                    ticks: missing,
+                    cause: GapCause::Damaged,
+                })
+            } else if b.lost_before > 0 {
+                // A device counting fixed steps does not advance its time over lost ticks; one
+                // on the wall clock does: the gap is the longer of the two.
+                let lost_s = b.lost_before as f64 * PERIOD_S;
+                Some(ReplayGap {
+                    start_s,
+                    end_s: seconds(b.time_ns).max(start_s + lost_s),
+                    ticks: b.lost_before,
+                    cause: GapCause::LostTicks,
+                })
+            } else {
+                None
+            }
+        })
+        .collect();
+    if out.len() > MAX_GAPS {
+        out.sort_by(|x, y| (y.end_s - y.start_s).total_cmp(&(x.end_s - x.start_s)));
+        out.truncate(MAX_GAPS);
+        out.sort_by(|x, y| x.start_s.total_cmp(&y.start_s));
+    }
+    out
+}
+
 /// The replay clock and cursor.
 struct Player {
     contacts: Vec<RecordedMessage>,
@@ -224,6 +273,8 @@ struct Player {
     start_ns: u64,
     duration_ns: u64,
     file: String,
+    /// The stretches without ticks, for the timeline.
+    gaps: Vec<ReplayGap>,
     speed: f64,
     paused: bool,
     /// Replay position (ns from `start_ns`) at `anchor`.
@@ -246,6 +297,7 @@ impl Player {
             start_ns,
             duration_ns: end_ns.saturating_sub(start_ns),
             file: recording.file_name(),
+            gaps: gaps(&recording.device, start_ns),
             speed,
             paused,
             anchor_pos_ns: 0,
@@ -273,6 +325,7 @@ impl Player {
             paused: self.paused,
             speed: self.speed,
             file: self.file.clone(),
+            gaps: self.gaps.clone(),
         }
     }
 
@@ -446,5 +499,60 @@ impl Player {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod gap_tests {
+    use super::*;
+
+    fn record(tick: u64, time_ns: u64, lost_before: u64) -> DeviceRecord {
+        DeviceRecord {
+            tick,
+            time_ns,
+            sample: None,
+            device_fault: false,
+            device_error: None,
+            command_error: None,
+            lost_before,
+            in_contact: false,
+            depth_m: 0.0,
+            force_n: [0.0; 3],
+            flags: 0,
+        }
+    }
+
+    #[test]
+    fn lost_ticks_and_missing_records_are_gaps_in_seconds_from_the_start() {
+        let ms = 1_000_000;
+        let device = vec![
+            record(0, 10 * ms, 0),
+            record(1, 11 * ms, 0),
+            // 5 ticks lost on a fixed-step clock: the time does not jump.
+            record(2, 12 * ms, 5),
+            record(3, 13 * ms, 0),
+            // Ticks 4..=999 are not in the file.
+            record(1000, 1010 * ms, 0),
+        ];
+        let g = gaps(&device, 10 * ms);
+        assert_eq!(g.len(), 2, "{g:?}");
+        assert_eq!(g[0].cause, GapCause::LostTicks);
+        assert_eq!(g[0].ticks, 5);
+        assert!((g[0].start_s - 0.001).abs() < 1e-12 && (g[0].end_s - 0.006).abs() < 1e-12);
+        assert_eq!(g[1].cause, GapCause::Damaged);
+        assert_eq!(g[1].ticks, 996);
+        assert!((g[1].start_s - 0.003).abs() < 1e-12 && (g[1].end_s - 1.0).abs() < 1e-12);
+        assert!(gaps(&device[..2], 10 * ms).is_empty());
+    }
+
+    #[test]
+    fn many_gaps_keep_the_longest_in_time_order() {
+        let device: Vec<DeviceRecord> = (0..1000u64)
+            .map(|i| record(i, i * 1_000_000, if i % 2 == 1 { i % 7 + 1 } else { 0 }))
+            .collect();
+        let g = gaps(&device, 0);
+        assert_eq!(g.len(), MAX_GAPS);
+        assert!(g.windows(2).all(|w| w[0].start_s <= w[1].start_s));
+        assert!(g.iter().all(|x| x.ticks >= 5), "the shortest were dropped");
     }
 }
