@@ -15,6 +15,7 @@ use softhaptic_device::spacemouse::SpaceMouseDevice;
 use softhaptic_device::spacemouse::rate::RateControl;
 use softhaptic_device::spacemouse::report::{MODELS, find_model};
 use softhaptic_device::spacemouse::script::{ReportScript, axis_report};
+use softhaptic_proto::ContactFlags;
 use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
 use softhaptic_proto::wire::{DeviceStatus, ServerMessage};
 use softhaptic_server::app;
@@ -118,7 +119,14 @@ async fn a_scripted_spacemouse_presses_the_liver_through_the_whole_server() {
             "pressed {pressed:?}, unplugged {unplugged}, back {back}"
         );
         match viewer.next(Duration::from_secs(5)).await {
-            Some(Ok(ServerMessage::Contact(c))) if c.in_contact && c.depth_m > 0.003 => {
+            // A steady press: not the ramp back in after the unplug (its force is still small).
+            Some(Ok(ServerMessage::Contact(c)))
+                if c.in_contact
+                    && c.depth_m > 0.003
+                    && !c
+                        .flags
+                        .intersects(ContactFlags::RAMPING | ContactFlags::DEVICE_FAULT) =>
+            {
                 assert!(c.force_n.length() > 0.1, "{c:?}");
                 assert!(c.deformed_radius_m > c.depth_m, "{c:?}");
                 pressed.get_or_insert(c.depth_m);
