@@ -1,11 +1,16 @@
 # The two commands of the README: `make run` starts the simulator, `make test` runs every test.
-# Each installs what it needs (Rust components, npm packages, Debian's chromium) by itself.
+# Each installs what it needs (Rust components, npm packages, Debian's chromium and nats-server)
+# by itself. `make lab` runs a local teaching lab: NATS, two simulated stations and a hub.
 
 CARGO ?= cargo
 # Extra arguments for the simulator, e.g. `make run ARGS="--addr 0.0.0.0:8080 --scene scenes/cone.toml"`.
 ARGS ?=
+# Ports of `make lab`: NATS, the two stations, the hub.
+LAB_NATS_PORT ?= 4222
+LAB_PORTS ?= 8081 8082
+LAB_HUB_PORT ?= 8090
 
-.PHONY: run test lint test-rust test-web rust-tools web-deps chromium
+.PHONY: run test lint test-rust test-web rust-tools web-deps chromium nats lab
 
 run: rust-tools web-deps
 	$(CARGO) run --release -p softhaptic-server --bin softhaptic -- $(ARGS)
@@ -17,7 +22,7 @@ lint: rust-tools web-deps
 	$(CARGO) clippy --workspace --all-targets -- -D warnings
 	cd web && npm run lint && npm run format:check
 
-test-rust: rust-tools
+test-rust: rust-tools nats
 	$(CARGO) test --workspace
 
 test-web: web-deps chromium
@@ -37,3 +42,23 @@ chromium:
 	  echo "installing Debian's chromium for the browser tests"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  $$SUDO apt-get update && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y chromium; }
+
+# The lab's tests run a real nats-server: Debian's package.
+nats:
+	@command -v nats-server >/dev/null 2>&1 || [ -x /usr/sbin/nats-server ] || { \
+	  echo "installing Debian's nats-server for the lab's tests"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y nats-server; }
+
+# A local teaching lab: nats-server with JetStream, two simulated stations (the liver pressed by
+# a sphere and by a cone) and a hub; Ctrl-C stops them all.
+lab: rust-tools web-deps nats
+	$(CARGO) build --release -p softhaptic-server --bin softhaptic
+	@dir=$$(mktemp -d); nats=$$(command -v nats-server || echo /usr/sbin/nats-server); \
+	trap 'kill $$(jobs -p) 2>/dev/null; rm -rf "$$dir"' EXIT INT TERM; \
+	$$nats -a 127.0.0.1 -p $(LAB_NATS_PORT) -js -sd "$$dir" & \
+	sleep 1; set -- $(LAB_PORTS); \
+	target/release/softhaptic --no-record --addr 127.0.0.1:$$1 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-1 & \
+	target/release/softhaptic --no-record --addr 127.0.0.1:$$2 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-2 --scene scenes/cone.toml & \
+	target/release/softhaptic hub --nats nats://127.0.0.1:$(LAB_NATS_PORT) --addr 127.0.0.1:$(LAB_HUB_PORT) & \
+	wait

@@ -65,6 +65,8 @@ pub enum ServerError {
     Device(#[from] crate::devices::DeviceOpenError),
     #[error(transparent)]
     Access(#[from] AccessError),
+    #[error(transparent)]
+    Lab(#[from] crate::lab::LabError),
     #[error("could not encode the {what} message: {source}")]
     Encode {
         what: &'static str,
@@ -112,6 +114,8 @@ pub struct ServerOptions {
     /// Serve https and wss with this configuration ([`crate::tls::server_config`]); plain http
     /// when `None`.
     pub tls: Option<Arc<rustls::ServerConfig>>,
+    /// Publish the session to a teaching lab's NATS as this station (`--nats`, `--station`).
+    pub lab: Option<crate::lab::station::StationOptions>,
 }
 
 impl ServerOptions {
@@ -132,6 +136,7 @@ impl ServerOptions {
             device: None,
             access: AccessConfig::default(),
             tls: None,
+            lab: None,
         }
     }
 }
@@ -286,6 +291,11 @@ pub async fn start(
 ) -> Result<RunningServer, ServerError> {
     // Before the device is touched: a server that may not serve this address starts nothing.
     options.access.check_bind(options.addr)?;
+    // Before the loop starts: NATS refusing the station's credentials stops the start.
+    let nats = match &options.lab {
+        Some(lab) => Some(crate::lab::station::connect(lab).await?),
+        None => None,
+    };
     let device = match options.device.take() {
         Some(device) => device,
         None => crate::devices::open(&mut scene)?,
@@ -355,7 +365,8 @@ pub async fn start(
             source,
         })?,
     );
-    let tasks = vec![
+    let meshes = Arc::new(meshes);
+    let mut tasks = vec![
         tokio::spawn(stream::frame_task(
             Arc::clone(&haptic_loop),
             scene.calibration.clone(),
@@ -369,10 +380,37 @@ pub async fn start(
         )),
     ];
 
+    if let (Some(client), Some(lab)) = (nats, &options.lab) {
+        let data = crate::lab::station::StationData {
+            session: crate::lab::StationSession {
+                session_id: hello.session_id.clone(),
+                force_feedback: hello.force_feedback,
+                scene: scene_text.clone(),
+            },
+            scene_label: format!(
+                "{}, {}, {}",
+                scene.object_name,
+                match scene.tool {
+                    ToolShape::Sphere { radius_m } => format!("sphere {:.0} mm", radius_m * 1e3),
+                    ToolShape::Cone { half_angle_rad, .. } =>
+                        format!("cone {:.0}°", half_angle_rad.to_degrees()),
+                },
+                message.device.name
+            ),
+            meshes: Arc::clone(&meshes),
+        };
+        tasks.extend(crate::lab::station::spawn(
+            client,
+            lab,
+            Arc::clone(&hub),
+            data,
+            shutdown_rx.clone(),
+        ));
+    }
     let state = AppState {
         // The same text as the WebSocket `scene` message (proto/WIRE.md).
         scene_json: Bytes::from(scene_text),
-        meshes: Arc::new(meshes),
+        meshes,
         hub: Arc::clone(&hub),
     };
     let app = router(&options.web_dir, state);
@@ -440,9 +478,21 @@ pub fn viewer_router(
     )
 }
 
+/// The viewer's own files: the page, its modules and three.js. They need no token.
+pub(crate) fn viewer_files<S: Clone + Send + Sync + 'static>(web_dir: &Path) -> Router<S> {
+    let three = web_dir.join("node_modules").join("three");
+    Router::new()
+        .route_service("/", get_service(ServeFile::new(web_dir.join("index.html"))))
+        .nest_service("/src", ServeDir::new(web_dir.join("src")))
+        .nest_service(
+            "/vendor/three/addons",
+            ServeDir::new(three.join("examples").join("jsm")),
+        )
+        .nest_service("/vendor/three", ServeDir::new(three.join("build")))
+}
+
 /// The routes of proto/WIRE.md, behind the access rules of the hub's [`Access`].
 fn router(web_dir: &Path, state: AppState) -> Router {
-    let three = web_dir.join("node_modules").join("three");
     let access = Arc::clone(&state.hub.access);
     // The session's data needs a token (when the server has tokens); the viewer's files do not.
     let session_data = Router::new()
@@ -452,16 +502,10 @@ fn router(web_dir: &Path, state: AppState) -> Router {
             Arc::clone(&access),
             access::require_token,
         ));
-    let routes = Router::new()
-        .route_service("/", get_service(ServeFile::new(web_dir.join("index.html"))))
-        .nest_service("/src", ServeDir::new(web_dir.join("src")))
-        .nest_service(
-            "/vendor/three/addons",
-            ServeDir::new(three.join("examples").join("jsm")),
-        )
-        .nest_service("/vendor/three", ServeDir::new(three.join("build")))
+    let routes = viewer_files(web_dir)
         .merge(session_data)
         .route("/ws", get(ws))
+        .route("/api/stations", get(not_a_hub))
         .with_state(state)
         .layer(axum::middleware::from_fn_with_state(
             Arc::clone(&access),
@@ -469,6 +513,15 @@ fn router(web_dir: &Path, state: AppState) -> Router {
         ));
     // Outermost, so that refusals (421, 401, 403) carry the headers too.
     access::with_security_headers(routes, access.csp().clone())
+}
+
+/// `/api/stations` of a station: it is not a lab hub (see `lab::hub`).
+async fn not_a_hub() -> Response {
+    (
+        [(header::CONTENT_TYPE, "application/json")],
+        r#"{"hub":false,"stations":[]}"#,
+    )
+        .into_response()
 }
 
 async fn api_scene(State(state): State<AppState>) -> Response {
@@ -502,9 +555,22 @@ async fn ws(
     headers: HeaderMap,
     upgrade: WebSocketUpgrade,
 ) -> Response {
-    let peer = connect_info.map(|info| info.0.0);
-    let hub = state.hub;
-    let origin = match hub.access.check_origin(&headers) {
+    upgrade_viewer(
+        state.hub,
+        connect_info.map(|info| info.0.0),
+        &headers,
+        upgrade,
+    )
+}
+
+/// A viewer's WebSocket on `hub`: the Origin rule, the connection limits, then the stream.
+pub(crate) fn upgrade_viewer(
+    hub: Arc<StreamHub>,
+    peer: Option<SocketAddr>,
+    headers: &HeaderMap,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    let origin = match hub.access.check_origin(headers) {
         Ok(origin) => origin,
         Err(reason) => {
             tracing::warn!(

@@ -14,6 +14,8 @@
 //!   proto/WIRE.md; the `scene` message, whose `contact_model` names the active model and its limits.
 //! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
 //!   reports) and the `softhaptic devices` listing.
+//! - [`lab`]: the teaching lab on NATS: a station publishes its stream (`--nats`, `--station`),
+//!   a hub (`softhaptic hub`) lists the stations and relays any of them to browsers.
 //! - [`files`]: reading the files users name: regular files only, each kind bounded in size.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
@@ -28,6 +30,7 @@ pub mod access;
 pub mod app;
 pub mod devices;
 pub mod files;
+pub mod lab;
 pub mod scene;
 pub mod session;
 pub mod stream;

@@ -37,6 +37,11 @@ enum Command {
         #[arg(long, value_name = "NAME")]
         name: Vec<String>,
     },
+    /// A teaching lab's hub: lists the stations that publish to NATS (`--nats URL --station
+    /// NAME` on each device host) and relays any of them to browsers, with the same wire, roles,
+    /// tokens, Origin checks and TLS as a station. Run several behind a load balancer: a hub
+    /// keeps nothing NATS does not have.
+    Hub(HubArgs),
     /// The shared test vectors of the viewer and the server (proto/vectors/*.json).
     Vectors {
         #[command(subcommand)]
@@ -101,6 +106,39 @@ struct RunArgs {
     access: AccessArgs,
     #[command(flatten)]
     tls: softhaptic_server::tls::TlsArgs,
+    /// Publish this session to a teaching lab's NATS (e.g. nats://lab-server:4222), for the
+    /// lab's hubs; needs --station. NATS down does not stop the station: it serves its own
+    /// viewers and publishes again once NATS is back.
+    #[arg(long, value_name = "URL", requires = "station")]
+    nats: Option<String>,
+    /// This station's name in the lab (letters, digits, '-' and '_').
+    #[arg(long, value_name = "NAME", requires = "nats")]
+    station: Option<String>,
+    /// NATS credentials: a NATS .creds file, or TOML with `token = "…"` or `user = "…"` and
+    /// `password = "…"`.
+    #[arg(long, value_name = "FILE", requires = "nats")]
+    nats_credentials: Option<PathBuf>,
+}
+
+#[derive(Args, Debug, Clone)]
+struct HubArgs {
+    /// The lab's NATS (e.g. nats://lab-server:4222).
+    #[arg(long, value_name = "URL")]
+    nats: String,
+    /// NATS credentials: a NATS .creds file, or TOML with `token = "…"` or `user = "…"` and
+    /// `password = "…"`.
+    #[arg(long, value_name = "FILE")]
+    nats_credentials: Option<PathBuf>,
+    /// Address to serve the page and the relayed streams on; port 0 picks a free port.
+    #[arg(long, default_value = "127.0.0.1:8090", value_name = "HOST:PORT")]
+    addr: SocketAddr,
+    /// Directory of the web viewer [default: as for a station].
+    #[arg(long, value_name = "DIR")]
+    web_dir: Option<PathBuf>,
+    #[command(flatten)]
+    access: AccessArgs,
+    #[command(flatten)]
+    tls: softhaptic_server::tls::TlsArgs,
 }
 
 fn main() -> std::process::ExitCode {
@@ -128,6 +166,7 @@ fn try_main() -> anyhow::Result<()> {
     match cli.command {
         None => run(cli.run),
         Some(Command::Run(args)) => run(args),
+        Some(Command::Hub(args)) => hub(args),
         Some(Command::Vectors {
             action: VectorsAction::Write { check, dir },
         }) => {
@@ -147,6 +186,46 @@ fn try_main() -> anyhow::Result<()> {
             session::cli::print_report(format_args!("{}", devices::listing(&name)))
         }
     }
+}
+
+fn hub(args: HubArgs) -> anyhow::Result<()> {
+    let access = args.access.resolve(args.addr)?;
+    let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
+    if let Some(t) = &tls {
+        println!("{t}");
+    }
+    let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
+    let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
+    runtime.block_on(async move {
+        let hub = softhaptic_server::lab::hub::start(softhaptic_server::lab::hub::HubOptions {
+            nats: softhaptic_server::lab::NatsOptions {
+                url: args.nats.clone(),
+                credentials: args.nats_credentials.clone(),
+            },
+            addr: args.addr,
+            web_dir,
+            access: access.clone(),
+            tls: tls.map(|t| t.config),
+            viewer_limits: Default::default(),
+        })
+        .await?;
+        let mut access = access;
+        access.secure_transport = hub.viewer_url().starts_with("https:");
+        let base = access.public_base(&hub.viewer_url(), hub.local_addr());
+        match access.links(&base) {
+            Some((instructor, observer)) => {
+                println!("hub instructor: {instructor}");
+                println!("hub observer: {observer}");
+            }
+            None => println!("hub viewer: {base}"),
+        }
+        let signal = app::shutdown_signal()
+            .await
+            .context("could not listen for the stop signals")?;
+        tracing::info!(signal, "shutting down");
+        hub.shutdown().await;
+        Ok(())
+    })
 }
 
 fn run(args: RunArgs) -> anyhow::Result<()> {
@@ -194,6 +273,19 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.device = Some(device);
         options.access = access.clone();
         options.tls = tls.map(|t| t.config);
+        options.lab = args
+            .nats
+            .clone()
+            .zip(args.station.clone())
+            .map(
+                |(url, name)| softhaptic_server::lab::station::StationOptions {
+                    nats: softhaptic_server::lab::NatsOptions {
+                        url,
+                        credentials: args.nats_credentials.clone(),
+                    },
+                    name,
+                },
+            );
         let server = match app::start(scene, options).await {
             Ok(server) => server,
             Err(e) => {

@@ -88,6 +88,31 @@ impl EncodedFrame {
         })
     }
 
+    /// A frame received as text (a station's, relayed by a hub): it must be a contact message
+    /// of the wire protocol whose `dropped` is 0; its bytes are kept as they are, so a hub's
+    /// viewers get exactly what the station's get.
+    pub fn from_text(text: String) -> Result<Self, String> {
+        let seq = match ServerMessage::decode(&text) {
+            Ok(ServerMessage::Contact(frame)) => frame.seq,
+            Ok(other) => {
+                return Err(format!(
+                    "a {} message, not a contact frame",
+                    other.type_name()
+                ));
+            }
+            Err(e) => return Err(e.to_string()),
+        };
+        if !text.ends_with(NO_DROPS_TAIL) {
+            return Err("a contact frame that does not end with \"dropped\":0".into());
+        }
+        let prefix_len = text.len() - 2;
+        Ok(Self {
+            seq,
+            with_no_drops: Utf8Bytes::from(text),
+            prefix_len,
+        })
+    }
+
     /// The text for a viewer that has lost `dropped` frames so far.
     pub fn text_for(&self, dropped: u64) -> Utf8Bytes {
         if dropped == 0 {

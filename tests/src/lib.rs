@@ -16,6 +16,7 @@
 //!   briefly by `tests/fuzz_seeded.rs`.
 
 pub mod fuzz;
+pub mod nats;
 pub mod standin;
 
 use std::net::{IpAddr, SocketAddr};
@@ -54,6 +55,14 @@ pub struct Viewer {
 }
 
 impl Viewer {
+    /// Connects to a WebSocket `url` (a hub's `ws://…/ws?station=NAME`, say).
+    pub async fn connect_url(url: &str) -> Viewer {
+        let (socket, _) = tokio_tungstenite::connect_async(url)
+            .await
+            .expect("WebSocket connects");
+        Viewer { socket }
+    }
+
     pub async fn connect(addr: SocketAddr) -> Viewer {
         let (socket, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/ws"))
             .await

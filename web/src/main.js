@@ -32,6 +32,7 @@ import {
   webSocketUrl,
 } from './protocol.js';
 import { ReplayTimeline } from './replay.js';
+import { StationList, stationOf, withStation } from './lab.js';
 
 /**
  * Flags that mean the force is not what the model says (shown in red rather than amber);
@@ -40,6 +41,8 @@ import { ReplayTimeline } from './replay.js';
  */
 const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal', 'pushed_through']);
 const PLAYOUT_DELAY_MS = 50;
+/** How often a hub's page asks for its station list again. */
+const STATION_LIST_REFRESH_MS = 2000;
 const TIMING_SAMPLES = 120;
 
 const dom = {};
@@ -69,6 +72,8 @@ const state = {
   paused: false,
   /** What the last `hello` granted: `instructor` or `observer`, and `live` or `replay`. */
   role: null,
+  /** The lab station the address names (`?station=`, on a hub's page); null on a station's. */
+  station: stationOf(window.location),
   /** Whether the trainee feels the force (`hello.force_feedback`); true until a `hello` says. */
   forceFeedback: true,
   mode: null,
@@ -86,6 +91,7 @@ const frameTimes = { ms: new Float64Array(128), head: 0, count: 0 };
 let plot = null;
 let connection = null;
 let timeline = null;
+let stationList = null;
 let keeper = null;
 let prompt = null;
 
@@ -150,6 +156,8 @@ function init() {
     'replay-time',
     'replay-file',
     'replay-gaps',
+    'stations-panel',
+    'stations-list',
     'flags',
     's-rate',
     's-jitter',
@@ -197,7 +205,7 @@ function init() {
   });
 
   connection = new ViewerConnection({
-    url: webSocketUrl(window.location),
+    url: withStation(webSocketUrl(window.location), state.station),
     token: keeper.token,
     onMessage,
     onStateChange: onConnectionState,
@@ -214,8 +222,13 @@ function init() {
     gapLayer: dom['replay-gaps'],
     send: (text) => connection.send(text),
   });
-  connection.start();
-  loadSceneOverHttp();
+  stationList = new StationList({
+    panel: dom['stations-panel'],
+    list: dom['stations-list'],
+    fetchJson: async (url) => (await fetchFromServer(url)).json(),
+    current: state.station,
+  });
+  startStream();
   if (view.renderer) view.renderer.setAnimationLoop(animate);
   else
     requestAnimationFrame(function loop(t) {
@@ -224,6 +237,30 @@ function init() {
     });
   window.addEventListener('resize', onWindowResize);
   setInterval(updatePanels, 250);
+}
+
+/**
+ * Starts the stream: at once when the address names a station (on a hub) or the server is a
+ * station; a hub's page without a station shows the list and waits for a pick.
+ */
+async function startStream() {
+  let hub = false;
+  try {
+    hub = await stationList.refresh();
+  } catch (e) {
+    if (e instanceof Unauthorized) {
+      sceneLoadFailed(e);
+      return;
+    }
+    console.warn(`softhaptic: no station list: ${e.message}`);
+  }
+  if (hub) setInterval(() => stationList.refresh().catch(() => {}), STATION_LIST_REFRESH_MS);
+  if (hub && state.station === null) {
+    showConnectionState('pick a station');
+    return;
+  }
+  connection.start();
+  loadSceneOverHttp();
 }
 
 /** Creates the WebGL renderer and the static scene; without WebGL, says so and goes on. */
@@ -361,7 +398,11 @@ async function fetchFromServer(url) {
   const init = token !== null && ownServer ? { headers: { Authorization: `Bearer ${token}` } } : {};
   const response = await fetch(url, init);
   if (response.status === 401) throw new Unauthorized(url, token);
-  if (!response.ok) throw new Error(`GET ${url} answered ${response.status}`);
+  if (!response.ok) {
+    const e = new Error(`GET ${url} answered ${response.status}`);
+    e.status = response.status;
+    throw e;
+  }
   return response;
 }
 
@@ -402,7 +443,7 @@ function showForceFeedback(felt) {
 
 async function loadSceneOverHttp() {
   try {
-    const response = await fetchFromServer('/api/scene');
+    const response = await fetchFromServer(withStation('/api/scene', state.station));
     const scene = validateMessage({ type: 'scene', ...(await response.json()) });
     await applyScene(scene);
   } catch (e) {
@@ -751,7 +792,7 @@ function setBadge(el, text, kind) {
 }
 
 function showConnectionState(s, detail) {
-  const kind = s === 'open' ? 'ok' : s === 'connecting' ? 'warn' : 'bad';
+  const kind = s === 'open' ? 'ok' : s === 'connecting' || s === 'pick a station' ? 'warn' : 'bad';
   let text = s;
   if (s === 'reconnecting' && detail) text = `reconnecting in ${(detail.delayMs / 1000).toFixed(1)} s`;
   else if (s === 'unauthorized') text = detail?.reason === 'token_refused' ? 'token refused' : 'needs token';
@@ -848,6 +889,17 @@ function exposeTestHook() {
       const status = state.lastStats ? (state.lastStats.device ?? 'ok') : null;
       return { status, shown: dom['s-device'].textContent };
     },
+    /** The lab: whether the server is a hub, the station shown, and the list as drawn. */
+    stations: () => ({
+      isHub: stationList?.isHub ?? null,
+      current: state.station,
+      listed: [...dom['stations-list'].querySelectorAll('li[data-station]')].map((li) => ({
+        name: li.dataset.station,
+        current: li.classList.contains('current'),
+        text: li.textContent,
+        href: li.querySelector('a')?.getAttribute('href') ?? null,
+      })),
+    }),
     /** Whether `hello` said the force is felt, and the words the page shows for it. */
     forceFeedback: () => ({ felt: state.forceFeedback, shown: dom.feedback.textContent }),
     sceneLoads: () => state.sceneLoads,

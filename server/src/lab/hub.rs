@@ -1,0 +1,608 @@
+//! `softhaptic hub`: the lab's page for instructors, relaying any station from NATS.
+//!
+//! The hub keeps the stations' last heartbeats (a station not heard from for
+//! [`OFFLINE_AFTER`](super::OFFLINE_AFTER) is offline) and, for each station a viewer opens, one
+//! [`Feed`]: the station's session fetched once (its `hello` and `scene`), a
+//! [`StreamHub`] of the hub's own fed by one NATS subscription to the station's frames and
+//! stats. Viewers then connect to that stream hub exactly as they would to the station's, with
+//! the hub's access rules (tokens, Origin, Host, TLS): the same wire, the same roles. A feed
+//! lives as long as its station's session; a station that restarts (a new session id) gets a
+//! new feed, and the old one's viewers are closed, so they reconnect to the new session.
+//!
+//! Routes: the viewer's files; `/api/stations` (the station list), `/api/scene?station=NAME`,
+//! `/stations/NAME/meshes/FILE` (the station's render meshes, fetched over NATS once) and
+//! `/ws?station=NAME`. The session data needs a token when the hub has tokens, as on a station.
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::body::Bytes;
+use axum::extract::ws::{Utf8Bytes, WebSocketUpgrade};
+use axum::extract::{ConnectInfo, Path as UrlPath, Query, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use futures_util::StreamExt;
+use serde::{Deserialize, Serialize};
+use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role};
+use tokio::sync::watch;
+use tokio::task::JoinHandle;
+
+use super::{
+    LabError, MeshRequest, NatsOptions, OFFLINE_AFTER, STATUS_SUBJECTS, StationSession,
+    StationState, StationStatus, Subjects,
+};
+use crate::access::{self, Access, AccessConfig};
+use crate::app::SERVER_NAME;
+use crate::stream::{EncodedFrame, StreamHub, ViewerLimits};
+
+/// How to run a hub.
+pub struct HubOptions {
+    pub nats: NatsOptions,
+    pub addr: SocketAddr,
+    pub web_dir: PathBuf,
+    pub access: AccessConfig,
+    pub tls: Option<Arc<rustls::ServerConfig>>,
+    pub viewer_limits: ViewerLimits,
+}
+
+/// Why a hub did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum HubError {
+    #[error(transparent)]
+    Lab(#[from] LabError),
+    #[error(transparent)]
+    Access(#[from] access::AccessError),
+    #[error("could not listen on {addr}: {source}")]
+    Bind {
+        addr: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// A running hub.
+pub struct RunningHub {
+    local_addr: SocketAddr,
+    shutdown_tx: watch::Sender<bool>,
+    http: JoinHandle<()>,
+    tasks: Vec<JoinHandle<()>>,
+    lab: Arc<Lab>,
+    tls: bool,
+}
+
+impl RunningHub {
+    pub fn local_addr(&self) -> SocketAddr {
+        self.local_addr
+    }
+
+    /// The page's URL.
+    pub fn viewer_url(&self) -> String {
+        let scheme = if self.tls { "https" } else { "http" };
+        format!("{scheme}://{}/", self.local_addr)
+    }
+
+    /// The stations as the hub lists them now.
+    pub fn stations(&self) -> Vec<StationListing> {
+        self.lab.listing()
+    }
+
+    /// Closes every viewer and stops.
+    pub async fn shutdown(self) {
+        let _ = self.shutdown_tx.send(true);
+        self.lab.close_feeds();
+        let _ = self.http.await;
+        for t in self.tasks {
+            t.abort();
+        }
+    }
+}
+
+/// A station as `/api/stations` lists it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StationListing {
+    pub name: String,
+    pub session_id: String,
+    pub scene: String,
+    /// `live`, `idle` or `offline`.
+    pub state: String,
+    /// Since when: Unix milliseconds (for `offline`, its last heartbeat).
+    pub since_unix_ms: u64,
+    pub viewers: u32,
+    pub unpublished_frames: u64,
+    /// The hub's own viewers of it.
+    pub hub_viewers: u32,
+}
+
+/// `/api/stations`: `hub` true, and the stations. A station answers it too, with `hub` false
+/// and no stations, so the page learns which it is talking to.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StationList {
+    pub hub: bool,
+    pub stations: Vec<StationListing>,
+}
+
+struct Entry {
+    status: StationStatus,
+    seen: Instant,
+    seen_unix_ms: u64,
+    feed: Option<Arc<Feed>>,
+}
+
+/// One station relayed: its session and the stream hub its viewers here connect to.
+struct Feed {
+    session_id: String,
+    hub: Arc<StreamHub>,
+    scene_json: Bytes,
+    meshes: tokio::sync::Mutex<HashMap<String, Bytes>>,
+    stop: watch::Sender<bool>,
+    relay: JoinHandle<()>,
+}
+
+impl Drop for Feed {
+    fn drop(&mut self) {
+        let _ = self.stop.send(true);
+        self.relay.abort();
+    }
+}
+
+/// The hub's shared state.
+struct Lab {
+    client: async_nats::Client,
+    stations: Mutex<HashMap<String, Entry>>,
+    /// Held while a feed is made, so two first viewers make one.
+    making: tokio::sync::Mutex<()>,
+    access: Arc<Access>,
+    limits: ViewerLimits,
+}
+
+/// An HTTP refusal: its status and why.
+type Refusal = (StatusCode, String);
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl Lab {
+    fn listing(&self) -> Vec<StationListing> {
+        let stations = lock(&self.stations);
+        let mut out: Vec<StationListing> = stations
+            .values()
+            .map(|e| {
+                let offline = e.seen.elapsed() > OFFLINE_AFTER;
+                StationListing {
+                    name: e.status.name.clone(),
+                    session_id: e.status.session_id.clone(),
+                    scene: e.status.scene.clone(),
+                    state: if offline {
+                        "offline".into()
+                    } else {
+                        match e.status.state {
+                            StationState::Live => "live".into(),
+                            StationState::Idle => "idle".into(),
+                        }
+                    },
+                    since_unix_ms: if offline {
+                        e.seen_unix_ms
+                    } else {
+                        e.status.since_unix_ms
+                    },
+                    viewers: e.status.viewers,
+                    unpublished_frames: e.status.unpublished_frames,
+                    hub_viewers: e.feed.as_ref().map_or(0, |f| {
+                        f.hub
+                            .counters
+                            .viewers
+                            .load(std::sync::atomic::Ordering::Relaxed)
+                    }),
+                }
+            })
+            .collect();
+        out.sort_by(|a, b| a.name.cmp(&b.name));
+        out
+    }
+
+    fn close_feeds(&self) {
+        for e in lock(&self.stations).values_mut() {
+            e.feed = None;
+        }
+    }
+
+    /// The station's feed, made on first use (or again for a new session of the station).
+    async fn feed(self: &Arc<Self>, name: &str) -> Result<Arc<Feed>, (StatusCode, String)> {
+        let current = || -> Result<(StationStatus, Option<Arc<Feed>>), Refusal> {
+            let stations = lock(&self.stations);
+            let e = stations.get(name).ok_or_else(|| {
+                (
+                    StatusCode::NOT_FOUND,
+                    format!("no station {name:?} has been heard from"),
+                )
+            })?;
+            if e.seen.elapsed() > OFFLINE_AFTER {
+                return Err((
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    format!("station {name:?} is offline"),
+                ));
+            }
+            let feed = e
+                .feed
+                .as_ref()
+                .filter(|f| f.session_id == e.status.session_id)
+                .cloned();
+            Ok((e.status.clone(), feed))
+        };
+        if let (_, Some(feed)) = current()? {
+            return Ok(feed);
+        }
+        let _making = self.making.lock().await;
+        let (status, feed) = current()?;
+        if let Some(feed) = feed {
+            return Ok(feed);
+        }
+        let feed = Arc::new(self.make_feed(name, &status).await?);
+        if let Some(e) = lock(&self.stations).get_mut(name) {
+            // The old session's viewers are closed (the feed's drop): they reconnect to this one.
+            e.feed = Some(Arc::clone(&feed));
+        }
+        Ok(feed)
+    }
+
+    async fn make_feed(
+        &self,
+        name: &str,
+        status: &StationStatus,
+    ) -> Result<Feed, (StatusCode, String)> {
+        let subjects = Subjects::of(name);
+        let unavailable = |what: String| (StatusCode::BAD_GATEWAY, what);
+        let reply = tokio::time::timeout(
+            Duration::from_secs(5),
+            self.client.request(subjects.session.clone(), Bytes::new()),
+        )
+        .await
+        .map_err(|_| unavailable(format!("station {name:?} did not answer")))?
+        .map_err(|e| unavailable(format!("station {name:?}: {e}")))?;
+        let session: StationSession = serde_json::from_slice(&reply.payload)
+            .map_err(|e| unavailable(format!("station {name:?} answered nonsense: {e}")))?;
+        let scene_text = rewrite_mesh_urls(&session.scene, name).map_err(|e| {
+            unavailable(format!(
+                "station {name:?} sent a scene that is not one: {e}"
+            ))
+        })?;
+        let hello = Hello {
+            protocol_version: PROTOCOL_VERSION,
+            session_id: session.session_id.clone(),
+            role: Role::Instructor,
+            mode: Mode::Live,
+            server: SERVER_NAME.into(),
+            force_feedback: session.force_feedback,
+        };
+        let (stop, stop_rx) = watch::channel(false);
+        let hub = Arc::new(
+            StreamHub::new(
+                &hello,
+                Utf8Bytes::from(scene_text.clone()),
+                self.limits,
+                stop_rx.clone(),
+                None,
+                Arc::clone(&self.access),
+            )
+            .map_err(|e| unavailable(e.to_string()))?,
+        );
+        let contact = self
+            .client
+            .subscribe(subjects.contact.clone())
+            .await
+            .map_err(|e| unavailable(e.to_string()))?;
+        let stats = self
+            .client
+            .subscribe(subjects.stats.clone())
+            .await
+            .map_err(|e| unavailable(e.to_string()))?;
+        let relay = tokio::spawn(relay(
+            name.to_owned(),
+            contact,
+            stats,
+            Arc::clone(&hub),
+            stop_rx,
+        ));
+        tracing::info!(
+            station = name,
+            session = %status.session_id,
+            "relaying the station"
+        );
+        Ok(Feed {
+            session_id: session.session_id,
+            hub,
+            scene_json: Bytes::from(scene_text),
+            meshes: tokio::sync::Mutex::new(HashMap::new()),
+            stop,
+            relay,
+        })
+    }
+
+    /// A render mesh of the station, fetched over NATS piece by piece once, then kept.
+    async fn mesh(
+        &self,
+        name: &str,
+        feed: &Feed,
+        mesh: &str,
+    ) -> Result<Bytes, (StatusCode, String)> {
+        let mut cache = feed.meshes.lock().await;
+        if let Some(bytes) = cache.get(mesh) {
+            return Ok(bytes.clone());
+        }
+        let subjects = Subjects::of(name);
+        let mut out: Vec<u8> = Vec::new();
+        loop {
+            let request = serde_json::to_vec(&MeshRequest {
+                name: mesh.to_owned(),
+                offset: out.len() as u64,
+            })
+            .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+            let reply = tokio::time::timeout(
+                Duration::from_secs(10),
+                self.client
+                    .request(subjects.mesh.clone(), Bytes::from(request)),
+            )
+            .await
+            .map_err(|_| {
+                (
+                    StatusCode::BAD_GATEWAY,
+                    format!("station {name:?} did not send the mesh"),
+                )
+            })?
+            .map_err(|e| (StatusCode::BAD_GATEWAY, e.to_string()))?;
+            let p = &reply.payload;
+            if p.len() < 8 {
+                return Err((StatusCode::NOT_FOUND, format!("no render mesh {mesh:?}")));
+            }
+            let total = u64::from_le_bytes(p[..8].try_into().unwrap_or([0; 8]));
+            if total > crate::files::FileKind::Mesh.max_bytes() {
+                return Err((StatusCode::BAD_GATEWAY, format!("a mesh of {total} bytes")));
+            }
+            out.extend_from_slice(&p[8..]);
+            if out.len() as u64 >= total || p.len() == 8 {
+                break;
+            }
+        }
+        let bytes = Bytes::from(out);
+        cache.insert(mesh.to_owned(), bytes.clone());
+        Ok(bytes)
+    }
+}
+
+/// The station's scene with its meshes' URLs pointing at this hub.
+fn rewrite_mesh_urls(scene: &str, station: &str) -> Result<String, serde_json::Error> {
+    let mut value: serde_json::Value = serde_json::from_str(scene)?;
+    if let Some(meshes) = value
+        .get_mut("render_meshes")
+        .and_then(|m| m.as_array_mut())
+    {
+        for m in meshes {
+            let name = m
+                .get("name")
+                .and_then(|n| n.as_str())
+                .unwrap_or_default()
+                .to_owned();
+            m["url"] = serde_json::Value::String(format!("/stations/{station}/meshes/{name}.bin"));
+        }
+    }
+    serde_json::to_string(&value)
+}
+
+/// The station's frames and stats from NATS into the feed's stream hub.
+async fn relay(
+    name: String,
+    mut contact: async_nats::Subscriber,
+    mut stats: async_nats::Subscriber,
+    hub: Arc<StreamHub>,
+    mut stop: watch::Receiver<bool>,
+) {
+    let mut refused = 0u64;
+    loop {
+        tokio::select! {
+            _ = stop.changed() => break,
+            m = contact.next() => {
+                let Some(m) = m else { break };
+                match String::from_utf8(m.payload.to_vec()).map_err(|e| e.to_string()).and_then(EncodedFrame::from_text) {
+                    Ok(frame) => {
+                        let _ = hub.frames.send(Arc::new(frame));
+                        hub.counters.frames_sent.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    }
+                    Err(e) => {
+                        refused += 1;
+                        if refused == 1 || refused.is_power_of_two() {
+                            tracing::warn!(station = %name, "a frame that is not one ({refused} so far): {e}");
+                        }
+                    }
+                }
+            }
+            m = stats.next() => {
+                let Some(m) = m else { break };
+                if let Ok(text) = String::from_utf8(m.payload.to_vec()) {
+                    let _ = hub.stats.send(Utf8Bytes::from(text));
+                }
+            }
+        }
+    }
+}
+
+/// The stations' heartbeats into the list.
+async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
+    while let Some(m) = status.next().await {
+        let Ok(s) = serde_json::from_slice::<StationStatus>(&m.payload) else {
+            continue;
+        };
+        // A station speaks for itself only.
+        if m.subject.as_str() != Subjects::of(&s.name).status
+            || super::check_station_name(&s.name).is_err()
+        {
+            continue;
+        }
+        let mut stations = lock(&lab.stations);
+        let name = s.name.clone();
+        match stations.get_mut(&name) {
+            Some(e) => {
+                e.status = s;
+                e.seen = Instant::now();
+                e.seen_unix_ms = super::unix_ms();
+            }
+            None => {
+                tracing::info!(station = %name, "a station appeared");
+                stations.insert(
+                    name,
+                    Entry {
+                        status: s,
+                        seen: Instant::now(),
+                        seen_unix_ms: super::unix_ms(),
+                        feed: None,
+                    },
+                );
+            }
+        }
+    }
+}
+
+#[derive(Deserialize)]
+struct StationQuery {
+    station: Option<String>,
+}
+
+fn no_station() -> Response {
+    (
+        StatusCode::NOT_FOUND,
+        "this is a lab hub: name a station (?station=NAME); /api/stations lists them",
+    )
+        .into_response()
+}
+
+async fn api_stations(State(lab): State<Arc<Lab>>) -> Response {
+    let list = StationList {
+        hub: true,
+        stations: lab.listing(),
+    };
+    match serde_json::to_vec(&list) {
+        Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+async fn api_scene(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -> Response {
+    let Some(name) = q.station else {
+        return no_station();
+    };
+    match lab.feed(&name).await {
+        Ok(feed) => (
+            [(header::CONTENT_TYPE, "application/json")],
+            feed.scene_json.clone(),
+        )
+            .into_response(),
+        Err(e) => e.into_response(),
+    }
+}
+
+async fn mesh(
+    State(lab): State<Arc<Lab>>,
+    UrlPath((station, file)): UrlPath<(String, String)>,
+) -> Response {
+    let Some(mesh_name) = file.strip_suffix(".bin") else {
+        return (StatusCode::NOT_FOUND, format!("no render mesh {file:?}")).into_response();
+    };
+    let feed = match lab.feed(&station).await {
+        Ok(f) => f,
+        Err(e) => return e.into_response(),
+    };
+    match lab.mesh(&station, &feed, mesh_name).await {
+        Ok(bytes) => ([(header::CONTENT_TYPE, "application/octet-stream")], bytes).into_response(),
+        Err(e) => e.into_response(),
+    }
+}
+
+async fn ws(
+    State(lab): State<Arc<Lab>>,
+    Query(q): Query<StationQuery>,
+    connect_info: Option<axum::Extension<ConnectInfo<SocketAddr>>>,
+    headers: HeaderMap,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    let Some(name) = q.station else {
+        return no_station();
+    };
+    match lab.feed(&name).await {
+        Ok(feed) => crate::app::upgrade_viewer(
+            Arc::clone(&feed.hub),
+            connect_info.map(|info| info.0.0),
+            &headers,
+            upgrade,
+        ),
+        Err(e) => e.into_response(),
+    }
+}
+
+/// Connects to NATS, follows the stations and serves the page.
+pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
+    let mut access_config = options.access;
+    access_config.check_bind(options.addr)?;
+    let client = super::connect(&options.nats, "softhaptic hub".into(), "hub").await?;
+    let status = client
+        .subscribe(STATUS_SUBJECTS)
+        .await
+        .map_err(|e| LabError::Connect {
+            url: options.nats.url.clone(),
+            reason: e.to_string(),
+        })?;
+    access_config.secure_transport = options.tls.is_some();
+    let access = Arc::new(Access::new(access_config, &options.web_dir));
+    let lab = Arc::new(Lab {
+        client,
+        stations: Mutex::new(HashMap::new()),
+        making: tokio::sync::Mutex::new(()),
+        access: Arc::clone(&access),
+        limits: options.viewer_limits,
+    });
+    let tasks = vec![tokio::spawn(follow_stations(Arc::clone(&lab), status))];
+
+    let session_data = Router::new()
+        .route("/api/stations", get(api_stations))
+        .route("/api/scene", get(api_scene))
+        .route("/stations/{station}/meshes/{file}", get(mesh))
+        .route_layer(axum::middleware::from_fn_with_state(
+            Arc::clone(&access),
+            access::require_token,
+        ));
+    let routes = crate::app::viewer_files(&options.web_dir)
+        .merge(session_data)
+        .route("/ws", get(ws))
+        .with_state(Arc::clone(&lab))
+        .layer(axum::middleware::from_fn_with_state(
+            Arc::clone(&access),
+            access::guard_host,
+        ));
+    let app = access::with_security_headers(routes, access.csp().clone());
+
+    let listener = tokio::net::TcpListener::bind(options.addr)
+        .await
+        .map_err(|source| HubError::Bind {
+            addr: options.addr,
+            source,
+        })?;
+    let local_addr = listener.local_addr().map_err(|source| HubError::Bind {
+        addr: options.addr,
+        source,
+    })?;
+    let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let tls = options.tls.is_some();
+    let http = crate::app::serve_http(listener, app, options.tls, shutdown_rx);
+    Ok(RunningHub {
+        local_addr,
+        shutdown_tx,
+        http,
+        tasks,
+        lab,
+        tls,
+    })
+}

@@ -1,0 +1,318 @@
+//! The teaching lab on NATS: stations publish their session, hubs relay it to browsers.
+//!
+//! ```text
+//!  station (device host)                       NATS                         hub (any machine)
+//!  loop → StreamHub ─┬─ local viewers           softhaptic.stations.<s>      StationFeed per station
+//!                    └─ station task ─publish─► softhaptic.station.<s>.*  ─► StreamHub ─► viewers
+//!                         scene / mesh ◄─request─────────────────────────── (on first viewer)
+//! ```
+//!
+//! - [`station`]: `softhaptic --nats URL --station NAME`: a task beside the local viewers
+//!   that publishes the stream's pre-encoded frames and stats, a heartbeat with the station's
+//!   state, and answers the hubs' requests for the scene and its meshes. It reads the stream
+//!   hub's broadcasts like any viewer, so the loop never waits for it and a lost NATS costs
+//!   only the frames not published (counted, and logged when NATS is back).
+//! - [`hub`]: `softhaptic hub --nats URL`: lists the stations from their heartbeats and relays
+//!   any station's stream to browsers through a [`StreamHub`](crate::stream::StreamHub) of its
+//!   own per station, fed from one NATS subscription, behind the same access rules (tokens,
+//!   Origin, Host, TLS) as a station. Hubs hold no state NATS does not have.
+//!
+//! Subjects (`NAME` a station's name, `[A-Za-z0-9_-]`, at most 64 characters):
+//!
+//! | subject | what |
+//! |---|---|
+//! | `softhaptic.stations.NAME` | heartbeat, once a second: [`StationStatus`] (JSON) |
+//! | `softhaptic.station.NAME.contact` | each contact frame, the text viewers get |
+//! | `softhaptic.station.NAME.stats` | each stats message, the text viewers get |
+//! | `softhaptic.station.NAME.session` | request → [`StationSession`]: hello and scene |
+//! | `softhaptic.station.NAME.mesh` | request `{"name", "offset"}` → a piece of a render mesh |
+
+pub mod hub;
+pub mod station;
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+/// The subject of every station's heartbeat (`*`: the station's name).
+pub const STATUS_SUBJECTS: &str = "softhaptic.stations.*";
+/// A station's heartbeat period.
+pub const STATUS_PERIOD: Duration = Duration::from_secs(1);
+/// A station whose heartbeat has not come for this long is offline.
+pub const OFFLINE_AFTER: Duration = Duration::from_secs(3);
+/// Largest piece of a mesh in one reply: well under NATS's default 1 MiB payload limit.
+pub const MESH_PIECE_BYTES: usize = 512 << 10;
+
+/// A station's subjects.
+#[derive(Debug, Clone)]
+pub struct Subjects {
+    pub status: String,
+    pub contact: String,
+    pub stats: String,
+    pub session: String,
+    pub mesh: String,
+}
+
+impl Subjects {
+    pub fn of(station: &str) -> Self {
+        let base = format!("softhaptic.station.{station}");
+        Self {
+            status: format!("softhaptic.stations.{station}"),
+            contact: format!("{base}.contact"),
+            stats: format!("{base}.stats"),
+            session: format!("{base}.session"),
+            mesh: format!("{base}.mesh"),
+        }
+    }
+}
+
+/// Why a station name cannot be used (it is a NATS subject token and part of URLs).
+pub fn check_station_name(name: &str) -> Result<(), String> {
+    let ok = !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "station name {name:?}: use 1 to 64 letters, digits, '-' or '_'"
+        ))
+    }
+}
+
+/// What a station says of itself once a second.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StationStatus {
+    pub name: String,
+    /// The session it runs (the recording's id when it records).
+    pub session_id: String,
+    /// The trainee's scene: the object, the tool and the device, in words.
+    pub scene: String,
+    /// `live` (a trainee's tool is in contact or moving recently) or `idle`.
+    pub state: StationState,
+    /// Since when it is in that state, Unix milliseconds.
+    pub since_unix_ms: u64,
+    /// Viewers on the station itself.
+    pub viewers: u32,
+    /// Frames not published since the start (NATS unreachable, or slower than 50 Hz).
+    pub unpublished_frames: u64,
+}
+
+/// Whether a station's trainee is at work.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StationState {
+    /// The tool touched the object within the last minute.
+    Live,
+    /// Running, no contact for a minute.
+    Idle,
+}
+
+/// A station's answer to a hub that starts relaying it: what its `hello` and `scene` say.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StationSession {
+    pub session_id: String,
+    pub force_feedback: bool,
+    /// The `scene` message's text, as the station's viewers get it.
+    pub scene: String,
+}
+
+/// A request for a piece of a render mesh.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MeshRequest {
+    pub name: String,
+    pub offset: u64,
+}
+
+/// How to reach NATS: its URL and, for a server that wants them, credentials.
+#[derive(Debug, Clone)]
+pub struct NatsOptions {
+    pub url: String,
+    /// A file with the credentials: a NATS `.creds` file (a user JWT and its nkey seed), or
+    /// TOML with `token = "…"` or `user = "…"` and `password = "…"`.
+    pub credentials: Option<PathBuf>,
+}
+
+/// Why NATS could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum LabError {
+    #[error("NATS credentials {path}: {reason}")]
+    Credentials { path: PathBuf, reason: String },
+    #[error(
+        "NATS at {url} refused this {role}: {reason} (give credentials with --nats-credentials FILE)"
+    )]
+    Refused {
+        url: String,
+        role: &'static str,
+        reason: String,
+    },
+    #[error("NATS at {url}: {reason}")]
+    Connect { url: String, reason: String },
+    #[error("{0}")]
+    Name(String),
+}
+
+/// The fields of a TOML credentials file.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CredentialsFile {
+    token: Option<String>,
+    user: Option<String>,
+    password: Option<String>,
+}
+
+/// Connection options with the credentials of `path` (never logged, never in an error).
+async fn with_credentials(
+    options: async_nats::ConnectOptions,
+    path: &Path,
+) -> Result<async_nats::ConnectOptions, LabError> {
+    let refused = |reason: String| LabError::Credentials {
+        path: path.to_owned(),
+        reason,
+    };
+    let text = crate::files::read_text(path, crate::files::FileKind::Table)
+        .map_err(|e| refused(e.to_string()))?;
+    if text.contains("-----BEGIN NATS USER JWT-----") {
+        return options
+            .credentials(&text)
+            .map_err(|e| refused(format!("not a valid .creds file: {}", e.kind())));
+    }
+    // The TOML parser's message may quote the value it stopped at: keep only its position.
+    let file: CredentialsFile = toml::from_str(&text).map_err(|e| {
+        refused(match e.span() {
+            Some(span) => format!(
+                "not a .creds file, nor TOML with token or user and password (error at byte {})",
+                span.start
+            ),
+            None => "not a .creds file, nor TOML with token or user and password".into(),
+        })
+    })?;
+    match file {
+        CredentialsFile {
+            token: Some(token),
+            user: None,
+            password: None,
+        } => Ok(options.token(token)),
+        CredentialsFile {
+            token: None,
+            user: Some(user),
+            password: Some(password),
+        } => Ok(options.user_and_password(user, password)),
+        _ => Err(refused(
+            "give either token, or user and password (and nothing else)".into(),
+        )),
+    }
+}
+
+/// Connects to NATS as `name` (shown in the server's connection list). A server that refuses
+/// the credentials stops the start with the reason. One that cannot be reached does not when
+/// `wait` is false: the client keeps trying in the background (a station serves its own viewers
+/// meanwhile); with `wait`, it is an error too.
+pub async fn connect(
+    options: &NatsOptions,
+    name: String,
+    role: &'static str,
+) -> Result<async_nats::Client, LabError> {
+    let base = || async {
+        let mut o = async_nats::ConnectOptions::new()
+            .name(name.clone())
+            .connection_timeout(Duration::from_secs(3))
+            // Frames go out within one frame period or not at all: never a backlog of stale ones.
+            .client_capacity(256);
+        if let Some(path) = &options.credentials {
+            o = with_credentials(o, path).await?;
+        }
+        Ok::<_, LabError>(o)
+    };
+    match base().await?.connect(options.url.as_str()).await {
+        Ok(client) => Ok(client),
+        Err(e) => {
+            use async_nats::ConnectErrorKind as K;
+            match e.kind() {
+                K::AuthorizationViolation | K::Authentication => Err(LabError::Refused {
+                    url: options.url.clone(),
+                    role,
+                    reason: e.to_string(),
+                }),
+                K::ServerParse | K::Dns | K::Tls => Err(LabError::Connect {
+                    url: options.url.clone(),
+                    reason: e.to_string(),
+                }),
+                _ => {
+                    tracing::warn!(
+                        "NATS at {} is not reachable ({e}); carrying on and connecting in the background",
+                        options.url
+                    );
+                    base()
+                        .await?
+                        .retry_on_initial_connect()
+                        .connect(options.url.as_str())
+                        .await
+                        .map_err(|e| LabError::Connect {
+                            url: options.url.clone(),
+                            reason: e.to_string(),
+                        })
+                }
+            }
+        }
+    }
+}
+
+/// Unix time now, milliseconds.
+pub(crate) fn unix_ms() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn station_names_are_subject_tokens() {
+        assert!(check_station_name("desk-3_b").is_ok());
+        for bad in ["", "a.b", "a b", "*", ">", "ü", &"x".repeat(65)] {
+            assert!(check_station_name(bad).is_err(), "{bad:?}");
+        }
+        let s = Subjects::of("desk-3");
+        assert_eq!(s.contact, "softhaptic.station.desk-3.contact");
+        assert_eq!(s.status, "softhaptic.stations.desk-3");
+    }
+
+    #[tokio::test]
+    async fn credentials_files_are_read_and_their_errors_name_the_file_not_the_secret() {
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let write = |name: &str, text: &str| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, text).unwrap_or_else(|e| panic!("{e}"));
+            p
+        };
+        let o = async_nats::ConnectOptions::new();
+        assert!(
+            with_credentials(o, &write("t.toml", "token = \"s3cret\"\n"))
+                .await
+                .is_ok()
+        );
+        let o = async_nats::ConnectOptions::new();
+        let up = write("up.toml", "user = \"desk\"\npassword = \"s3cret\"\n");
+        assert!(with_credentials(o, &up).await.is_ok());
+        for (name, text) in [
+            ("both.toml", "token = \"s3cret\"\nuser = \"desk\"\n"),
+            ("half.toml", "user = \"desk\"\n"),
+            ("junk.toml", "s3cret"),
+        ] {
+            let path = write(name, text);
+            let e = with_credentials(async_nats::ConnectOptions::new(), &path)
+                .await
+                .err()
+                .unwrap_or_else(|| panic!("{name} accepted"))
+                .to_string();
+            assert!(e.contains(name), "{e}");
+            assert!(!e.contains("s3cret"), "{e}");
+        }
+    }
+}

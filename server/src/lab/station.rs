@@ -1,0 +1,294 @@
+//! A station's side of the lab: its stream published to NATS beside its own viewers.
+//!
+//! The task reads the stream hub's frame and stats broadcasts exactly as a viewer does, so the
+//! haptic loop and the local viewers never wait for NATS: a publish that cannot go out at once
+//! (NATS down, or slower than the frames) loses that frame, counted in the heartbeat's
+//! `unpublished_frames` and logged, with the outage's length, when NATS is back. While the
+//! client is disconnected nothing is handed to it, so a reconnection never flushes a backlog of
+//! stale frames to the hubs.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use axum::body::Bytes;
+use futures_util::StreamExt;
+use tokio::sync::{broadcast, watch};
+use tokio::task::JoinHandle;
+
+use super::{
+    LabError, MESH_PIECE_BYTES, MeshRequest, NatsOptions, STATUS_PERIOD, StationSession,
+    StationState, StationStatus, Subjects, unix_ms,
+};
+use crate::stream::StreamHub;
+
+/// A station's lab settings (`--nats`, `--station`, `--nats-credentials`).
+#[derive(Debug, Clone)]
+pub struct StationOptions {
+    pub nats: NatsOptions,
+    pub name: String,
+}
+
+/// What the station serves the hubs.
+pub struct StationData {
+    pub session: StationSession,
+    /// The scene in words, for the station list.
+    pub scene_label: String,
+    /// The render meshes by name, SHM1 bytes.
+    pub meshes: Arc<HashMap<String, Bytes>>,
+}
+
+/// How long after the last contact a station still counts as live.
+const LIVE_FOR: Duration = Duration::from_secs(60);
+
+/// Connects the station to NATS: a refusal of the credentials is an error, an unreachable
+/// server is not (the client keeps trying; the station serves its own viewers meanwhile).
+pub async fn connect(options: &StationOptions) -> Result<async_nats::Client, LabError> {
+    super::check_station_name(&options.name).map_err(LabError::Name)?;
+    super::connect(
+        &options.nats,
+        format!("softhaptic station {}", options.name),
+        "station",
+    )
+    .await
+}
+
+/// Starts publishing `hub`'s stream through `client` until `shutdown`.
+pub fn spawn(
+    client: async_nats::Client,
+    options: &StationOptions,
+    hub: Arc<StreamHub>,
+    data: StationData,
+    shutdown: watch::Receiver<bool>,
+) -> Vec<JoinHandle<()>> {
+    let subjects = Subjects::of(&options.name);
+    let data = Arc::new(data);
+    let published = Arc::new(Published::default());
+    let tasks = vec![
+        tokio::spawn(publish_frames(
+            client.clone(),
+            subjects.clone(),
+            hub.frames.subscribe(),
+            hub.stats.subscribe(),
+            Arc::clone(&published),
+            shutdown.clone(),
+        )),
+        tokio::spawn(heartbeat(
+            client.clone(),
+            options.name.clone(),
+            subjects.clone(),
+            Arc::clone(&hub),
+            Arc::clone(&data),
+            Arc::clone(&published),
+            shutdown.clone(),
+        )),
+        tokio::spawn(answer_requests(client, subjects, data, shutdown)),
+    ];
+    tracing::info!(
+        "station {:?} publishes to NATS at {}",
+        options.name,
+        options.nats.url
+    );
+    tasks
+}
+
+#[derive(Default)]
+struct Published {
+    /// Frames not published (NATS down, or the publisher behind).
+    unpublished_frames: std::sync::atomic::AtomicU64,
+    /// Unix ms of the last frame in contact (0: never).
+    last_contact_ms: std::sync::atomic::AtomicU64,
+}
+
+async fn publish_frames(
+    client: async_nats::Client,
+    subjects: Subjects,
+    mut frames: broadcast::Receiver<Arc<crate::stream::EncodedFrame>>,
+    mut stats: broadcast::Receiver<axum::extract::ws::Utf8Bytes>,
+    published: Arc<Published>,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    // When NATS went away, and how many frames were not published since.
+    let mut outage: Option<(Instant, u64)> = None;
+    loop {
+        let (subject, payload, in_contact) = tokio::select! {
+            _ = shutdown.changed() => break,
+            frame = frames.recv() => match frame {
+                Ok(frame) => {
+                    let text = frame.text_for(0);
+                    let in_contact = text.as_str().contains("\"in_contact\":true");
+                    (subjects.contact.clone(), Bytes::from(text.as_str().to_owned()), in_contact)
+                }
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    published.unpublished_frames.fetch_add(n, Ordering::Relaxed);
+                    continue;
+                }
+                Err(broadcast::error::RecvError::Closed) => break,
+            },
+            s = stats.recv() => match s {
+                Ok(text) => (subjects.stats.clone(), Bytes::from(text.as_str().to_owned()), false),
+                Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                Err(broadcast::error::RecvError::Closed) => break,
+            },
+        };
+        if in_contact {
+            published
+                .last_contact_ms
+                .store(unix_ms(), Ordering::Relaxed);
+        }
+        let is_frame = subject == subjects.contact;
+        let connected = client.connection_state() == async_nats::connection::State::Connected;
+        if !connected {
+            if is_frame {
+                published.unpublished_frames.fetch_add(1, Ordering::Relaxed);
+                let (since, lost) = outage.get_or_insert((Instant::now(), 0));
+                *lost += 1;
+                if *lost == 1 {
+                    tracing::warn!(
+                        "NATS connection lost at {:?}: frames are not published until it is back (this station's own viewers are not affected)",
+                        since
+                    );
+                }
+            }
+            continue;
+        }
+        if let Some((since, lost)) = outage.take() {
+            tracing::warn!(
+                "NATS is back after {:.1} s: {lost} frames were not published",
+                since.elapsed().as_secs_f64()
+            );
+        }
+        // Bounded: a publish that cannot be queued within a frame period is dropped.
+        let sent =
+            tokio::time::timeout(Duration::from_millis(20), client.publish(subject, payload)).await;
+        if !matches!(sent, Ok(Ok(()))) && is_frame {
+            published.unpublished_frames.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+async fn heartbeat(
+    client: async_nats::Client,
+    name: String,
+    subjects: Subjects,
+    hub: Arc<StreamHub>,
+    data: Arc<StationData>,
+    published: Arc<Published>,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    let mut interval = tokio::time::interval(STATUS_PERIOD);
+    interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut state = (StationState::Idle, unix_ms());
+    loop {
+        tokio::select! {
+            _ = shutdown.changed() => break,
+            _ = interval.tick() => {}
+        }
+        let now = unix_ms();
+        let last = published.last_contact_ms.load(Ordering::Relaxed);
+        let live = last != 0 && now.saturating_sub(last) < LIVE_FOR.as_millis() as u64;
+        let current = if live {
+            StationState::Live
+        } else {
+            StationState::Idle
+        };
+        if current != state.0 {
+            state = (current, now);
+        }
+        let status = StationStatus {
+            name: name.clone(),
+            session_id: data.session.session_id.clone(),
+            scene: data.scene_label.clone(),
+            state: state.0,
+            since_unix_ms: state.1,
+            viewers: hub.counters.viewers.load(Ordering::Relaxed),
+            unpublished_frames: published.unpublished_frames.load(Ordering::Relaxed),
+        };
+        if client.connection_state() != async_nats::connection::State::Connected {
+            continue;
+        }
+        if let Ok(json) = serde_json::to_vec(&status) {
+            let _ = tokio::time::timeout(
+                STATUS_PERIOD,
+                client.publish(subjects.status.clone(), Bytes::from(json)),
+            )
+            .await;
+        }
+    }
+}
+
+async fn answer_requests(
+    client: async_nats::Client,
+    subjects: Subjects,
+    data: Arc<StationData>,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    // Subscribed as soon as NATS is there (the client may still be connecting).
+    let (mut session, mut mesh) = loop {
+        let subscribed = async {
+            Ok::<_, async_nats::SubscribeError>((
+                client.subscribe(subjects.session.clone()).await?,
+                client.subscribe(subjects.mesh.clone()).await?,
+            ))
+        };
+        tokio::select! {
+            _ = shutdown.changed() => return,
+            s = subscribed => match s {
+                Ok(pair) => break pair,
+                Err(e) => {
+                    tracing::warn!("cannot subscribe to the hubs' requests yet: {e}");
+                    tokio::time::sleep(Duration::from_secs(1)).await;
+                }
+            }
+        }
+    };
+    let session_json = match serde_json::to_vec(&data.session) {
+        Ok(json) => Bytes::from(json),
+        Err(e) => {
+            tracing::error!("cannot encode the station's session for the hubs: {e}");
+            return;
+        }
+    };
+    loop {
+        let (request, reply) = tokio::select! {
+            _ = shutdown.changed() => break,
+            m = session.next() => match m {
+                Some(m) => (m, session_json.clone()),
+                None => break,
+            },
+            m = mesh.next() => match m {
+                Some(m) => {
+                    let reply = mesh_piece(&data, &m.payload);
+                    (m, reply)
+                }
+                None => break,
+            },
+        };
+        if let Some(to) = request.reply {
+            let _ = client.publish(to, reply).await;
+        }
+    }
+}
+
+/// The piece of a mesh a request asks for: its total length (u64, little-endian) then up to
+/// [`MESH_PIECE_BYTES`] from the offset; an empty reply for a mesh or offset that is not there.
+fn mesh_piece(data: &StationData, request: &[u8]) -> Bytes {
+    let Ok(MeshRequest { name, offset }) = serde_json::from_slice(request) else {
+        return Bytes::new();
+    };
+    let Some(mesh) = data.meshes.get(&name) else {
+        return Bytes::new();
+    };
+    let Ok(start) = usize::try_from(offset) else {
+        return Bytes::new();
+    };
+    if start > mesh.len() {
+        return Bytes::new();
+    }
+    let end = (start + MESH_PIECE_BYTES).min(mesh.len());
+    let mut out = Vec::with_capacity(8 + end - start);
+    out.extend_from_slice(&(mesh.len() as u64).to_le_bytes());
+    out.extend_from_slice(&mesh[start..end]);
+    Bytes::from(out)
+}

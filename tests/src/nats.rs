@@ -1,0 +1,110 @@
+//! A real `nats-server` for the lab's tests: started on a free loopback port with JetStream and
+//! a store in a scratch directory, stopped (killed) when dropped, restartable on the same port.
+//! The test command installs Debian's `nats-server` (see the Makefile); without it the tests say
+//! how to get it.
+
+use std::net::{SocketAddr, TcpListener};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// A running `nats-server`.
+pub struct NatsServer {
+    child: Option<Child>,
+    pub port: u16,
+    store: PathBuf,
+    auth: Option<(String, String)>,
+}
+
+impl NatsServer {
+    /// Starts a server that takes anyone.
+    pub fn start(name: &str) -> NatsServer {
+        Self::start_with(name, None)
+    }
+
+    /// Starts a server that takes only `user` with `password`.
+    pub fn start_with_user(name: &str, user: &str, password: &str) -> NatsServer {
+        Self::start_with(name, Some((user.to_owned(), password.to_owned())))
+    }
+
+    fn start_with(name: &str, auth: Option<(String, String)>) -> NatsServer {
+        let port = TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .expect("a free port");
+        let mut server = NatsServer {
+            child: None,
+            port,
+            store: crate::scratch_dir(&format!("nats-{name}")),
+            auth,
+        };
+        server.restart();
+        server
+    }
+
+    /// `nats://127.0.0.1:PORT`.
+    pub fn url(&self) -> String {
+        format!("nats://127.0.0.1:{}", self.port)
+    }
+
+    /// Kills the server (as a crash would).
+    pub fn kill(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+
+    /// Starts it again on the same port and store; returns once it accepts connections.
+    pub fn restart(&mut self) {
+        self.kill();
+        let mut command = Command::new(program());
+        command
+            .args([
+                "-a",
+                "127.0.0.1",
+                "-p",
+                &self.port.to_string(),
+                "-js",
+                "-sd",
+            ])
+            .arg(&self.store)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null());
+        if let Some((user, password)) = &self.auth {
+            command.args(["--user", user, "--pass", password]);
+        }
+        let child = command.spawn().unwrap_or_else(|e| {
+            panic!(
+                "cannot start nats-server ({e}): `make test` installs it (Debian's nats-server package)"
+            )
+        });
+        self.child = Some(child);
+        let addr = SocketAddr::from(([127, 0, 0, 1], self.port));
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while std::net::TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "nats-server did not listen on {addr}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+/// `nats-server` on the PATH, or where Debian puts it (`/usr/sbin`, not on every user's PATH).
+fn program() -> PathBuf {
+    let on_path = std::env::var_os("PATH").and_then(|paths| {
+        std::env::split_paths(&paths)
+            .map(|p| p.join("nats-server"))
+            .find(|p| p.is_file())
+    });
+    on_path.unwrap_or_else(|| PathBuf::from("/usr/sbin/nats-server"))
+}
+
+impl Drop for NatsServer {
+    fn drop(&mut self) {
+        self.kill();
+        let _ = std::fs::remove_dir_all(&self.store);
+    }
+}

@@ -1,0 +1,261 @@
+//! The teaching lab with a real `nats-server`: two simulated stations publish, a hub lists them
+//! and relays the one a viewer picks, frame for frame as the station's own viewers get it; NATS
+//! refusing a station's credentials stops its start; a hub's viewer without a token is refused
+//! as a station's is; NATS killed mid-session leaves the station and its viewers running, and
+//! the relay comes back when NATS does.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use softhaptic_proto::wire::{ContactFrame, Role, ServerMessage};
+use softhaptic_server::access::{Token, TokenSource, Tokens};
+use softhaptic_server::app::{self, RunningServer, default_web_dir};
+use softhaptic_server::lab::NatsOptions;
+use softhaptic_server::lab::hub::{self, HubOptions, RunningHub};
+use softhaptic_server::lab::station::StationOptions;
+use softhaptic_server::scene::Scene;
+use softhaptic_tests::nats::NatsServer;
+use softhaptic_tests::{Viewer, scratch_dir, test_options};
+
+const I: &str = "1f0e2d3c4b5a69788796a5b4c3d2e1f0";
+const O: &str = "00112233445566778899aabbccddeeff";
+
+fn nats(url: String, credentials: Option<std::path::PathBuf>) -> NatsOptions {
+    NatsOptions { url, credentials }
+}
+
+async fn station(
+    name: &str,
+    options: NatsOptions,
+) -> Result<RunningServer, softhaptic_server::app::ServerError> {
+    let mut o = test_options();
+    o.lab = Some(StationOptions {
+        nats: options,
+        name: name.to_owned(),
+    });
+    app::start(Scene::builtin_default().unwrap(), o).await
+}
+
+async fn hub(options: NatsOptions, tokens: bool) -> RunningHub {
+    let mut access = softhaptic_server::access::AccessConfig::default();
+    if tokens {
+        access.tokens = Some(Arc::new(
+            Tokens::new(
+                Token::parse(I, Role::Instructor).unwrap(),
+                Token::parse(O, Role::Observer).unwrap(),
+                TokenSource::Environment,
+            )
+            .unwrap(),
+        ));
+    }
+    hub::start(HubOptions {
+        nats: options,
+        addr: ([127, 0, 0, 1], 0).into(),
+        web_dir: default_web_dir(),
+        access,
+        tls: None,
+        viewer_limits: Default::default(),
+    })
+    .await
+    .unwrap()
+}
+
+async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !condition() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// Contact frames by seq (their `dropped` set to 0: each viewer has its own count) until
+/// `count` have come.
+async fn frames(viewer: &mut Viewer, count: usize) -> BTreeMap<u64, ContactFrame> {
+    let mut out = BTreeMap::new();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while out.len() < count {
+        assert!(Instant::now() < deadline, "only {} frames", out.len());
+        if let Some(Ok(ServerMessage::Contact(c))) = viewer.next(Duration::from_secs(10)).await {
+            out.insert(c.seq, ContactFrame { dropped: 0, ..c });
+        }
+    }
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hub_lists_two_stations_and_relays_the_one_picked_frame_for_frame() {
+    let server = NatsServer::start("two-stations");
+    let a = station("desk-a", nats(server.url(), None)).await.unwrap();
+    let b = station("desk-b", nats(server.url(), None)).await.unwrap();
+    let hub = hub(nats(server.url(), None), false).await;
+    wait_until("both stations listed", || {
+        let s = hub.stations();
+        s.len() == 2 && s.iter().all(|s| s.state != "offline")
+    })
+    .await;
+    let listed = hub.stations();
+    assert_eq!(listed[0].name, "desk-a");
+    assert_eq!(listed[1].name, "desk-b");
+    assert!(listed[0].scene.contains("liver"), "{:?}", listed[0]);
+
+    // The hub's answer to the page, over HTTP.
+    let (status, body) = softhaptic_tests::http_get(hub.local_addr(), "/api/stations").await;
+    assert_eq!(status, 200);
+    let list: hub::StationList = serde_json::from_slice(&body).unwrap();
+    assert!(list.hub && list.stations.len() == 2);
+
+    // A viewer on the station and one on the hub, for station b.
+    let mut direct = Viewer::connect(b.local_addr()).await;
+    let mut relayed =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-b", hub.local_addr())).await;
+    let hello = match relayed.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => h,
+        other => panic!("expected hello, got {other:?}"),
+    };
+    // The station's own session, as its own viewers are told it.
+    match ServerMessage::decode(b.hub().hello(Role::Instructor).as_str()).unwrap() {
+        ServerMessage::Hello(own) => assert_eq!(hello.session_id, own.session_id),
+        other => panic!("{other:?}"),
+    }
+    match relayed.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Scene(s) => {
+            assert_eq!(s.render_meshes[0].url, "/stations/desk-b/meshes/liver.bin");
+            assert_eq!(s.tool, b.scene_message().tool);
+        }
+        other => panic!("expected scene, got {other:?}"),
+    }
+    let from_station = frames(&mut direct, 150).await;
+    let from_hub = frames(&mut relayed, 150).await;
+    // Every frame both saw is the same frame; the hub's are consecutive (none lost on the way).
+    let common: Vec<u64> = from_hub
+        .keys()
+        .filter(|seq| from_station.contains_key(seq))
+        .copied()
+        .collect();
+    assert!(common.len() >= 50, "{} frames in common", common.len());
+    for seq in &common {
+        assert_eq!(from_hub[seq], from_station[seq], "frame {seq}");
+    }
+    let seqs: Vec<u64> = from_hub.keys().copied().collect();
+    let gaps = seqs.windows(2).filter(|w| w[1] != w[0] + 1).count();
+    assert!(gaps <= 2, "{gaps} gaps in {seqs:?}");
+
+    // The mesh through the hub is the station's.
+    let (status, relayed_mesh) =
+        softhaptic_tests::http_get(hub.local_addr(), "/stations/desk-b/meshes/liver.bin").await;
+    assert_eq!(status, 200);
+    let (_, own_mesh) = softhaptic_tests::http_get(b.local_addr(), "/meshes/liver.bin").await;
+    assert!(relayed_mesh.len() > 1 << 20, "{}", relayed_mesh.len());
+    assert!(relayed_mesh == own_mesh);
+
+    // A station that is not there.
+    let (status, _) =
+        softhaptic_tests::http_get(hub.local_addr(), "/api/scene?station=desk-z").await;
+    assert_eq!(status, 404);
+
+    hub.shutdown().await;
+    a.shutdown().await;
+    b.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nats_refusing_the_credentials_stops_a_station_and_a_hub_wants_its_token() {
+    let server = NatsServer::start_with_user("auth", "desk", "s3cret-pass");
+    let e = station("desk-a", nats(server.url(), None))
+        .await
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("refused this station"), "{e}");
+    assert!(e.contains("--nats-credentials"), "{e}");
+
+    let dir = scratch_dir("lab-credentials");
+    let wrong = dir.join("wrong.toml");
+    std::fs::write(&wrong, "user = \"desk\"\npassword = \"not-it\"\n").unwrap();
+    let e = station("desk-a", nats(server.url(), Some(wrong)))
+        .await
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("refused"), "{e}");
+    assert!(!e.contains("not-it"), "the password is not shown: {e}");
+
+    let right = dir.join("right.toml");
+    std::fs::write(&right, "user = \"desk\"\npassword = \"s3cret-pass\"\n").unwrap();
+    let a = station("desk-a", nats(server.url(), Some(right.clone())))
+        .await
+        .unwrap();
+    let hub = hub(nats(server.url(), Some(right)), true).await;
+    wait_until("the station listed", || hub.stations().len() == 1).await;
+
+    // Without a token, the hub refuses the stream and the list as a station would.
+    let mut viewer =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-a", hub.local_addr())).await;
+    let (close, _) = viewer.until_closed(Duration::from_secs(30)).await;
+    assert_eq!(close.map(|c| c.0), Some(4401));
+    let (status, _) = softhaptic_tests::http_get(hub.local_addr(), "/api/stations").await;
+    assert_eq!(status, 401);
+    // With one, it streams.
+    let mut viewer =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-a", hub.local_addr())).await;
+    viewer.authenticate(O).await;
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => assert_eq!(h.role, Role::Observer),
+        other => panic!("expected hello, got {other:?}"),
+    }
+    hub.shutdown().await;
+    a.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_nats_gone_the_station_serves_its_viewers_and_the_relay_resumes_when_it_is_back() {
+    let mut server = NatsServer::start("outage");
+    let a = station("desk-a", nats(server.url(), None)).await.unwrap();
+    let hub = hub(nats(server.url(), None), false).await;
+    wait_until("the station listed", || hub.stations().len() == 1).await;
+    let mut relayed =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-a", hub.local_addr())).await;
+    let before = frames(&mut relayed, 20).await;
+    let mut direct = Viewer::connect(a.local_addr()).await;
+
+    server.kill();
+    // The station's own viewer carries on: frames keep coming, consecutive.
+    let during = frames(&mut direct, 100).await;
+    let seqs: Vec<u64> = during.keys().copied().collect();
+    assert!(
+        seqs.windows(2).filter(|w| w[1] != w[0] + 1).count() <= 2,
+        "{seqs:?}"
+    );
+    wait_until("the hub to show the station offline", || {
+        hub.stations().first().is_some_and(|s| s.state == "offline")
+    })
+    .await;
+
+    server.restart();
+    wait_until("the station back on the hub", || {
+        hub.stations().first().is_some_and(|s| s.state != "offline")
+    })
+    .await;
+    // The relay carries on after the gap: later frames, with the frames not published counted.
+    let last_before = *before.keys().last().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let resumed = loop {
+        assert!(Instant::now() < deadline, "the relay did not resume");
+        if let Some(Ok(ServerMessage::Contact(c))) = relayed.next(Duration::from_secs(30)).await
+            && c.seq > last_before + 50
+        {
+            break c;
+        }
+    };
+    assert!(resumed.seq > *seqs.last().unwrap());
+    assert!(
+        hub.stations()[0].unpublished_frames > 0,
+        "{:?}",
+        hub.stations()
+    );
+    hub.shutdown().await;
+    a.shutdown().await;
+}

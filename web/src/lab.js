@@ -1,0 +1,93 @@
+// The teaching lab: the same page served by a hub (`softhaptic hub`) lists the stations that
+// publish to the lab's NATS and shows the one named in the address (`?station=NAME`).
+//
+// Every server answers `GET /api/stations`; a hub's answer has `hub: true` and the stations,
+// and the page then shows the station list, refreshed every two seconds, each entry a link to `?station=NAME` in this tab (the token
+// stays in this tab's storage, so a switch needs no new link). The WebSocket, the scene and the
+// meshes of a station come from the hub as from the station itself, the station named in the
+// query (`/ws?station=NAME`, `/api/scene?station=NAME`; the scene's mesh URLs point at the hub).
+//
+// `stationOf`, `withStation` and `describeStation` are plain computations (unit-tested);
+// `StationList` binds them to the page.
+
+/** A station's name as the server accepts it (a NATS subject token, part of URLs). */
+const STATION_NAME = /^[A-Za-z0-9_-]{1,64}$/;
+
+/** The station the page's address names (`?station=NAME`), or null. */
+export function stationOf(location) {
+  const name = new URLSearchParams(location.search ?? '').get('station');
+  return name !== null && STATION_NAME.test(name) ? name : null;
+}
+
+/** `path` with the station's query appended (unchanged for no station). */
+export function withStation(path, station) {
+  if (station === null) return path;
+  const sep = path.includes('?') ? '&' : '?';
+  return `${path}${sep}station=${encodeURIComponent(station)}`;
+}
+
+/** How long ago `sinceMs` was at `nowMs`, in words: "12 s", "3 min", "2 h". */
+export function ago(sinceMs, nowMs) {
+  const s = Math.max(0, Math.round((nowMs - sinceMs) / 1000));
+  if (s < 60) return `${s} s`;
+  if (s < 3600) return `${Math.floor(s / 60)} min`;
+  return `${Math.floor(s / 3600)} h`;
+}
+
+/** One line of the list: the station's state and since when, its scene, its viewers. */
+export function describeStation(s, nowMs) {
+  const viewers = s.viewers + s.hub_viewers;
+  const watching = viewers === 1 ? '1 viewer' : `${viewers} viewers`;
+  return `${s.state} for ${ago(s.since_unix_ms, nowMs)} · ${s.scene} · ${watching}`;
+}
+
+/** The station list of a hub's page. */
+export class StationList {
+  constructor({ panel, list, fetchJson, current, now = () => Date.now() }) {
+    this.panel = panel;
+    this.list = list;
+    this.fetchJson = fetchJson;
+    this.current = current;
+    this.now = now;
+    /** Whether the server is a hub (it answered `/api/stations`); null before it answered. */
+    this.isHub = null;
+    /** The last list the hub gave. */
+    this.stations = [];
+  }
+
+  /** Asks the server for its stations; resolves with whether it is a hub. */
+  async refresh() {
+    const answer = await this.fetchJson('/api/stations');
+    this.isHub = answer?.hub === true;
+    if (!this.isHub) return false;
+    this.stations = Array.isArray(answer?.stations) ? answer.stations : [];
+    this.#draw();
+    return true;
+  }
+
+  #draw() {
+    const doc = this.list.ownerDocument;
+    this.panel.hidden = false;
+    const now = this.now();
+    const items = this.stations.map((s) => {
+      const item = doc.createElement('li');
+      item.className = `station ${s.state}${s.name === this.current ? ' current' : ''}`;
+      item.dataset.station = s.name;
+      const link = doc.createElement('a');
+      link.href = withStation('', s.name);
+      link.textContent = s.name;
+      const what = doc.createElement('span');
+      what.className = 'small muted';
+      what.textContent = ` ${describeStation(s, now)}`;
+      item.append(link, what);
+      return item;
+    });
+    if (items.length === 0) {
+      const none = doc.createElement('li');
+      none.className = 'muted';
+      none.textContent = 'no station has published yet';
+      items.push(none);
+    }
+    this.list.replaceChildren(...items);
+  }
+}

@@ -1,0 +1,133 @@
+// End to end through a teaching lab: a real nats-server, two real stations (the default liver
+// pressed by a sphere, and by a cone) publishing to it, and a real hub; the viewer page on the
+// hub in headless Chromium, read through the page's test hook. Checks: the page lists both
+// stations as links; picking one shows that station's stream (its tool, its frames); switching
+// to the other shows the other's; no page error.
+//
+//   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_BIN to reuse a built one;
+//                        needs nats-server, which `make test` installs)
+import { after, before, test } from 'node:test';
+import assert from 'node:assert/strict';
+import { spawn } from 'node:child_process';
+import { existsSync, mkdtempSync, rmSync } from 'node:fs';
+import { createServer, connect } from 'node:net';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+
+import { launchBrowser } from './browser.mjs';
+import { startServer } from './server.mjs';
+
+const WAIT = { timeout: 60000 };
+
+/** A free loopback port. */
+function freePort() {
+  return new Promise((resolve, reject) => {
+    const s = createServer();
+    s.once('error', reject);
+    s.listen(0, '127.0.0.1', () => {
+      const { port } = s.address();
+      s.close(() => resolve(port));
+    });
+  });
+}
+
+/** Resolves once `port` accepts a connection (polling, generous deadline). */
+async function listening(port) {
+  const deadline = Date.now() + 30000;
+  for (;;) {
+    const ok = await new Promise((resolve) => {
+      const c = connect(port, '127.0.0.1', () => {
+        c.destroy();
+        resolve(true);
+      });
+      c.once('error', () => resolve(false));
+    });
+    if (ok) return;
+    if (Date.now() > deadline) throw new Error(`nats-server did not listen on ${port}`);
+    await new Promise((r) => setTimeout(r, 50));
+  }
+}
+
+let dir;
+let nats;
+const servers = [];
+let hub;
+let browser;
+let page;
+const pageErrors = [];
+
+before(async () => {
+  dir = mkdtempSync(join(tmpdir(), 'softhaptic-e2e-lab-'));
+  const port = await freePort();
+  const program = existsSync('/usr/sbin/nats-server') ? '/usr/sbin/nats-server' : 'nats-server';
+  nats = spawn(program, ['-a', '127.0.0.1', '-p', String(port), '-js', '-sd', join(dir, 'nats')], {
+    stdio: 'ignore',
+  });
+  await listening(port);
+  const url = `nats://127.0.0.1:${port}`;
+  servers.push(
+    await startServer({ extraArgs: ['--no-record', '--nats', url, '--station', 'desk-1'], external: false }),
+    await startServer({
+      extraArgs: ['--no-record', '--nats', url, '--station', 'desk-2', '--scene', 'scenes/cone.toml'],
+      external: false,
+    }),
+  );
+  hub = await startServer({ command: ['hub', '--nats', url], external: false });
+  browser = await launchBrowser();
+  page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
+  page.on('pageerror', (e) => pageErrors.push(e.message));
+  await page.goto(hub.url);
+});
+
+after(async () => {
+  await browser?.close();
+  await hub?.stop();
+  for (const s of servers) await s.stop();
+  nats?.kill();
+  if (dir) rmSync(dir, { recursive: true, force: true });
+});
+
+async function waitFor(what, predicate, arg = null) {
+  try {
+    await page.waitForFunction(predicate, arg, WAIT);
+  } catch (e) {
+    const log = hub.output().split('\n').slice(-20).join('\n');
+    throw new Error(`${what}: ${e.message}\nhub log (end):\n${log}`, { cause: e });
+  }
+}
+
+test('the hub lists both stations as links', async () => {
+  await waitFor('two stations listed', () => window.__softhaptic.stations().listed.length === 2);
+  const s = await page.evaluate(() => window.__softhaptic.stations());
+  assert.equal(s.isHub, true);
+  assert.equal(s.current, null);
+  assert.deepEqual(
+    s.listed.map((l) => [l.name, l.href]),
+    [
+      ['desk-1', '?station=desk-1'],
+      ['desk-2', '?station=desk-2'],
+    ],
+  );
+  assert.match(s.listed[1].text, /cone/);
+});
+
+test('picking a station shows its stream, and switching shows the other', async () => {
+  for (const [name, shape] of [
+    ['desk-2', 'cone'],
+    ['desk-1', 'sphere'],
+  ]) {
+    await page.click(`li[data-station="${name}"] a`);
+    await waitFor(`${name} drawn`, () => window.__softhaptic?.ready());
+    await waitFor(`frames of ${name}`, () => window.__softhaptic.contactFrames() > 10);
+    const shown = await page.evaluate(() => ({
+      stations: window.__softhaptic.stations(),
+      scene: window.__softhaptic.scene(),
+      connection: window.__softhaptic.connection().state,
+    }));
+    assert.equal(shown.stations.current, name);
+    assert.equal(shown.scene.tool.shape, shape);
+    assert.equal(shown.connection, 'open');
+    assert.ok(shown.scene.render_meshes[0].url.startsWith(`/stations/${name}/`));
+  }
+  assert.deepEqual(pageErrors, []);
+});

@@ -1,0 +1,112 @@
+// The lab's page logic: the station an address names, the query added to the server's URLs, the
+// station list's words, and the list drawn from a hub's answer (a scripted fetch, a fake
+// document).
+import { test } from 'node:test';
+import assert from 'node:assert/strict';
+
+import { StationList, ago, describeStation, stationOf, withStation } from '../src/lab.js';
+
+test('the address names a station only with a valid name', () => {
+  assert.equal(stationOf({ search: '?station=desk-1' }), 'desk-1');
+  assert.equal(stationOf({ search: '?x=1&station=B_2' }), 'B_2');
+  assert.equal(stationOf({ search: '' }), null);
+  assert.equal(stationOf({ search: '?station=' }), null);
+  assert.equal(stationOf({ search: '?station=a.b' }), null);
+  assert.equal(stationOf({ search: '?station=%3Cscript%3E' }), null);
+  assert.equal(stationOf({ search: `?station=${'x'.repeat(65)}` }), null);
+});
+
+test('the station goes into the query of the scene and the stream', () => {
+  assert.equal(withStation('/api/scene', 'desk-1'), '/api/scene?station=desk-1');
+  assert.equal(withStation('ws://h:1/ws', 'desk-1'), 'ws://h:1/ws?station=desk-1');
+  assert.equal(withStation('/x?a=1', 'd'), '/x?a=1&station=d');
+  assert.equal(withStation('/api/scene', null), '/api/scene');
+});
+
+test('a station is described by its state, since when, its scene and its viewers', () => {
+  assert.equal(ago(0, 12_400), '12 s');
+  assert.equal(ago(0, 185_000), '3 min');
+  assert.equal(ago(0, 7_300_000), '2 h');
+  assert.equal(ago(5000, 0), '0 s');
+  const s = { state: 'live', since_unix_ms: 0, scene: 'liver, sphere 10 mm', viewers: 1, hub_viewers: 2 };
+  assert.equal(describeStation(s, 61_000), 'live for 1 min · liver, sphere 10 mm · 3 viewers');
+  assert.equal(
+    describeStation({ ...s, viewers: 0, hub_viewers: 1 }, 0),
+    'live for 0 s · liver, sphere 10 mm · 1 viewer',
+  );
+});
+
+class FakeNode {
+  constructor(tag) {
+    this.tag = tag;
+    this.children = [];
+    this.dataset = {};
+    this.className = '';
+    this.textContent = '';
+    this.hidden = true;
+  }
+  get ownerDocument() {
+    return { createElement: (tag) => new FakeNode(tag) };
+  }
+  append(...nodes) {
+    this.children.push(...nodes);
+  }
+  replaceChildren(...nodes) {
+    this.children = nodes;
+  }
+}
+
+test("a hub's answer is drawn as links to each station, the current one marked", async () => {
+  const panel = new FakeNode('section');
+  const list = new FakeNode('ul');
+  const answers = [
+    {
+      hub: true,
+      stations: [
+        { name: 'desk-1', state: 'live', since_unix_ms: 0, scene: 'liver', viewers: 0, hub_viewers: 1 },
+        { name: 'desk-2', state: 'offline', since_unix_ms: 0, scene: 'liver', viewers: 0, hub_viewers: 0 },
+      ],
+    },
+    { hub: true, stations: [] },
+  ];
+  const asked = [];
+  const stations = new StationList({
+    panel,
+    list,
+    current: 'desk-2',
+    now: () => 1000,
+    fetchJson: async (url) => {
+      asked.push(url);
+      return answers.shift();
+    },
+  });
+  assert.equal(await stations.refresh(), true);
+  assert.deepEqual(asked, ['/api/stations']);
+  assert.equal(panel.hidden, false);
+  assert.equal(list.children.length, 2);
+  const [one, two] = list.children;
+  assert.equal(one.className, 'station live');
+  assert.equal(two.className, 'station offline current');
+  assert.equal(one.children[0].href, '?station=desk-1');
+  assert.equal(one.children[0].textContent, 'desk-1');
+  assert.equal(two.dataset.station, 'desk-2');
+  // No station yet: said so.
+  await stations.refresh();
+  assert.equal(list.children.length, 1);
+  assert.equal(list.children[0].textContent, 'no station has published yet');
+});
+
+test('a station is not a hub and draws nothing', async () => {
+  const panel = new FakeNode('section');
+  const list = new FakeNode('ul');
+  const stations = new StationList({
+    panel,
+    list,
+    current: null,
+    fetchJson: async () => ({ hub: false, stations: [] }),
+  });
+  assert.equal(await stations.refresh(), false);
+  assert.equal(stations.isHub, false);
+  assert.equal(panel.hidden, true);
+  assert.equal(list.children.length, 0);
+});
