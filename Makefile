@@ -25,7 +25,7 @@ lint: rust-tools web-deps
 test-rust: rust-tools nats
 	$(CARGO) test --workspace
 
-test-web: web-deps chromium
+test-web: web-deps chromium nats
 	cd web && npm test
 	cd web && npm run test:e2e
 
