@@ -188,6 +188,21 @@ fn try_main() -> anyhow::Result<()> {
     }
 }
 
+fn log_archive(report: &softhaptic_server::lab::archive::ArchiveReport) {
+    for f in &report.uploaded {
+        tracing::info!(file = %f, "recording archived in the lab (verified)");
+    }
+    for (f, why) in &report.failed {
+        tracing::warn!(file = %f, "recording not archived ({why}): it is kept, and tried again at the next start");
+    }
+    if !report.already.is_empty() {
+        tracing::info!(
+            count = report.already.len(),
+            "recordings already in the lab's archive"
+        );
+    }
+}
+
 fn hub(args: HubArgs) -> anyhow::Result<()> {
     let access = args.access.resolve(args.addr)?;
     let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
@@ -273,7 +288,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.device = Some(device);
         options.access = access.clone();
         options.tls = tls.map(|t| t.config);
-        options.lab = args
+        let lab = args
             .nats
             .clone()
             .zip(args.station.clone())
@@ -286,6 +301,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                     name,
                 },
             );
+        options.lab = lab.clone();
         let server = match app::start(scene, options).await {
             Ok(server) => server,
             Err(e) => {
@@ -299,6 +315,33 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             r.attach(&server);
             println!("recording: {}", r.path().display());
         }
+        // A lab station archives its finished recordings (earlier sessions now, this one when it
+        // stops) in the lab's object store; a file not verified there is tried again next start.
+        let archive = match (&lab, &recording) {
+            (Some(lab), Some(r)) => {
+                let client = softhaptic_server::lab::connect(
+                    &lab.nats,
+                    format!("softhaptic station {} archive", lab.name),
+                    "station",
+                )
+                .await?;
+                let (station, dir, current) =
+                    (lab.name.clone(), args.record.record_dir.clone(), r.path().to_owned());
+                let pass_client = client.clone();
+                tokio::spawn(async move {
+                    let report = softhaptic_server::lab::archive::upload_finished(
+                        &pass_client,
+                        &station,
+                        &dir,
+                        Some(&current),
+                    )
+                    .await;
+                    log_archive(&report);
+                });
+                Some((client, lab.name.clone()))
+            }
+            _ => None,
+        };
         // The token is in the fragment, which no request carries; printed on stdout only.
         let mut access = access;
         access.secure_transport = server.viewer_url().starts_with("https:");
@@ -331,6 +374,17 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                 contact_frames = rec.contact_frames_recorded,
                 "recording closed"
             );
+            if let Some((client, station)) = archive {
+                let upload = async {
+                    let store = softhaptic_server::lab::archive::store(&client).await?;
+                    softhaptic_server::lab::archive::upload(&store, &station, &path).await
+                };
+                match tokio::time::timeout(std::time::Duration::from_secs(60), upload).await {
+                    Ok(Ok(_)) => tracing::info!(file = %path.display(), "recording archived in the lab (verified)"),
+                    Ok(Err(e)) => tracing::warn!("recording not archived ({e}): it is kept, and archived at the next start"),
+                    Err(_) => tracing::warn!("recording not archived within 60 s: it is kept, and archived at the next start"),
+                }
+            }
         }
         Ok(())
     })

@@ -259,3 +259,154 @@ async fn with_nats_gone_the_station_serves_its_viewers_and_the_relay_resumes_whe
     hub.shutdown().await;
     a.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hubs_are_interchangeable_a_viewer_of_a_stopped_hub_carries_on_at_another() {
+    let server = NatsServer::start("two-hubs");
+    let a = station("desk-a", nats(server.url(), None)).await.unwrap();
+    let first = hub(nats(server.url(), None), false).await;
+    let second = hub(nats(server.url(), None), false).await;
+    wait_until("both hubs list the station", || {
+        first.stations().len() == 1 && second.stations().len() == 1
+    })
+    .await;
+    let mut viewer =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-a", first.local_addr())).await;
+    let session = match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => h.session_id,
+        other => panic!("expected hello, got {other:?}"),
+    };
+    let seen = frames(&mut viewer, 10).await;
+    let last = *seen.keys().last().unwrap();
+
+    // The first hub goes away; its viewer is closed, and reconnects to the other (what a load
+    // balancer in front of both does): the same session, carrying on where it was.
+    first.shutdown().await;
+    let (close, _) = viewer.until_closed(Duration::from_secs(30)).await;
+    assert!(
+        close.as_ref().is_none_or(|c| c.0 == 1001 || c.0 == 1000),
+        "{close:?}"
+    );
+    let mut viewer =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-a", second.local_addr())).await;
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => assert_eq!(h.session_id, session),
+        other => panic!("expected hello, got {other:?}"),
+    }
+    let after = frames(&mut viewer, 10).await;
+    assert!(*after.keys().next().unwrap() > last);
+    second.shutdown().await;
+    a.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn recordings_are_archived_verified_retried_and_replayed_from_the_hub() {
+    use softhaptic_server::lab::archive;
+    let mut server = NatsServer::start("archive");
+    let dir = scratch_dir("lab-archive");
+    let sessions = softhaptic_tests::repo_scenes().join("../tests/sessions");
+    for f in ["slide.mcap", "sphere-press.mcap"] {
+        std::fs::copy(sessions.join(f), dir.join(f)).unwrap();
+    }
+    let client = softhaptic_server::lab::connect(
+        &nats(server.url(), None),
+        "archive test".into(),
+        "station",
+    )
+    .await
+    .unwrap();
+
+    // NATS gone: nothing archived, both files reported and kept.
+    server.kill();
+    let report = tokio::time::timeout(
+        Duration::from_secs(120),
+        archive::upload_finished(&client, "desk-a", &dir, None),
+    )
+    .await
+    .unwrap();
+    assert!(report.uploaded.is_empty(), "{report:?}");
+    assert_eq!(report.failed.len(), 2, "{report:?}");
+    assert!(dir.join("slide.mcap").is_file() && dir.join("sphere-press.mcap").is_file());
+
+    // Back: the next pass archives them (the one being written is left for later), verified.
+    server.restart();
+    wait_until("the client back", || {
+        softhaptic_server::lab::is_connected(&client)
+    })
+    .await;
+    let report = archive::upload_finished(
+        &client,
+        "desk-a",
+        &dir,
+        Some(&dir.join("sphere-press.mcap")),
+    )
+    .await;
+    assert!(report.failed.is_empty(), "{report:?}");
+    assert_eq!(report.uploaded.len(), 1, "{report:?}");
+    let report = archive::upload_finished(&client, "desk-a", &dir, None).await;
+    assert_eq!(
+        (report.uploaded.len(), report.already.len()),
+        (1, 1),
+        "{report:?}"
+    );
+    assert!(dir.join("slide.mcap").is_file(), "the local file is kept");
+
+    // The hub lists them with the file's digest, serves the file, and replays it.
+    let hub = hub(nats(server.url(), None), false).await;
+    let (status, body) =
+        softhaptic_tests::http_get(hub.local_addr(), "/api/archive?station=desk-a").await;
+    assert_eq!(status, 200);
+    let listed: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let listed = listed["archive"].as_array().unwrap();
+    assert_eq!(listed.len(), 2, "{listed:?}");
+    assert_eq!(listed[0]["file"], "slide.mcap");
+    assert_eq!(
+        listed[0]["digest"].as_str().unwrap().trim_end_matches('='),
+        archive::digest_of(&dir.join("slide.mcap"))
+            .unwrap()
+            .trim_end_matches('=')
+    );
+    let (status, bytes) =
+        softhaptic_tests::http_get(hub.local_addr(), "/stations/desk-a/archive/slide.mcap").await;
+    assert_eq!(status, 200);
+    assert!(bytes == std::fs::read(dir.join("slide.mcap")).unwrap());
+
+    let mut viewer = Viewer::connect_url(&format!(
+        "ws://{}/ws?station=desk-a&archive=slide.mcap",
+        hub.local_addr()
+    ))
+    .await;
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => assert_eq!(h.mode, softhaptic_proto::wire::Mode::Replay),
+        other => panic!("expected hello, got {other:?}"),
+    }
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Scene(s) => assert_eq!(
+            s.render_meshes[0].url,
+            "/stations/desk-a/archive/slide.mcap/meshes/liver.bin"
+        ),
+        other => panic!("expected scene, got {other:?}"),
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        use futures_util::StreamExt;
+        assert!(Instant::now() < deadline, "no replay status");
+        let next = tokio::time::timeout(Duration::from_secs(5), viewer.socket.next()).await;
+        if let Ok(Some(Ok(tokio_tungstenite::tungstenite::Message::Text(t)))) = next
+            && t.starts_with(r#"{"type":"replay""#)
+        {
+            let r: softhaptic_proto::record::ReplayStatus = serde_json::from_str(&t).unwrap();
+            assert_eq!(r.file, "slide.mcap");
+            assert!(r.paused);
+            break;
+        }
+    }
+    let (status, mesh) = softhaptic_tests::http_get(
+        hub.local_addr(),
+        "/stations/desk-a/archive/slide.mcap/meshes/liver.bin",
+    )
+    .await;
+    assert_eq!(status, 200);
+    assert!(mesh.len() > 1 << 20);
+    hub.shutdown().await;
+}

@@ -19,11 +19,24 @@ export function stationOf(location) {
   return name !== null && STATION_NAME.test(name) ? name : null;
 }
 
-/** `path` with the station's query appended (unchanged for no station). */
-export function withStation(path, station) {
+/** An archived recording's file name as the hub serves it. */
+const ARCHIVE_FILE = /^[A-Za-z0-9._-]{1,200}\.mcap$/;
+
+/** The archived recording the address names (`&archive=FILE`, with a station), or null. */
+export function archiveOf(location) {
+  const file = new URLSearchParams(location.search ?? '').get('archive');
+  return file !== null && ARCHIVE_FILE.test(file) && stationOf(location) !== null ? file : null;
+}
+
+/**
+ * `path` with the station's query appended, and the archived recording's when given (unchanged
+ * for no station).
+ */
+export function withStation(path, station, archive = null) {
   if (station === null) return path;
   const sep = path.includes('?') ? '&' : '?';
-  return `${path}${sep}station=${encodeURIComponent(station)}`;
+  const file = archive === null ? '' : `&archive=${encodeURIComponent(archive)}`;
+  return `${path}${sep}station=${encodeURIComponent(station)}${file}`;
 }
 
 /** How long ago `sinceMs` was at `nowMs`, in words: "12 s", "3 min", "2 h". */
@@ -43,11 +56,14 @@ export function describeStation(s, nowMs) {
 
 /** The station list of a hub's page. */
 export class StationList {
-  constructor({ panel, list, fetchJson, current, now = () => Date.now() }) {
+  constructor({ panel, list, fetchJson, current, currentArchive = null, now = () => Date.now() }) {
     this.panel = panel;
     this.list = list;
     this.fetchJson = fetchJson;
     this.current = current;
+    this.currentArchive = currentArchive;
+    /** The archived recordings the hub listed: `{station, file, bytes, digest}`. */
+    this.archive = [];
     this.now = now;
     /** Whether the server is a hub (it answered `/api/stations`); null before it answered. */
     this.isHub = null;
@@ -61,6 +77,13 @@ export class StationList {
     this.isHub = answer?.hub === true;
     if (!this.isHub) return false;
     this.stations = Array.isArray(answer?.stations) ? answer.stations : [];
+    try {
+      const archived = await this.fetchJson('/api/archive');
+      this.archive = Array.isArray(archived?.archive) ? archived.archive : [];
+    } catch {
+      // A lab without an object store yet: no archive to list.
+      this.archive = [];
+    }
     this.#draw();
     return true;
   }
@@ -80,6 +103,24 @@ export class StationList {
       what.className = 'small muted';
       what.textContent = ` ${describeStation(s, now)}`;
       item.append(link, what);
+      const recordings = this.archive.filter((a) => a.station === s.name);
+      if (recordings.length > 0) {
+        const archived = doc.createElement('ul');
+        archived.className = 'archived';
+        archived.append(
+          ...recordings.map((a) => {
+            const entry = doc.createElement('li');
+            entry.dataset.archive = a.file;
+            if (s.name === this.current && a.file === this.currentArchive) entry.className = 'current';
+            const replay = doc.createElement('a');
+            replay.href = withStation('', s.name, a.file);
+            replay.textContent = `replay ${a.file}`;
+            entry.append(replay);
+            return entry;
+          }),
+        );
+        item.append(archived);
+      }
       return item;
     });
     if (items.length === 0) {

@@ -32,7 +32,7 @@ import {
   webSocketUrl,
 } from './protocol.js';
 import { ReplayTimeline } from './replay.js';
-import { StationList, stationOf, withStation } from './lab.js';
+import { StationList, archiveOf, stationOf, withStation } from './lab.js';
 
 /**
  * Flags that mean the force is not what the model says (shown in red rather than amber);
@@ -74,6 +74,8 @@ const state = {
   role: null,
   /** The lab station the address names (`?station=`, on a hub's page); null on a station's. */
   station: stationOf(window.location),
+  /** The station's archived recording the address names (`&archive=`), replayed; or null. */
+  archive: archiveOf(window.location),
   /** Whether the trainee feels the force (`hello.force_feedback`); true until a `hello` says. */
   forceFeedback: true,
   mode: null,
@@ -205,7 +207,7 @@ function init() {
   });
 
   connection = new ViewerConnection({
-    url: withStation(webSocketUrl(window.location), state.station),
+    url: withStation(webSocketUrl(window.location), state.station, state.archive),
     token: keeper.token,
     onMessage,
     onStateChange: onConnectionState,
@@ -227,6 +229,7 @@ function init() {
     list: dom['stations-list'],
     fetchJson: async (url) => (await fetchFromServer(url)).json(),
     current: state.station,
+    currentArchive: state.archive,
   });
   startStream();
   if (view.renderer) view.renderer.setAnimationLoop(animate);
@@ -443,7 +446,7 @@ function showForceFeedback(felt) {
 
 async function loadSceneOverHttp() {
   try {
-    const response = await fetchFromServer(withStation('/api/scene', state.station));
+    const response = await fetchFromServer(withStation('/api/scene', state.station, state.archive));
     const scene = validateMessage({ type: 'scene', ...(await response.json()) });
     await applyScene(scene);
   } catch (e) {
@@ -893,11 +896,16 @@ function exposeTestHook() {
     stations: () => ({
       isHub: stationList?.isHub ?? null,
       current: state.station,
+      archive: state.archive,
       listed: [...dom['stations-list'].querySelectorAll('li[data-station]')].map((li) => ({
         name: li.dataset.station,
         current: li.classList.contains('current'),
         text: li.textContent,
         href: li.querySelector('a')?.getAttribute('href') ?? null,
+        archived: [...li.querySelectorAll('li[data-archive]')].map((a) => ({
+          file: a.dataset.archive,
+          href: a.querySelector('a')?.getAttribute('href') ?? null,
+        })),
       })),
     }),
     /** Whether `hello` said the force is felt, and the words the page shows for it. */

@@ -2,7 +2,8 @@
 // pressed by a sphere, and by a cone) publishing to it, and a real hub; the viewer page on the
 // hub in headless Chromium, read through the page's test hook. Checks: the page lists both
 // stations as links; picking one shows that station's stream (its tool, its frames); switching
-// to the other shows the other's; no page error.
+// to the other shows the other's; a station that stops archives its recording in the lab's
+// object store, and the hub's page lists it and replays it; no page error.
 //
 //   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_BIN to reuse a built one;
 //                        needs nats-server, which `make test` installs)
@@ -66,7 +67,10 @@ before(async () => {
   await listening(port);
   const url = `nats://127.0.0.1:${port}`;
   servers.push(
-    await startServer({ extraArgs: ['--no-record', '--nats', url, '--station', 'desk-1'], external: false }),
+    await startServer({
+      extraArgs: ['--record-dir', join(dir, 'recordings'), '--nats', url, '--station', 'desk-1'],
+      external: false,
+    }),
     await startServer({
       extraArgs: ['--no-record', '--nats', url, '--station', 'desk-2', '--scene', 'scenes/cone.toml'],
       external: false,
@@ -129,5 +133,30 @@ test('picking a station shows its stream, and switching shows the other', async 
     assert.equal(shown.connection, 'open');
     assert.ok(shown.scene.render_meshes[0].url.startsWith(`/stations/${name}/`));
   }
+  assert.deepEqual(pageErrors, []);
+});
+
+test('a stopped station archives its recording, and the hub replays it', async () => {
+  // Stopping desk-1 closes its recording and uploads it before the process ends.
+  await servers[0].stop();
+  assert.match(servers[0].output(), /recording archived in the lab \(verified\)/);
+  await waitFor('the archived recording listed', () =>
+    window.__softhaptic.stations().listed.some((s) => s.name === 'desk-1' && s.archived.length === 1),
+  );
+  const listed = await page.evaluate(() => window.__softhaptic.stations().listed);
+  const [archived] = listed.find((s) => s.name === 'desk-1').archived;
+  assert.match(archived.href, /^\?station=desk-1&archive=.+\.mcap$/);
+  await page.click(`li[data-archive="${archived.file}"] a`);
+  await waitFor('the replay drawn', () => window.__softhaptic?.ready());
+  await waitFor('the replay status', () => window.__softhaptic.replay().known);
+  const shown = await page.evaluate(() => ({
+    mode: window.__softhaptic.mode(),
+    replay: window.__softhaptic.replay(),
+    stations: window.__softhaptic.stations(),
+  }));
+  assert.equal(shown.mode, 'replay');
+  assert.equal(shown.replay.file, archived.file);
+  assert.ok(shown.replay.durationS > 0.5, JSON.stringify(shown.replay));
+  assert.equal(shown.stations.archive, archived.file);
   assert.deepEqual(pageErrors, []);
 });

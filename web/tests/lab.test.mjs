@@ -4,7 +4,7 @@
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 
-import { StationList, ago, describeStation, stationOf, withStation } from '../src/lab.js';
+import { StationList, ago, archiveOf, describeStation, stationOf, withStation } from '../src/lab.js';
 
 test('the address names a station only with a valid name', () => {
   assert.equal(stationOf({ search: '?station=desk-1' }), 'desk-1');
@@ -14,6 +14,14 @@ test('the address names a station only with a valid name', () => {
   assert.equal(stationOf({ search: '?station=a.b' }), null);
   assert.equal(stationOf({ search: '?station=%3Cscript%3E' }), null);
   assert.equal(stationOf({ search: `?station=${'x'.repeat(65)}` }), null);
+});
+
+test('an archived recording is named with its station only', () => {
+  assert.equal(archiveOf({ search: '?station=d&archive=2026-12-01-a.mcap' }), '2026-12-01-a.mcap');
+  assert.equal(archiveOf({ search: '?archive=a.mcap' }), null);
+  assert.equal(archiveOf({ search: '?station=d&archive=../x.mcap' }), null);
+  assert.equal(archiveOf({ search: '?station=d&archive=a.txt' }), null);
+  assert.equal(withStation('/ws', 'd', 'a.mcap'), '/ws?station=d&archive=a.mcap');
 });
 
 test('the station goes into the query of the scene and the stream', () => {
@@ -70,18 +78,20 @@ test("a hub's answer is drawn as links to each station, the current one marked",
     { hub: true, stations: [] },
   ];
   const asked = [];
+  const archive = { archive: [{ station: 'desk-2', file: 'a.mcap', bytes: 10, digest: 'SHA-256=x' }] };
   const stations = new StationList({
     panel,
     list,
     current: 'desk-2',
+    currentArchive: 'a.mcap',
     now: () => 1000,
     fetchJson: async (url) => {
       asked.push(url);
-      return answers.shift();
+      return url === '/api/archive' ? archive : answers.shift();
     },
   });
   assert.equal(await stations.refresh(), true);
-  assert.deepEqual(asked, ['/api/stations']);
+  assert.deepEqual(asked, ['/api/stations', '/api/archive']);
   assert.equal(panel.hidden, false);
   assert.equal(list.children.length, 2);
   const [one, two] = list.children;
@@ -90,6 +100,13 @@ test("a hub's answer is drawn as links to each station, the current one marked",
   assert.equal(one.children[0].href, '?station=desk-1');
   assert.equal(one.children[0].textContent, 'desk-1');
   assert.equal(two.dataset.station, 'desk-2');
+  // The archived recording of desk-2, a link to its replay, marked as the one shown.
+  assert.equal(one.children.length, 2, 'desk-1 has no archive');
+  const archived = two.children[2];
+  assert.equal(archived.className, 'archived');
+  assert.equal(archived.children[0].dataset.archive, 'a.mcap');
+  assert.equal(archived.children[0].className, 'current');
+  assert.equal(archived.children[0].children[0].href, '?station=desk-2&archive=a.mcap');
   // No station yet: said so.
   await stations.refresh();
   assert.equal(list.children.length, 1);

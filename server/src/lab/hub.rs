@@ -150,10 +150,29 @@ impl Drop for Feed {
     }
 }
 
+/// An archived recording replayed for the hub's viewers (one replay per recording, shared by
+/// its viewers as on a replay server: the instructor's controls move it for everyone).
+struct ArchiveFeed {
+    hub: Arc<StreamHub>,
+    scene_json: Bytes,
+    meshes: HashMap<String, Bytes>,
+    stop: watch::Sender<bool>,
+    player: JoinHandle<()>,
+}
+
+impl Drop for ArchiveFeed {
+    fn drop(&mut self) {
+        let _ = self.stop.send(true);
+        self.player.abort();
+    }
+}
+
 /// The hub's shared state.
 struct Lab {
     client: async_nats::Client,
     stations: Mutex<HashMap<String, Entry>>,
+    /// Archived recordings being replayed, by `STATION/FILE`.
+    archives: tokio::sync::Mutex<HashMap<String, Arc<ArchiveFeed>>>,
     /// Held while a feed is made, so two first viewers make one.
     making: tokio::sync::Mutex<()>,
     access: Arc<Access>,
@@ -210,6 +229,59 @@ impl Lab {
         for e in lock(&self.stations).values_mut() {
             e.feed = None;
         }
+        if let Ok(mut archives) = self.archives.try_lock() {
+            archives.clear();
+        }
+    }
+
+    /// The replay of an archived recording, started (paused) on first use.
+    async fn archive_feed(&self, station: &str, file: &str) -> Result<Arc<ArchiveFeed>, Refusal> {
+        super::check_station_name(station).map_err(|e| (StatusCode::NOT_FOUND, e))?;
+        if file.contains('/') || !file.ends_with(".mcap") {
+            return Err((
+                StatusCode::NOT_FOUND,
+                format!("no archived recording {file:?}"),
+            ));
+        }
+        let key = super::archive::object_name(station, file);
+        let mut archives = self.archives.lock().await;
+        if let Some(feed) = archives.get(&key) {
+            return Ok(Arc::clone(feed));
+        }
+        let bytes = super::archive::fetch(&self.client, station, file)
+            .await
+            .map_err(|e| {
+                (
+                    StatusCode::NOT_FOUND,
+                    format!("archived recording {key}: {e}"),
+                )
+            })?;
+        let recording =
+            crate::session::reader::Recording::from_bytes(std::path::Path::new(&key), &bytes)
+                .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
+        let (stop, stop_rx) = watch::channel(false);
+        let prefix = format!("/stations/{station}/archive/{file}/meshes");
+        let feed = crate::session::replay::replay_feed(
+            &recording,
+            1.0,
+            true,
+            self.limits,
+            Arc::clone(&self.access),
+            stop_rx,
+            Some(&prefix),
+        )
+        .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
+        let scene_json = feed.scene_text.clone();
+        tracing::info!(recording = %key, "replaying an archived recording");
+        let archive = Arc::new(ArchiveFeed {
+            hub: feed.hub,
+            scene_json: Bytes::from(scene_json),
+            meshes: feed.meshes,
+            stop,
+            player: feed.player,
+        });
+        archives.insert(key, Arc::clone(&archive));
+        Ok(archive)
     }
 
     /// The station's feed, made on first use (or again for a new session of the station).
@@ -267,11 +339,12 @@ impl Lab {
         .map_err(|e| unavailable(format!("station {name:?}: {e}")))?;
         let session: StationSession = serde_json::from_slice(&reply.payload)
             .map_err(|e| unavailable(format!("station {name:?} answered nonsense: {e}")))?;
-        let scene_text = rewrite_mesh_urls(&session.scene, name).map_err(|e| {
-            unavailable(format!(
-                "station {name:?} sent a scene that is not one: {e}"
-            ))
-        })?;
+        let scene_text = rewrite_mesh_urls(&session.scene, &format!("/stations/{name}/meshes"))
+            .map_err(|e| {
+                unavailable(format!(
+                    "station {name:?} sent a scene that is not one: {e}"
+                ))
+            })?;
         let hello = Hello {
             protocol_version: PROTOCOL_VERSION,
             session_id: session.session_id.clone(),
@@ -375,8 +448,8 @@ impl Lab {
     }
 }
 
-/// The station's scene with its meshes' URLs pointing at this hub.
-fn rewrite_mesh_urls(scene: &str, station: &str) -> Result<String, serde_json::Error> {
+/// A scene with its meshes' URLs under `prefix` on this hub.
+fn rewrite_mesh_urls(scene: &str, prefix: &str) -> Result<String, serde_json::Error> {
     let mut value: serde_json::Value = serde_json::from_str(scene)?;
     if let Some(meshes) = value
         .get_mut("render_meshes")
@@ -388,7 +461,7 @@ fn rewrite_mesh_urls(scene: &str, station: &str) -> Result<String, serde_json::E
                 .and_then(|n| n.as_str())
                 .unwrap_or_default()
                 .to_owned();
-            m["url"] = serde_json::Value::String(format!("/stations/{station}/meshes/{name}.bin"));
+            m["url"] = serde_json::Value::String(format!("{prefix}/{name}.bin"));
         }
     }
     serde_json::to_string(&value)
@@ -470,6 +543,8 @@ async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
 #[derive(Deserialize)]
 struct StationQuery {
     station: Option<String>,
+    /// An archived recording of the station, to replay instead of its live stream.
+    archive: Option<String>,
 }
 
 fn no_station() -> Response {
@@ -491,10 +566,74 @@ async fn api_stations(State(lab): State<Arc<Lab>>) -> Response {
     }
 }
 
+/// `/api/archive?station=NAME`: the archived recordings (of one station, or all).
+async fn api_archive(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -> Response {
+    match super::archive::list(&lab.client, q.station.as_deref()).await {
+        Ok(list) => match serde_json::to_vec(&serde_json::json!({ "archive": list })) {
+            Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
+            Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+        },
+        Err(e) => (StatusCode::BAD_GATEWAY, e).into_response(),
+    }
+}
+
+/// An archived recording's file, for `softhaptic replay` on an instructor's machine.
+async fn archived_file(
+    State(lab): State<Arc<Lab>>,
+    UrlPath((station, file)): UrlPath<(String, String)>,
+) -> Response {
+    if super::check_station_name(&station).is_err() || !file.ends_with(".mcap") {
+        return (StatusCode::NOT_FOUND, "no such archived recording").into_response();
+    }
+    match super::archive::fetch(&lab.client, &station, &file).await {
+        Ok(bytes) => (
+            [
+                (header::CONTENT_TYPE, "application/octet-stream".to_owned()),
+                (
+                    header::CONTENT_DISPOSITION,
+                    format!("attachment; filename=\"{station}-{file}\""),
+                ),
+            ],
+            bytes,
+        )
+            .into_response(),
+        Err(e) => (StatusCode::NOT_FOUND, e).into_response(),
+    }
+}
+
+/// A render mesh of a replayed archived recording.
+async fn archived_mesh(
+    State(lab): State<Arc<Lab>>,
+    UrlPath((station, file, mesh)): UrlPath<(String, String, String)>,
+) -> Response {
+    let feed = match lab.archive_feed(&station, &file).await {
+        Ok(f) => f,
+        Err(e) => return e.into_response(),
+    };
+    match mesh.strip_suffix(".bin").and_then(|m| feed.meshes.get(m)) {
+        Some(bytes) => (
+            [(header::CONTENT_TYPE, "application/octet-stream")],
+            bytes.clone(),
+        )
+            .into_response(),
+        None => (StatusCode::NOT_FOUND, format!("no render mesh {mesh:?}")).into_response(),
+    }
+}
+
 async fn api_scene(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -> Response {
     let Some(name) = q.station else {
         return no_station();
     };
+    if let Some(file) = q.archive {
+        return match lab.archive_feed(&name, &file).await {
+            Ok(feed) => (
+                [(header::CONTENT_TYPE, "application/json")],
+                feed.scene_json.clone(),
+            )
+                .into_response(),
+            Err(e) => e.into_response(),
+        };
+    }
     match lab.feed(&name).await {
         Ok(feed) => (
             [(header::CONTENT_TYPE, "application/json")],
@@ -532,13 +671,15 @@ async fn ws(
     let Some(name) = q.station else {
         return no_station();
     };
+    let peer = connect_info.map(|info| info.0.0);
+    if let Some(file) = q.archive {
+        return match lab.archive_feed(&name, &file).await {
+            Ok(feed) => crate::app::upgrade_viewer(Arc::clone(&feed.hub), peer, &headers, upgrade),
+            Err(e) => e.into_response(),
+        };
+    }
     match lab.feed(&name).await {
-        Ok(feed) => crate::app::upgrade_viewer(
-            Arc::clone(&feed.hub),
-            connect_info.map(|info| info.0.0),
-            &headers,
-            upgrade,
-        ),
+        Ok(feed) => crate::app::upgrade_viewer(Arc::clone(&feed.hub), peer, &headers, upgrade),
         Err(e) => e.into_response(),
     }
 }
@@ -560,6 +701,7 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
     let lab = Arc::new(Lab {
         client,
         stations: Mutex::new(HashMap::new()),
+        archives: tokio::sync::Mutex::new(HashMap::new()),
         making: tokio::sync::Mutex::new(()),
         access: Arc::clone(&access),
         limits: options.viewer_limits,
@@ -570,6 +712,12 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         .route("/api/stations", get(api_stations))
         .route("/api/scene", get(api_scene))
         .route("/stations/{station}/meshes/{file}", get(mesh))
+        .route("/api/archive", get(api_archive))
+        .route("/stations/{station}/archive/{file}", get(archived_file))
+        .route(
+            "/stations/{station}/archive/{file}/meshes/{mesh}",
+            get(archived_mesh),
+        )
         .route_layer(axum::middleware::from_fn_with_state(
             Arc::clone(&access),
             access::require_token,

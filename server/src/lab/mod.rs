@@ -27,6 +27,7 @@
 //! | `softhaptic.station.NAME.session` | request → [`StationSession`]: hello and scene |
 //! | `softhaptic.station.NAME.mesh` | request `{"name", "offset"}` → a piece of a render mesh |
 
+pub mod archive;
 pub mod hub;
 pub mod station;
 
@@ -259,6 +260,11 @@ pub async fn connect(
             }
         }
     }
+}
+
+/// Whether the client is connected to NATS now.
+pub fn is_connected(client: &async_nats::Client) -> bool {
+    client.connection_state() == async_nats::connection::State::Connected
 }
 
 /// Unix time now, milliseconds.

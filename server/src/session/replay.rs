@@ -142,30 +142,6 @@ pub async fn start(
             path: recording.path.clone(),
         });
     }
-    // The render mesh comes from the recorded scene file (the message only names its URL).
-    let scene = recorded_scene(&recording)?;
-    let mut meshes = HashMap::new();
-    meshes.insert(
-        scene.object_name.clone(),
-        Bytes::from(scene.render_surface.to_shm1()),
-    );
-    let message = recording.scene.message.clone();
-    let encode = |what: &'static str, m: ServerMessage| {
-        m.encode()
-            .map_err(|source| ReplayError::Encode { what, source })
-    };
-    let scene_text = encode("scene", ServerMessage::Scene(Box::new(message.clone())))?;
-    let hello = Hello {
-        protocol_version: PROTOCOL_VERSION,
-        session_id: recording.build.session_id.clone(),
-        // Set per connection by the stream hub.
-        role: Role::Instructor,
-        mode: Mode::Replay,
-        server: SERVER_NAME.into(),
-        // As the recorded session's device was: a SpaceMouse session renders no force.
-        force_feedback: message.device.force_feedback,
-    };
-
     let listener = tokio::net::TcpListener::bind(options.addr)
         .await
         .map_err(|source| ReplayError::Bind {
@@ -176,28 +152,24 @@ pub async fn start(
         addr: options.addr,
         source,
     })?;
-
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
-    let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
     // The page's own origin is https when the replay serves TLS.
     options.access.secure_transport = options.tls.is_some();
     let access = Arc::new(Access::new(options.access, &options.web_dir));
-    let hub = Arc::new(
-        StreamHub::new(
-            &hello,
-            Utf8Bytes::from(scene_text.clone()),
-            options.viewer_limits,
-            shutdown_rx.clone(),
-            Some(control_tx),
-            access,
-        )
-        .map_err(|source| ReplayError::Encode {
-            what: "hello",
-            source,
-        })?,
-    );
-    let player = Player::new(&recording, speed, options.start_paused);
-    let player = tokio::spawn(player.run(Arc::clone(&hub), control_rx));
+    let ReplayFeed {
+        hub,
+        scene_text,
+        meshes,
+        player,
+    } = replay_feed(
+        &recording,
+        speed,
+        options.start_paused,
+        options.viewer_limits,
+        access,
+        shutdown_rx.clone(),
+        None,
+    )?;
 
     let app = viewer_router(
         &options.web_dir,
@@ -215,6 +187,87 @@ pub async fn start(
         player,
         hub,
         tls,
+    })
+}
+
+/// A recording's replay as a stream hub, for a replay server or a lab hub: the hub (its
+/// viewers' controls move the replay), the `scene` text and render meshes, and the player task
+/// feeding it until `shutdown` turns true.
+pub struct ReplayFeed {
+    pub hub: Arc<StreamHub>,
+    pub scene_text: String,
+    pub meshes: HashMap<String, Bytes>,
+    pub player: JoinHandle<()>,
+}
+
+/// Starts replaying `recording` into a stream hub of its own (see [`ReplayFeed`]).
+pub fn replay_feed(
+    recording: &Recording,
+    speed: f64,
+    start_paused: bool,
+    limits: crate::stream::ViewerLimits,
+    access: Arc<Access>,
+    shutdown: watch::Receiver<bool>,
+    mesh_url_prefix: Option<&str>,
+) -> Result<ReplayFeed, ReplayError> {
+    if recording.contacts.is_empty() {
+        return Err(ReplayError::Empty {
+            path: recording.path.clone(),
+        });
+    }
+    // The render mesh comes from the recorded scene file (the message only names its URL).
+    let scene = recorded_scene(recording)?;
+    let mut meshes = HashMap::new();
+    meshes.insert(
+        scene.object_name.clone(),
+        Bytes::from(scene.render_surface.to_shm1()),
+    );
+    let mut message = recording.scene.message.clone();
+    // Served under another path (a lab hub's): the meshes' URLs say where.
+    if let Some(prefix) = mesh_url_prefix {
+        for m in &mut message.render_meshes {
+            m.url = format!("{prefix}/{}.bin", m.name);
+        }
+    }
+    let encode = |what: &'static str, m: ServerMessage| {
+        m.encode()
+            .map_err(|source| ReplayError::Encode { what, source })
+    };
+    let scene_text = encode("scene", ServerMessage::Scene(Box::new(message.clone())))?;
+    let hello = Hello {
+        protocol_version: PROTOCOL_VERSION,
+        session_id: recording.build.session_id.clone(),
+        // Set per connection by the stream hub.
+        role: Role::Instructor,
+        mode: Mode::Replay,
+        server: SERVER_NAME.into(),
+        // As the recorded session's device was: a SpaceMouse session renders no force.
+        force_feedback: message.device.force_feedback,
+    };
+
+    let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
+    let hub = Arc::new(
+        StreamHub::new(
+            &hello,
+            Utf8Bytes::from(scene_text.clone()),
+            limits,
+            shutdown,
+            Some(control_tx),
+            access,
+        )
+        .map_err(|source| ReplayError::Encode {
+            what: "hello",
+            source,
+        })?,
+    );
+    let player = Player::new(recording, speed, start_paused);
+    let player = tokio::spawn(player.run(Arc::clone(&hub), control_rx));
+
+    Ok(ReplayFeed {
+        hub,
+        scene_text,
+        meshes,
+        player,
     })
 }
 

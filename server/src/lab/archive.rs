@@ -1,0 +1,247 @@
+//! Finished recordings into the lab's JetStream object store, and back out for the hubs.
+//!
+//! A station with a recording directory uploads every finished recording there (all but the one
+//! being written) when it starts, and the session's own recording when it stops, each as
+//! `STATION/FILE` in the bucket [`BUCKET`]. A file is archived once the store holds an object of
+//! that name whose SHA-256 (computed by the store as the chunks arrive) equals the file's own:
+//! then, and only then, it counts as uploaded. Nothing is ever deleted here: the local file stays
+//! where it is (a lab that wants its disks back removes archived files after checking with
+//! `/api/archive`). An upload cut short (NATS gone, the station stopped) leaves no verified
+//! object, so the next start uploads that file again, from the beginning: the object store
+//! replaces a partial object whole.
+
+use std::path::{Path, PathBuf};
+
+use async_nats::jetstream::object_store::{self, ObjectStore};
+use base64::Engine;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+/// The object store bucket of the lab's recordings.
+pub const BUCKET: &str = "softhaptic-sessions";
+
+/// What an archiving pass did.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct ArchiveReport {
+    /// Uploaded now and verified.
+    pub uploaded: Vec<String>,
+    /// Already in the store with the same digest.
+    pub already: Vec<String>,
+    /// Not uploaded (or not verified), with why; they stay for the next pass.
+    pub failed: Vec<(String, String)>,
+}
+
+/// An archived recording as a hub lists it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ArchivedSession {
+    pub station: String,
+    pub file: String,
+    pub bytes: u64,
+    /// The store's digest of it (`SHA-256=` and the hash in unpadded base64url).
+    pub digest: String,
+}
+
+/// The store's name for a station's recording.
+pub fn object_name(station: &str, file: &str) -> String {
+    format!("{station}/{file}")
+}
+
+/// The digest of `path` in the store's form, read a piece at a time.
+pub fn digest_of(path: &Path) -> std::io::Result<String> {
+    use std::io::Read;
+    let mut file = std::fs::File::open(path)?;
+    let mut hasher = Sha256::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file.read(&mut buf)?;
+        if n == 0 {
+            break;
+        }
+        hasher.update(&buf[..n]);
+    }
+    Ok(format!(
+        "SHA-256={}",
+        base64::engine::general_purpose::URL_SAFE.encode(hasher.finalize())
+    ))
+}
+
+/// The digests compare equal whatever the padding of their base64.
+fn same_digest(a: &str, b: &str) -> bool {
+    a.trim_end_matches('=') == b.trim_end_matches('=')
+}
+
+/// The lab's recording store, made on first use.
+pub async fn store(client: &async_nats::Client) -> Result<ObjectStore, String> {
+    let js = async_nats::jetstream::new(client.clone());
+    if let Ok(store) = js.get_object_store(BUCKET).await {
+        return Ok(store);
+    }
+    js.create_object_store(object_store::Config {
+        bucket: BUCKET.to_owned(),
+        description: Some("softhaptic session recordings, STATION/FILE".to_owned()),
+        ..Default::default()
+    })
+    .await
+    .map_err(|e| format!("the object store {BUCKET:?}: {e}"))
+}
+
+/// Uploads `path` as `STATION/FILE` unless the store already has it; verifies by digest.
+/// `Ok(true)` uploaded now, `Ok(false)` already there.
+pub async fn upload(store: &ObjectStore, station: &str, path: &Path) -> Result<bool, String> {
+    let file = path
+        .file_name()
+        .and_then(|f| f.to_str())
+        .ok_or_else(|| format!("{}: not a file name", path.display()))?
+        .to_owned();
+    let name = object_name(station, &file);
+    let local = {
+        let owned = path.to_owned();
+        tokio::task::spawn_blocking(move || digest_of(&owned))
+            .await
+            .map_err(|e| e.to_string())?
+            .map_err(|e| format!("{}: {e}", path.display()))?
+    };
+    if let Ok(info) = store.info(&name).await
+        && info
+            .digest
+            .as_deref()
+            .is_some_and(|d| same_digest(d, &local))
+    {
+        return Ok(false);
+    }
+    let mut reader = tokio::fs::File::open(path)
+        .await
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    let info = store
+        .put(
+            object_store::ObjectMetadata {
+                name: name.clone(),
+                description: Some(format!("recording of station {station}")),
+                ..Default::default()
+            },
+            &mut reader,
+        )
+        .await
+        .map_err(|e| format!("{name}: {e}"))?;
+    match info.digest.as_deref() {
+        Some(d) if same_digest(d, &local) => Ok(true),
+        other => Err(format!(
+            "{name}: the store's digest {other:?} is not the file's {local}; it stays for the next pass"
+        )),
+    }
+}
+
+/// Uploads every finished recording (`*.mcap`) of `dir` but `skip` (the one being written).
+pub async fn upload_finished(
+    client: &async_nats::Client,
+    station: &str,
+    dir: &Path,
+    skip: Option<&Path>,
+) -> ArchiveReport {
+    let mut report = ArchiveReport::default();
+    let files = match recordings(dir, skip) {
+        Ok(f) => f,
+        Err(e) => {
+            report.failed.push((dir.display().to_string(), e));
+            return report;
+        }
+    };
+    if files.is_empty() {
+        return report;
+    }
+    let store = match store(client).await {
+        Ok(s) => s,
+        Err(e) => {
+            for f in files {
+                report.failed.push((f.display().to_string(), e.clone()));
+            }
+            return report;
+        }
+    };
+    for path in files {
+        let shown = path.display().to_string();
+        match upload(&store, station, &path).await {
+            Ok(true) => report.uploaded.push(shown),
+            Ok(false) => report.already.push(shown),
+            Err(e) => report.failed.push((shown, e)),
+        }
+    }
+    report
+}
+
+fn recordings(dir: &Path, skip: Option<&Path>) -> Result<Vec<PathBuf>, String> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(e.to_string()),
+    };
+    let skip = skip.and_then(|s| s.file_name().map(|f| f.to_owned()));
+    let mut files: Vec<PathBuf> = entries
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "mcap") && p.is_file())
+        .filter(|p| p.file_name().map(|f| f.to_owned()) != skip)
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+/// The archived recordings of `station` (all stations when `None`).
+pub async fn list(
+    client: &async_nats::Client,
+    station: Option<&str>,
+) -> Result<Vec<ArchivedSession>, String> {
+    use futures_util::StreamExt;
+    let js = async_nats::jetstream::new(client.clone());
+    let Ok(store) = js.get_object_store(BUCKET).await else {
+        return Ok(Vec::new());
+    };
+    let mut objects = store.list().await.map_err(|e| e.to_string())?;
+    let mut out = Vec::new();
+    while let Some(info) = objects.next().await {
+        let info = info.map_err(|e| e.to_string())?;
+        let Some((s, file)) = info.name.split_once('/') else {
+            continue;
+        };
+        if station.is_some_and(|want| want != s) {
+            continue;
+        }
+        out.push(ArchivedSession {
+            station: s.to_owned(),
+            file: file.to_owned(),
+            bytes: info.size as u64,
+            digest: info.digest.clone().unwrap_or_default(),
+        });
+    }
+    out.sort_by(|a, b| (&a.station, &a.file).cmp(&(&b.station, &b.file)));
+    Ok(out)
+}
+
+/// One archived recording's bytes (at most a recording's size limit).
+pub async fn fetch(
+    client: &async_nats::Client,
+    station: &str,
+    file: &str,
+) -> Result<Vec<u8>, String> {
+    use tokio::io::AsyncReadExt;
+    let js = async_nats::jetstream::new(client.clone());
+    let store = js
+        .get_object_store(BUCKET)
+        .await
+        .map_err(|e| e.to_string())?;
+    let mut object = store
+        .get(object_name(station, file))
+        .await
+        .map_err(|e| e.to_string())?;
+    let limit = crate::files::FileKind::Recording.max_bytes();
+    let mut bytes = Vec::new();
+    (&mut object)
+        .take(limit + 1)
+        .read_to_end(&mut bytes)
+        .await
+        .map_err(|e| e.to_string())?;
+    if bytes.len() as u64 > limit {
+        return Err(format!("larger than the {limit} bytes a recording may be"));
+    }
+    Ok(bytes)
+}
