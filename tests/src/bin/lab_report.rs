@@ -53,8 +53,8 @@ fn parse() -> anyhow::Result<Options> {
             other => bail!("unknown option {other:?} (see --help)"),
         }
     }
-    if o.stations == 0 || o.hubs == 0 || !(1.0..=600.0).contains(&o.seconds) || o.viewers > 20_000 {
-        bail!("--stations and --hubs ≥ 1, --viewers ≤ 20000, --seconds in [1, 600]");
+    if o.stations == 0 || o.hubs == 0 || !(1.0..=600.0).contains(&o.seconds) || o.viewers > 10_000 {
+        bail!("--stations and --hubs ≥ 1, --viewers ≤ 10000, --seconds in [1, 600]");
     }
     Ok(o)
 }
@@ -130,8 +130,34 @@ struct Seen {
     period_error_max_us: Vec<f64>,
 }
 
-async fn watch(url: String, t0: Instant, until: Instant, seen: Arc<Mutex<Seen>>) {
-    let Ok((mut socket, _)) = tokio_tungstenite::connect_async(&url).await else {
+/// Viewers per client address: below a server's per-address limit (50 by default).
+const VIEWERS_PER_ADDRESS: usize = 40;
+
+/// Watches `url` from the loopback address `from` until `until`.
+async fn watch(
+    url: String,
+    from: std::net::Ipv4Addr,
+    t0: Instant,
+    until: Instant,
+    seen: Arc<Mutex<Seen>>,
+) {
+    let Some(server) = url
+        .strip_prefix("ws://")
+        .and_then(|r| r.split('/').next())
+        .and_then(|a| a.parse::<std::net::SocketAddr>().ok())
+    else {
+        return;
+    };
+    let Ok(tcp) = tokio::net::TcpSocket::new_v4() else {
+        return;
+    };
+    if tcp.bind((from, 0).into()).is_err() {
+        return;
+    }
+    let Ok(stream) = tcp.connect(server).await else {
+        return;
+    };
+    let Ok((mut socket, _)) = tokio_tungstenite::client_async(&url, stream).await else {
         return;
     };
     while Instant::now() < until {
@@ -221,8 +247,10 @@ async fn main() -> anyhow::Result<()> {
         let hub = &hubs[v % o.hubs];
         let station = &stations[v % o.stations].0;
         let seen = Arc::new(Mutex::new(Seen::default()));
+        let from = std::net::Ipv4Addr::new(127, 0, 1, 1 + (v / VIEWERS_PER_ADDRESS) as u8);
         tasks.push(tokio::spawn(watch(
             format!("ws://{}/ws?station={station}", hub.addr),
+            from,
             t0,
             until,
             Arc::clone(&seen),
@@ -233,6 +261,7 @@ async fn main() -> anyhow::Result<()> {
     let direct = Arc::new(Mutex::new(Seen::default()));
     tasks.push(tokio::spawn(watch(
         format!("ws://{}/ws", stations[0].1.addr),
+        std::net::Ipv4Addr::LOCALHOST,
         t0,
         until,
         Arc::clone(&direct),
