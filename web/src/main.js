@@ -41,6 +41,11 @@ import { StationList, archiveOf, stationOf, withStation } from './lab.js';
  */
 const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal', 'pushed_through']);
 const PLAYOUT_DELAY_MS = 50;
+/**
+ * The tool's opacity while it touches the object: the dent it makes is under it, and from most
+ * viewpoints an opaque tool hides it entirely.
+ */
+const TOOL_OPACITY_IN_CONTACT = 0.3;
 /** How often a hub's page asks for its station list again. */
 const STATION_LIST_REFRESH_MS = 2000;
 const TIMING_SAMPLES = 120;
@@ -52,6 +57,8 @@ const view = {
   camera: null,
   controls: null,
   toolGroup: null,
+  /** The tool's materials: see-through while in contact, so the dent under it shows. */
+  toolMaterials: [],
   ring: null,
   arrow: null,
   objectsGroup: null,
@@ -504,7 +511,13 @@ function buildTool(tool) {
     view.toolGroup.traverse((o) => o.geometry?.dispose());
   }
   const group = new THREE.Group();
-  const material = new THREE.MeshStandardMaterial({ color: 0xc9d1d9, metalness: 0.6, roughness: 0.3 });
+  // Transparent from the start (only the opacity changes with contact, no shader rebuild).
+  const material = new THREE.MeshStandardMaterial({
+    color: 0xc9d1d9,
+    metalness: 0.6,
+    roughness: 0.3,
+    transparent: true,
+  });
   const R = tool.radius_m;
   let tipLength;
   if (tool.shape === 'sphere') {
@@ -524,10 +537,11 @@ function buildTool(tool) {
   const shaftLength = 0.12;
   const shaft = new THREE.Mesh(
     new THREE.CylinderGeometry(R * 0.35, R * 0.35, shaftLength, 24),
-    new THREE.MeshStandardMaterial({ color: 0x6e7681, metalness: 0.4, roughness: 0.5 }),
+    new THREE.MeshStandardMaterial({ color: 0x6e7681, metalness: 0.4, roughness: 0.5, transparent: true }),
   );
   shaft.position.y = tipLength + shaftLength / 2;
   group.add(shaft);
+  view.toolMaterials = [material, shaft.material];
   view.toolGroup = group;
   view.scene.add(group);
 }
@@ -757,6 +771,10 @@ function placeToolAndMarkers() {
   );
 
   const inContact = rendered.inContact && state.tool !== null;
+  const opacity = inContact ? TOOL_OPACITY_IN_CONTACT : 1;
+  for (const m of view.toolMaterials) {
+    if (m.opacity !== opacity) m.opacity = opacity;
+  }
   view.ring.visible = inContact;
   if (inContact) {
     const p = profileSetup(
@@ -1051,6 +1069,32 @@ function exposeTestHook() {
      * Moves the camera to look at a world point from `distanceM` away, `elevationRad` above the
      * horizontal (screenshots; a low camera shows the dimple's profile beside the tool).
      */
+    /** The tool's opacity now (1 free, less in contact). */
+    toolOpacity: () => view.toolMaterials[0]?.opacity ?? null,
+    /** A world point's position on the page, CSS pixels from the canvas' top left. */
+    toScreen: (point) => {
+      const v = new THREE.Vector3(point[0], point[1], point[2]).project(view.camera);
+      const el = view.renderer?.domElement;
+      if (!el) return null;
+      return { x: ((v.x + 1) / 2) * el.clientWidth, y: ((1 - v.y) / 2) * el.clientHeight };
+    },
+    /**
+     * The drawn pixels (RGBA, rows from the bottom) of a square of `sizePx` CSS pixels centred on
+     * a page position, rendered now: what the canvas shows there, read back from WebGL.
+     */
+    regionPixels: (x, y, sizePx) => {
+      if (!view.renderer) return null;
+      view.renderer.render(view.scene, view.camera);
+      const gl = view.renderer.getContext();
+      const ratio = view.renderer.getPixelRatio();
+      const h = view.renderer.domElement.height;
+      const size = Math.round(sizePx * ratio);
+      const px = Math.round(x * ratio - size / 2);
+      const py = Math.round(h - y * ratio - size / 2);
+      const out = new Uint8Array(size * size * 4);
+      gl.readPixels(px, py, size, size, gl.RGBA, gl.UNSIGNED_BYTE, out);
+      return Array.from(out);
+    },
     focusCamera: (point, distanceM, elevationRad = 0.6) => {
       const h = distanceM * Math.cos(elevationRad);
       view.camera.position.set(point[0] + h * 0.6, point[1] + distanceM * Math.sin(elevationRad), point[2] + h * 0.8);

@@ -62,6 +62,48 @@ test('the page loads the scene and its render mesh and receives the stream', asy
   assert.ok(info.webgl || (await page.locator('#webgl-message').isVisible()), 'without WebGL the page says so');
 });
 
+test('from the default camera the dent shows through the see-through tool', async () => {
+  const webgl = await page.evaluate(() => window.__softhaptic.webgl());
+  if (!webgl) return; // the page without WebGL is checked below
+  const REGION_PX = 80;
+  await freezeOnPress(page, 2e-3);
+  const pressed = await page.evaluate((size) => {
+    const h = window.__softhaptic;
+    const c = h.contact();
+    const at = h.toScreen(c.point);
+    return { c, at, opacity: h.toolOpacity(), pixels: h.regionPixels(at.x, at.y, size) };
+  }, REGION_PX);
+  assert.ok(pressed.opacity < 0.5, `tool opacity in contact ${pressed.opacity}`);
+  // The same place on the screen with the tool off the surface (and opaque again).
+  await page.evaluate(() => window.__softhaptic.pause(false));
+  await page.waitForFunction(
+    () => {
+      const h = window.__softhaptic;
+      const c = h.contact();
+      const free = c.valid && !c.stale && !c.inContact;
+      if (free) h.pause(true);
+      return free;
+    },
+    null,
+    { timeout: 120000, polling: 'raf' },
+  );
+  const free = await page.evaluate(
+    ({ at, size }) => {
+      const h = window.__softhaptic;
+      return { opacity: h.toolOpacity(), pixels: h.regionPixels(at.x, at.y, size) };
+    },
+    { at: pressed.at, size: REGION_PX },
+  );
+  await page.evaluate(() => window.__softhaptic.pause(false));
+  assert.equal(free.opacity, 1);
+  let sum = 0;
+  for (let i = 0; i < pressed.pixels.length; i += 4) {
+    for (let k = 0; k < 3; k++) sum += Math.abs(pressed.pixels[i + k] - free.pixels[i + k]);
+  }
+  const meanDiff = sum / ((pressed.pixels.length / 4) * 3);
+  assert.ok(meanDiff > 6, `mean colour difference ${meanDiff.toFixed(2)} in the contact region`);
+});
+
 test('a press bends the render mesh exactly as the profile says, and only within R_d', async () => {
   // The default scene holds its press about 3 mm deep; 2 mm catches the hold, not the approach.
   await freezeOnPress(page, 2e-3);
