@@ -8,13 +8,31 @@
 use serde::Serialize;
 use softhaptic_proto::Material;
 
-/// Which stress–strain law the FEM uses.
+/// Which formulation the FEM solves: the stress–strain law and where contact is imposed.
+///
+/// The two linear formulations share the small-strain law; they differ in the contact
+/// kinematics, and that difference grows with depth (it is what separates them from the
+/// closed forms of Hertz and Sneddon at δ ~ R).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LawKind {
-    /// Small-strain isotropic linear elasticity (geometrically linear).
-    Linear,
-    /// Compressible neo-Hookean, W = μ/2 (I₁ − 3 − 2 ln J) + λ/2 (ln J)², large strain.
+    /// Small-strain linear elasticity with contact imposed on the deformed surface: a node's gap
+    /// is its current distance from the indenter, the reaction acts along the indenter's normal
+    /// at the node's current position, and the indenter's curvature enters the tangent. A
+    /// hybrid, neither the textbook linear contact problem nor a large-deformation one: the
+    /// surface rotates under the tool but the strain measure does not follow. Kept under the
+    /// short name "linear" (and serialised so) because the committed report, its run keys and
+    /// the scene tables use it.
+    #[serde(rename = "linear")]
+    LinearDeformedContact,
+    /// The textbook small-deformation (geometrically linear) contact problem that Hertz and
+    /// Sneddon solve: small strain, and the gap measured on the reference configuration along
+    /// the tool's axis (the direction of approach), g = h(X) − f(ρ(X)) + u·e with f the tool's
+    /// profile, so only the displacement along the axis closes it and the contact reaction acts
+    /// along the axis. The contact problem is then linear apart from the active set.
+    LinearSmallDeformation,
+    /// Compressible neo-Hookean, W = μ/2 (I₁ − 3 − 2 ln J) + λ/2 (ln J)², large strain, contact
+    /// on the deformed surface.
     NeoHookean,
 }
 
@@ -22,9 +40,24 @@ impl LawKind {
     /// Short name for files and tables.
     pub fn name(self) -> &'static str {
         match self {
-            LawKind::Linear => "linear",
+            LawKind::LinearDeformedContact => "linear",
+            LawKind::LinearSmallDeformation => "linear_small_deformation",
             LawKind::NeoHookean => "neo_hookean",
         }
+    }
+
+    /// Whether the stress is the small-strain linear-elastic one (both linear formulations).
+    pub fn small_strain(self) -> bool {
+        matches!(
+            self,
+            LawKind::LinearDeformedContact | LawKind::LinearSmallDeformation
+        )
+    }
+
+    /// Whether contact is imposed on the reference configuration (linearised gap along the
+    /// tool's axis) rather than on the deformed surface.
+    pub fn contact_on_reference(self) -> bool {
+        self == LawKind::LinearSmallDeformation
     }
 }
 
@@ -212,7 +245,7 @@ pub fn element_response(
             }
         }
         match law.kind {
-            LawKind::Linear => {
+            LawKind::LinearDeformedContact | LawKind::LinearSmallDeformation => {
                 let tr = h[0][0] + h[1][1] + h[2][2];
                 let mut s = [[0.0; 3]; 3];
                 for i in 0..3 {
@@ -360,7 +393,7 @@ mod tests {
         let x = reference_tet();
         let geom = ElementGeometry::new(0, &x).unwrap();
         let material = Material::new(50e3, 0.33).unwrap();
-        for kind in [LawKind::Linear, LawKind::NeoHookean] {
+        for kind in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             let law = Constitutive::new(kind, &material);
             let mut u = [[0.0; 3]; 10];
             for (a, ua) in u.iter_mut().enumerate() {
@@ -397,7 +430,7 @@ mod tests {
         let x = reference_tet();
         let geom = ElementGeometry::new(0, &x).unwrap();
         let material = Material::new(1e3, 0.45).unwrap();
-        for kind in [LawKind::Linear, LawKind::NeoHookean] {
+        for kind in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             let law = Constitutive::new(kind, &material);
             let mut u = [[0.0; 3]; 10];
             for (a, ua) in u.iter_mut().enumerate() {

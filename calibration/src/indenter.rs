@@ -158,6 +158,40 @@ impl Indenter {
 }
 
 impl Indenter {
+    /// Gap of a point of the reference configuration measured along the tool's axis, as the
+    /// small-deformation contact problem measures it: the indenter occupies h ≥ f(ρ) (h the
+    /// height above the tip along the axis, ρ the distance from the axis, f the tool's profile:
+    /// R − √(R² − ρ²), ρ cot α, ρ²/(2R)), and the gap is f(ρ) − h, negative inside. Its normal is
+    /// −axis: a displacement u changes the linearised gap by −u·axis, whatever its lateral part.
+    ///
+    /// Beyond the sphere's silhouette (ρ ≥ R) the axial line misses the tool; the Euclidean gap,
+    /// positive there, stands in (such points are never in contact).
+    pub fn axial_gap(&self, x: [f64; 3]) -> Gap {
+        let e = self.axis;
+        let d = sub(x, self.tip_m);
+        let h = dot(d, e);
+        let rho = norm(sub(d, scaled(e, h)));
+        let profile_m = match self.shape {
+            IndenterShape::Sphere { radius_m } => {
+                if rho >= radius_m {
+                    return Gap {
+                        distance_m: self.gap(x).distance_m,
+                        normal: scaled(e, -1.0),
+                    };
+                }
+                radius_m - (radius_m * radius_m - rho * rho).sqrt()
+            }
+            IndenterShape::Paraboloid { radius_m } => rho * rho / (2.0 * radius_m),
+            IndenterShape::Cone { half_angle_rad } => rho / half_angle_rad.tan(),
+        };
+        Gap {
+            distance_m: profile_m - h,
+            normal: scaled(e, -1.0),
+        }
+    }
+}
+
+impl Indenter {
     /// Derivative of the surface normal with respect to the point, dn/dx (3×3, symmetric): the
     /// indenter's curvature, which enters the Newton tangent of a node sliding on it (without
     /// it the normal is only updated between iterations and Newton converges linearly).
@@ -250,6 +284,30 @@ mod tests {
         // Just off the axis: the flank distance h sin α.
         let g = ind.gap([1e-9, 0.0, 0.0]);
         assert!((g.distance_m + 0.003 * alpha.sin()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn axial_gap_is_vertical_distance_to_profile() {
+        let alpha = std::f64::consts::FRAC_PI_4;
+        let cone = Indenter::vertical(
+            IndenterShape::Cone {
+                half_angle_rad: alpha,
+            },
+            0.003,
+        );
+        // 3 mm deep on the axis; at r = 1 mm the 45° flank is 1 mm above the apex, so 2 mm.
+        let g = cone.axial_gap([0.0, 0.0, 0.0]);
+        assert!((g.distance_m + 0.003).abs() < 1e-15);
+        assert_eq!(g.normal, [0.0, 0.0, -1.0]);
+        let g = cone.axial_gap([0.001, 0.0, 0.0]);
+        assert!((g.distance_m + 0.002).abs() < 1e-15);
+        let sphere = Indenter::vertical(IndenterShape::Sphere { radius_m: 0.01 }, 0.002);
+        let r: f64 = 0.006;
+        let g = sphere.axial_gap([r, 0.0, 0.0]);
+        let expect = 0.01 - (0.01f64.powi(2) - r * r).sqrt() - 0.002;
+        assert!((g.distance_m - expect).abs() < 1e-15);
+        // Outside the silhouette: no contact.
+        assert!(sphere.axial_gap([0.011, 0.0, 0.0]).distance_m > 0.0);
     }
 
     #[test]

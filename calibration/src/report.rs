@@ -602,7 +602,11 @@ fn curvature_section(
          balls in 'Corrections beyond the paper'.\n"
     );
     for s in studies {
-        let Some(lin) = s.laws.iter().find(|l| l.law == LawKind::Linear) else {
+        let Some(lin) = s
+            .laws
+            .iter()
+            .find(|l| l.law == LawKind::LinearDeformedContact)
+        else {
             continue;
         };
         let nh = s.laws.iter().find(|l| l.law == LawKind::NeoHookean);
@@ -1646,6 +1650,62 @@ fn runs_section(fem: &RunTimings, results: &Results, md: &mut String) {
     md.push('\n');
 }
 
+/// The small-deformation formulation against Sneddon on the deep block: one table per tool,
+/// the force on each mesh and its error, so the convergence reads along a row.
+fn sneddon_section(dir: &Path, v: &VerificationStudy, md: &mut String) -> Result<(), ReportError> {
+    let _ = writeln!(
+        md,
+        "\n### Small-deformation linear FEM against Sneddon (deep block)\n\n\
+         The textbook linear contact problem ({}): small strain, gap measured on the reference \
+         configuration along the tool's axis, reaction along the axis. Each depth has its own \
+         quarter-model cube {:.0} contact radii a wide and deep (bottom clamped, sides free), \
+         meshed with cells of a/n over 1.5 a laterally and a in depth, then geometric growth; \
+         a is Hertz's √(Rδ) (capped at R) or the cone's 2δ tan α / π. The tool is pressed to \
+         δ in one step. Reference: Sneddon's exact sphere and Sneddon's cone (E = 50 kPa, \
+         ν = 0.33). Errors are FEM / Sneddon − 1.\n",
+        LawKind::LinearSmallDeformation.name(),
+        crate::experiments::verification::SNEDDON_BLOCK_OVER_CONTACT_RADIUS
+    );
+    for check in &v.sneddon {
+        let _ = writeln!(
+            md,
+            "{} — largest |error| on the finest mesh: {:.2}%\n",
+            crate::experiments::tool_description(&check.tool),
+            check.worst_finest_error_percent()
+        );
+        let mut header = "| δ (mm) | Sneddon (N) |".to_owned();
+        let mut rule = "|---|---|".to_owned();
+        let mut csv_header = vec!["depth_mm".to_owned(), "sneddon_n".to_owned()];
+        for m in &check.meshes {
+            let _ = write!(header, " FEM cells {} (N) | unknowns | error (%) |", m.name);
+            rule.push_str("---|---|---|");
+            let tag = format!("{:.1}", m.cells_per_contact_radius);
+            csv_header.push(format!("fem_cells_a_over_{tag}_n"));
+            csv_header.push(format!("dofs_cells_a_over_{tag}"));
+            csv_header.push(format!("error_cells_a_over_{tag}_percent"));
+        }
+        let _ = writeln!(md, "{header}\n{rule}");
+        let mut rows = Vec::new();
+        for p in &check.points {
+            let mut line = format!("| {:.1} | {:.4} |", p.depth_m / MM, p.sneddon_n);
+            let mut row = vec![p.depth_m / MM, p.sneddon_n];
+            for ((f, dofs), e) in p.fem_n.iter().zip(&p.dofs).zip(&p.error_percent) {
+                let _ = write!(line, " {f:.4} | {dofs} | {e:+.2} |");
+                row.extend([*f, *dofs as f64, *e]);
+            }
+            let _ = writeln!(md, "{line}");
+            rows.push(row);
+        }
+        md.push('\n');
+        csv(
+            &dir.join(format!("verification_sneddon_{}.csv", check.tool_name)),
+            &csv_header,
+            &rows,
+        )?;
+    }
+    Ok(())
+}
+
 fn verification_section(
     dir: &Path,
     v: &VerificationStudy,
@@ -1704,6 +1764,7 @@ fn verification_section(
         .map(String::from),
         &rows,
     )?;
+    sneddon_section(dir, v, md)?;
     let _ = writeln!(
         md,
         "\nPatch test (linear displacement imposed on the boundary of a graded block, interior free):"

@@ -25,7 +25,7 @@ use serde::Serialize;
 use crate::element::{
     BadElement, Constitutive, ElementGeometry, Inverted, LawKind, element_response,
 };
-use crate::indenter::Indenter;
+use crate::indenter::{Gap, Indenter};
 use crate::mesh::TetMesh;
 use crate::sparse::{LinearError, StiffnessPattern};
 
@@ -320,8 +320,7 @@ impl ContactModel {
             let mut gaps = Vec::with_capacity(candidates.len());
             for &c in &candidates {
                 let i = c as usize;
-                let x = add(self.mesh.nodes_m[i], self.u[i]);
-                let g = indenter.gap(x);
+                let g = self.contact_gap(indenter, i);
                 gaps.push(g);
                 if self.active[i] {
                     let p = self.reaction(i, &f_int[i], g.normal);
@@ -359,7 +358,8 @@ impl ContactModel {
                 if self.active[i] {
                     frames[i] = self.frame(i, Some((gaps[k].distance_m, gaps[k].normal)));
                     let p = self.reaction(i, &f_int[i], gaps[k].normal).max(0.0);
-                    if p > 0.0 {
+                    // On the reference configuration the gap is linear in u: no curvature.
+                    if p > 0.0 && !self.law.kind.contact_on_reference() {
                         let x = add(self.mesh.nodes_m[i], self.u[i]);
                         let dn = indenter.normal_derivative(x);
                         let block: [[f64; 3]; 3] =
@@ -424,7 +424,7 @@ impl ContactModel {
                         trial[i][j] = self.u[i][j] + alpha * du[i][j];
                     }
                 }
-                if self.law.kind == LawKind::Linear {
+                if self.law.kind.small_strain() {
                     accepted = true;
                     break;
                 }
@@ -517,6 +517,24 @@ impl ContactModel {
         })
     }
 
+    /// Gap of contact candidate `i` and the direction its reaction acts along, as the
+    /// formulation defines them: on the deformed surface, the current distance from the
+    /// indenter and its normal there; on the reference configuration, the axial gap of the
+    /// reference position linearised in the displacement, g₀(X) + n·u (exact, the gap being
+    /// linear in u), with the fixed direction n = −axis.
+    fn contact_gap(&self, indenter: &Indenter, i: usize) -> Gap {
+        let x = self.mesh.nodes_m[i];
+        if self.law.kind.contact_on_reference() {
+            let g = indenter.axial_gap(x);
+            Gap {
+                distance_m: g.distance_m + dot(g.normal, self.u[i]),
+                normal: g.normal,
+            }
+        } else {
+            indenter.gap(add(x, self.u[i]))
+        }
+    }
+
     /// Contact pressure (normal reaction) of node `i`, positive when pushing the body away.
     fn reaction(&self, i: usize, f: &[f64; 3], normal: [f64; 3]) -> f64 {
         let fixed = self.mesh.fixed[i];
@@ -552,7 +570,7 @@ impl ContactModel {
             if self.toggles[i] != 0 {
                 locked_nodes += 1;
             }
-            let g = indenter.gap(add(self.mesh.nodes_m[i], self.u[i]));
+            let g = self.contact_gap(indenter, i);
             let p = self.reaction(i, &f_int[i], g.normal);
             for k in 0..3 {
                 force[k] -= p * g.normal[k];

@@ -61,7 +61,7 @@ fn ball_run(mode: Mode, name: &str, tool: &ToolShape, r0_m: f64, law: LawKind) -
 pub fn curvature_runs(mode: Mode) -> Vec<RunSpec> {
     let mut out = Vec::new();
     for (name, tool) in paper_tools_10mm() {
-        for law in [LawKind::Linear, LawKind::NeoHookean] {
+        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             out.push(rd_run(mode, name, &tool, law));
             for r0 in BALL_RADII_M {
                 out.push(ball_run(mode, name, &tool, r0, law));
@@ -158,7 +158,7 @@ pub fn curvature_specs(tool: &ToolShape, law: LawKind) -> Vec<ModelSpec> {
             hyperelastic: true,
             ..curved
         }),
-        (ToolShape::Cone { .. }, LawKind::Linear) => {}
+        (ToolShape::Cone { .. }, _) => {}
     }
     specs
 }
@@ -181,7 +181,7 @@ pub fn curvature(mode: Mode, cache: &RunCache) -> Result<Vec<CurvatureStudy>, Ex
     let mut out = Vec::new();
     for (name, tool) in paper_tools_10mm() {
         let mut laws = Vec::new();
-        for law in [LawKind::Linear, LawKind::NeoHookean] {
+        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             let block = cache.get(study, &rd_run(mode, name, &tool, law))?.clone();
             let block_n: Vec<f64> = ds.iter().map(|&d| block.normal_force_at_n(d)).collect();
             let f_max = block_n

@@ -101,7 +101,7 @@ pub fn force_runs(mode: Mode) -> Vec<RunSpec> {
     let res = force_resolutions(mode)[2];
     let mut out = Vec::new();
     for (name, tool) in force_tools() {
-        for law in [LawKind::Linear, LawKind::NeoHookean] {
+        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             out.push(force_run(mode, name, &tool, law, res));
         }
     }
@@ -113,7 +113,7 @@ pub fn force_runs(mode: Mode) -> Vec<RunSpec> {
 pub fn speed_accuracy_runs(mode: Mode) -> Vec<RunSpec> {
     let mut out = Vec::new();
     for (name, tool) in force_tools() {
-        for law in [LawKind::Linear, LawKind::NeoHookean] {
+        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             for res in force_resolutions(mode) {
                 out.push(force_run(mode, name, &tool, law, res));
             }
@@ -166,7 +166,7 @@ pub fn force_depth(mode: Mode, cache: &RunCache) -> Result<Vec<ForceDepthStudy>,
         let mut runs = Vec::new();
         let mut error_percent = Vec::new();
         let mut crossing_m = Vec::new();
-        for law_kind in [LawKind::Linear, LawKind::NeoHookean] {
+        for law_kind in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             let run = fine_run("force-depth", mode, cache, name, &tool, law_kind)?.clone();
             let err: Vec<f64> = ErrorCurve::new(&analytic_n, &run.normal_forces_n())
                 .eq9_percent
@@ -314,9 +314,9 @@ pub fn hyperelastic_fit(mode: Mode, cache: &RunCache) -> Result<HyperelasticFit,
             Ok(fine_run(study, mode, cache, name, tool, law)?.normal_forces_n())
         };
     let sphere_nh_n = forces(sphere_name, &sphere, LawKind::NeoHookean)?;
-    let sphere_linear_fem_n = forces(sphere_name, &sphere, LawKind::Linear)?;
+    let sphere_linear_fem_n = forces(sphere_name, &sphere, LawKind::LinearDeformedContact)?;
     let cone_nh_n = forces(cone_name, &cone, LawKind::NeoHookean)?;
-    let cone_linear_fem_n = forces(cone_name, &cone, LawKind::Linear)?;
+    let cone_linear_fem_n = forces(cone_name, &cone, LawKind::LinearDeformedContact)?;
     let x: Vec<f64> = ds.iter().map(|d| d / radius_m).collect();
     let sphere_x_max = x.last().copied().unwrap_or(1.0);
     let refit_sphere = fit_quadratic_ratio(&x, &sphere_nh_n, &sphere_closed_form_n);
@@ -570,7 +570,7 @@ pub fn speed_accuracy(mode: Mode, cache: &RunCache) -> Result<SpeedAccuracyStudy
                 &|d| analytic::lin_neo_hookean_sphere_force_n(&MATERIAL, radius_m, d),
             );
         }
-        for law_kind in [LawKind::Linear, LawKind::NeoHookean] {
+        for law_kind in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             for res in force_resolutions(mode) {
                 let run = cache.get(study, &force_run(mode, name, &tool, law_kind, res))?;
                 let forces_n: Vec<f64> = table_depths

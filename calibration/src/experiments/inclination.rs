@@ -169,7 +169,7 @@ fn tilted_run(mode: Mode, name: &str, tool: &ToolShape, theta_rad: f64) -> RunSp
         format!("tilt {name} {:.0}°", theta_rad.to_degrees()),
         body,
         tool,
-        LawKind::Linear,
+        LawKind::LinearDeformedContact,
         res,
         &ds,
         theta_rad,

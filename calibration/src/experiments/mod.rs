@@ -609,8 +609,24 @@ mod tests {
             coarse_cells: 1,
         };
         let body = block_body(RD_BLOCK_M, &tool, 0.004, 0.0, res, Symmetry::Quarter);
-        let a = spec("a".into(), body, &tool, LawKind::Linear, res, &[0.002], 0.0);
-        let b = spec("b".into(), body, &tool, LawKind::Linear, res, &[0.002], 0.0);
+        let a = spec(
+            "a".into(),
+            body,
+            &tool,
+            LawKind::LinearDeformedContact,
+            res,
+            &[0.002],
+            0.0,
+        );
+        let b = spec(
+            "b".into(),
+            body,
+            &tool,
+            LawKind::LinearDeformedContact,
+            res,
+            &[0.002],
+            0.0,
+        );
         let c = spec(
             "c".into(),
             body,
@@ -630,7 +646,15 @@ mod tests {
         let rc = cache.get("test", &c).unwrap();
         // Same small-strain limit: the two laws agree to a few percent at δ = 0.2 R.
         assert!((ra.forces_n[0][2] / rc.forces_n[0][2] - 1.0).abs() < 0.05);
-        let other = spec("d".into(), body, &tool, LawKind::Linear, res, &[0.003], 0.0);
+        let other = spec(
+            "d".into(),
+            body,
+            &tool,
+            LawKind::LinearDeformedContact,
+            res,
+            &[0.003],
+            0.0,
+        );
         assert!(matches!(
             cache.get("test", &other),
             Err(ExperimentError::MissingRun { .. })

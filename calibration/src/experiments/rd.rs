@@ -65,7 +65,7 @@ pub fn rd_run(mode: Mode, name: &str, tool: &ToolShape, law: LawKind) -> RunSpec
 pub fn rd_runs(mode: Mode) -> Vec<RunSpec> {
     let mut out = Vec::new();
     for (name, tool) in paper_tools_10mm() {
-        for law in [LawKind::Linear, LawKind::NeoHookean] {
+        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             out.push(rd_run(mode, name, &tool, law));
         }
     }
@@ -84,7 +84,7 @@ pub fn rd_table(mode: Mode, cache: &RunCache) -> Result<Vec<RdStudy>, Experiment
     let mut studies = Vec::new();
     for (name, tool) in paper_tools_10mm() {
         let mut runs = Vec::new();
-        for law in [LawKind::Linear, LawKind::NeoHookean] {
+        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
             runs.push(
                 cache
                     .get("rd-table", &rd_run(mode, name, &tool, law))?
