@@ -42,6 +42,7 @@ use glam::{DQuat, DVec3};
 use softhaptic_proto::{ContactFlags, ContactState, Pose};
 
 use crate::device::{DeviceError, DeviceSample, HapticDevice, ServoClock};
+use crate::metrics::TraineeMetrics;
 use crate::rt::{self, CpuChoice, RealtimeStatus};
 use crate::stats::{Histogram, LateLog, LateWake, LoopStats};
 use crate::world::{HapticWorld, TickOutcome};
@@ -253,6 +254,7 @@ struct Shared {
     stop: AtomicBool,
     contact: SeqCell<CONTACT_WORDS>,
     stats: SeqCell<{ LoopStats::WORDS }>,
+    metrics: SeqCell<{ TraineeMetrics::WORDS }>,
     late: SeqCell<{ LateLog::WORDS }>,
     /// A copy of [`TickCore::next_tick`], so that a thread can see a tick was run without taking
     /// the baton: a thread that took it only to look, and was then held back by its CPU, would
@@ -271,6 +273,7 @@ impl Shared {
             stop: AtomicBool::new(false),
             contact: SeqCell::new(contact_to_words(&ContactState::IDLE)),
             stats: SeqCell::new(LoopStats::default().to_words()),
+            metrics: SeqCell::new(TraineeMetrics::default().to_words()),
             late: SeqCell::new(LateLog::default().to_words()),
             next_tick: AtomicU64::new(0),
             device_error: AtomicU64::new(0),
@@ -644,6 +647,11 @@ impl HapticLoop {
         contact_from_words(&self.shared.contact.read())
     }
 
+    /// The trainee's metrics, refreshed every 100 ticks (and by [`HapticLoop::stop`]'s last tick).
+    pub fn metrics(&self) -> TraineeMetrics {
+        TraineeMetrics::from_words(&self.shared.metrics.read())
+    }
+
     /// The timing summary, refreshed every 100 ticks.
     pub fn stats(&self) -> LoopStats {
         LoopStats::from_words(&self.shared.stats.read())
@@ -658,6 +666,11 @@ impl HapticLoop {
     /// Stops the loop (the device is commanded zero force last), joins the threads and returns
     /// the final statistics.
     pub fn stop(mut self) -> LoopStats {
+        self.halt()
+    }
+
+    /// [`HapticLoop::stop`] keeping the loop's last publications readable ([`HapticLoop::metrics`]).
+    pub fn stop_ref(&mut self) -> LoopStats {
         self.halt()
     }
 
@@ -683,6 +696,8 @@ impl HapticLoop {
                 }
                 let summary = core.timing.summary(rt::now_ns());
                 self.shared.stats.write(&summary.to_words());
+                // Every tick's metrics, the last ones included, for the session's end.
+                self.shared.metrics.write(&core.world.metrics().to_words());
                 summary
             }
             None => self.stats(),
@@ -925,6 +940,7 @@ impl TickCore {
         timing.compute.record(done.saturating_sub(woke_ns));
         if timing.ticks.is_multiple_of(STATS_EVERY_TICKS) {
             shared.stats.write(&timing.summary(done).to_words());
+            shared.metrics.write(&self.world.metrics().to_words());
         }
     }
 }

@@ -30,6 +30,8 @@
 //!   inclination) + damping, then the safety layer (stiffness cap at the model's δ*, ramp,
 //!   passivity, saturation, fault guard) with a flag for every limit that acts, and the validity
 //!   flags at the active model's limits.
+//! - [`metrics`]: the trainee's metrics (peak force, time above the safe force, time in
+//!   contact, path, smoothness, pushes, faults, flags) from every tick, in constant time.
 //! - [`passivity`]: the passivity observer and controller (Hannaford & Ryu 2002).
 //! - [`thermal`]: [`ContinuousForceLimiter`](thermal::ContinuousForceLimiter), a model of the
 //!   motors' heating that holds the RMS force at the device's continuous rating.
@@ -49,6 +51,7 @@ pub mod haptic_loop;
 pub mod law;
 pub mod liver;
 pub mod mesh;
+pub mod metrics;
 pub mod model;
 pub mod openhaptics;
 pub mod passivity;

@@ -12,6 +12,10 @@ use softhaptic_proto::{ContactFlags, ContactState, Material, Pose, ToolShape};
 
 use crate::collision::Collider;
 use crate::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
+use crate::metrics::{MetricsAccumulator, TickInput, TraineeMetrics};
+
+/// The safe force of a world whose scene sets none, N.
+pub const DEFAULT_SAFE_FORCE_N: f64 = 2.0;
 use crate::law;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::render::{ForceRenderer, RenderConfig, RenderedForce, WorldContact};
@@ -41,6 +45,8 @@ pub struct HapticWorld {
     tick: u64,
     /// The last valid reading: a faulted tick reports it rather than a NaN pose.
     last_good: Option<DeviceSample>,
+    /// The trainee's metrics, updated by every [`HapticWorld::tick`].
+    metrics: MetricsAccumulator,
 }
 
 impl HapticWorld {
@@ -86,6 +92,7 @@ impl HapticWorld {
             renderer: ForceRenderer::with_model(model, render, limits),
             tick: 0,
             last_good: None,
+            metrics: MetricsAccumulator::new(DEFAULT_SAFE_FORCE_N),
         }
     }
 
@@ -139,6 +146,16 @@ impl HapticWorld {
     /// means the loop has created energy that the controller has not yet removed.
     pub fn passivity_energy_j(&self) -> f64 {
         self.renderer.passivity_energy_j()
+    }
+
+    /// The trainee's metrics over the ticks run so far ([`HapticWorld::tick`]).
+    pub fn metrics(&self) -> TraineeMetrics {
+        self.metrics.metrics()
+    }
+
+    /// The force above which the metrics count time (the scene's safe force). Resets them.
+    pub fn set_safe_force(&mut self, safe_force_n: f64) {
+        self.metrics = MetricsAccumulator::new(safe_force_n);
     }
 
     /// Ticks stepped so far.
@@ -235,6 +252,15 @@ impl HapticWorld {
             state.force_n = DVec3::ZERO;
             state.flags |= ContactFlags::DEVICE_FAULT;
         }
+        // The tick as it is recorded: the same input a recording's metrics are computed from.
+        let fault = state.flags.contains(ContactFlags::DEVICE_FAULT);
+        self.metrics.update(&TickInput {
+            time_ns: state.time_ns,
+            tip_position_m: (!fault && read.is_ok()).then_some(state.tip_in_world.position_m),
+            in_contact: state.in_contact,
+            force_n: state.force_n,
+            flags: state.flags,
+        });
         TickOutcome {
             state,
             read,

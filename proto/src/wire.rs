@@ -23,7 +23,8 @@ use crate::tool::ToolShape;
 pub const PROTOCOL_VERSION: u32 = 1;
 
 /// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
-pub const SERVER_MESSAGE_TYPES: [&str; 5] = ["hello", "scene", "contact", "stats", "refused"];
+pub const SERVER_MESSAGE_TYPES: [&str; 6] =
+    ["hello", "scene", "contact", "stats", "metrics", "refused"];
 
 /// The `type` names of every viewer → server message: [`Auth`] and
 /// [`crate::record::ReplayControl`].
@@ -41,6 +42,8 @@ pub enum ServerMessage {
     Contact(ContactFrame),
     /// 1 Hz: loop timing and stream health.
     Stats(StatsMessage),
+    /// 1 Hz, and once more as the session ends: the trainee's metrics.
+    Metrics(MetricsMessage),
     /// The answer to a request the connection's role (or the server) does not allow; the
     /// connection stays open.
     Refused(Refused),
@@ -373,6 +376,32 @@ pub struct ComputeUs {
     pub max: f64,
 }
 
+/// `metrics`: the trainee's metrics over the session so far, computed by the server from every
+/// 1 kHz tick (`softhaptic_device::metrics` defines each), once a second and once more, `final`,
+/// as the session ends.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MetricsMessage {
+    pub peak_force_n: f64,
+    /// Device time of the peak, s.
+    pub peak_force_time_s: f64,
+    /// The scene's safe force, N.
+    pub safe_force_n: f64,
+    pub time_above_safe_s: f64,
+    pub time_in_contact_s: f64,
+    pub path_length_in_contact_m: f64,
+    /// Mean squared jerk of the tip in contact, m²/s⁶ (lower is smoother).
+    pub mean_squared_jerk_m2_s6: f64,
+    pub pushes: u64,
+    pub device_fault_ticks: u64,
+    /// How many times each contact flag turned on, by its wire name (only flags raised).
+    pub flags_raised: std::collections::BTreeMap<String, u64>,
+    /// Ticks the metrics cover.
+    pub ticks: u64,
+    /// The session's last metrics (it ended).
+    #[serde(rename = "final", default)]
+    pub is_final: bool,
+}
+
 /// `stats`: the loop's timing and the stream's health, once a second.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct StatsMessage {
@@ -560,6 +589,7 @@ impl ServerMessage {
             ServerMessage::Scene(_) => "scene",
             ServerMessage::Contact(_) => "contact",
             ServerMessage::Stats(_) => "stats",
+            ServerMessage::Metrics(_) => "metrics",
             ServerMessage::Refused(_) => "refused",
         }
     }
@@ -759,6 +789,25 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             ServerMessage::Contact(ContactFrame::from_state(&free, 9, 0.0, 0)),
         ),
         ("stats", stats),
+        (
+            "metrics",
+            ServerMessage::Metrics(MetricsMessage {
+                peak_force_n: 2.35,
+                peak_force_time_s: 12.5,
+                safe_force_n: 2.0,
+                time_above_safe_s: 0.42,
+                time_in_contact_s: 18.25,
+                path_length_in_contact_m: 0.0375,
+                mean_squared_jerk_m2_s6: 812.5,
+                pushes: 4,
+                device_fault_ticks: 0,
+                flags_raised: [("ramping".to_owned(), 1), ("stiffness_capped".to_owned(), 3)]
+                    .into_iter()
+                    .collect(),
+                ticks: 30000,
+                is_final: false,
+            }),
+        ),
         (
             "hello_observer",
             ServerMessage::Hello(Hello {

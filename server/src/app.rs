@@ -191,6 +191,13 @@ impl RunningServer {
     /// Closes every viewer, stops the HTTP server and the haptic loop; returns the loop's final
     /// statistics.
     pub async fn shutdown(self) -> LoopStats {
+        self.shutdown_with_metrics().await.0
+    }
+
+    /// [`RunningServer::shutdown`], with the trainee's metrics over every tick the loop ran.
+    pub async fn shutdown_with_metrics(
+        self,
+    ) -> (LoopStats, softhaptic_device::metrics::TraineeMetrics) {
         // Receivers are alive as long as `hub` is; a send error cannot happen here.
         let _ = self.shutdown_tx.send(true);
         for task in self.tasks {
@@ -206,13 +213,17 @@ impl RunningServer {
         let haptic_loop = self.haptic_loop;
         // Every other holder (the frame and stats tasks) has finished, so this is the last one.
         match Arc::try_unwrap(haptic_loop) {
-            Ok(l) => tokio::task::spawn_blocking(move || l.stop())
-                .await
-                .unwrap_or_default(),
+            Ok(mut l) => tokio::task::spawn_blocking(move || {
+                let stats = l.stop_ref();
+                (stats, l.metrics())
+            })
+            .await
+            .unwrap_or_default(),
             Err(shared) => {
                 let stats = shared.stats();
+                let metrics = shared.metrics();
                 drop(shared);
-                stats
+                (stats, metrics)
             }
         }
     }

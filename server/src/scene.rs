@@ -66,6 +66,7 @@
 //! [haptics]
 //! collision = "continuous"         # or "paper_vertices"
 //! damping_n_s_per_m = 1.0
+//! safe_force_n = 2.0               # the trainee's metrics count the time above this force
 //! ```
 //!
 //! # Model only what the scene requires
@@ -549,6 +550,8 @@ pub struct HapticsSection {
     pub collision: CollisionModeName,
     /// Virtual damping along the normal; the tool's default when absent.
     pub damping_n_s_per_m: Option<f64>,
+    /// The force above which the trainee's metrics count time (`time_above_safe_s`), N.
+    pub safe_force_n: Option<f64>,
 }
 
 /// A render surface in the object's frame with unit vertex normals.
@@ -630,6 +633,8 @@ pub struct Scene {
     /// The object's meshes came from files (and go into the recording, [`Scene::recorded_meshes`]).
     pub meshes_from_files: bool,
     pub press_depth_m: f64,
+    /// The force above which the trainee's metrics count time, N.
+    pub safe_force_n: f64,
     /// Where the simulated hand presses, object frame: a surface point and its outward normal.
     pub press_site_in_object: (DVec3, DVec3),
     pub calibration: CalibrationTable,
@@ -752,13 +757,15 @@ impl Scene {
     /// The haptic world of this scene: its mesh, pose, contact model, render configuration and
     /// device limits. The world estimates the mesh's curvature only if the model uses it.
     pub fn haptic_world(&self) -> HapticWorld {
-        HapticWorld::with_model(
+        let mut world = HapticWorld::with_model(
             Collider::new(self.haptic_mesh.clone(), self.collision),
             self.object_in_world,
             self.contact_model.clone(),
             self.render,
             self.device_limits,
-        )
+        );
+        world.set_safe_force(self.safe_force_n);
+        world
     }
 
     /// The active contact model as the `scene` message describes it.
@@ -1058,6 +1065,16 @@ impl Scene {
             }
             render.damping_n_s_per_m = d;
         }
+        let safe_force_n = file
+            .haptics
+            .safe_force_n
+            .unwrap_or(softhaptic_device::world::DEFAULT_SAFE_FORCE_N);
+        if !(safe_force_n.is_finite() && safe_force_n > 0.0 && safe_force_n <= 100.0) {
+            return Err(field(
+                "haptics.safe_force_n",
+                format!("must be finite and in (0, 100] N, got {safe_force_n}"),
+            ));
+        }
 
         let calibration = if let ModelSource::Recorded(record) = model_source {
             // The table the session ran with, as its viewers were sent it.
@@ -1182,6 +1199,7 @@ impl Scene {
             spacemouse_script,
             meshes_from_files: object.haptic_mesh.is_some(),
             press_depth_m,
+            safe_force_n,
             press_site_in_object,
             calibration,
             collision: file.haptics.collision.into(),

@@ -28,12 +28,13 @@ use std::time::{Duration, Instant};
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, close_code};
 use softhaptic_device::device::DeviceError;
 use softhaptic_device::haptic_loop::HapticLoop;
+use softhaptic_device::metrics::TraineeMetrics;
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::CalibrationTable;
 use softhaptic_proto::record::ReplayControl;
 use softhaptic_proto::wire::{
-    Auth, ComputeUs, ContactFrame, DeviceStatus, Hello, PeriodErrorUs, Refused, Role,
-    ServerMessage, StatsMessage, message_type,
+    Auth, ComputeUs, ContactFrame, DeviceStatus, Hello, MetricsMessage, PeriodErrorUs, Refused,
+    Role, ServerMessage, StatsMessage, message_type,
 };
 use tokio::sync::{broadcast, watch};
 
@@ -374,7 +375,11 @@ pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, perio
                 }
                 device = now;
             }
-            _ = shutdown.changed() => break,
+            _ = shutdown.changed() => {
+                // The session's end: its metrics as they stand, marked final.
+                send_metrics(&hub, &haptic_loop.metrics(), true);
+                break;
+            }
         }
         let message = stats_message(&haptic_loop.stats(), &hub.counters, device);
         match ServerMessage::Stats(message).encode() {
@@ -383,6 +388,44 @@ pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, perio
             }
             Err(e) => tracing::error!(error = %e, "could not encode stats"),
         }
+        send_metrics(&hub, &haptic_loop.metrics(), false);
+    }
+}
+
+/// The `metrics` message of the trainee's metrics.
+pub fn metrics_message(m: &TraineeMetrics, is_final: bool) -> MetricsMessage {
+    let flags_raised = m
+        .flag_onsets
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| **n > 0)
+        .filter_map(|(bit, n)| {
+            let flag = softhaptic_proto::ContactFlags::from_bits_retain(1 << bit);
+            softhaptic_proto::wire::flag_name(flag).map(|name| (name.to_owned(), *n))
+        })
+        .collect();
+    MetricsMessage {
+        peak_force_n: m.peak_force_n,
+        peak_force_time_s: m.peak_force_time_s,
+        safe_force_n: m.safe_force_n,
+        time_above_safe_s: m.time_above_safe_s,
+        time_in_contact_s: m.time_in_contact_s,
+        path_length_in_contact_m: m.path_length_in_contact_m,
+        mean_squared_jerk_m2_s6: m.mean_squared_jerk_m2_s6,
+        pushes: m.pushes,
+        device_fault_ticks: m.device_fault_ticks,
+        flags_raised,
+        ticks: m.ticks,
+        is_final,
+    }
+}
+
+fn send_metrics(hub: &StreamHub, m: &TraineeMetrics, is_final: bool) {
+    match ServerMessage::Metrics(metrics_message(m, is_final)).encode() {
+        Ok(text) => {
+            let _ = hub.stats.send(Utf8Bytes::from(text));
+        }
+        Err(e) => tracing::error!(error = %e, "could not encode the metrics"),
     }
 }
 

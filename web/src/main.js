@@ -83,6 +83,8 @@ const state = {
   station: stationOf(window.location),
   /** The station's archived recording the address names (`&archive=`), replayed; or null. */
   archive: archiveOf(window.location),
+  /** The last `metrics` message: the trainee's metrics, from the server. */
+  lastMetrics: null,
   /** Whether the trainee feels the force (`hello.force_feedback`); true until a `hello` says. */
   forceFeedback: true,
   mode: null,
@@ -165,6 +167,13 @@ function init() {
     'replay-time',
     'replay-file',
     'replay-gaps',
+    't-peak',
+    't-above',
+    't-contact',
+    't-path',
+    't-pushes',
+    't-jerk',
+    't-flags',
     'stations-panel',
     'stations-list',
     'flags',
@@ -677,6 +686,9 @@ function onMessage(message, receivedAtMs) {
     case 'stats':
       state.lastStats = message;
       break;
+    case 'metrics':
+      state.lastMetrics = message;
+      break;
     default:
       break;
   }
@@ -881,6 +893,19 @@ function updatePanels() {
     const deviceClass = device === 'ok' ? '' : 'severe';
     if (dom['s-device'].className !== deviceClass) dom['s-device'].className = deviceClass;
   }
+  const m = state.lastMetrics;
+  if (m) {
+    setText(dom['t-peak'], `${m.peak_force_n.toFixed(2)} N at ${m.peak_force_time_s.toFixed(1)} s`);
+    setText(dom['t-above'], `${m.time_above_safe_s.toFixed(2)} s over ${m.safe_force_n} N`);
+    const above = m.time_above_safe_s > 0 ? 'severe' : '';
+    if (dom['t-above'].className !== above) dom['t-above'].className = above;
+    setText(dom['t-contact'], `${m.time_in_contact_s.toFixed(1)} s`);
+    setText(dom['t-path'], `${(m.path_length_in_contact_m * 1e3).toFixed(1)} mm`);
+    setText(dom['t-pushes'], String(m.pushes));
+    setText(dom['t-jerk'], `${m.mean_squared_jerk_m2_s6.toExponential(2)} m²/s⁶`);
+    const flags = Object.values(m.flags_raised).reduce((a, b) => a + b, 0);
+    setText(dom['t-flags'], `${m.device_fault_ticks} / ${flags}`);
+  }
   setText(dom['w-rx'], `${buffer.arrivalsSince(performance.now())} /s`);
   const gl = view.renderer === null ? ' (no WebGL)' : view.software ? ' (software GL)' : '';
   setText(dom['w-fps'], `${fps().toFixed(0)} fps${gl}`);
@@ -1038,6 +1063,8 @@ function exposeTestHook() {
       })),
     }),
     lastStats: () => state.lastStats,
+    /** The last metrics message, and the panel's text for it. */
+    metrics: () => ({ last: state.lastMetrics, peakShown: dom['t-peak'].textContent }),
     /** The role the server granted (`instructor`, `observer`; null before a `hello`). */
     role: () => state.role,
     /** `live` or `replay`, as the server's `hello` said; null before one. */

@@ -360,11 +360,34 @@ function validateRefused(m) {
   return m;
 }
 
+/** `metrics`: the trainee's metrics, computed by the server from every 1 kHz tick. */
+function validateMetrics(m) {
+  for (const f of [
+    'peak_force_n',
+    'peak_force_time_s',
+    'time_above_safe_s',
+    'time_in_contact_s',
+    'path_length_in_contact_m',
+    'mean_squared_jerk_m2_s6',
+  ]) {
+    nonNegative(m[f], `metrics.${f}`);
+  }
+  positive(m.safe_force_n, 'metrics.safe_force_n');
+  count(m.pushes, 'metrics.pushes');
+  count(m.device_fault_ticks, 'metrics.device_fault_ticks');
+  count(m.ticks, 'metrics.ticks');
+  object(m.flags_raised, 'metrics.flags_raised');
+  for (const [name, n] of Object.entries(m.flags_raised)) count(n, `metrics.flags_raised.${name}`);
+  if (m.final !== undefined) boolean(m.final, 'metrics.final');
+  return m;
+}
+
 const VALIDATORS = {
   hello: validateHello,
   scene: validateScene,
   contact: validateContact,
   stats: validateStats,
+  metrics: validateMetrics,
   replay: validateReplay,
   refused: validateRefused,
 };

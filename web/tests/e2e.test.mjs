@@ -126,6 +126,20 @@ test('a press bends the render mesh exactly as the profile says, and only within
   await page.evaluate(() => window.__softhaptic.pause(false));
 });
 
+test("the trainee's metrics panel shows the server's metrics of the press", async () => {
+  await page.waitForFunction(
+    () => {
+      const m = window.__softhaptic.metrics();
+      return m.last !== null && m.last.pushes >= 1 && m.peakShown.endsWith(' s');
+    },
+    null,
+    { timeout: 60000 },
+  );
+  const m = await page.evaluate(() => window.__softhaptic.metrics());
+  assert.ok(m.last.peak_force_n > 0.1, JSON.stringify(m.last));
+  assert.equal(m.peakShown, `${m.last.peak_force_n.toFixed(2)} N at ${m.last.peak_force_time_s.toFixed(1)} s`);
+});
+
 test('the viewer counted no malformed or unknown message and raised no page error', async () => {
   const conn = await page.evaluate(() => window.__softhaptic.connection());
   assert.equal(conn.stats.malformed, 0, conn.lastError ?? '');

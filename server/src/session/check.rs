@@ -75,6 +75,9 @@ pub struct CheckReport {
     pub stopped_at_gap: Option<(u64, u64)>,
     /// Every replayed force, in tick order (for determinism tests).
     pub replayed_n: Vec<[f64; 3]>,
+    /// The trainee's metrics of the replayed ticks, computed by the replaying world as the live
+    /// loop computed them.
+    pub metrics: softhaptic_device::metrics::TraineeMetrics,
 }
 
 impl CheckReport {
@@ -216,5 +219,6 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
         differing_ticks,
         stopped_at_gap,
         replayed_n,
+        metrics: world.metrics(),
     })
 }

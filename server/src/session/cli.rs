@@ -48,7 +48,8 @@ pub enum SessionCommand {
         /// The recording (.mcap).
         file: PathBuf,
     },
-    /// Write the device and contact channels of a recording as CSV (device.csv, contact.csv).
+    /// Write the device and contact channels of a recording as CSV (device.csv, contact.csv) and
+    /// the trainee's metrics (metrics.json).
     Export {
         /// The recording (.mcap).
         file: PathBuf,
@@ -146,9 +147,10 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             if !recording.is_complete() {
                 eprintln!("{}", recording.recovery());
             }
-            let (device, contact) = export(&recording, &out)?;
+            let (device, contact, metrics) = export(&recording, &out)?;
             println!("wrote {}", device.display());
             println!("wrote {}", contact.display());
+            println!("wrote {}", metrics.display());
             Ok(())
         }
         SessionCommand::Check { file, damping } => {
@@ -400,7 +402,12 @@ async fn record_stream(
                 Err(broadcast::error::RecvError::Closed) => return,
             },
             s = stats.recv(), if stats_open => match s {
-                Ok(text) => tap.record_loop_stats(text.to_string()),
+                // The loop's stats; the trainee's metrics are not stored twice: they are
+                // computed again from the recorded ticks (`tools::Info`), exactly.
+                Ok(text) if text.as_str().starts_with(r#"{"type":"stats""#) => {
+                    tap.record_loop_stats(text.to_string())
+                }
+                Ok(_) => {}
                 Err(broadcast::error::RecvError::Lagged(_)) => {}
                 Err(broadcast::error::RecvError::Closed) => stats_open = false,
             },

@@ -4,6 +4,7 @@ use std::fmt::{self, Write as _};
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
+use softhaptic_device::metrics::{MetricsAccumulator, TickInput, TraineeMetrics};
 use softhaptic_proto::ContactFlags;
 use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
 use softhaptic_proto::wire::{ServerMessage, flag_names};
@@ -54,6 +55,26 @@ pub struct Info {
     /// Damaged stretches of the file that were skipped.
     pub damaged_stretches: usize,
     pub recovery: String,
+    /// The trainee's metrics, computed from the recorded ticks (as the live server computed them).
+    pub metrics: TraineeMetrics,
+}
+
+/// The safe force a recording's scene set (`[haptics] safe_force_n`), or the default.
+pub fn recorded_safe_force_n(r: &Recording) -> f64 {
+    toml::from_str::<toml::Table>(&r.scene.scene_toml)
+        .ok()
+        .and_then(|t| t.get("haptics")?.get("safe_force_n")?.as_float())
+        .filter(|f| f.is_finite() && *f > 0.0)
+        .unwrap_or(softhaptic_device::world::DEFAULT_SAFE_FORCE_N)
+}
+
+/// The trainee's metrics of a recording, from its ticks in order: the live server's, exactly.
+pub fn recording_metrics(r: &Recording) -> TraineeMetrics {
+    let mut acc = MetricsAccumulator::new(recorded_safe_force_n(r));
+    for d in &r.device {
+        acc.update(&TickInput::from_record(d));
+    }
+    acc.metrics()
 }
 
 /// A run of consecutive ticks the device faulted on (zero force throughout).
@@ -184,6 +205,7 @@ impl Info {
             ending: r.ending.clone(),
             damaged_stretches: r.lost.len(),
             recovery: r.recovery().to_string(),
+            metrics: recording_metrics(r),
         }
     }
 }
@@ -290,6 +312,19 @@ impl fmt::Display for Info {
                 flags.trim_end()
             }
         )?;
+        let m = &self.metrics;
+        writeln!(
+            f,
+            "trainee metrics:   peak {:.3} N at {:.3} s; {:.2} s above the safe {:.2} N; {:.2} s in contact over {:.1} mm; {} pushes; mean squared jerk {:.3e} m²/s⁶",
+            m.peak_force_n,
+            m.peak_force_time_s,
+            m.time_above_safe_s,
+            m.safe_force_n,
+            m.time_in_contact_s,
+            m.path_length_in_contact_m * 1e3,
+            m.pushes,
+            m.mean_squared_jerk_m2_s6
+        )?;
         let status = match (&self.ending, self.damaged_stretches) {
             (Ending::Complete, 0) => "complete".to_owned(),
             (Ending::Complete, n) => format!("DAMAGED, recovered around {n} damaged stretches"),
@@ -303,8 +338,9 @@ impl fmt::Display for Info {
     }
 }
 
-/// Writes `device.csv` and `contact.csv` into `out_dir` (created); returns their paths.
-pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf), SessionError> {
+/// Writes `device.csv`, `contact.csv` and `metrics.json` (the trainee's metrics as the `metrics`
+/// message carries them) into `out_dir` (created); returns their paths.
+pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf, PathBuf), SessionError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |reason| SessionError::Io { path, reason }
@@ -392,7 +428,14 @@ pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf), Sessi
         let _ = writeln!(out, ",{}", f.dropped);
     }
     write_file(&contact_path, out.as_bytes())?;
-    Ok((device_path, contact_path))
+    let metrics_path = out_dir.join("metrics.json");
+    let metrics = crate::stream::metrics_message(&recording_metrics(r), true);
+    let json = serde_json::to_string_pretty(&metrics).map_err(|e| SessionError::Io {
+        path: metrics_path.clone(),
+        reason: std::io::Error::other(e),
+    })?;
+    std::fs::write(&metrics_path, json + "\n").map_err(io(&metrics_path))?;
+    Ok((device_path, contact_path, metrics_path))
 }
 
 /// Flag names joined by `|` (no commas, so the field needs no quoting).
