@@ -291,6 +291,17 @@ pub struct ReplayStatus {
     /// there are none (and from servers before it).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub gaps: Vec<ReplayGap>,
+    /// Stretches where the force was above the scene's safe force, for the timeline to mark;
+    /// absent when there are none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub above_safe: Vec<ReplaySpan>,
+}
+
+/// A stretch of a replayed recording, seconds from its start.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ReplaySpan {
+    pub start_s: f64,
+    pub end_s: f64,
 }
 
 /// A stretch of a replayed recording without ticks: the loop lost them (deadlines that passed
@@ -795,6 +806,7 @@ mod tests {
             speed: 1.0,
             file: "a.mcap".into(),
             gaps: Vec::new(),
+            above_safe: Vec::new(),
         };
         let v = serde_json::to_value(&status).unwrap();
         assert_eq!(v["type"], "replay");

@@ -904,6 +904,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 speed: 0.5,
                 file: "sphere-press.mcap".into(),
                 gaps: Vec::new(),
+                above_safe: Vec::new(),
             })?,
         ),
         (
@@ -928,6 +929,10 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                         cause: crate::record::GapCause::Damaged,
                     },
                 ],
+                above_safe: vec![crate::record::ReplaySpan {
+                    start_s: 5.5,
+                    end_s: 5.81,
+                }],
             })?,
         ),
     ];

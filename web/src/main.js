@@ -1057,7 +1057,7 @@ function exposeTestHook() {
       clockRestarts: buffer.clockRestarts,
       /** The gap marks drawn on the track: cause, title, and the left edge in percent. */
       gaps: [...dom['replay-gaps'].children].map((m) => ({
-        cause: m.classList.contains('damaged') ? 'damaged' : 'lost_ticks',
+        cause: ['damaged', 'above_safe'].find((c) => m.classList.contains(c)) ?? 'lost_ticks',
         title: m.title,
         leftPct: parseFloat(m.style.left),
       })),

@@ -336,6 +336,16 @@ function validateReplay(m) {
   boolean(m.paused, 'replay.paused');
   positive(m.speed, 'replay.speed');
   string(m.file, 'replay.file');
+  if (m.above_safe !== undefined) {
+    if (!Array.isArray(m.above_safe)) {
+      throw new ProtocolError('replay.above_safe', `expected an array, got ${show(m.above_safe)}`);
+    }
+    m.above_safe.forEach((s, i) => {
+      object(s, `replay.above_safe[${i}]`);
+      nonNegative(s.start_s, `replay.above_safe[${i}].start_s`);
+      nonNegative(s.end_s, `replay.above_safe[${i}].end_s`);
+    });
+  }
   if (m.gaps !== undefined) {
     if (!Array.isArray(m.gaps)) throw new ProtocolError('replay.gaps', `expected an array, got ${show(m.gaps)}`);
     m.gaps.forEach((g, i) => {

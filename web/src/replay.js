@@ -54,6 +54,25 @@ export function gapMarkers(gaps, durationS) {
   });
 }
 
+/**
+ * The marks of the stretches where the force was above the safe force (`replay.above_safe`), in
+ * the form of `gapMarkers`.
+ */
+export function aboveSafeMarkers(spans, durationS) {
+  if (!Array.isArray(spans) || !(durationS > 0)) return [];
+  return spans.map((s) => {
+    const start = Math.min(Math.max(s.start_s / durationS, 0), 1);
+    const end = Math.min(Math.max(s.end_s / durationS, start), 1);
+    const lasted = Math.max(0, s.end_s - s.start_s);
+    return {
+      leftPct: start * 100,
+      widthPct: (end - start) * 100,
+      cause: 'above_safe',
+      title: `above the safe force for ${lasted.toFixed(2)} s at ${formatReplayTime(s.start_s)}`,
+    };
+  });
+}
+
 /** Where a replay stands, from its last status; all times in seconds of recording time. */
 export class ReplayClock {
   constructor() {
@@ -233,18 +252,18 @@ export class ReplayTimeline {
     }
     this.#showSpeed(status.speed);
     if (fileText.textContent !== status.file) fileText.textContent = status.file;
-    this.#showGaps(status.gaps ?? [], status.duration_s);
+    this.#showGaps(status.gaps ?? [], status.above_safe ?? [], status.duration_s);
     this.shownTenths = -1; // redraw the text now
     this.frame(nowMs);
     return broke;
   }
 
   /** Marks the stretches without ticks on the track, when they changed. */
-  #showGaps(gaps, durationS) {
-    const key = JSON.stringify([gaps, durationS]);
+  #showGaps(gaps, aboveSafe, durationS) {
+    const key = JSON.stringify([gaps, aboveSafe, durationS]);
     if (key === this.gapsKey) return;
     this.gapsKey = key;
-    this.gapsShown = gapMarkers(gaps, durationS);
+    this.gapsShown = [...aboveSafeMarkers(aboveSafe, durationS), ...gapMarkers(gaps, durationS)];
     const layer = this.el.gapLayer;
     if (!layer) return;
     const doc = layer.ownerDocument;

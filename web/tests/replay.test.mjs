@@ -7,7 +7,7 @@ import assert from 'node:assert/strict';
 
 import { ProtocolError, ViewerConnection, decodeMessage, encodeReplayControl } from '../src/protocol.js';
 import { PlayoutBuffer, RenderedContact } from '../src/interpolation.js';
-import { ReplayClock, ReplayTimeline, formatReplayTime, gapMarkers } from '../src/replay.js';
+import { ReplayClock, ReplayTimeline, aboveSafeMarkers, formatReplayTime, gapMarkers } from '../src/replay.js';
 import { contact, hello } from './fixtures.mjs';
 
 /** A status as `softhaptic replay` sends it (proto `ReplayStatus`). */
@@ -452,4 +452,12 @@ test('a status with gaps decodes and one with a broken gap is refused by field',
       field,
     );
   }
+});
+
+test('stretches above the safe force are marked with how long they lasted', () => {
+  const [m] = aboveSafeMarkers([{ start_s: 2.5, end_s: 3.0 }], 10);
+  assert.equal(m.cause, 'above_safe');
+  assert.ok(Math.abs(m.leftPct - 25) < 1e-9 && Math.abs(m.widthPct - 5) < 1e-9);
+  assert.equal(m.title, 'above the safe force for 0.50 s at 0:02.5');
+  assert.deepEqual(aboveSafeMarkers(undefined, 10), []);
 });

@@ -24,7 +24,7 @@ use std::time::Duration;
 use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_proto::record::{
-    DeviceRecord, GapCause, ReplayAction, ReplayControl, ReplayGap, ReplayStatus,
+    DeviceRecord, GapCause, ReplayAction, ReplayControl, ReplayGap, ReplaySpan, ReplayStatus,
 };
 use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage};
 use tokio::sync::{mpsc, watch};
@@ -318,6 +318,41 @@ fn gaps(device: &[DeviceRecord], start_ns: u64) -> Vec<ReplayGap> {
     out
 }
 
+/// The stretches of `device` with the force above `safe_force_n`, in seconds from `start_ns`
+/// (at most [`MAX_GAPS`], the longest, in time order).
+fn above_safe(device: &[DeviceRecord], start_ns: u64, safe_force_n: f64) -> Vec<ReplaySpan> {
+    let seconds = |t: u64| t.saturating_sub(start_ns) as f64 * 1e-9;
+    let mut out: Vec<ReplaySpan> = Vec::new();
+    let mut open: Option<(u64, u64)> = None;
+    for d in device {
+        let above = glam::DVec3::from_array(d.force_n).length() > safe_force_n;
+        open = match (open, above) {
+            (None, true) => Some((d.time_ns, d.time_ns)),
+            (Some((first, _)), true) => Some((first, d.time_ns)),
+            (Some((first, last)), false) => {
+                out.push(ReplaySpan {
+                    start_s: seconds(first),
+                    end_s: seconds(last),
+                });
+                None
+            }
+            (None, false) => None,
+        };
+    }
+    if let Some((first, last)) = open {
+        out.push(ReplaySpan {
+            start_s: seconds(first),
+            end_s: seconds(last),
+        });
+    }
+    if out.len() > MAX_GAPS {
+        out.sort_by(|x, y| (y.end_s - y.start_s).total_cmp(&(x.end_s - x.start_s)));
+        out.truncate(MAX_GAPS);
+        out.sort_by(|x, y| x.start_s.total_cmp(&y.start_s));
+    }
+    out
+}
+
 /// The replay clock and cursor.
 struct Player {
     contacts: Vec<RecordedMessage>,
@@ -328,6 +363,8 @@ struct Player {
     file: String,
     /// The stretches without ticks, for the timeline.
     gaps: Vec<ReplayGap>,
+    /// The stretches above the safe force, for the timeline.
+    above_safe: Vec<ReplaySpan>,
     speed: f64,
     paused: bool,
     /// Replay position (ns from `start_ns`) at `anchor`.
@@ -351,6 +388,11 @@ impl Player {
             duration_ns: end_ns.saturating_sub(start_ns),
             file: recording.file_name(),
             gaps: gaps(&recording.device, start_ns),
+            above_safe: above_safe(
+                &recording.device,
+                start_ns,
+                super::tools::recorded_safe_force_n(recording),
+            ),
             speed,
             paused,
             anchor_pos_ns: 0,
@@ -379,6 +421,7 @@ impl Player {
             speed: self.speed,
             file: self.file.clone(),
             gaps: self.gaps.clone(),
+            above_safe: self.above_safe.clone(),
         }
     }
 
@@ -596,6 +639,22 @@ mod gap_tests {
         assert_eq!(g[1].ticks, 996);
         assert!((g[1].start_s - 0.003).abs() < 1e-12 && (g[1].end_s - 1.0).abs() < 1e-12);
         assert!(gaps(&device[..2], 10 * ms).is_empty());
+    }
+
+    #[test]
+    fn stretches_above_the_safe_force_are_marked() {
+        let ms = 1_000_000;
+        let mut device: Vec<DeviceRecord> =
+            (0..10u64).map(|i| record(i, (10 + i) * ms, 0)).collect();
+        for (i, f) in [(2usize, 2.5), (3, 3.0), (4, 1.0), (8, 2.1), (9, 2.2)] {
+            device[i].force_n = [0.0, f, 0.0];
+        }
+        let spans = above_safe(&device, 10 * ms, 2.0);
+        assert_eq!(spans.len(), 2, "{spans:?}");
+        assert!((spans[0].start_s - 0.002).abs() < 1e-12 && (spans[0].end_s - 0.003).abs() < 1e-12);
+        // Still above at the end: closed at the last tick.
+        assert!((spans[1].start_s - 0.008).abs() < 1e-12 && (spans[1].end_s - 0.009).abs() < 1e-12);
+        assert!(above_safe(&device, 10 * ms, 5.0).is_empty());
     }
 
     #[test]
