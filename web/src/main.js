@@ -46,6 +46,8 @@ const PLAYOUT_DELAY_MS = 50;
  * viewpoints an opaque tool hides it entirely.
  */
 const TOOL_OPACITY_IN_CONTACT = 0.3;
+/** The depression map's colour at full scale (multiplies the object's). */
+const DEPRESSION_COLOR = [0.25, 0.45, 1.0];
 /** How often a hub's page asks for its station list again. */
 const STATION_LIST_REFRESH_MS = 2000;
 const TIMING_SAMPLES = 120;
@@ -83,6 +85,10 @@ const state = {
   station: stationOf(window.location),
   /** The station's archived recording the address names (`&archive=`), replayed; or null. */
   archive: archiveOf(window.location),
+  /** Whether the render mesh is coloured by how far each vertex moved (the depression map). */
+  depressionMap: false,
+  /** The depression at which the map reaches its full colour: 5 mm. */
+  depressionScaleM: 0.005,
   /** The last `metrics` message: the trainee's metrics, from the server. */
   lastMetrics: null,
   /** Whether the trainee feels the force (`hello.force_feedback`); true until a `hello` says. */
@@ -167,6 +173,8 @@ function init() {
     'replay-time',
     'replay-file',
     'replay-gaps',
+    'map-toggle',
+    'map-scale',
     't-peak',
     't-above',
     't-contact',
@@ -255,6 +263,7 @@ function init() {
       requestAnimationFrame(loop);
     });
   window.addEventListener('resize', onWindowResize);
+  dom['map-toggle'].addEventListener('change', () => setDepressionMap(dom['map-toggle'].checked));
   setInterval(updatePanels, 250);
 }
 
@@ -565,13 +574,18 @@ function buildMesh(desc, data) {
   normalAttr.setUsage(THREE.DynamicDrawUsage);
   geometry.setAttribute('position', positionAttr);
   geometry.setAttribute('normal', normalAttr);
+  // The depression map's colours, multiplied with the object's: white (no change) until it is on.
+  const colors = new Float32Array(positions.length).fill(1);
+  const colorAttr = new THREE.BufferAttribute(colors, 3);
+  colorAttr.setUsage(THREE.DynamicDrawUsage);
+  geometry.setAttribute('color', colorAttr);
   geometry.setIndex(new THREE.BufferAttribute(data.indices, 1));
   geometry.computeBoundingSphere();
   // The dimple stays inside the rest bounds grown by the deepest press; skip per-frame bounds.
   geometry.boundingSphere.radius *= 1.2;
   const mesh = new THREE.Mesh(
     geometry,
-    new THREE.MeshStandardMaterial({ color: 0xd98c8c, roughness: 0.55, metalness: 0.0 }),
+    new THREE.MeshStandardMaterial({ color: 0xd98c8c, roughness: 0.55, metalness: 0.0, vertexColors: true }),
   );
   const [px, py, pz] = desc.object_in_world.position_m;
   const [qx, qy, qz, qw] = desc.object_in_world.orientation;
@@ -584,6 +598,8 @@ function buildMesh(desc, data) {
     normals,
     positionAttr,
     normalAttr,
+    colors,
+    colorAttr,
     rest: data.positions,
     restNormals: data.normals,
     deformer: new MeshDeformer(data.positions, data.normals),
@@ -761,6 +777,7 @@ function deformMeshes() {
       m.normalAttr.updateRanges.push(m.range);
       m.positionAttr.needsUpdate = true;
       m.normalAttr.needsUpdate = true;
+      if (state.depressionMap) paintDepression(m, list, touched);
       touchedAny = true;
     }
   }
@@ -770,6 +787,41 @@ function deformMeshes() {
     if (timings.count < TIMING_SAMPLES) timings.count++;
   }
   timings.moved = moved;
+}
+
+/**
+ * The depression map: each vertex written this frame coloured by how far it moved, from white
+ * (none) to the map's colour at the scale's full depth.
+ */
+function paintDepression(m, list, count) {
+  const scaleM = state.depressionScaleM;
+  for (let j = 0; j < count; j++) {
+    const i = list[j];
+    const dx = m.positions[3 * i] - m.rest[3 * i];
+    const dy = m.positions[3 * i + 1] - m.rest[3 * i + 1];
+    const dz = m.positions[3 * i + 2] - m.rest[3 * i + 2];
+    const t = Math.min(Math.hypot(dx, dy, dz) / scaleM, 1);
+    m.colors[3 * i] = 1 - t * (1 - DEPRESSION_COLOR[0]);
+    m.colors[3 * i + 1] = 1 - t * (1 - DEPRESSION_COLOR[1]);
+    m.colors[3 * i + 2] = 1 - t * (1 - DEPRESSION_COLOR[2]);
+  }
+  m.colorAttr.updateRanges.length = 0;
+  m.colorAttr.updateRanges.push(m.range);
+  m.colorAttr.needsUpdate = true;
+}
+
+/** Turns the depression map on or off; off, every vertex gets its own colour back. */
+function setDepressionMap(on) {
+  state.depressionMap = Boolean(on);
+  dom['map-toggle'].checked = state.depressionMap;
+  dom['map-scale'].hidden = !state.depressionMap;
+  setText(dom['map-scale'], `white 0 … blue ${(state.depressionScaleM * 1e3).toFixed(0)} mm`);
+  if (state.depressionMap) return;
+  for (const m of state.meshes) {
+    m.colors.fill(1);
+    m.colorAttr.updateRanges.length = 0;
+    m.colorAttr.needsUpdate = true;
+  }
 }
 
 function placeToolAndMarkers() {
@@ -1096,6 +1148,13 @@ function exposeTestHook() {
      * Moves the camera to look at a world point from `distanceM` away, `elevationRad` above the
      * horizontal (screenshots; a low camera shows the dimple's profile beside the tool).
      */
+    /** Turns the depression map on or off, as its checkbox does. */
+    depressionMap: (on) => setDepressionMap(on),
+    /** A render vertex's colour multiplier (RGB; white when the map is off or it did not move). */
+    vertexColor: (i, mesh = 0) => {
+      const m = state.meshes[mesh];
+      return m ? [m.colors[3 * i], m.colors[3 * i + 1], m.colors[3 * i + 2]] : null;
+    },
     /** The tool's opacity now (1 free, less in contact). */
     toolOpacity: () => view.toolMaterials[0]?.opacity ?? null,
     /** A world point's position on the page, CSS pixels from the canvas' top left. */

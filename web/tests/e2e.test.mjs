@@ -126,6 +126,34 @@ test('a press bends the render mesh exactly as the profile says, and only within
   await page.evaluate(() => window.__softhaptic.pause(false));
 });
 
+test('the depression map colours the vertices that moved, and only while it is on', async () => {
+  await page.evaluate(() => window.__softhaptic.depressionMap(true));
+  await freezeOnPress(page, 2e-3);
+  const on = await page.evaluate(() => {
+    const h = window.__softhaptic;
+    const c = h.contact();
+    const under = h.findVertexNear(...c.point).index;
+    const far = h.findVertexNear(c.point[0] + 0.05, c.point[1] - 0.02, c.point[2]).index;
+    return {
+      under: h.vertexColor(under),
+      moved: h.vertexDisplacement(under),
+      far: h.vertexColor(far),
+      scale: document.getElementById('map-scale').textContent,
+    };
+  });
+  assert.ok(on.moved > 1e-3, `the vertex under the tool moved ${on.moved} m`);
+  assert.ok(on.under[0] < 0.95 && on.under[2] > on.under[0], `coloured: ${on.under}`);
+  assert.deepEqual(on.far, [1, 1, 1]);
+  assert.equal(on.scale, 'white 0 … blue 5 mm');
+  await page.evaluate(() => window.__softhaptic.depressionMap(false));
+  const off = await page.evaluate(() => {
+    const h = window.__softhaptic;
+    return h.vertexColor(h.findVertexNear(...h.contact().point).index);
+  });
+  assert.deepEqual(off, [1, 1, 1]);
+  await page.evaluate(() => window.__softhaptic.pause(false));
+});
+
 test("the trainee's metrics panel shows the server's metrics of the press", async () => {
   await page.waitForFunction(
     () => {
