@@ -65,13 +65,27 @@ pub fn mesh(subdivisions: u32) -> HapticMesh {
 
 /// The coarse haptic mesh (10 242 vertices, 20 480 triangles).
 pub fn haptic_mesh() -> HapticMesh {
-    mesh(HAPTIC_SUBDIVISIONS)
+    built().0.clone()
 }
 
 /// The fine render surface (163 842 vertices, 327 680 triangles), same shape as the haptic
 /// mesh; its first 10 242 vertices are the haptic mesh's vertices.
 pub fn render_surface() -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    surface(RENDER_SUBDIVISIONS)
+    let r = &built().1;
+    (r.positions_m().to_vec(), r.triangles().to_vec())
+}
+
+/// The fine render surface as a mesh (with its vertex normals).
+pub fn render_mesh() -> HapticMesh {
+    built().1.clone()
+}
+
+/// Both meshes, built once per process: the surface is a fixed function, and building the fine
+/// one (the icosphere, then normals) takes a tenth of a second that every scene load and test
+/// would otherwise pay again.
+fn built() -> &'static (HapticMesh, HapticMesh) {
+    static BUILT: std::sync::OnceLock<(HapticMesh, HapticMesh)> = std::sync::OnceLock::new();
+    BUILT.get_or_init(|| (mesh(HAPTIC_SUBDIVISIONS), mesh(RENDER_SUBDIVISIONS)))
 }
 
 /// A point on the top of the thick right lobe and its outward normal on the smooth surface.

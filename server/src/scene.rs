@@ -840,9 +840,7 @@ impl Scene {
                         "cannot be combined with builtin = \"liver\" (it brings its own)".into(),
                     ));
                 }
-                let (positions, triangles) = softhaptic_device::liver::render_surface();
-                let render = HapticMesh::new(positions, triangles)
-                    .map_err(|e| field("object.builtin", e.to_string()))?;
+                let render = softhaptic_device::liver::render_mesh();
                 let top = softhaptic_device::liver::top_contact();
                 (
                     softhaptic_device::liver::haptic_mesh(),
