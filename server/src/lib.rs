@@ -14,6 +14,9 @@
 //!   proto/WIRE.md; the `scene` message, whose `contact_model` names the active model and its limits.
 //! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
 //!   reports) and the `softhaptic devices` listing.
+//! - [`doctor`]: `softhaptic doctor`: the host's readiness for the 1 kHz loop (preemption
+//!   model, real-time limits, CPU isolation, interrupts, governor, swap, devices), each with its
+//!   fix, and a short measurement of the loop idle and under load.
 //! - [`lab`]: the teaching lab on NATS: a station publishes its stream (`--nats`, `--station`),
 //!   a hub (`softhaptic hub`) lists the stations and relays any of them to browsers.
 //! - [`files`]: reading the files users name: regular files only, each kind bounded in size.
@@ -29,6 +32,7 @@
 pub mod access;
 pub mod app;
 pub mod devices;
+pub mod doctor;
 pub mod files;
 pub mod lab;
 pub mod scene;

@@ -37,6 +37,12 @@ enum Command {
         #[arg(long, value_name = "NAME")]
         name: Vec<String>,
     },
+    /// Is this machine ready for the 1 kHz loop? Inspects the kernel's preemption model, the
+    /// real-time limits, CPU isolation, interrupts, the frequency governor, swap and the haptic
+    /// devices, then measures the loop idle and beside a loaded neighbour; prints what it found,
+    /// whether it is good and the fix. Exits 0 when ready, 1 with warnings, 2 when the loop
+    /// cannot run as configured.
+    Doctor(softhaptic_server::doctor::DoctorArgs),
     /// A teaching lab's hub: lists the stations that publish to NATS (`--nats URL --station
     /// NAME` on each device host) and relays any of them to browsers, with the same wire, roles,
     /// tokens, Origin checks and TLS as a station. Run several behind a load balancer: a hub
@@ -182,6 +188,7 @@ fn try_main() -> anyhow::Result<()> {
             Ok(())
         }
         Some(Command::Session(command)) => session::cli::run(command),
+        Some(Command::Doctor(args)) => std::process::exit(softhaptic_server::doctor::run(&args)?),
         Some(Command::Devices { name }) => {
             session::cli::print_report(format_args!("{}", devices::listing(&name)))
         }

@@ -1,0 +1,279 @@
+//! The short loop-timing measurement of `softhaptic doctor`: the server's own loop (the built-in
+//! scene, the simulated device, the same thread placement and real-time request as `run`) on an
+//! idle machine, then beside a loaded neighbour, with its lost ticks and period error set beside
+//! the goal.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig};
+use softhaptic_device::stats::LoopStats;
+
+use super::{LoopPlan, Verdict};
+use crate::devices;
+use crate::scene::Scene;
+
+/// The loop's period, nanoseconds (1 kHz, as the server runs it).
+pub const PERIOD_NS: u64 = 1_000_000;
+
+/// The goal a device host should meet: the period error at the 99th percentile within a tenth of
+/// the period, no tick later than half a period (the standby thread takes over a tick a quarter
+/// period late, so a later one means both threads were held), and no tick lost.
+pub const GOAL_P99_US: f64 = 100.0;
+pub const GOAL_MAX_US: f64 = 500.0;
+pub const GOAL_LOST_TICKS: u64 = 0;
+
+/// One measured run.
+#[derive(Debug, Clone, Serialize)]
+pub struct Run {
+    /// What ran beside the loop.
+    pub neighbour: String,
+    pub seconds: f64,
+    pub ticks: u64,
+    /// Deadlines whose tick did not start before the next deadline.
+    pub lost_ticks: u64,
+    pub lost_ticks_per_minute: f64,
+    /// Ticks the standby thread ran because the loop thread was held.
+    pub ticks_by_standby: u64,
+    pub period_error_p50_us: f64,
+    pub period_error_p99_us: f64,
+    pub period_error_max_us: f64,
+    pub compute_p99_us: f64,
+    /// What the loop thread was granted (SCHED_FIFO, locked memory, its CPU).
+    pub loop_thread: String,
+    pub verdict: Verdict,
+}
+
+impl Run {
+    /// A run's figures from the loop's statistics after `elapsed_s` seconds.
+    pub fn from_stats(
+        neighbour: String,
+        elapsed_s: f64,
+        s: &LoopStats,
+        loop_thread: String,
+    ) -> Self {
+        let us = |ns: u64| ns as f64 * 1e-3;
+        let mut run = Run {
+            neighbour,
+            seconds: elapsed_s,
+            ticks: s.ticks,
+            lost_ticks: s.overruns,
+            lost_ticks_per_minute: if elapsed_s > 0.0 {
+                s.overruns as f64 * 60.0 / elapsed_s
+            } else {
+                0.0
+            },
+            ticks_by_standby: s.standby_ticks,
+            period_error_p50_us: us(s.period_error_p50_ns),
+            period_error_p99_us: us(s.period_error_p99_ns),
+            period_error_max_us: us(s.period_error_max_ns),
+            compute_p99_us: us(s.compute_p99_ns),
+            loop_thread,
+            verdict: Verdict::Good,
+        };
+        run.verdict = run.judge();
+        run
+    }
+
+    /// Good when every goal is met, a warning otherwise: the loop runs, but the hand feels the
+    /// missed ticks as roughness in a stiff contact.
+    pub fn judge(&self) -> Verdict {
+        if self.lost_ticks > GOAL_LOST_TICKS
+            || self.period_error_p99_us > GOAL_P99_US
+            || self.period_error_max_us > GOAL_MAX_US
+        {
+            Verdict::Warn
+        } else {
+            Verdict::Good
+        }
+    }
+}
+
+/// The measurement: its runs, or why the loop could not be started.
+#[derive(Debug, Clone, Serialize)]
+pub struct Timing {
+    pub seconds_per_run: f64,
+    /// `release`, or `debug` (unoptimised: a tick computes several times slower than in the
+    /// release build a device host runs, so its figures are pessimistic).
+    pub build: &'static str,
+    pub goal: Goal,
+    pub runs: Vec<Run>,
+    /// Why no run could be made.
+    pub error: Option<String>,
+    pub verdict: Verdict,
+}
+
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Goal {
+    pub period_error_p99_us: f64,
+    pub period_error_max_us: f64,
+    pub lost_ticks: u64,
+}
+
+pub const GOAL: Goal = Goal {
+    period_error_p99_us: GOAL_P99_US,
+    period_error_max_us: GOAL_MAX_US,
+    lost_ticks: GOAL_LOST_TICKS,
+};
+
+impl Timing {
+    fn new(seconds: f64, runs: Vec<Run>, error: Option<String>) -> Self {
+        let verdict = if error.is_some() {
+            Verdict::Fail
+        } else {
+            runs.iter()
+                .map(|r| r.verdict)
+                .max()
+                .unwrap_or(Verdict::Unknown)
+        };
+        Self {
+            seconds_per_run: seconds,
+            build: if cfg!(debug_assertions) {
+                "debug"
+            } else {
+                "release"
+            },
+            goal: GOAL,
+            runs,
+            error,
+            verdict,
+        }
+    }
+}
+
+/// Threads that keep every CPU busy at normal priority until dropped: the loaded neighbour.
+struct Burners {
+    stop: Arc<AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl Burners {
+    fn start(count: usize) -> std::io::Result<Self> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let mut burners = Burners {
+            stop: Arc::clone(&stop),
+            threads: Vec::with_capacity(count),
+        };
+        for i in 0..count {
+            let stop = Arc::clone(&stop);
+            burners.threads.push(
+                std::thread::Builder::new()
+                    .name(format!("doctor-burn-{i}"))
+                    .spawn(move || {
+                        let mut x = 1u64;
+                        while !stop.load(Ordering::Relaxed) {
+                            for _ in 0..10_000 {
+                                x = std::hint::black_box(
+                                    x.wrapping_mul(6_364_136_223_846_793_005) + 1,
+                                );
+                            }
+                        }
+                    })?,
+            );
+        }
+        Ok(burners)
+    }
+}
+
+impl Drop for Burners {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Runs the loop for `seconds` with the neighbour `burners` (0: none).
+fn one_run(seconds: f64, plan: &LoopPlan, burners: usize) -> Result<Run, String> {
+    let mut scene = Scene::builtin_default().map_err(|e| format!("the built-in scene: {e}"))?;
+    let device = devices::open(&mut scene).map_err(|e| format!("the simulated device: {e}"))?;
+    let _neighbour = if burners > 0 {
+        Some(Burners::start(burners).map_err(|e| format!("starting the neighbour: {e}"))?)
+    } else {
+        None
+    };
+    let haptic = HapticLoop::spawn_on(
+        device,
+        scene.haptic_world(),
+        LoopConfig {
+            period_ns: PERIOD_NS,
+            realtime: plan.realtime,
+            tick_sink: None,
+            standby: true,
+        },
+        plan.cpu,
+    )
+    .map_err(|e| format!("the loop did not start: {e}"))?;
+    let loop_thread = haptic.realtime().to_string();
+    let start = Instant::now();
+    std::thread::sleep(Duration::from_secs_f64(seconds));
+    let elapsed = start.elapsed().as_secs_f64();
+    let stats = haptic.stop();
+    let neighbour = if burners == 0 {
+        "none (idle machine)".to_owned()
+    } else {
+        format!("{burners} threads burning CPU at normal priority, one per CPU")
+    };
+    Ok(Run::from_stats(neighbour, elapsed, &stats, loop_thread))
+}
+
+/// Measures the loop for `seconds` idle, then for `seconds` beside a loaded neighbour.
+pub fn measure(seconds: f64, plan: &LoopPlan) -> Timing {
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut runs = Vec::with_capacity(2);
+    for burners in [0, cpus] {
+        match one_run(seconds, plan, burners) {
+            Ok(run) => runs.push(run),
+            Err(e) => return Timing::new(seconds, runs, Some(e)),
+        }
+    }
+    Timing::new(seconds, runs, None)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+
+    fn stats(overruns: u64, p99_us: u64, max_us: u64) -> LoopStats {
+        LoopStats {
+            ticks: 3000,
+            overruns,
+            period_error_p99_ns: p99_us * 1000,
+            period_error_max_ns: max_us * 1000,
+            ..LoopStats::default()
+        }
+    }
+
+    #[test]
+    fn a_run_meets_the_goal_only_without_lost_ticks_and_within_both_bounds() {
+        let run = |s: LoopStats| Run::from_stats("none".into(), 3.0, &s, String::new());
+        assert_eq!(run(stats(0, 20, 300)).verdict, Verdict::Good);
+        assert_eq!(run(stats(1, 20, 300)).verdict, Verdict::Warn);
+        assert_eq!(run(stats(0, 150, 300)).verdict, Verdict::Warn);
+        assert_eq!(run(stats(0, 20, 1200)).verdict, Verdict::Warn);
+        let lost = run(stats(3, 20, 2000));
+        assert!((lost.lost_ticks_per_minute - 60.0).abs() < 1e-9);
+        assert!((lost.period_error_max_us - 2000.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_loop_that_does_not_start_fails_the_measurement() {
+        let t = Timing::new(1.0, vec![], Some("no".into()));
+        assert_eq!(t.verdict, Verdict::Fail);
+        let ok = Timing::new(
+            1.0,
+            vec![Run::from_stats(
+                "none".into(),
+                1.0,
+                &stats(0, 10, 10),
+                String::new(),
+            )],
+            None,
+        );
+        assert_eq!(ok.verdict, Verdict::Good);
+    }
+}
