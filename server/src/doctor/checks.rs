@@ -975,8 +975,8 @@ pub fn cpu_isolation_check(layout: &CpuLayout) -> Check {
             format!("{found}; CPU {cpu} is not one this process can use"),
             why,
             Some(format!(
-                "choose one of CPUs {} with --loop-cpu (or add CPU {cpu} to the service's \
-                 CPUAffinity / the cpuset)",
+                "choose one of CPUs {} with --loop-cpu (or add CPU {cpu} to the process's \
+                 cpuset)",
                 format_cpu_list(usable)
             )),
         );
@@ -1019,8 +1019,8 @@ pub fn cpu_isolation_check(layout: &CpuLayout) -> Check {
             Some(format!(
                 "keep CPU {cpu} for the loop: boot with `isolcpus=managed_irq,domain,{cpu} \
                  nohz_full={cpu} rcu_nocbs={cpu} irqaffinity={others}` ({GRUB_STEPS}), then run \
-                 the server with --loop-cpu {cpu} (a service: CPUAffinity= listing every CPU, \
-                 README \"A device host\")"
+                 the server with --loop-cpu {cpu} (a service: CPUAffinity={others}, which keeps \
+                 the rest of the server off it, README \"A device host\")"
             )),
         ),
     }
