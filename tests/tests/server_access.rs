@@ -66,7 +66,7 @@ async fn next_seq(viewer: &mut Viewer) -> u64 {
     loop {
         match viewer.expect_message(WAIT).await {
             ServerMessage::Contact(f) => return f.seq,
-            ServerMessage::Stats(_) => continue,
+            ServerMessage::Stats(_) | ServerMessage::Metrics(_) => continue,
             other => panic!("expected a contact frame, got {other:?}"),
         }
     }
@@ -77,7 +77,9 @@ async fn next_refused(viewer: &mut Viewer) -> Refused {
     loop {
         match viewer.expect_message(WAIT).await {
             ServerMessage::Refused(r) => return r,
-            ServerMessage::Contact(_) | ServerMessage::Stats(_) => continue,
+            ServerMessage::Contact(_) | ServerMessage::Stats(_) | ServerMessage::Metrics(_) => {
+                continue;
+            }
             other => panic!("expected refused, got {other:?}"),
         }
     }

@@ -54,6 +54,8 @@ async fn viewer_gets_hello_scene_then_contact_frames_showing_the_press() {
                 assert!(s.viewers >= 1);
                 stats += 1;
             }
+            // Once a second beside the stats.
+            ServerMessage::Metrics(m) => assert!(m.ticks > 0),
             other => panic!("unexpected {other:?}"),
         }
     }
