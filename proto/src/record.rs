@@ -51,6 +51,8 @@ pub mod topic {
     pub const STATS: &str = "/stats";
     /// The 1 Hz `stats` wire messages (loop timing), as sent to viewers.
     pub const LOOP_STATS: &str = "/loop_stats";
+    /// The instructors' `mark` wire messages, as sent to viewers.
+    pub const MARKS: &str = "/marks";
 }
 
 /// The schema name of each channel (the MCAP schema record's `name`).
@@ -61,6 +63,7 @@ pub mod schema_name {
     pub const BUILD: &str = "softhaptic.BuildRecord";
     pub const STATS: &str = "softhaptic.RecordingStats";
     pub const LOOP_STATS: &str = "softhaptic.StatsMessage";
+    pub const MARKS: &str = "softhaptic.MarkMessage";
 }
 
 /// One device sample as recorded (mirrors the device crate's sample; kept here so the file format
@@ -295,6 +298,18 @@ pub struct ReplayStatus {
     /// absent when there are none.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub above_safe: Vec<ReplaySpan>,
+    /// The instructors' marks of the recording, for the timeline; absent when there are none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub marks: Vec<ReplayMark>,
+}
+
+/// An instructor's mark on a replayed recording's timeline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReplayMark {
+    pub id: u64,
+    /// Seconds from the recording's start (its first contact frame).
+    pub time_s: f64,
+    pub note: String,
 }
 
 /// A stretch of a replayed recording, seconds from its start.
@@ -587,7 +602,23 @@ pub mod schema {
 }"##;
 
     /// `(topic, schema name, schema)` of every channel.
-    pub const ALL: [(&str, &str, &str); 6] = [
+    /// Schema of the `mark` wire message.
+    pub const MARKS: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.MarkMessage",
+  "description": "An instructor's mark exactly as sent to viewers (protocol version 1).",
+  "type": "object",
+  "properties": {
+    "type": {"type": "string", "const": "mark"},
+    "id": {"type": "integer", "minimum": 1, "description": "1, 2, ... in the order made"},
+    "time_ns": {"type": "integer", "minimum": 0, "description": "device time when made, ns"},
+    "note": {"type": "string"},
+    "point_m": {"type": ["array", "null"], "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "world frame, m"}
+  },
+  "required": ["type", "id", "time_ns", "note", "point_m"]
+}"##;
+
+    pub const ALL: [(&str, &str, &str); 7] = [
         (super::topic::BUILD, super::schema_name::BUILD, BUILD),
         (super::topic::SCENE, super::schema_name::SCENE, SCENE),
         (super::topic::DEVICE, super::schema_name::DEVICE, DEVICE),
@@ -598,6 +629,7 @@ pub mod schema {
             super::schema_name::LOOP_STATS,
             LOOP_STATS,
         ),
+        (super::topic::MARKS, super::schema_name::MARKS, MARKS),
     ];
 }
 
@@ -755,6 +787,7 @@ mod tests {
             let schema = match json["type"].as_str() {
                 Some("contact") => schema::CONTACT,
                 Some("stats") => schema::LOOP_STATS,
+                Some("mark") => schema::MARKS,
                 _ => continue,
             };
             let schema: Value = serde_json::from_str(schema).unwrap();
@@ -807,6 +840,7 @@ mod tests {
             file: "a.mcap".into(),
             gaps: Vec::new(),
             above_safe: Vec::new(),
+            marks: Vec::new(),
         };
         let v = serde_json::to_value(&status).unwrap();
         assert_eq!(v["type"], "replay");

@@ -23,12 +23,13 @@ use crate::tool::ToolShape;
 pub const PROTOCOL_VERSION: u32 = 1;
 
 /// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
-pub const SERVER_MESSAGE_TYPES: [&str; 6] =
-    ["hello", "scene", "contact", "stats", "metrics", "refused"];
+pub const SERVER_MESSAGE_TYPES: [&str; 7] = [
+    "hello", "scene", "contact", "stats", "metrics", "mark", "refused",
+];
 
 /// The `type` names of every viewer → server message: [`Auth`] and
 /// [`crate::record::ReplayControl`].
-pub const CLIENT_MESSAGE_TYPES: [&str; 2] = ["auth", "replay_control"];
+pub const CLIENT_MESSAGE_TYPES: [&str; 3] = ["auth", "replay_control", "add_mark"];
 
 /// A message from the server to a viewer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -44,6 +45,8 @@ pub enum ServerMessage {
     Stats(StatsMessage),
     /// 1 Hz, and once more as the session ends: the trainee's metrics.
     Metrics(MetricsMessage),
+    /// An instructor's mark, as it is made, and every earlier one as a viewer connects.
+    Mark(MarkMessage),
     /// The answer to a request the connection's role (or the server) does not allow; the
     /// connection stays open.
     Refused(Refused),
@@ -402,6 +405,53 @@ pub struct MetricsMessage {
     pub is_final: bool,
 }
 
+/// `add_mark` (viewer → server): an instructor's note on the session now, optionally at a point
+/// of the object (world frame, m). Instructors only; on a replay, refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename = "add_mark")]
+pub struct MarkRequest {
+    pub note: String,
+    #[serde(default)]
+    pub point_m: Option<[f64; 3]>,
+}
+
+/// Longest note of a mark, characters.
+pub const MARK_NOTE_MAX_CHARS: usize = 280;
+
+impl MarkRequest {
+    /// Why the mark is refused, if it is: an empty or overlong note, a non-finite point.
+    pub fn problem(&self) -> Option<String> {
+        let n = self.note.trim().chars().count();
+        if n == 0 {
+            return Some("a mark needs a note".into());
+        }
+        if n > MARK_NOTE_MAX_CHARS {
+            return Some(format!(
+                "a note of {n} characters; at most {MARK_NOTE_MAX_CHARS}"
+            ));
+        }
+        if self
+            .point_m
+            .is_some_and(|p| !p.iter().all(|v| v.is_finite()))
+        {
+            return Some("a mark's point must be finite".into());
+        }
+        None
+    }
+}
+
+/// `mark` (server → viewer): an instructor's mark on the session.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MarkMessage {
+    /// 1, 2, … in the order the marks were made.
+    pub id: u64,
+    /// Device time of the session when it was made, ns (the contact frames' `time_ns`).
+    pub time_ns: u64,
+    pub note: String,
+    /// Where on the object, world frame; `null` for a note on the moment only.
+    pub point_m: Option<[f64; 3]>,
+}
+
 /// `stats`: the loop's timing and the stream's health, once a second.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct StatsMessage {
@@ -590,6 +640,7 @@ impl ServerMessage {
             ServerMessage::Contact(_) => "contact",
             ServerMessage::Stats(_) => "stats",
             ServerMessage::Metrics(_) => "metrics",
+            ServerMessage::Mark(_) => "mark",
             ServerMessage::Refused(_) => "refused",
         }
     }
@@ -790,6 +841,15 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         ),
         ("stats", stats),
         (
+            "mark",
+            ServerMessage::Mark(MarkMessage {
+                id: 2,
+                time_ns: 4_250_000_000,
+                note: "too fast on the approach".into(),
+                point_m: Some([-0.0297, 0.0681, 0.0068]),
+            }),
+        ),
+        (
             "metrics",
             ServerMessage::Metrics(MetricsMessage {
                 peak_force_n: 2.35,
@@ -905,6 +965,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 file: "sphere-press.mcap".into(),
                 gaps: Vec::new(),
                 above_safe: Vec::new(),
+                marks: Vec::new(),
             })?,
         ),
         (
@@ -932,6 +993,11 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 above_safe: vec![crate::record::ReplaySpan {
                     start_s: 5.5,
                     end_s: 5.81,
+                }],
+                marks: vec![crate::record::ReplayMark {
+                    id: 1,
+                    time_s: 2.25,
+                    note: "too fast on the approach".into(),
                 }],
             })?,
         ),
@@ -978,6 +1044,14 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         name: "auth".into(),
         json: serde_json::to_value(Auth {
             token: "0123456789abcdef0123456789abcdef".into(),
+        })?,
+    });
+    // An instructor's mark, as the viewer's encoder writes it.
+    out.push(MessageVector::Valid {
+        name: "add_mark".into(),
+        json: serde_json::to_value(MarkRequest {
+            note: "too fast on the approach".into(),
+            point_m: Some([-0.0297, 0.0681, 0.0068]),
         })?,
     });
     // Well-formed but of a type no viewer knows: to be ignored and counted, not refused.
@@ -1053,6 +1127,10 @@ mod tests {
                                 let auth: Auth = serde_json::from_str(&text).unwrap();
                                 assert_eq!(serde_json::to_value(&auth).unwrap(), json);
                                 assert!(CLIENT_MESSAGE_TYPES.contains(&"auth"));
+                            } else if name == "add_mark" {
+                                let mark: MarkRequest = serde_json::from_str(&text).unwrap();
+                                assert_eq!(mark.problem(), None);
+                                assert_eq!(serde_json::to_value(&mark).unwrap(), json);
                             } else if name.starts_with("replay_control") {
                                 let control: crate::record::ReplayControl =
                                     serde_json::from_str(&text).unwrap();

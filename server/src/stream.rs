@@ -33,8 +33,8 @@ use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::CalibrationTable;
 use softhaptic_proto::record::ReplayControl;
 use softhaptic_proto::wire::{
-    Auth, ComputeUs, ContactFrame, DeviceStatus, Hello, MetricsMessage, PeriodErrorUs, Refused,
-    Role, ServerMessage, StatsMessage, message_type,
+    Auth, ComputeUs, ContactFrame, DeviceStatus, Hello, MarkMessage, MarkRequest, MetricsMessage,
+    PeriodErrorUs, Refused, Role, ServerMessage, StatsMessage, message_type,
 };
 use tokio::sync::{broadcast, watch};
 
@@ -189,6 +189,12 @@ pub struct StreamHub {
     pub replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
     /// Who may connect: tokens, Origin and Host rules, connection limits.
     pub access: Arc<Access>,
+    /// Instructors' marks as they are made (to every viewer, and to the recorder).
+    pub marks: broadcast::Sender<Utf8Bytes>,
+    /// Every mark so far, encoded, for a viewer that connects later.
+    made_marks: std::sync::Mutex<Vec<Utf8Bytes>>,
+    /// Device time of the latest contact frame: a mark's time.
+    pub latest_time_ns: AtomicU64,
     /// The frame a replay shows now, sent to a viewer as it connects so that a paused replay
     /// draws the tool where the recording has it rather than nowhere; `None` on a live session,
     /// whose next frame is 20 ms away. A lock held only to swap or clone an `Arc`.
@@ -226,8 +232,45 @@ impl StreamHub {
             shutdown,
             replay_control,
             access,
+            marks: broadcast::channel(MARK_BACKLOG).0,
+            made_marks: std::sync::Mutex::new(Vec::new()),
+            latest_time_ns: AtomicU64::new(0),
             held_frame: std::sync::Mutex::new(None),
         })
+    }
+
+    /// Every mark so far, encoded.
+    pub fn made_marks(&self) -> Vec<Utf8Bytes> {
+        self.made_marks
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    /// Adds a mark: numbered, stamped with the session's device time, kept for later viewers
+    /// and sent to everyone now. `Err` when it cannot be encoded.
+    pub fn add_mark(&self, request: MarkRequest) -> Result<MarkMessage, serde_json::Error> {
+        let mut made = self.made_marks.lock().unwrap_or_else(|p| p.into_inner());
+        let mark = MarkMessage {
+            id: made.len() as u64 + 1,
+            time_ns: self.latest_time_ns.load(Ordering::Relaxed),
+            note: request.note.trim().to_owned(),
+            point_m: request.point_m,
+        };
+        let text = Utf8Bytes::from(ServerMessage::Mark(mark.clone()).encode()?);
+        made.push(text.clone());
+        let _ = self.marks.send(text);
+        Ok(mark)
+    }
+
+    /// Marks a replayed recording holds, shown to its viewers as they connect.
+    pub fn preload_marks(&self, marks: &[MarkMessage]) {
+        let mut made = self.made_marks.lock().unwrap_or_else(|p| p.into_inner());
+        for m in marks {
+            if let Ok(text) = ServerMessage::Mark(m.clone()).encode() {
+                made.push(Utf8Bytes::from(text));
+            }
+        }
     }
 
     /// The `hello` of a connection with `role`.
@@ -291,6 +334,7 @@ pub async fn frame_task(
         } else {
             0.0
         };
+        hub.latest_time_ns.store(state.time_ns, Ordering::Relaxed);
         let frame = ContactFrame::from_state(&state, seq, deformed_radius_m, 0);
         match EncodedFrame::new(&frame) {
             Ok(encoded) => {
@@ -476,6 +520,12 @@ pub const REASON_FLOOD: &str = "too many messages";
 /// The `refused` reason of a `replay_control` from an observer.
 pub const REFUSED_OBSERVER: &str =
     "an observer cannot control the replay: only an instructor's link can";
+/// The `refused` reason of an `add_mark` from an observer.
+pub const REFUSED_MARK_OBSERVER: &str = "only an instructor marks the session";
+/// The `refused` reason of an `add_mark` sent to a replay.
+pub const REFUSED_MARK_REPLAY: &str = "a replay's marks are the recording's: mark a live session";
+/// Marks a slow viewer may fall behind by before it loses one (they are rare and small).
+pub const MARK_BACKLOG: usize = 64;
 /// The `refused` reason of a `replay_control` sent to a live session.
 pub const REFUSED_LIVE: &str = "this is a live session: there is no replay to control";
 
@@ -501,6 +551,7 @@ pub async fn serve_viewer(
     // Subscribe before sending the greeting, so no frame produced meanwhile is missed.
     let mut frames = hub.frames.subscribe();
     let mut stats = hub.stats.subscribe();
+    let mut marks = hub.marks.subscribe();
     let mut shutdown = hub.shutdown.clone();
 
     for greeting in [hub.hello(role), &hub.scene] {
@@ -512,6 +563,13 @@ pub async fn serve_viewer(
         )
         .await
         {
+            return ViewerEnd::SendFailed;
+        }
+    }
+    // The marks made before this viewer came (a mark made meanwhile is also queued: sent twice,
+    // which its id makes harmless).
+    for mark in hub.made_marks() {
+        if !send(&mut socket, Message::Text(mark), timeout, &hub.counters).await {
             return ViewerEnd::SendFailed;
         }
     }
@@ -589,6 +647,13 @@ pub async fn serve_viewer(
             },
             text = stats.recv() => {
                 if let Ok(text) = text
+                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
+                {
+                    return ViewerEnd::SendFailed;
+                }
+            },
+            mark = marks.recv() => {
+                if let Ok(text) = mark
                     && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
                 {
                     return ViewerEnd::SendFailed;
@@ -757,6 +822,22 @@ async fn handle_incoming(
                     .await;
                     return Some(ViewerEnd::Malformed);
                 }
+            }
+        }
+        Ok(kind) if kind == "add_mark" => {
+            if hub.replay_control.is_some() {
+                return refuse(socket, hub, connection, &kind, REFUSED_MARK_REPLAY).await;
+            }
+            if role == Role::Observer {
+                return refuse(socket, hub, connection, &kind, REFUSED_MARK_OBSERVER).await;
+            }
+            let request = serde_json::from_str::<MarkRequest>(&text).map_err(|e| e.to_string());
+            match request.and_then(|r| r.problem().map_or(Ok(r), Err)) {
+                Ok(r) => match hub.add_mark(r) {
+                    Ok(m) => tracing::info!(id = m.id, time_ns = m.time_ns, "instructor mark"),
+                    Err(e) => tracing::error!(error = %e, "could not encode a mark"),
+                },
+                Err(reason) => return refuse(socket, hub, connection, &kind, &reason).await,
             }
         }
         // The connection has its role already (or the server has no tokens): a later `auth`

@@ -23,6 +23,7 @@ import { parseRenderMesh } from './mesh.js';
 import {
   CONTACT_FLAGS,
   deviceStatusMessage,
+  encodeMark,
   forceFeedbackOf,
   ViewerConnection,
   accessOf,
@@ -89,6 +90,8 @@ const state = {
   depressionMap: false,
   /** The depression at which the map reaches its full colour: 5 mm. */
   depressionScaleM: 0.005,
+  /** The instructors' marks by id: `{id, time_ns, note, point_m}`. */
+  marks: new Map(),
   /** The last `metrics` message: the trainee's metrics, from the server. */
   lastMetrics: null,
   /** Whether the trainee feels the force (`hello.force_feedback`); true until a `hello` says. */
@@ -175,6 +178,9 @@ function init() {
     'replay-gaps',
     'map-toggle',
     'map-scale',
+    'mark-form',
+    'mark-note',
+    'mark-list',
     't-peak',
     't-above',
     't-contact',
@@ -264,6 +270,18 @@ function init() {
     });
   window.addEventListener('resize', onWindowResize);
   dom['map-toggle'].addEventListener('change', () => setDepressionMap(dom['map-toggle'].checked));
+  dom['mark-form'].addEventListener('submit', (e) => {
+    e.preventDefault();
+    // The mark goes where the tool touches now, if it does.
+    const point = rendered.valid && rendered.inContact ? [...rendered.point] : null;
+    try {
+      if (connection.send(encodeMark(dom['mark-note'].value, point))) dom['mark-note'].value = '';
+    } catch (err) {
+      dom['mark-note'].setCustomValidity(err.message);
+      dom['mark-note'].reportValidity();
+      dom['mark-note'].setCustomValidity('');
+    }
+  });
   setInterval(updatePanels, 250);
 }
 
@@ -670,6 +688,8 @@ function onMessage(message, receivedAtMs) {
         const access = accessOf(message);
         state.mode = access.mode;
         showRole(access.role);
+        // Instructors mark a live session; a replay's marks are the recording's.
+        dom['mark-form'].hidden = !(access.role === 'instructor' && access.mode === 'live');
         showForceFeedback(forceFeedbackOf(message));
         timeline.setControllable(access.role === 'instructor');
         if (access.mode === 'replay') {
@@ -704,6 +724,9 @@ function onMessage(message, receivedAtMs) {
       break;
     case 'metrics':
       state.lastMetrics = message;
+      break;
+    case 'mark':
+      addMark(message);
       break;
     default:
       break;
@@ -808,6 +831,25 @@ function paintDepression(m, list, count) {
   m.colorAttr.updateRanges.length = 0;
   m.colorAttr.updateRanges.push(m.range);
   m.colorAttr.needsUpdate = true;
+}
+
+/** Shows a mark (once per id): in the list, and as a small marker at its point. */
+function addMark(m) {
+  if (state.marks.has(m.id)) return;
+  state.marks.set(m.id, m);
+  const item = document.createElement('li');
+  item.value = m.id;
+  item.dataset.mark = String(m.id);
+  item.textContent = `${(m.time_ns / 1e9).toFixed(1)} s: ${m.note}`;
+  dom['mark-list'].append(item);
+  if (m.point_m !== null && view.scene) {
+    const marker = new THREE.Mesh(
+      new THREE.SphereGeometry(0.0025, 16, 8),
+      new THREE.MeshStandardMaterial({ color: 0xffd33d, emissive: 0x664d00 }),
+    );
+    marker.position.set(m.point_m[0], m.point_m[1], m.point_m[2]);
+    view.scene.add(marker);
+  }
 }
 
 /** Turns the depression map on or off; off, every vertex gets its own colour back. */
@@ -1109,7 +1151,7 @@ function exposeTestHook() {
       clockRestarts: buffer.clockRestarts,
       /** The gap marks drawn on the track: cause, title, and the left edge in percent. */
       gaps: [...dom['replay-gaps'].children].map((m) => ({
-        cause: ['damaged', 'above_safe'].find((c) => m.classList.contains(c)) ?? 'lost_ticks',
+        cause: ['damaged', 'above_safe', 'mark'].find((c) => m.classList.contains(c)) ?? 'lost_ticks',
         title: m.title,
         leftPct: parseFloat(m.style.left),
       })),
@@ -1148,6 +1190,17 @@ function exposeTestHook() {
      * Moves the camera to look at a world point from `distanceM` away, `elevationRad` above the
      * horizontal (screenshots; a low camera shows the dimple's profile beside the tool).
      */
+    /** The marks received, in id order, and the list's text. */
+    marks: () => ({
+      marks: [...state.marks.values()].sort((a, b) => a.id - b.id),
+      listed: [...dom['mark-list'].children].map((li) => li.textContent),
+      formShown: !dom['mark-form'].hidden,
+    }),
+    /** Types a note and submits the mark form, as an instructor does. */
+    submitMark: (note) => {
+      dom['mark-note'].value = note;
+      dom['mark-form'].requestSubmit();
+    },
     /** Turns the depression map on or off, as its checkbox does. */
     depressionMap: (on) => setDepressionMap(on),
     /** A render vertex's colour multiplier (RGB; white when the map is off or it did not move). */

@@ -336,6 +336,15 @@ function validateReplay(m) {
   boolean(m.paused, 'replay.paused');
   positive(m.speed, 'replay.speed');
   string(m.file, 'replay.file');
+  if (m.marks !== undefined) {
+    if (!Array.isArray(m.marks)) throw new ProtocolError('replay.marks', `expected an array, got ${show(m.marks)}`);
+    m.marks.forEach((k, i) => {
+      object(k, `replay.marks[${i}]`);
+      count(k.id, `replay.marks[${i}].id`);
+      nonNegative(k.time_s, `replay.marks[${i}].time_s`);
+      string(k.note, `replay.marks[${i}].note`);
+    });
+  }
   if (m.above_safe !== undefined) {
     if (!Array.isArray(m.above_safe)) {
       throw new ProtocolError('replay.above_safe', `expected an array, got ${show(m.above_safe)}`);
@@ -370,6 +379,36 @@ function validateRefused(m) {
   return m;
 }
 
+/** `mark`: an instructor's note on the session, maybe at a point of the object. */
+function validateMark(m) {
+  count(m.id, 'mark.id');
+  count(m.time_ns, 'mark.time_ns');
+  string(m.note, 'mark.note');
+  if (m.point_m !== null) vector(m.point_m, 3, 'mark.point_m');
+  return m;
+}
+
+/** Longest note of a mark, characters (`MARK_NOTE_MAX_CHARS` in proto/src/wire.rs). */
+export const MARK_NOTE_MAX_CHARS = 280;
+
+/**
+ * The `add_mark` an instructor sends: `note` (trimmed, 1 … 280 characters) and an optional
+ * world point. Throws `ProtocolError` for what the server would refuse.
+ */
+export function encodeMark(note, pointM = null) {
+  const text = String(note ?? '').trim();
+  if (text.length === 0) throw new ProtocolError('add_mark.note', 'a mark needs a note');
+  if ([...text].length > MARK_NOTE_MAX_CHARS) {
+    throw new ProtocolError('add_mark.note', `at most ${MARK_NOTE_MAX_CHARS} characters`);
+  }
+  const m = { type: 'add_mark', note: text };
+  if (pointM !== null) {
+    vector(pointM, 3, 'add_mark.point_m');
+    m.point_m = [...pointM];
+  }
+  return JSON.stringify(m);
+}
+
 /** `metrics`: the trainee's metrics, computed by the server from every 1 kHz tick. */
 function validateMetrics(m) {
   for (const f of [
@@ -398,6 +437,7 @@ const VALIDATORS = {
   contact: validateContact,
   stats: validateStats,
   metrics: validateMetrics,
+  mark: validateMark,
   replay: validateReplay,
   refused: validateRefused,
 };

@@ -73,6 +73,17 @@ export function aboveSafeMarkers(spans, durationS) {
   });
 }
 
+/** The instructors' marks (`replay.marks`) on the timeline, in the form of `gapMarkers`. */
+export function markMarkers(marks, durationS) {
+  if (!Array.isArray(marks) || !(durationS > 0)) return [];
+  return marks.map((m) => ({
+    leftPct: Math.min(Math.max(m.time_s / durationS, 0), 1) * 100,
+    widthPct: 0,
+    cause: 'mark',
+    title: `mark ${m.id} at ${formatReplayTime(m.time_s)}: ${m.note}`,
+  }));
+}
+
 /** Where a replay stands, from its last status; all times in seconds of recording time. */
 export class ReplayClock {
   constructor() {
@@ -252,18 +263,22 @@ export class ReplayTimeline {
     }
     this.#showSpeed(status.speed);
     if (fileText.textContent !== status.file) fileText.textContent = status.file;
-    this.#showGaps(status.gaps ?? [], status.above_safe ?? [], status.duration_s);
+    this.#showGaps(status.gaps ?? [], status.above_safe ?? [], status.marks ?? [], status.duration_s);
     this.shownTenths = -1; // redraw the text now
     this.frame(nowMs);
     return broke;
   }
 
   /** Marks the stretches without ticks on the track, when they changed. */
-  #showGaps(gaps, aboveSafe, durationS) {
-    const key = JSON.stringify([gaps, aboveSafe, durationS]);
+  #showGaps(gaps, aboveSafe, marks, durationS) {
+    const key = JSON.stringify([gaps, aboveSafe, marks, durationS]);
     if (key === this.gapsKey) return;
     this.gapsKey = key;
-    this.gapsShown = [...aboveSafeMarkers(aboveSafe, durationS), ...gapMarkers(gaps, durationS)];
+    this.gapsShown = [
+      ...aboveSafeMarkers(aboveSafe, durationS),
+      ...gapMarkers(gaps, durationS),
+      ...markMarkers(marks, durationS),
+    ];
     const layer = this.el.gapLayer;
     if (!layer) return;
     const doc = layer.ownerDocument;

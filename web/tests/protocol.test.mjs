@@ -16,6 +16,7 @@ import {
   contactModelOf,
   decodeMessage,
   deviceStatusMessage,
+  encodeMark,
   forceFeedbackOf,
   encodeAuth,
   encodeReplayControl,
@@ -630,4 +631,23 @@ test('an input-only device says the force is not felt and names its unplug as th
   assert.equal(deviceStatusMessage('disconnected', true), 'device disconnected');
   assert.equal(deviceStatusMessage('ok', false), 'input device ok');
   assert.equal(deviceStatusMessage('not_answering', false), DEVICE_STATUS_MESSAGES.not_answering);
+});
+
+test('a mark is encoded trimmed, with its point, and refused empty, overlong or with a bad point', () => {
+  assert.deepEqual(JSON.parse(encodeMark('  look here ', [0.01, 0.02, 0.03])), {
+    type: 'add_mark',
+    note: 'look here',
+    point_m: [0.01, 0.02, 0.03],
+  });
+  assert.deepEqual(JSON.parse(encodeMark('moment only')), { type: 'add_mark', note: 'moment only' });
+  for (const [note, point, field] of [
+    ['   ', null, 'add_mark.note'],
+    ['x'.repeat(281), null, 'add_mark.note'],
+    ['ok', [0, Number.NaN, 0], 'add_mark.point_m'],
+  ]) {
+    assert.throws(
+      () => encodeMark(note, point),
+      (e) => e instanceof ProtocolError && e.field.startsWith(field),
+    );
+  }
 });

@@ -7,7 +7,14 @@ import assert from 'node:assert/strict';
 
 import { ProtocolError, ViewerConnection, decodeMessage, encodeReplayControl } from '../src/protocol.js';
 import { PlayoutBuffer, RenderedContact } from '../src/interpolation.js';
-import { ReplayClock, ReplayTimeline, aboveSafeMarkers, formatReplayTime, gapMarkers } from '../src/replay.js';
+import {
+  ReplayClock,
+  ReplayTimeline,
+  aboveSafeMarkers,
+  formatReplayTime,
+  gapMarkers,
+  markMarkers,
+} from '../src/replay.js';
 import { contact, hello } from './fixtures.mjs';
 
 /** A status as `softhaptic replay` sends it (proto `ReplayStatus`). */
@@ -460,4 +467,12 @@ test('stretches above the safe force are marked with how long they lasted', () =
   assert.ok(Math.abs(m.leftPct - 25) < 1e-9 && Math.abs(m.widthPct - 5) < 1e-9);
   assert.equal(m.title, 'above the safe force for 0.50 s at 0:02.5');
   assert.deepEqual(aboveSafeMarkers(undefined, 10), []);
+});
+
+test("the instructors' marks are placed on the timeline with their notes", () => {
+  const [m] = markMarkers([{ id: 3, time_s: 5, note: 'too deep' }], 20);
+  assert.equal(m.cause, 'mark');
+  assert.ok(Math.abs(m.leftPct - 25) < 1e-9);
+  assert.equal(m.title, 'mark 3 at 0:05.0: too deep');
+  assert.deepEqual(markMarkers(null, 20), []);
 });

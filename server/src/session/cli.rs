@@ -353,6 +353,7 @@ impl LiveRecording {
         tokio::spawn(record_stream(
             hub.frames.subscribe(),
             hub.stats.subscribe(),
+            hub.marks.subscribe(),
             self.recorder.stream_tap(),
         ));
     }
@@ -385,9 +386,11 @@ fn new_recording_id(started_unix_ns: u64) -> String {
 async fn record_stream(
     mut frames: broadcast::Receiver<Arc<EncodedFrame>>,
     mut stats: broadcast::Receiver<axum::extract::ws::Utf8Bytes>,
+    mut marks: broadcast::Receiver<axum::extract::ws::Utf8Bytes>,
     tap: StreamTap,
 ) {
     let mut stats_open = true;
+    let mut marks_open = true;
     loop {
         tokio::select! {
             frame = frames.recv() => match frame {
@@ -410,6 +413,13 @@ async fn record_stream(
                 Ok(_) => {}
                 Err(broadcast::error::RecvError::Lagged(_)) => {}
                 Err(broadcast::error::RecvError::Closed) => stats_open = false,
+            },
+            m = marks.recv(), if marks_open => match m {
+                Ok(text) => tap.record_mark(text.to_string()),
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    tracing::warn!("{n} instructor marks were not recorded (the recorder fell behind)");
+                }
+                Err(broadcast::error::RecvError::Closed) => marks_open = false,
             },
         }
     }

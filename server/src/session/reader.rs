@@ -62,6 +62,8 @@ pub struct Recording {
     pub ending: Ending,
     /// The damaged stretches of the file that were skipped, in file order.
     pub lost: Vec<LostSpan>,
+    /// The instructors' marks, in the order made.
+    pub marks: Vec<softhaptic_proto::wire::MarkMessage>,
 }
 
 /// A stretch of a recording that could not be read and was skipped.
@@ -103,6 +105,7 @@ enum Kind {
     Contact,
     Stats,
     LoopStats,
+    Marks,
     Unknown,
 }
 
@@ -185,6 +188,7 @@ impl Recording {
         let mut loop_stats = Vec::new();
         let mut last_stats = None;
         let mut unknown_messages = 0;
+        let mut marks = Vec::new();
         let mut ending = match &scanned.tail {
             Some(reason) => Ending::Truncated {
                 reason: reason.clone(),
@@ -297,6 +301,21 @@ impl Recording {
                 Kind::Stats => {
                     last_stats = Some(serde_json::from_slice(&message.data).map_err(bad)?);
                 }
+                Kind::Marks => {
+                    let json = String::from_utf8_lossy(&message.data);
+                    match ServerMessage::decode(&json) {
+                        Ok(ServerMessage::Mark(m)) => marks.push(m),
+                        _ => {
+                            return Err(SessionError::BadMessage {
+                                path: path_buf.clone(),
+                                topic: channel.topic.clone(),
+                                sequence: message.sequence,
+                                log_time_ns: message.log_time,
+                                reason: "not a mark message of the wire protocol".into(),
+                            });
+                        }
+                    }
+                }
                 Kind::Unknown => unknown_messages += 1,
             }
         }
@@ -339,6 +358,7 @@ impl Recording {
             unknown_messages,
             ending,
             lost: scanned.lost,
+            marks,
         })
     }
 
@@ -462,6 +482,7 @@ fn classify(path: &Path, channel: &mcap::Channel<'_>) -> Result<Kind, SessionErr
         topic::CONTACT => (Kind::Contact, schema_name::CONTACT),
         topic::STATS => (Kind::Stats, schema_name::STATS),
         topic::LOOP_STATS => (Kind::LoopStats, schema_name::LOOP_STATS),
+        topic::MARKS => (Kind::Marks, schema_name::MARKS),
         _ => return Ok(Kind::Unknown),
     };
     let found_schema = channel

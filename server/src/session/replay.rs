@@ -24,7 +24,8 @@ use std::time::Duration;
 use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_proto::record::{
-    DeviceRecord, GapCause, ReplayAction, ReplayControl, ReplayGap, ReplaySpan, ReplayStatus,
+    DeviceRecord, GapCause, ReplayAction, ReplayControl, ReplayGap, ReplayMark, ReplaySpan,
+    ReplayStatus,
 };
 use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage};
 use tokio::sync::{mpsc, watch};
@@ -260,6 +261,8 @@ pub fn replay_feed(
             source,
         })?,
     );
+    // The recording's marks, for every viewer as it connects (with their 3-D points).
+    hub.preload_marks(&recording.marks);
     let player = Player::new(recording, speed, start_paused);
     let player = tokio::spawn(player.run(Arc::clone(&hub), control_rx));
 
@@ -365,6 +368,8 @@ struct Player {
     gaps: Vec<ReplayGap>,
     /// The stretches above the safe force, for the timeline.
     above_safe: Vec<ReplaySpan>,
+    /// The recording's marks, for the timeline.
+    marks: Vec<ReplayMark>,
     speed: f64,
     paused: bool,
     /// Replay position (ns from `start_ns`) at `anchor`.
@@ -388,6 +393,15 @@ impl Player {
             duration_ns: end_ns.saturating_sub(start_ns),
             file: recording.file_name(),
             gaps: gaps(&recording.device, start_ns),
+            marks: recording
+                .marks
+                .iter()
+                .map(|m| ReplayMark {
+                    id: m.id,
+                    time_s: m.time_ns.saturating_sub(start_ns) as f64 * 1e-9,
+                    note: m.note.clone(),
+                })
+                .collect(),
             above_safe: above_safe(
                 &recording.device,
                 start_ns,
@@ -422,6 +436,7 @@ impl Player {
             file: self.file.clone(),
             gaps: self.gaps.clone(),
             above_safe: self.above_safe.clone(),
+            marks: self.marks.clone(),
         }
     }
 

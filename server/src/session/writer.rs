@@ -55,6 +55,7 @@ struct Channels {
     contact: u16,
     stats: u16,
     loop_stats: u16,
+    marks: u16,
 }
 
 /// Writes one session to one MCAP file. Not thread-safe by itself; see [`Recorder`].
@@ -112,7 +113,7 @@ impl SessionWriter {
         let mut mcap = options
             .create(NoSeek::new(BufWriter::new(file)))
             .map_err(mcap_err)?;
-        let mut ids = [0u16; 6];
+        let mut ids = [0u16; 7];
         for (slot, (topic, name, schema)) in ids.iter_mut().zip(schema::ALL) {
             let schema_id = mcap
                 .add_schema(name, record::SCHEMA_ENCODING, schema.as_bytes())
@@ -133,6 +134,7 @@ impl SessionWriter {
             contact_id,
             stats_id,
             loop_stats_id,
+            marks_id,
         ] = ids;
         let mut w = SessionWriter {
             mcap,
@@ -144,6 +146,7 @@ impl SessionWriter {
                 contact: contact_id,
                 stats: stats_id,
                 loop_stats: loop_stats_id,
+                marks: marks_id,
             },
             buf: Vec::with_capacity(1024),
             sequences: [0; 8],
@@ -195,6 +198,10 @@ impl SessionWriter {
     }
 
     /// Writes one `stats` wire message exactly as it was sent, at the latest device time.
+    pub fn write_mark(&mut self, json: &str) -> Result<(), SessionError> {
+        self.write_raw(self.channels.marks, self.last_time_ns, json.as_bytes())
+    }
+
     pub fn write_loop_stats(&mut self, json: &str) -> Result<(), SessionError> {
         self.write_raw(self.channels.loop_stats, self.last_time_ns, json.as_bytes())
     }
@@ -336,6 +343,8 @@ enum StreamMessage {
     Contact { time_ns: u64, json: String },
     /// A `stats` message.
     LoopStats { json: String },
+    /// A `mark` message.
+    Mark { json: String },
 }
 
 /// The handle the server keeps to hand what it sends viewers to the recorder thread.
@@ -354,6 +363,11 @@ impl StreamTap {
     /// Counts contact frames lost before they reached the tap.
     pub fn count_lost_contacts(&self, n: u64) {
         self.dropped.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// Queues one `mark` message for the file; never waits (a full queue drops it, counted).
+    pub fn record_mark(&self, json: String) {
+        self.send(StreamMessage::Mark { json }, true);
     }
 
     /// Queues one `stats` message for the file; never waits (a full queue drops it).
@@ -481,6 +495,7 @@ fn run_recorder(
             match message {
                 StreamMessage::Contact { time_ns, json } => writer.write_contact(time_ns, &json)?,
                 StreamMessage::LoopStats { json } => writer.write_loop_stats(&json)?,
+                StreamMessage::Mark { json } => writer.write_mark(&json)?,
             }
             idle = false;
         }
