@@ -3,8 +3,8 @@
 // the Bézier profile (paper §3.3), the deformed-region ring, the force arrow and plot.
 //
 // Reading order: `init()` builds everything once; `onMessage()` takes the server's messages;
-// `animate()` runs per screen refresh and allocates nothing; `exposeTestHook()` is what the
-// browser tests read. When the server replays a recording, the timeline panel (`replay.js`)
+// `animate()` runs per screen refresh and allocates nothing; `testhook.js` is what the browser
+// tests read (installed only under automation). When the server replays a recording, the timeline panel (`replay.js`)
 // shows where the replay stands and sends the instructor's pause, play, seek and speed.
 //
 // Access (`access.js`): the token of the page's link is presented on every connection and with
@@ -16,7 +16,7 @@ import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 import { AccessPrompt, TokenKeeper } from './access.js';
-import { MeshDeformer, depressionAt, profileSetup, toolFromJson } from './deformation.js';
+import { MeshDeformer, profileSetup, toolFromJson } from './deformation.js';
 import { ForcePlot } from './forceplot.js';
 import { PlayoutBuffer, RenderedContact } from './interpolation.js';
 import { parseRenderMesh } from './mesh.js';
@@ -28,12 +28,12 @@ import {
   ViewerConnection,
   accessOf,
   contactModelOf,
-  encodeReplayControl,
   validateMessage,
   webSocketUrl,
 } from './protocol.js';
 import { ReplayTimeline } from './replay.js';
 import { StationList, archiveOf, stationOf, withStation } from './lab.js';
+import { installTestHook } from './testhook.js';
 
 /**
  * Flags that mean the force is not what the model says (shown in red rather than amber);
@@ -218,7 +218,38 @@ function init() {
   plot = new ForcePlot(dom['force-plot'], { pixelRatio: Math.min(window.devicePixelRatio || 1, 2) });
 
   initThree();
-  exposeTestHook();
+  // Only under automation (the browser tests): see testhook.js.
+  installTestHook({
+    state,
+    view,
+    dom,
+    rendered,
+    buffer,
+    timings,
+    get connection() {
+      return connection;
+    },
+    get timeline() {
+      return timeline;
+    },
+    get keeper() {
+      return keeper;
+    },
+    get prompt() {
+      return prompt;
+    },
+    get plot() {
+      return plot;
+    },
+    get stationList() {
+      return stationList;
+    },
+    animate,
+    flagNames,
+    fps,
+    median,
+    setDepressionMap,
+  });
 
   keeper = new TokenKeeper({ storage: sessionStorageOrNull() });
   keeper.adopt(window.location, window.history);
@@ -1012,237 +1043,6 @@ function updatePanels() {
 
 function flagNames(bits) {
   return CONTACT_FLAGS.filter((_, i) => (bits & (1 << i)) !== 0);
-}
-
-/**
- * `window.__softhaptic`: what the browser tests read. Every function returns plain data, so a
- * test can take a consistent snapshot of one rendered frame inside a single `page.evaluate`.
- */
-function exposeTestHook() {
-  window.__softhaptic = {
-    ready: () => state.meshes.length > 0 && state.tool !== null,
-    webgl: () => view.renderer !== null,
-    gpu: () => ({ name: view.gpuName ?? null, software: Boolean(view.software) }),
-    scene: () => state.sceneJson,
-    /** The device's state as the last `stats` message gave it, and the words shown for it. */
-    device: () => {
-      const status = state.lastStats ? (state.lastStats.device ?? 'ok') : null;
-      return { status, shown: dom['s-device'].textContent };
-    },
-    /** The lab: whether the server is a hub, the station shown, and the list as drawn. */
-    stations: () => ({
-      isHub: stationList?.isHub ?? null,
-      current: state.station,
-      archive: state.archive,
-      listed: [...dom['stations-list'].querySelectorAll('li[data-station]')].map((li) => ({
-        name: li.dataset.station,
-        current: li.classList.contains('current'),
-        text: li.textContent,
-        href: li.querySelector('a')?.getAttribute('href') ?? null,
-        archived: [...li.querySelectorAll('li[data-archive]')].map((a) => ({
-          file: a.dataset.archive,
-          href: a.querySelector('a')?.getAttribute('href') ?? null,
-        })),
-      })),
-    }),
-    /** Whether `hello` said the force is felt, and the words the page shows for it. */
-    forceFeedback: () => ({ felt: state.forceFeedback, shown: dom.feedback.textContent }),
-    sceneLoads: () => state.sceneLoads,
-    connection: () => ({
-      state: connection.state,
-      stats: { ...connection.stats },
-      lastError: connection.lastError,
-      sessionId: state.sessionId,
-    }),
-    /** The interpolated contact the last animation frame drew. */
-    contact: () => ({
-      valid: rendered.valid,
-      stale: rendered.stale,
-      deviceTimeMs: rendered.deviceTimeMs,
-      seq: rendered.seq,
-      inContact: rendered.inContact,
-      depthM: rendered.depthM,
-      contactRadiusM: rendered.contactRadiusM,
-      deformedRadiusM: rendered.deformedRadiusM,
-      normal: [...rendered.normal],
-      point: [...rendered.point],
-      position: [...rendered.position],
-      orientation: [...rendered.orientation],
-      force: [...rendered.force],
-      forceMagnitudeN: rendered.forceMagnitudeN,
-      flags: flagNames(rendered.flags),
-    }),
-    vertexCount: (mesh = 0) => state.meshes[mesh]?.deformer.vertexCount ?? 0,
-    /** Rest and current position of vertex i in the world frame, and how far it moved (m). */
-    vertex: (i, mesh = 0) => {
-      const m = state.meshes[mesh];
-      const rest = new THREE.Vector3()
-        .fromArray(m.rest, 3 * i)
-        .applyQuaternion(m.mesh.quaternion)
-        .add(m.objectPosition);
-      const now = new THREE.Vector3()
-        .fromArray(m.positions, 3 * i)
-        .applyQuaternion(m.mesh.quaternion)
-        .add(m.objectPosition);
-      return { rest: rest.toArray(), now: now.toArray(), displacementM: rest.distanceTo(now) };
-    },
-    vertexDisplacement: (i, mesh = 0) => window.__softhaptic.vertex(i, mesh).displacementM,
-    /** Index of the render vertex whose rest position is nearest the world point (x, y, z). */
-    findVertexNear: (x, y, z, mesh = 0) => {
-      const m = state.meshes[mesh];
-      const p = new THREE.Vector3(x, y, z).sub(m.objectPosition).applyQuaternion(m.objectInverse);
-      let best = -1;
-      let bestD = Infinity;
-      for (let i = 0; i < m.deformer.vertexCount; i++) {
-        const d = (m.rest[3 * i] - p.x) ** 2 + (m.rest[3 * i + 1] - p.y) ** 2 + (m.rest[3 * i + 2] - p.z) ** 2;
-        if (d < bestD) [best, bestD] = [i, d];
-      }
-      return { index: best, distanceM: Math.sqrt(bestD) };
-    },
-    /** Vertices currently displaced from rest (index, world rest position, displacement). */
-    movedVertices: (mesh = 0) => {
-      const m = state.meshes[mesh];
-      const out = [];
-      for (let k = 0; k < m.deformer.movedCount; k++) out.push(m.deformer.moved[k]);
-      return out;
-    },
-    /** The deformation profile evaluated for the rendered contact at radial distance r. */
-    profileAt: (r) =>
-      state.tool
-        ? depressionAt(profileSetup(state.tool, rendered.depthM, rendered.contactRadiusM, rendered.deformedRadiusM), r)
-        : 0,
-    deformationTimings: () => ({
-      samplesMs: Array.from(timings.ms.subarray(0, timings.count)),
-      medianMs: median(timings),
-      movedVertices: timings.moved,
-    }),
-    forcePlotSamples: () => {
-      const out = [];
-      plot.forEachVisible((t, f) => out.push({ timeMs: t, forceN: f }));
-      return out;
-    },
-    peakForceN: () => plot.peakForceN,
-    fps,
-    framesReceivedPerSecond: () => buffer.arrivalsSince(performance.now()),
-    /** Contact frames received since the page loaded. */
-    contactFrames: () => state.contactFrames,
-    /** The active contact model as the info panel shows it. */
-    contactModel: () => state.contactModel,
-    /** The replay timeline: what it shows and what the server last said. */
-    replay: () => ({
-      visible: timeline.visible,
-      panelVisible: !dom['replay-panel'].hidden,
-      known: timeline.clock.known,
-      durationS: timeline.clock.durationS,
-      positionS: timeline.positionS(performance.now()),
-      paused: timeline.clock.paused,
-      speed: timeline.clock.speed,
-      file: timeline.clock.file,
-      statuses: timeline.clock.statuses,
-      lastStatus: timeline.lastStatus,
-      scrubber: { value: dom['replay-scrubber'].valueAsNumber, max: Number(dom['replay-scrubber'].max) },
-      timeText: dom['replay-time'].textContent,
-      sent: timeline.sent.slice(),
-      statusLog: timeline.statusLog.slice(),
-      controllable: timeline.controllable,
-      refusals: timeline.refusals.slice(),
-      refusedShown: !dom['replay-refused'].hidden,
-      refusedText: dom['replay-refused'].textContent,
-      clockRestarts: buffer.clockRestarts,
-      /** The gap marks drawn on the track: cause, title, and the left edge in percent. */
-      gaps: [...dom['replay-gaps'].children].map((m) => ({
-        cause: ['damaged', 'above_safe', 'mark'].find((c) => m.classList.contains(c)) ?? 'lost_ticks',
-        title: m.title,
-        leftPct: parseFloat(m.style.left),
-      })),
-    }),
-    lastStats: () => state.lastStats,
-    /** The last metrics message, and the panel's text for it. */
-    metrics: () => ({ last: state.lastMetrics, peakShown: dom['t-peak'].textContent }),
-    /** The role the server granted (`instructor`, `observer`; null before a `hello`). */
-    role: () => state.role,
-    /** `live` or `replay`, as the server's `hello` said; null before one. */
-    mode: () => state.mode,
-    /** The prompt for a link or a token: whether it is shown, why, and what its note says. */
-    prompt: () => ({
-      shown: prompt.shown,
-      reason: prompt.reason,
-      detail: dom['token-prompt-detail'].textContent,
-      note: dom['token-prompt-note'].textContent,
-      visible: !dom['token-prompt'].hidden,
-    }),
-    /** Whether the viewer holds a token (never the token itself). */
-    hasToken: () => keeper.token !== null,
-    /**
-     * Sends a replay control past the page's controls, as a viewer of another role might: for
-     * the tests of the server's refusal. Returns whether it was sent.
-     */
-    sendReplayControl: (action, options) => connection.send(encodeReplayControl(action, options)),
-    /** Freezes (true) or resumes (false) the drawn contact; frames keep arriving meanwhile. */
-    pause: (paused) => {
-      state.paused = Boolean(paused);
-    },
-    /** Stops (false) or restarts (true) the animation loop, so a benchmark has the CPU alone. */
-    animation: (on) => {
-      if (view.renderer) view.renderer.setAnimationLoop(on ? animate : null);
-    },
-    /**
-     * Moves the camera to look at a world point from `distanceM` away, `elevationRad` above the
-     * horizontal (screenshots; a low camera shows the dimple's profile beside the tool).
-     */
-    /** The marks received, in id order, and the list's text. */
-    marks: () => ({
-      marks: [...state.marks.values()].sort((a, b) => a.id - b.id),
-      listed: [...dom['mark-list'].children].map((li) => li.textContent),
-      formShown: !dom['mark-form'].hidden,
-    }),
-    /** Types a note and submits the mark form, as an instructor does. */
-    submitMark: (note) => {
-      dom['mark-note'].value = note;
-      dom['mark-form'].requestSubmit();
-    },
-    /** Turns the depression map on or off, as its checkbox does. */
-    depressionMap: (on) => setDepressionMap(on),
-    /** A render vertex's colour multiplier (RGB; white when the map is off or it did not move). */
-    vertexColor: (i, mesh = 0) => {
-      const m = state.meshes[mesh];
-      return m ? [m.colors[3 * i], m.colors[3 * i + 1], m.colors[3 * i + 2]] : null;
-    },
-    /** The tool's opacity now (1 free, less in contact). */
-    toolOpacity: () => view.toolMaterials[0]?.opacity ?? null,
-    /** A world point's position on the page, CSS pixels from the canvas' top left. */
-    toScreen: (point) => {
-      const v = new THREE.Vector3(point[0], point[1], point[2]).project(view.camera);
-      const el = view.renderer?.domElement;
-      if (!el) return null;
-      return { x: ((v.x + 1) / 2) * el.clientWidth, y: ((1 - v.y) / 2) * el.clientHeight };
-    },
-    /**
-     * The drawn pixels (RGBA, rows from the bottom) of a square of `sizePx` CSS pixels centred on
-     * a page position, rendered now: what the canvas shows there, read back from WebGL.
-     */
-    regionPixels: (x, y, sizePx) => {
-      if (!view.renderer) return null;
-      view.renderer.render(view.scene, view.camera);
-      const gl = view.renderer.getContext();
-      const ratio = view.renderer.getPixelRatio();
-      const h = view.renderer.domElement.height;
-      const size = Math.round(sizePx * ratio);
-      const px = Math.round(x * ratio - size / 2);
-      const py = Math.round(h - y * ratio - size / 2);
-      const out = new Uint8Array(size * size * 4);
-      gl.readPixels(px, py, size, size, gl.RGBA, gl.UNSIGNED_BYTE, out);
-      return Array.from(out);
-    },
-    focusCamera: (point, distanceM, elevationRad = 0.6) => {
-      const h = distanceM * Math.cos(elevationRad);
-      view.camera.position.set(point[0] + h * 0.6, point[1] + distanceM * Math.sin(elevationRad), point[2] + h * 0.8);
-      if (view.controls) {
-        view.controls.target.set(point[0], point[1], point[2]);
-        view.controls.update();
-      }
-    },
-  };
 }
 
 init();
