@@ -60,6 +60,12 @@ const view = {
   camera: null,
   controls: null,
   toolGroup: null,
+  /**
+   * The section view's clipping planes, shared by the objects' materials: empty when off, one
+   * plane through the contact along its normal, facing the camera, when on.
+   */
+  sectionPlanes: [],
+  sectionPlane: null,
   /** The tool's materials: see-through while in contact, so the dent under it shows. */
   toolMaterials: [],
   ring: null,
@@ -86,6 +92,11 @@ const state = {
   station: stationOf(window.location),
   /** The station's archived recording the address names (`&archive=`), replayed; or null. */
   archive: archiveOf(window.location),
+  /** Whether the object is cut open through the contact (the section view). */
+  section: false,
+  /** Where the section passes: the last contact point and its normal. */
+  sectionPoint: [0, 0, 0],
+  sectionNormal: [0, 1, 0],
   /** Whether the render mesh is coloured by how far each vertex moved (the depression map). */
   depressionMap: false,
   /** The depression at which the map reaches its full colour: 5 mm. */
@@ -136,6 +147,7 @@ const scratch = {
   },
   v: new THREE.Vector3(),
   n: new THREE.Vector3(),
+  p: new THREE.Vector3(),
   q: new THREE.Quaternion(),
   up: new THREE.Vector3(0, 1, 0),
   profile: {},
@@ -178,6 +190,7 @@ function init() {
     'replay-gaps',
     'map-toggle',
     'map-scale',
+    'section-toggle',
     'mark-form',
     'mark-note',
     'mark-list',
@@ -249,6 +262,8 @@ function init() {
     fps,
     median,
     setDepressionMap,
+    setSection,
+    sectionPlane: () => view.sectionPlane,
   });
 
   keeper = new TokenKeeper({ storage: sessionStorageOrNull() });
@@ -301,6 +316,7 @@ function init() {
     });
   window.addEventListener('resize', onWindowResize);
   dom['map-toggle'].addEventListener('change', () => setDepressionMap(dom['map-toggle'].checked));
+  dom['section-toggle'].addEventListener('change', () => setSection(dom['section-toggle'].checked));
   dom['mark-form'].addEventListener('submit', (e) => {
     e.preventDefault();
     // The mark goes where the tool touches now, if it does.
@@ -399,6 +415,8 @@ function initThree() {
     renderer.setPixelRatio(Math.min(window.devicePixelRatio, view.software ? 1 : 2));
     renderer.setSize(window.innerWidth, window.innerHeight);
     dom.view.appendChild(renderer.domElement);
+    // The section view clips the object's material only.
+    renderer.localClippingEnabled = true;
     view.renderer = renderer;
     view.controls = new OrbitControls(view.camera, renderer.domElement);
     view.controls.target.set(0, 0, 0);
@@ -634,7 +652,15 @@ function buildMesh(desc, data) {
   geometry.boundingSphere.radius *= 1.2;
   const mesh = new THREE.Mesh(
     geometry,
-    new THREE.MeshStandardMaterial({ color: 0xd98c8c, roughness: 0.55, metalness: 0.0, vertexColors: true }),
+    new THREE.MeshStandardMaterial({
+      color: 0xd98c8c,
+      roughness: 0.55,
+      metalness: 0.0,
+      vertexColors: true,
+      // Seen from inside too, where the section view cuts it open.
+      side: THREE.DoubleSide,
+      clippingPlanes: view.sectionPlanes,
+    }),
   );
   const [px, py, pz] = desc.object_in_world.position_m;
   const [qx, qy, qz, qw] = desc.object_in_world.orientation;
@@ -777,6 +803,7 @@ function animate(nowMs) {
   }
   timeline.frame(now);
   placeToolAndMarkers();
+  placeSection();
   plot.draw();
   if (view.renderer) {
     view.controls.update();
@@ -881,6 +908,42 @@ function addMark(m) {
     marker.position.set(m.point_m[0], m.point_m[1], m.point_m[2]);
     view.scene.add(marker);
   }
+}
+
+/** Turns the section view on or off. */
+function setSection(on) {
+  state.section = Boolean(on);
+  dom['section-toggle'].checked = state.section;
+  view.sectionPlanes.length = 0;
+  if (state.section) {
+    view.sectionPlane ??= new THREE.Plane();
+    view.sectionPlanes.push(view.sectionPlane);
+  }
+}
+
+/**
+ * Places the section plane: through the contact point (the last one, while free), containing
+ * the contact normal, turned to face the camera as far as that allows, and cutting away the half
+ * nearer the camera, so the dent's profile shows against the surface beside it.
+ */
+function placeSection() {
+  if (!state.section || !view.sectionPlane || !view.camera) return;
+  if (rendered.valid && rendered.inContact) {
+    state.sectionPoint[0] = rendered.point[0];
+    state.sectionPoint[1] = rendered.point[1];
+    state.sectionPoint[2] = rendered.point[2];
+    state.sectionNormal[0] = rendered.normal[0];
+    state.sectionNormal[1] = rendered.normal[1];
+    state.sectionNormal[2] = rendered.normal[2];
+  }
+  const n = scratch.n.set(state.sectionNormal[0], state.sectionNormal[1], state.sectionNormal[2]);
+  const toCamera = scratch.v
+    .copy(view.camera.position)
+    .sub(scratch.p.set(state.sectionPoint[0], state.sectionPoint[1], state.sectionPoint[2]));
+  toCamera.addScaledVector(n, -toCamera.dot(n));
+  if (toCamera.lengthSq() < 1e-12) toCamera.set(1, 0, 0);
+  // Keep what lies away from the camera: the plane's normal points away from it.
+  view.sectionPlane.setFromNormalAndCoplanarPoint(toCamera.normalize().negate(), scratch.p);
 }
 
 /** Turns the depression map on or off; off, every vertex gets its own colour back. */

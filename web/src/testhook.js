@@ -204,6 +204,12 @@ export function installTestHook(ctx) {
       const m = state.meshes[mesh];
       return m ? [m.colors[3 * i], m.colors[3 * i + 1], m.colors[3 * i + 2]] : null;
     },
+    /** Turns the section view on or off, and where its plane is (normal, constant) when on. */
+    section: (on) => {
+      if (on !== undefined) ctx.setSection(on);
+      const p = state.section ? ctx.sectionPlane() : null;
+      return p ? { on: true, normal: p.normal.toArray(), constant: p.constant } : { on: false };
+    },
     /** The tool's opacity now (1 free, less in contact). */
     toolOpacity: () => view.toolMaterials[0]?.opacity ?? null,
     /** A world point's position on the page, CSS pixels from the canvas' top left. */

@@ -154,6 +154,26 @@ test('the depression map colours the vertices that moved, and only while it is o
   await page.evaluate(() => window.__softhaptic.pause(false));
 });
 
+test('the section view cuts the object through the contact, along its normal, away from the camera', async () => {
+  await freezeOnPress(page, 2e-3);
+  const cut = await page.evaluate(() => {
+    const h = window.__softhaptic;
+    const on = h.section(true);
+    h.pause(false);
+    return on;
+  });
+  assert.equal(cut.on, true);
+  // Placed on the next drawn frame.
+  await page.waitForFunction(() => window.__softhaptic.section().constant !== 0, null, { timeout: 30000 });
+  const c = await page.evaluate(() => window.__softhaptic.contact());
+  const s = await page.evaluate(() => window.__softhaptic.section());
+  const [nx, ny, nz] = s.normal;
+  assert.ok(Math.abs(Math.hypot(nx, ny, nz) - 1) < 1e-6);
+  // The plane holds the contact normal's direction (perpendicular to its own normal).
+  assert.ok(Math.abs(nx * c.normal[0] + ny * c.normal[1] + nz * c.normal[2]) < 0.05, JSON.stringify({ s, c }));
+  assert.equal((await page.evaluate(() => window.__softhaptic.section(false))).on, false);
+});
+
 test("the trainee's metrics panel shows the server's metrics of the press", async () => {
   await page.waitForFunction(
     () => {
