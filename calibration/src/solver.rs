@@ -770,16 +770,49 @@ impl ContactModel {
     /// The top-surface profile along the `y = 0` line: (reference radius from the axis,
     /// depression = −u_z), ordered by radius.
     pub fn surface_profile(&self) -> Vec<(f64, f64)> {
+        self.surface_motion()
+            .iter()
+            .map(|p| (p.radius_m, p.depression_m))
+            .collect()
+    }
+
+    /// The top-surface motion along the `y = 0` line, ordered by reference radius: the
+    /// depression of [`ContactModel::surface_profile`] and each node's radial displacement. The
+    /// viewer moves its vertices along the surface normal only, so the radial part is what such
+    /// a drawing leaves out.
+    pub fn surface_motion(&self) -> Vec<SurfacePoint> {
         self.mesh
             .profile_nodes
             .iter()
             .map(|&i| {
                 let i = i as usize;
                 let x = self.mesh.nodes_m[i];
-                ((x[0] * x[0] + x[1] * x[1]).sqrt(), -self.u[i][2])
+                let u = self.u[i];
+                let radius_m = x[0].hypot(x[1]);
+                let radial_displacement_m = if radius_m > 0.0 {
+                    (x[0] * u[0] + x[1] * u[1]) / radius_m
+                } else {
+                    0.0
+                };
+                SurfacePoint {
+                    radius_m,
+                    depression_m: -u[2],
+                    radial_displacement_m,
+                }
             })
             .collect()
     }
+}
+
+/// One top-surface node of the profile line in its deformed state.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct SurfacePoint {
+    /// Distance from the contact axis in the undeformed body.
+    pub radius_m: f64,
+    /// How far the node sank (−u_z).
+    pub depression_m: f64,
+    /// Displacement away from the axis (negative: towards it).
+    pub radial_displacement_m: f64,
 }
 
 fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

@@ -42,6 +42,10 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     for section in [
         "## R_d calibration",
+        "## The drawn surface against the FEM surface",
+        "paper's Bézier",
+        "Johnson (half-space)",
+        "Sneddon (half-space)",
         "## Force accuracy",
         "## Curvature",
         "## Inclination",
@@ -172,14 +176,28 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
                     continue;
                 }
                 let mut lines = text.lines();
-                let header = lines.next().unwrap();
-                let columns = header.split(',').count();
+                let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+                let columns = header.len();
+                // Named columns: the surface comparison's law and region of the worst error.
+                let named = |h: &str| h == "law" || h.ends_with("_region");
                 let mut rows = 0;
                 for line in lines {
                     rows += 1;
-                    let cells: Vec<f64> =
-                        line.split(',').map(|c| c.parse::<f64>().unwrap()).collect();
-                    assert_eq!(cells.len(), columns, "{}", path.display());
+                    let raw: Vec<&str> = line.split(',').collect();
+                    assert_eq!(raw.len(), columns, "{}", path.display());
+                    let mut cells = Vec::new();
+                    for (h, c) in header.iter().zip(&raw) {
+                        if named(h) {
+                            assert!(
+                                !c.is_empty()
+                                    && c.chars().all(|ch| ch.is_ascii_lowercase() || ch == '_'),
+                                "{}: {h} = {c:?}",
+                                path.display()
+                            );
+                        } else {
+                            cells.push(c.parse::<f64>().unwrap());
+                        }
+                    }
                     assert!(
                         cells.iter().all(|v| v.is_finite()),
                         "{}: {line}",
@@ -206,8 +224,8 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
             _ => {}
         }
     }
-    assert!(csv_count >= 12, "{csv_count} CSV files");
-    assert!(svg_count >= 13, "{svg_count} SVG files");
+    assert!(csv_count >= 16, "{csv_count} CSV files");
+    assert!(svg_count >= 21, "{svg_count} SVG files");
 
     // The runtime's hyperelastic constants against the pipeline's own refit.
     let text = std::fs::read_to_string(out.join("hyperelastic_fit.json")).unwrap();

@@ -15,6 +15,7 @@
 //!
 //! # Layout
 //! - [`rd`]: δ → R_d tables (§3.3.2).
+//! - [`surface`]: the surface the viewer draws against the FEM's top surface, on the R_d runs.
 //! - [`force`]: force against depth (§4.3), the hyperelastic fit, the speed-accuracy table.
 //! - [`curvature`]: balls against the block (§3.2, eq. 6), with the curvature-corrected models.
 //! - [`inclination`]: tilted tools (§3.2, eq. 7), with the inclination-corrected cone.
@@ -26,6 +27,7 @@ pub mod force;
 pub mod inclination;
 pub mod limits;
 pub mod rd;
+pub mod surface;
 pub mod verification;
 
 pub use curvature::{CurvatureStudy, curvature, curvature_runs};
@@ -51,7 +53,7 @@ use softhaptic_proto::{Material, ToolShape};
 use crate::element::{Constitutive, LawKind};
 use crate::indenter::{Indenter, IndenterShape};
 use crate::mesh::{self, BallSpec, BlockSpec, Symmetry, TetMesh};
-use crate::solver::{ContactModel, SolveError, SolverOptions, deformed_radius_m};
+use crate::solver::{ContactModel, SolveError, SolverOptions, SurfacePoint, deformed_radius_m};
 
 pub(crate) const MM: f64 = 1e-3;
 
@@ -167,6 +169,9 @@ pub struct IndentationRun {
     pub deformed_radius_m: Vec<f64>,
     /// Surface profile (reference radius, depression) at the last step.
     pub final_profile_m: Vec<(f64, f64)>,
+    /// Top-surface motion along the profile line at each step (what the drawn surface is
+    /// measured against).
+    pub surfaces: Vec<Vec<SurfacePoint>>,
     /// Wall time of each load step's solve.
     pub step_seconds: Vec<f64>,
     pub newton_iterations: Vec<usize>,
@@ -292,13 +297,20 @@ pub fn run_indentation(
     let shape = spec.indenter;
     let tilt_rad = spec.tilt_rad;
     let mut deformed = Vec::with_capacity(spec.depths_m.len());
+    let mut surfaces = Vec::with_capacity(spec.depths_m.len());
     let mut step_seconds = Vec::with_capacity(spec.depths_m.len());
     let mut clock = Instant::now();
     let place = move |d: f64| placed_indenter(shape, d, tilt_rad);
     let eqs = model
         .follow(&place, 0.0, &spec.depths_m, |_, _, _, m| {
             step_seconds.push(clock.elapsed().as_secs_f64());
-            deformed.push(deformed_radius_m(&m.surface_profile(), RD_THRESHOLD_M));
+            let surface = m.surface_motion();
+            let profile: Vec<(f64, f64)> = surface
+                .iter()
+                .map(|p| (p.radius_m, p.depression_m))
+                .collect();
+            deformed.push(deformed_radius_m(&profile, RD_THRESHOLD_M));
+            surfaces.push(surface);
             pb.inc(1);
             clock = Instant::now();
         })
@@ -317,6 +329,7 @@ pub fn run_indentation(
         forces_n: eqs.iter().map(|e| e.force_on_tool_n).collect(),
         deformed_radius_m: deformed,
         final_profile_m: model.surface_profile(),
+        surfaces,
         step_seconds,
         newton_iterations: eqs.iter().map(|e| e.iterations).collect(),
         locked_nodes: eqs.iter().map(|e| e.locked_nodes).collect(),

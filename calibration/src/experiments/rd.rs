@@ -4,6 +4,7 @@ use serde::Serialize;
 use softhaptic_proto::calibration::CalibrationRow;
 use softhaptic_proto::{CalibrationSource, CalibrationTable, Material, ToolShape};
 
+use super::surface::{SurfaceComparison, compare_runs};
 use super::{
     ExperimentError, IndentationRun, MM, Mode, RD_BLOCK_M, RD_BREAKPOINT_M, RD_THRESHOLD_M,
     Resolution, RunCache, RunSpec, block_body, depths, paper_tools_10mm, spec, tool_description,
@@ -21,7 +22,18 @@ pub struct RdStudy {
     pub half_space_m: Vec<f64>,
     /// The tables written for the scenes (one per material).
     pub tables: Vec<(String, CalibrationTable)>,
+    /// The surface the viewer draws with the table against each run's top surface, at every
+    /// depth up to δ = R.
+    pub surface: Vec<SurfaceComparison>,
 }
+
+/// The formulations of the R_d study: the neo-Hookean one writes the tables; the two linear
+/// ones show what the choice of formulation does to R_d and to the surface's shape.
+pub const RD_LAWS: [LawKind; 3] = [
+    LawKind::LinearDeformedContact,
+    LawKind::LinearSmallDeformation,
+    LawKind::NeoHookean,
+];
 
 /// Mesh and depths of the R_d study (also the block of the curvature study).
 pub fn rd_setup(mode: Mode) -> (Resolution, Vec<f64>) {
@@ -61,20 +73,22 @@ pub fn rd_run(mode: Mode, name: &str, tool: &ToolShape, law: LawKind) -> RunSpec
     )
 }
 
-/// The FEM runs of the R_d study: sphere and cone of radius 10 mm, linear and neo-Hookean.
+/// The FEM runs of the R_d study: sphere and cone of radius 10 mm, each formulation of
+/// [`RD_LAWS`].
 pub fn rd_runs(mode: Mode) -> Vec<RunSpec> {
     let mut out = Vec::new();
     for (name, tool) in paper_tools_10mm() {
-        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+        for law in RD_LAWS {
             out.push(rd_run(mode, name, &tool, law));
         }
     }
     out
 }
 
-/// The R_d calibration for the paper's sphere and cone (R = 10 mm, 45°), linear and
-/// neo-Hookean; the tables come from the neo-Hookean run (large strain: the depth reaches the
-/// tool radius).
+/// The R_d calibration for the paper's sphere and cone (R = 10 mm, 45°), both linear
+/// formulations and neo-Hookean; the tables come from the neo-Hookean run (large strain: the
+/// depth reaches the tool radius). The surface the viewer draws with each table is then measured
+/// against every run's top surface.
 ///
 /// With the displacement imposed and no body force, the static solution of either law depends
 /// on E only through the stress scale: the displacement field, hence R_d, is the same for 50 kPa
@@ -84,7 +98,7 @@ pub fn rd_table(mode: Mode, cache: &RunCache) -> Result<Vec<RdStudy>, Experiment
     let mut studies = Vec::new();
     for (name, tool) in paper_tools_10mm() {
         let mut runs = Vec::new();
-        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+        for law in RD_LAWS {
             runs.push(
                 cache
                     .get("rd-table", &rd_run(mode, name, &tool, law))?
@@ -144,12 +158,21 @@ pub fn rd_table(mode: Mode, cache: &RunCache) -> Result<Vec<RdStudy>, Experiment
                 tables.push((file, table));
             }
         }
+        // Both materials' tables hold the same rows (the solution does not depend on E), so the
+        // first one stands for what the viewer draws.
+        let surface = match tables.first() {
+            Some((_, table)) => {
+                compare_runs(&tool, &runs, RD_BLOCK_M[2], |d| table.deformed_radius_m(d))
+            }
+            None => Vec::new(),
+        };
         studies.push(RdStudy {
             tool_name: name.to_owned(),
             tool,
             runs,
             half_space_m,
             tables,
+            surface,
         });
     }
     Ok(studies)

@@ -1,0 +1,388 @@
+//! The surface the viewer draws, held against the FEM's top surface.
+//!
+//! The viewer deforms its mesh with the paper's profile (proto's [`DeformationProfile`]: the
+//! tool's shape inside the contact radius a, a quadratic Bézier from a to R_d, nothing beyond),
+//! with a from the runtime's contact law and R_d from the calibration table. The R_d runs already
+//! hold the FEM's top surface at every depth, so this module measures the drawn depression
+//! against the FEM's at the same undeformed radius, and does the same for the analytical
+//! alternatives: the elastic half-space's surface (Johnson's for the sphere, Sneddon's for the
+//! cone) and that surface with its far field cut by the rigid base
+//! ([`half_space_on_base_depression_m`]).
+//!
+//! The errors are read at the FEM's profile nodes (where the FEM's answer is known without
+//! interpolation), from the axis to the block's side face; the RMS integrates the squared error
+//! over that line with the trapezoidal rule, so the graded mesh does not weight the contact zone
+//! more than the far field.
+
+use serde::Serialize;
+use softhaptic_device::law;
+use softhaptic_proto::ToolShape;
+use softhaptic_proto::calibration::{half_space_depression_m, half_space_on_base_depression_m};
+use softhaptic_proto::deformation::DeformationProfile;
+
+use super::IndentationRun;
+use crate::element::LawKind;
+use crate::solver::SurfacePoint;
+
+/// A surface profile the viewer could draw.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DrawnProfile {
+    /// The paper's profile as the viewer draws it today (proto's reference implementation).
+    Paper,
+    /// The elastic half-space's surface: Johnson's Hertz profile (sphere), Sneddon's (cone).
+    HalfSpace,
+    /// The half-space's surface with its far field removed by the rigid base.
+    HalfSpaceOnBase,
+}
+
+impl DrawnProfile {
+    /// Every profile the comparison scores, the drawn one first.
+    pub const ALL: [DrawnProfile; 3] = [
+        DrawnProfile::Paper,
+        DrawnProfile::HalfSpace,
+        DrawnProfile::HalfSpaceOnBase,
+    ];
+
+    /// Short name for files and tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            DrawnProfile::Paper => "paper",
+            DrawnProfile::HalfSpace => "half_space",
+            DrawnProfile::HalfSpaceOnBase => "half_space_on_base",
+        }
+    }
+
+    /// Name for the report, with the source of the formula for `tool`.
+    pub fn title(self, tool: &ToolShape) -> &'static str {
+        match (self, tool) {
+            (DrawnProfile::Paper, _) => "paper's Bézier",
+            (DrawnProfile::HalfSpace, ToolShape::Sphere { .. }) => "Johnson (half-space)",
+            (DrawnProfile::HalfSpace, ToolShape::Cone { .. }) => "Sneddon (half-space)",
+            (DrawnProfile::HalfSpaceOnBase, _) => "half-space on base",
+        }
+    }
+}
+
+/// Every drawn profile of one contact, ready to evaluate at any radius.
+#[derive(Debug, Clone, Copy)]
+pub struct DrawnSurface {
+    tool: ToolShape,
+    depth_m: f64,
+    thickness_m: f64,
+    bezier: DeformationProfile,
+}
+
+impl DrawnSurface {
+    /// The profiles of `tool` pressed `depth_m` into a layer `thickness_m` thick, the paper's
+    /// drawn with the runtime's contact radius and the table's `deformed_radius_m`.
+    pub fn new(tool: &ToolShape, depth_m: f64, deformed_radius_m: f64, thickness_m: f64) -> Self {
+        DrawnSurface {
+            tool: *tool,
+            depth_m,
+            thickness_m,
+            bezier: DeformationProfile::new(
+                tool,
+                depth_m,
+                law::contact_radius_m(tool, depth_m),
+                deformed_radius_m,
+            ),
+        }
+    }
+
+    /// Depression of `profile` at radius `r_m` from the contact axis.
+    pub fn depression_m(&self, profile: DrawnProfile, r_m: f64) -> f64 {
+        match profile {
+            DrawnProfile::Paper => self.bezier.depression_m(r_m),
+            DrawnProfile::HalfSpace => half_space_depression_m(&self.tool, self.depth_m, r_m),
+            DrawnProfile::HalfSpaceOnBase => {
+                half_space_on_base_depression_m(&self.tool, self.depth_m, r_m, self.thickness_m)
+            }
+        }
+    }
+}
+
+/// Where along the surface a radius lies, relative to the drawn contact radius a and R_d.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SurfaceRegion {
+    /// r < a: under the tool.
+    Contact,
+    /// a ≤ r < R_d: the Bézier's flank.
+    Flank,
+    /// r ≥ R_d: where the paper's profile draws nothing.
+    Tail,
+}
+
+impl SurfaceRegion {
+    fn of(r_m: f64, contact_radius_m: f64, deformed_radius_m: f64) -> Self {
+        if r_m < contact_radius_m {
+            SurfaceRegion::Contact
+        } else if r_m < deformed_radius_m {
+            SurfaceRegion::Flank
+        } else {
+            SurfaceRegion::Tail
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            SurfaceRegion::Contact => "contact",
+            SurfaceRegion::Flank => "flank",
+            SurfaceRegion::Tail => "tail",
+        }
+    }
+}
+
+/// One drawn profile against the FEM surface at one depth. Errors are drawn − FEM: negative
+/// where the drawn surface is too shallow.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ProfileError {
+    pub profile: DrawnProfile,
+    /// The error of largest magnitude over the profile nodes, signed.
+    pub worst_error_m: f64,
+    /// Undeformed radius of that node.
+    pub worst_error_radius_m: f64,
+    pub worst_error_region: SurfaceRegion,
+    /// Root mean square of the error along the line from the axis to the block's side.
+    pub rms_error_m: f64,
+    /// The profile's depression at r = 2a.
+    pub depression_at_twice_contact_m: f64,
+    /// The profile's depression at r = R_d / 2.
+    pub depression_at_half_deformed_m: f64,
+}
+
+impl ProfileError {
+    /// Magnitude of the worst error.
+    pub fn max_error_m(&self) -> f64 {
+        self.worst_error_m.abs()
+    }
+}
+
+/// Every drawn profile against one FEM run's surface at one depth.
+#[derive(Debug, Clone, Serialize)]
+pub struct SurfaceComparison {
+    pub law: LawKind,
+    pub depth_m: f64,
+    /// The runtime's contact radius, as the viewer draws it.
+    pub contact_radius_m: f64,
+    /// R_d the viewer draws with (the calibration table's fit at this depth).
+    pub deformed_radius_m: f64,
+    /// R_d measured on this run's own surface.
+    pub fem_deformed_radius_m: f64,
+    pub fem_depression_at_twice_contact_m: f64,
+    pub fem_depression_at_half_deformed_m: f64,
+    /// How far the FEM surface at the drawn contact edge (undeformed r = a) moved towards the
+    /// axis; the drawn vertices do not move sideways at all.
+    pub fem_inward_motion_at_contact_edge_m: f64,
+    /// One entry per profile of [`DrawnProfile::ALL`], in that order.
+    pub profiles: Vec<ProfileError>,
+}
+
+impl SurfaceComparison {
+    /// The entry of `profile`.
+    pub fn error(&self, profile: DrawnProfile) -> Option<&ProfileError> {
+        self.profiles.iter().find(|p| p.profile == profile)
+    }
+}
+
+/// A field of the FEM surface at radius `r_m`, linearly interpolated between the profile nodes
+/// (held at the end values outside them); NaN for an empty surface.
+pub fn surface_value_at(
+    surface: &[SurfacePoint],
+    r_m: f64,
+    field: fn(&SurfacePoint) -> f64,
+) -> f64 {
+    let (Some(first), Some(last)) = (surface.first(), surface.last()) else {
+        return f64::NAN;
+    };
+    if r_m <= first.radius_m {
+        return field(first);
+    }
+    if r_m >= last.radius_m {
+        return field(last);
+    }
+    let k = surface.partition_point(|p| p.radius_m <= r_m);
+    let (p0, p1) = (&surface[k - 1], &surface[k]);
+    let span = p1.radius_m - p0.radius_m;
+    if span <= 0.0 {
+        return field(p0);
+    }
+    let t = (r_m - p0.radius_m) / span;
+    field(p0) + t * (field(p1) - field(p0))
+}
+
+/// Compares every drawn profile with the FEM's `surface` of a run with `law` at `depth_m`, the
+/// paper's drawn with `deformed_radius_m`, on a block `thickness_m` deep.
+pub fn compare_surface(
+    tool: &ToolShape,
+    law: LawKind,
+    depth_m: f64,
+    deformed_radius_m: f64,
+    thickness_m: f64,
+    surface: &[SurfacePoint],
+) -> SurfaceComparison {
+    let drawn = DrawnSurface::new(tool, depth_m, deformed_radius_m, thickness_m);
+    let a = law::contact_radius_m(tool, depth_m);
+    let depression = |p: &SurfacePoint| p.depression_m;
+    let profile: Vec<(f64, f64)> = surface
+        .iter()
+        .map(|p| (p.radius_m, p.depression_m))
+        .collect();
+    let profiles = DrawnProfile::ALL
+        .iter()
+        .map(|&kind| {
+            let errors: Vec<(f64, f64)> = surface
+                .iter()
+                .map(|p| {
+                    (
+                        p.radius_m,
+                        drawn.depression_m(kind, p.radius_m) - p.depression_m,
+                    )
+                })
+                .collect();
+            let (worst_error_radius_m, worst_error_m) = errors
+                .iter()
+                .copied()
+                .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()))
+                .unwrap_or((f64::NAN, f64::NAN));
+            ProfileError {
+                profile: kind,
+                worst_error_m,
+                worst_error_radius_m,
+                worst_error_region: SurfaceRegion::of(worst_error_radius_m, a, deformed_radius_m),
+                rms_error_m: rms_along(&errors),
+                depression_at_twice_contact_m: drawn.depression_m(kind, 2.0 * a),
+                depression_at_half_deformed_m: drawn.depression_m(kind, 0.5 * deformed_radius_m),
+            }
+        })
+        .collect();
+    SurfaceComparison {
+        law,
+        depth_m,
+        contact_radius_m: a,
+        deformed_radius_m,
+        fem_deformed_radius_m: crate::solver::deformed_radius_m(&profile, super::RD_THRESHOLD_M),
+        fem_depression_at_twice_contact_m: surface_value_at(surface, 2.0 * a, depression),
+        fem_depression_at_half_deformed_m: surface_value_at(
+            surface,
+            0.5 * deformed_radius_m,
+            depression,
+        ),
+        fem_inward_motion_at_contact_edge_m: -surface_value_at(surface, a, |p| {
+            p.radial_displacement_m
+        }),
+        profiles,
+    }
+}
+
+/// √(∫ e² dr / L) over the sampled line (r, e), trapezoidal; the single value for one sample.
+fn rms_along(errors: &[(f64, f64)]) -> f64 {
+    match errors {
+        [] => f64::NAN,
+        [(_, e)] => e.abs(),
+        _ => {
+            let mut integral = 0.0;
+            for w in errors.windows(2) {
+                let ((r0, e0), (r1, e1)) = (w[0], w[1]);
+                integral += 0.5 * (e0 * e0 + e1 * e1) * (r1 - r0);
+            }
+            let length = errors[errors.len() - 1].0 - errors[0].0;
+            if length > 0.0 {
+                (integral / length).sqrt()
+            } else {
+                errors.iter().map(|(_, e)| e.abs()).fold(0.0, f64::max)
+            }
+        }
+    }
+}
+
+/// The comparisons of every run at each of its depths up to δ = R (the tool's radius: the
+/// paper's sphere is then buried to its equator, and the Bézier's flank has vanished), the
+/// paper's profile drawn with `deformed_radius_m(δ)`.
+pub fn compare_runs(
+    tool: &ToolShape,
+    runs: &[IndentationRun],
+    thickness_m: f64,
+    deformed_radius_m: impl Fn(f64) -> f64,
+) -> Vec<SurfaceComparison> {
+    let mut out = Vec::new();
+    for run in runs {
+        for (&depth_m, surface) in run.depths_m.iter().zip(&run.surfaces) {
+            if depth_m > tool.radius_m() * (1.0 + 1e-9) {
+                continue;
+            }
+            out.push(compare_surface(
+                tool,
+                run.law,
+                depth_m,
+                deformed_radius_m(depth_m),
+                thickness_m,
+                surface,
+            ));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+
+    const MM: f64 = 1e-3;
+
+    fn point(radius_m: f64, depression_m: f64) -> SurfacePoint {
+        SurfacePoint {
+            radius_m,
+            depression_m,
+            radial_displacement_m: -0.1 * depression_m,
+        }
+    }
+
+    #[test]
+    fn interpolation_is_linear_between_nodes_and_held_outside() {
+        let s = [point(0.0, 2.0), point(1.0, 1.0), point(3.0, 0.0)];
+        let z = |p: &SurfacePoint| p.depression_m;
+        assert_eq!(surface_value_at(&s, -1.0, z), 2.0);
+        assert_eq!(surface_value_at(&s, 0.5, z), 1.5);
+        assert_eq!(surface_value_at(&s, 1.0, z), 1.0);
+        assert_eq!(surface_value_at(&s, 2.0, z), 0.5);
+        assert_eq!(surface_value_at(&s, 9.0, z), 0.0);
+        assert!(surface_value_at(&[], 1.0, z).is_nan());
+    }
+
+    #[test]
+    fn rms_weights_by_length_not_by_node_count() {
+        // Dense nodes near the axis with a large error do not dominate a long quiet tail.
+        let e = [(0.0, 1.0), (0.01, 1.0), (0.02, 0.0), (1.0, 0.0)];
+        let rms = rms_along(&e);
+        let expected = ((0.01 + 0.5 * 0.01) / 1.0_f64).sqrt();
+        assert!((rms - expected).abs() < 1e-12, "{rms} vs {expected}");
+    }
+
+    #[test]
+    fn a_surface_equal_to_the_half_space_scores_zero_for_it() {
+        let tool = ToolShape::Sphere { radius_m: 0.01 };
+        let d = 4.0 * MM;
+        let surface: Vec<SurfacePoint> = (0..=100)
+            .map(|k| {
+                let r = 0.5 * MM * k as f64;
+                point(r, half_space_depression_m(&tool, d, r))
+            })
+            .collect();
+        let c = compare_surface(&tool, LawKind::NeoHookean, d, 15.0 * MM, 0.05, &surface);
+        let hs = c.error(DrawnProfile::HalfSpace).unwrap();
+        assert!(hs.max_error_m() < 1e-15 && hs.rms_error_m < 1e-15);
+        // The Bézier ends at R_d where Johnson's surface is still sunk, and lies below it on the
+        // flank: too shallow there.
+        let paper = c.error(DrawnProfile::Paper).unwrap();
+        assert!(paper.worst_error_m < -0.1 * MM, "{paper:?}");
+        assert_ne!(paper.worst_error_region, SurfaceRegion::Contact);
+        // Johnson at r = a is δ/2 for the sphere, and the drawn contact edge is the same a.
+        assert!((c.contact_radius_m - (0.01 * d).sqrt()).abs() < 1e-15);
+        let at_a = surface_value_at(&surface, c.contact_radius_m, |p| p.depression_m);
+        assert!((at_a - 0.5 * d).abs() < 0.02 * MM);
+        assert!((c.fem_inward_motion_at_contact_edge_m - 0.1 * at_a).abs() < 1e-6);
+    }
+}

@@ -1,0 +1,115 @@
+//! The drawn surface against the FEM surface, on a coarse mesh of the paper's calibration block
+//! (100 × 100 × 50 mm, bottom clamped) under the 10 mm sphere: the paper's Bézier, drawn with
+//! the committed scene table's R_d, is too shallow on its flank by about 0.6 mm at δ = 4 mm,
+//! while Johnson's half-space profile is within about 0.25 mm (issue 17's measurement).
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use softhaptic_calibration::element::LawKind;
+use softhaptic_calibration::experiments::surface::{
+    DrawnProfile, SurfaceComparison, SurfaceRegion, compare_runs,
+};
+use softhaptic_calibration::experiments::{
+    RD_BLOCK_M, Resolution, RunCache, block_body, paper_tools_10mm, spec,
+};
+use softhaptic_calibration::mesh::Symmetry;
+use softhaptic_proto::CalibrationTable;
+
+const MM: f64 = 1e-3;
+
+fn scene_table() -> CalibrationTable {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../scenes/calibration/sphere10_50kpa.json"
+    );
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+/// The sphere's comparisons at δ = 2 and 4 mm for each law, on 6 mm cells (the quick mode's).
+fn sphere_comparisons(laws: &[LawKind]) -> Vec<SurfaceComparison> {
+    let [(name, sphere), _] = paper_tools_10mm();
+    let res = Resolution {
+        name: "test",
+        fine_cell_m: 6.0 * MM,
+        coarse_cells: 2,
+    };
+    let depths = [2.0 * MM, 4.0 * MM];
+    let body = block_body(RD_BLOCK_M, &sphere, 4.0 * MM, 0.0, res, Symmetry::Quarter);
+    let specs: Vec<_> = laws
+        .iter()
+        .map(|&law| {
+            spec(
+                format!("{name} {}", law.name()),
+                body,
+                &sphere,
+                law,
+                res,
+                &depths,
+                0.0,
+            )
+        })
+        .collect();
+    let mut cache = RunCache::new(2);
+    cache.ensure(&specs).unwrap();
+    let runs: Vec<_> = specs
+        .iter()
+        .map(|s| cache.get("test", s).unwrap().clone())
+        .collect();
+    let table = scene_table();
+    compare_runs(&sphere, &runs, RD_BLOCK_M[2], |d| {
+        table.deformed_radius_m(d)
+    })
+}
+
+#[test]
+fn bezier_is_too_shallow_and_johnson_is_closer_at_4_mm() {
+    let comparisons = sphere_comparisons(&[LawKind::LinearSmallDeformation, LawKind::NeoHookean]);
+    assert_eq!(comparisons.len(), 4);
+    for c in comparisons
+        .iter()
+        .filter(|c| (c.depth_m - 4.0 * MM).abs() < 1e-9)
+    {
+        let law = c.law.name();
+        let paper = c.error(DrawnProfile::Paper).unwrap();
+        let johnson = c.error(DrawnProfile::HalfSpace).unwrap();
+        // The Bézier lies below the FEM surface on its flank (issue 17: about 0.6 mm).
+        assert!(
+            paper.worst_error_m < -0.4 * MM && paper.worst_error_m > -0.9 * MM,
+            "{law}: Bézier {paper:?}"
+        );
+        assert_eq!(paper.worst_error_region, SurfaceRegion::Flank, "{law}");
+        // Johnson's surface is closer (issue 17: about 0.24 mm), and too deep: no rigid base.
+        assert!(
+            johnson.max_error_m() > 0.1 * MM && johnson.max_error_m() < 0.35 * MM,
+            "{law}: Johnson {johnson:?}"
+        );
+        assert!(johnson.worst_error_m > 0.0, "{law}: Johnson {johnson:?}");
+        assert!(paper.max_error_m() > 2.0 * johnson.max_error_m(), "{law}");
+        assert!(paper.rms_error_m > johnson.rms_error_m, "{law}");
+        // At r = 2a the FEM surface is still sunk by well over the drawn one.
+        let paper_at_2a = paper.depression_at_twice_contact_m;
+        assert!(
+            c.fem_depression_at_twice_contact_m > paper_at_2a + 0.4 * MM,
+            "{law}: FEM {} m, Bézier {paper_at_2a} m at 2a",
+            c.fem_depression_at_twice_contact_m
+        );
+        // The table's R_d is the FEM's own within a mesh cell's interpolation.
+        assert!(
+            (c.fem_deformed_radius_m - c.deformed_radius_m).abs() < 3.0 * MM,
+            "{law}: R_d FEM {} m, table {} m",
+            c.fem_deformed_radius_m,
+            c.deformed_radius_m
+        );
+    }
+    // The surface at the contact edge moves towards the axis under the small-deformation
+    // formulation, where contact pushes along the axis only (0.1–1.2 mm in issue 17).
+    let small = comparisons
+        .iter()
+        .find(|c| c.law == LawKind::LinearSmallDeformation && (c.depth_m - 4.0 * MM).abs() < 1e-9)
+        .unwrap();
+    assert!(
+        small.fem_inward_motion_at_contact_edge_m > 0.1 * MM
+            && small.fem_inward_motion_at_contact_edge_m < 0.8 * MM,
+        "{small:?}"
+    );
+}
