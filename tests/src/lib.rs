@@ -31,6 +31,26 @@ use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::http::HeaderValue;
 
+/// The instructor's and the observer's tokens of [`test_tokens`].
+pub const INSTRUCTOR_TOKEN: &str = "1f0e2d3c4b5a69788796a5b4c3d2e1f0";
+pub const OBSERVER_TOKEN: &str = "00112233445566778899aabbccddeeff";
+
+/// Fixed tokens for the two roles, as a lab that keeps stable links sets them.
+pub fn test_tokens() -> std::sync::Arc<softhaptic_server::access::Tokens> {
+    use softhaptic_proto::wire::Role;
+    use softhaptic_server::access::{Token, TokenSource, Tokens};
+    let token =
+        |t: &str, role| Token::parse(t, role).unwrap_or_else(|e| panic!("a test token: {e}"));
+    std::sync::Arc::new(
+        Tokens::new(
+            token(INSTRUCTOR_TOKEN, Role::Instructor),
+            token(OBSERVER_TOKEN, Role::Observer),
+            TokenSource::Environment,
+        )
+        .unwrap_or_else(|e| panic!("the test tokens: {e}")),
+    )
+}
+
 /// The server options every test starts from: port 0, no real-time request (tests share the
 /// machine), the source tree's web directory.
 pub fn test_options() -> ServerOptions {

@@ -7,11 +7,9 @@
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::collections::BTreeMap;
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use softhaptic_proto::wire::{ContactFrame, Role, ServerMessage};
-use softhaptic_server::access::{Token, TokenSource, Tokens};
 use softhaptic_server::app::{self, RunningServer, default_web_dir};
 use softhaptic_server::lab::NatsOptions;
 use softhaptic_server::lab::hub::{self, HubOptions, RunningHub};
@@ -20,8 +18,7 @@ use softhaptic_server::scene::Scene;
 use softhaptic_tests::nats::NatsServer;
 use softhaptic_tests::{Viewer, scratch_dir, test_options};
 
-const I: &str = "1f0e2d3c4b5a69788796a5b4c3d2e1f0";
-const O: &str = "00112233445566778899aabbccddeeff";
+const O: &str = softhaptic_tests::OBSERVER_TOKEN;
 
 fn nats(url: String, credentials: Option<std::path::PathBuf>) -> NatsOptions {
     NatsOptions { url, credentials }
@@ -42,14 +39,7 @@ async fn station(
 async fn hub(options: NatsOptions, tokens: bool) -> RunningHub {
     let mut access = softhaptic_server::access::AccessConfig::default();
     if tokens {
-        access.tokens = Some(Arc::new(
-            Tokens::new(
-                Token::parse(I, Role::Instructor).unwrap(),
-                Token::parse(O, Role::Observer).unwrap(),
-                TokenSource::Environment,
-            )
-            .unwrap(),
-        ));
+        access.tokens = Some(softhaptic_tests::test_tokens());
     }
     hub::start(HubOptions {
         nats: options,

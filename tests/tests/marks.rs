@@ -4,13 +4,12 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use futures_util::StreamExt;
 use softhaptic_proto::record::ReplayStatus;
-use softhaptic_proto::wire::{MarkMessage, Role, ServerMessage};
-use softhaptic_server::access::{AccessConfig, Token, TokenSource, Tokens};
+use softhaptic_proto::wire::{MarkMessage, ServerMessage};
+use softhaptic_server::access::AccessConfig;
 use softhaptic_server::app::{self, default_web_dir};
 use softhaptic_server::scene::Scene;
 use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
@@ -20,19 +19,8 @@ use softhaptic_server::stream::{REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, View
 use softhaptic_tests::{Viewer, scratch_dir, test_options};
 use tokio_tungstenite::tungstenite::Message;
 
-const I: &str = "1f0e2d3c4b5a69788796a5b4c3d2e1f0";
-const O: &str = "00112233445566778899aabbccddeeff";
-
-fn tokens() -> Arc<Tokens> {
-    Arc::new(
-        Tokens::new(
-            Token::parse(I, Role::Instructor).unwrap(),
-            Token::parse(O, Role::Observer).unwrap(),
-            TokenSource::Environment,
-        )
-        .unwrap(),
-    )
-}
+const I: &str = softhaptic_tests::INSTRUCTOR_TOKEN;
+const O: &str = softhaptic_tests::OBSERVER_TOKEN;
 
 /// The next message of `kind` (raw text), skipping frames and stats.
 async fn next_of(viewer: &mut Viewer, kind: &str) -> String {
@@ -72,7 +60,7 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     };
     let mut recording = LiveRecording::start(&args, &scene, None).unwrap().unwrap();
     let mut options = test_options();
-    options.access.tokens = Some(tokens());
+    options.access.tokens = Some(softhaptic_tests::test_tokens());
     options.tick_sink = recording.take_tick_sink();
     options.session_id = Some(recording.session_id().to_owned());
     let server = app::start(scene, options).await.unwrap();
