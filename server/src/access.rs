@@ -601,6 +601,21 @@ impl AccessConfig {
         let link = |t: &Token| format!("{base_url}#token={}", t.expose_secret());
         Some((link(tokens.instructor()), link(tokens.observer())))
     }
+
+    /// Prints on stdout (never in a log: the token is in the link) the links to open for a server
+    /// at `url` bound to `addr`: one per role when there are tokens, `{label}: URL` otherwise;
+    /// `labels` are the instructor's and the observer's.
+    pub fn print_links(&mut self, url: &str, addr: SocketAddr, labels: [&str; 2]) {
+        self.secure_transport = url.starts_with("https:");
+        let base = self.public_base(url, addr);
+        match self.links(&base) {
+            Some((instructor, observer)) => {
+                println!("{}: {instructor}", labels[0]);
+                println!("{}: {observer}", labels[1]);
+            }
+            None => println!("{}: {base}", labels[0]),
+        }
+    }
 }
 
 /// The access options of `softhaptic run` and `softhaptic replay`.

@@ -232,15 +232,11 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
         })
         .await?;
         let mut access = access;
-        access.secure_transport = hub.viewer_url().starts_with("https:");
-        let base = access.public_base(&hub.viewer_url(), hub.local_addr());
-        match access.links(&base) {
-            Some((instructor, observer)) => {
-                println!("hub instructor: {instructor}");
-                println!("hub observer: {observer}");
-            }
-            None => println!("hub viewer: {base}"),
-        }
+        access.print_links(
+            &hub.viewer_url(),
+            hub.local_addr(),
+            ["hub viewer", "hub observer"],
+        );
         let signal = app::shutdown_signal()
             .await
             .context("could not listen for the stop signals")?;
@@ -351,15 +347,11 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         };
         // The token is in the fragment, which no request carries; printed on stdout only.
         let mut access = access;
-        access.secure_transport = server.viewer_url().starts_with("https:");
-        let base = access.public_base(&server.viewer_url(), server.local_addr());
-        match access.links(&base) {
-            Some((instructor, observer)) => {
-                println!("viewer: {instructor}");
-                println!("observer: {observer}");
-            }
-            None => println!("viewer: {base}"),
-        }
+        access.print_links(
+            &server.viewer_url(),
+            server.local_addr(),
+            ["viewer", "observer"],
+        );
         let signal = app::shutdown_signal()
             .await
             .context("could not listen for the stop signals")?;

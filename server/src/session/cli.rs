@@ -205,15 +205,11 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
                 let replay = replay::start(recording, options).await?;
                 // The token is in the fragment, which no request carries; stdout only.
                 let mut access = access;
-                access.secure_transport = replay.viewer_url().starts_with("https:");
-                let base = access.public_base(&replay.viewer_url(), replay.local_addr());
-                match access.links(&base) {
-                    Some((instructor, observer)) => {
-                        println!("replay: {instructor}");
-                        println!("observer: {observer}");
-                    }
-                    None => println!("replay: {base}"),
-                }
+                access.print_links(
+                    &replay.viewer_url(),
+                    replay.local_addr(),
+                    ["replay", "observer"],
+                );
                 crate::app::shutdown_signal()
                     .await
                     .context("could not listen for the stop signals")?;
