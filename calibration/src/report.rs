@@ -434,8 +434,10 @@ fn surface_section(dir: &Path, studies: &[RdStudy], md: &mut String) -> Result<(
          rigid base 50 mm down (`half_space_on_base_depression_m`). Errors are drawn − FEM at \
          the FEM's profile nodes from the axis to the block's side (negative: drawn too \
          shallow); \"max\" is the one of largest magnitude, with its undeformed radius and \
-         region (contact r < a, flank a ≤ r < R_d, tail r ≥ R_d); the RMS is taken along the \
-         line. The depressions at 2a and ½R_d are FEM / paper / half-space. \"Inward\" is how \
+         region (contact r < a, flank a ≤ r < R_d, tail r ≥ R_d), then the largest at r ≥ a: \
+         inside the contact every profile follows the tool, so an error there is the FEM node's \
+         slide under the tool (compared at its undeformed radius) or the mesh's, the same for \
+         every profile. The RMS is taken along the line. The depressions at 2a and ½R_d are FEM / paper / half-space. \"Inward\" is how \
          far the FEM surface at undeformed r = a moved towards the axis, which no profile drawn \
          along −n reproduces.\n"
     );
@@ -456,12 +458,16 @@ fn surface_section(dir: &Path, studies: &[RdStudy], md: &mut String) -> Result<(
             let _ = writeln!(md, "FEM {}:\n", law.name());
             let _ = write!(md, "| δ (mm) | a (mm) | R_d (mm) |");
             for p in DrawnProfile::ALL {
-                let _ = write!(md, " {} max (mm) at r (mm) | RMS (mm) |", p.title(&s.tool));
+                let _ = write!(
+                    md,
+                    " {} max (mm) at r (mm) | max r ≥ a (mm) | RMS (mm) |",
+                    p.title(&s.tool)
+                );
             }
             let _ = writeln!(md, " at 2a (mm) | at ½R_d (mm) | inward at a (mm) |");
             let _ = write!(md, "|---|---|---|");
             for _ in DrawnProfile::ALL {
-                let _ = write!(md, "---|---|");
+                let _ = write!(md, "---|---|---|");
             }
             let _ = writeln!(md, "---|---|---|");
             for c in s.surface.iter().filter(|c| c.law == law) {
@@ -475,10 +481,11 @@ fn surface_section(dir: &Path, studies: &[RdStudy], md: &mut String) -> Result<(
                 for e in &c.profiles {
                     let _ = write!(
                         md,
-                        " {:+.2} at {:.1} ({}) | {:.3} |",
+                        " {:+.2} at {:.1} ({}) | {:+.2} | {:.3} |",
                         e.worst_error_m / MM,
                         e.worst_error_radius_m / MM,
                         e.worst_error_region.name(),
+                        e.worst_error_outside_contact_m / MM,
                         e.rms_error_m / MM
                     );
                 }
@@ -544,6 +551,7 @@ fn surface_csv(dir: &Path, s: &RdStudy) -> Result<(), ReportError> {
             "worst_error_mm",
             "worst_error_radius_mm",
             "worst_error_region",
+            "worst_error_outside_contact_mm",
             "rms_error_mm",
             "depression_at_2a_mm",
             "depression_at_half_rd_mm",
@@ -571,6 +579,7 @@ fn surface_csv(dir: &Path, s: &RdStudy) -> Result<(), ReportError> {
             cells.push(format!("{:.6e}", e.worst_error_m / MM));
             cells.push(format!("{:.6e}", e.worst_error_radius_m / MM));
             cells.push(e.worst_error_region.name().to_owned());
+            cells.push(format!("{:.6e}", e.worst_error_outside_contact_m / MM));
             cells.push(format!("{:.6e}", e.rms_error_m / MM));
             cells.push(format!("{:.6e}", e.depression_at_twice_contact_m / MM));
             cells.push(format!("{:.6e}", e.depression_at_half_deformed_m / MM));

@@ -78,6 +78,10 @@ fn bezier_is_too_shallow_and_johnson_is_closer_at_4_mm() {
             "{law}: Bézier {paper:?}"
         );
         assert_eq!(paper.worst_error_region, SurfaceRegion::Flank, "{law}");
+        assert_eq!(
+            paper.worst_error_outside_contact_m, paper.worst_error_m,
+            "{law}"
+        );
         // Johnson's surface is closer (issue 17: about 0.24 mm), and too deep: no rigid base.
         assert!(
             johnson.max_error_m() > 0.1 * MM && johnson.max_error_m() < 0.35 * MM,

@@ -144,6 +144,10 @@ pub struct ProfileError {
     /// Undeformed radius of that node.
     pub worst_error_radius_m: f64,
     pub worst_error_region: SurfaceRegion,
+    /// The error of largest magnitude at r ≥ a, signed. Inside the contact every profile follows
+    /// the tool, so there the error is the FEM node's sideways slide under the tool (or the
+    /// mesh's resolution of it), the same for every profile; outside it the profiles differ.
+    pub worst_error_outside_contact_m: f64,
     /// Root mean square of the error along the line from the axis to the block's side.
     pub rms_error_m: f64,
     /// The profile's depression at r = 2a.
@@ -241,16 +245,21 @@ pub fn compare_surface(
                     )
                 })
                 .collect();
-            let (worst_error_radius_m, worst_error_m) = errors
-                .iter()
-                .copied()
-                .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()))
-                .unwrap_or((f64::NAN, f64::NAN));
+            let worst = |from_m: f64| {
+                errors
+                    .iter()
+                    .copied()
+                    .filter(|&(r, _)| r >= from_m)
+                    .max_by(|x, y| x.1.abs().total_cmp(&y.1.abs()))
+                    .unwrap_or((f64::NAN, f64::NAN))
+            };
+            let (worst_error_radius_m, worst_error_m) = worst(0.0);
             ProfileError {
                 profile: kind,
                 worst_error_m,
                 worst_error_radius_m,
                 worst_error_region: SurfaceRegion::of(worst_error_radius_m, a, deformed_radius_m),
+                worst_error_outside_contact_m: worst(a).1,
                 rms_error_m: rms_along(&errors),
                 depression_at_twice_contact_m: drawn.depression_m(kind, 2.0 * a),
                 depression_at_half_deformed_m: drawn.depression_m(kind, 0.5 * deformed_radius_m),
@@ -374,11 +383,13 @@ mod tests {
         let c = compare_surface(&tool, LawKind::NeoHookean, d, 15.0 * MM, 0.05, &surface);
         let hs = c.error(DrawnProfile::HalfSpace).unwrap();
         assert!(hs.max_error_m() < 1e-15 && hs.rms_error_m < 1e-15);
+        assert!(hs.worst_error_outside_contact_m.abs() < 1e-15);
         // The Bézier ends at R_d where Johnson's surface is still sunk, and lies below it on the
         // flank: too shallow there.
         let paper = c.error(DrawnProfile::Paper).unwrap();
         assert!(paper.worst_error_m < -0.1 * MM, "{paper:?}");
         assert_ne!(paper.worst_error_region, SurfaceRegion::Contact);
+        assert_eq!(paper.worst_error_outside_contact_m, paper.worst_error_m);
         // Johnson at r = a is δ/2 for the sphere, and the drawn contact edge is the same a.
         assert!((c.contact_radius_m - (0.01 * d).sqrt()).abs() < 1e-15);
         let at_a = surface_value_at(&surface, c.contact_radius_m, |p| p.depression_m);
