@@ -64,6 +64,10 @@ export class StationList {
     this.currentArchive = currentArchive;
     /** The archived recordings the hub listed: `{station, file, bytes, digest}`. */
     this.archive = [];
+    /** Each station's element and its parts, kept across refreshes, by name. */
+    this.items = new Map();
+    /** The "no station" line, when there is none. */
+    this.empty = null;
     this.now = now;
     /** Whether the server is a hub (it answered `/api/stations`); null before it answered. */
     this.isHub = null;
@@ -88,47 +92,74 @@ export class StationList {
     return true;
   }
 
+  /**
+   * Draws the list, keeping each station's element from one refresh to the next (only its words
+   * and classes change), so a link under the pointer is never replaced while it is clicked.
+   */
   #draw() {
     const doc = this.list.ownerDocument;
     this.panel.hidden = false;
     const now = this.now();
+    const seen = new Set();
     const items = this.stations.map((s) => {
-      const item = doc.createElement('li');
-      item.className = `station ${s.state}${s.name === this.current ? ' current' : ''}`;
-      item.dataset.station = s.name;
-      const link = doc.createElement('a');
-      link.href = withStation('', s.name);
-      link.textContent = s.name;
-      const what = doc.createElement('span');
-      what.className = 'small muted';
-      what.textContent = ` ${describeStation(s, now)}`;
-      item.append(link, what);
-      const recordings = this.archive.filter((a) => a.station === s.name);
-      if (recordings.length > 0) {
-        const archived = doc.createElement('ul');
-        archived.className = 'archived';
-        archived.append(
-          ...recordings.map((a) => {
-            const entry = doc.createElement('li');
-            entry.dataset.archive = a.file;
-            if (s.name === this.current && a.file === this.currentArchive) entry.className = 'current';
-            const replay = doc.createElement('a');
-            replay.href = withStation('', s.name, a.file);
-            replay.textContent = `replay ${a.file}`;
-            entry.append(replay);
-            return entry;
-          }),
-        );
-        item.append(archived);
+      seen.add(s.name);
+      let entry = this.items.get(s.name);
+      if (!entry) {
+        const item = doc.createElement('li');
+        item.dataset.station = s.name;
+        const link = doc.createElement('a');
+        link.href = withStation('', s.name);
+        link.textContent = s.name;
+        const what = doc.createElement('span');
+        what.className = 'small muted';
+        item.append(link, what);
+        entry = { item, what, archiveKey: '', archived: null };
+        this.items.set(s.name, entry);
       }
-      return item;
+      const className = `station ${s.state}${s.name === this.current ? ' current' : ''}`;
+      if (entry.item.className !== className) entry.item.className = className;
+      const text = ` ${describeStation(s, now)}`;
+      if (entry.what.textContent !== text) entry.what.textContent = text;
+      const recordings = this.archive.filter((a) => a.station === s.name);
+      const archiveKey = recordings.map((a) => a.file).join('\n');
+      if (archiveKey !== entry.archiveKey) {
+        entry.archiveKey = archiveKey;
+        entry.archived?.remove();
+        entry.archived = null;
+        if (recordings.length > 0) {
+          const archived = doc.createElement('ul');
+          archived.className = 'archived';
+          archived.append(
+            ...recordings.map((a) => {
+              const li = doc.createElement('li');
+              li.dataset.archive = a.file;
+              if (s.name === this.current && a.file === this.currentArchive) li.className = 'current';
+              const replay = doc.createElement('a');
+              replay.href = withStation('', s.name, a.file);
+              replay.textContent = `replay ${a.file}`;
+              li.append(replay);
+              return li;
+            }),
+          );
+          entry.item.append(archived);
+          entry.archived = archived;
+        }
+      }
+      return entry.item;
     });
-    if (items.length === 0) {
-      const none = doc.createElement('li');
-      none.className = 'muted';
-      none.textContent = 'no station has published yet';
-      items.push(none);
+    for (const name of [...this.items.keys()]) {
+      if (!seen.has(name)) this.items.delete(name);
     }
-    this.list.replaceChildren(...items);
+    if (items.length === 0) {
+      this.empty ??= doc.createElement('li');
+      this.empty.className = 'muted';
+      this.empty.textContent = 'no station has published yet';
+      items.push(this.empty);
+    }
+    // Only when the stations or their order changed: moving an element detaches it for a moment.
+    const current = [...this.list.children];
+    if (current.length !== items.length || current.some((el, i) => el !== items[i])) {
+      this.list.replaceChildren(...items);
+    }
   }
 }

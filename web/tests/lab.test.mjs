@@ -127,3 +127,34 @@ test('a station is not a hub and draws nothing', async () => {
   assert.equal(panel.hidden, true);
   assert.equal(list.children.length, 0);
 });
+
+test("a refresh keeps each station's element, so a link is never replaced under the pointer", async () => {
+  const panel = new FakeNode('section');
+  const list = new FakeNode('ul');
+  const station = (since) => ({
+    name: 'desk-1',
+    state: 'live',
+    since_unix_ms: since,
+    scene: 'liver',
+    viewers: 0,
+    hub_viewers: 0,
+  });
+  const answers = [
+    { hub: true, stations: [station(0)] },
+    { hub: true, stations: [station(0)] },
+  ];
+  const stations = new StationList({
+    panel,
+    list,
+    current: null,
+    now: () => 5000,
+    fetchJson: async (url) => (url === '/api/archive' ? { archive: [] } : answers.shift()),
+  });
+  await stations.refresh();
+  const first = list.children[0];
+  const link = first.children[0];
+  await stations.refresh();
+  assert.equal(list.children[0], first);
+  assert.equal(list.children[0].children[0], link);
+  assert.equal(first.children[1].textContent, ' live for 5 s · liver · 0 viewers');
+});
