@@ -1,17 +1,27 @@
-//! The reference deformation profile the viewer draws (paper §3.3), exactly as proto/WIRE.md
-//! ("Deformation profile") defines it.
+//! The deformation profiles the viewer draws, exactly as proto/WIRE.md ("Deformation profile")
+//! defines them. A scene chooses one ([`RenderProfile`]).
 //!
-//! Around the contact axis (the line through the contact point along the outward normal), a
-//! render vertex at radial distance r is moved along −n by the depression z(r):
+//! `paper`, the paper's profile (§3.3), [`DeformationProfile`]: around the contact axis (the line
+//! through the contact point along the outward normal), a render vertex at radial distance r is
+//! moved along −n by the depression z(r):
 //! - r < a: on the tool surface (the paper's region Π);
 //! - a ≤ r < R_d: on the quadratic Bézier cross-section P0 = (a, z0), P1 = (r1, 0), P2 = (R_d, 0),
 //!   where P1 is where the tool's tangent at P0 meets the undeformed surface (region Ū);
 //! - r ≥ R_d: unchanged.
 //!
-//! The viewer (web/src) implements the same function in JavaScript; the shared vectors in
-//! `proto/vectors/deformation.json`, written from this code, keep the two identical. Every
-//! degenerate input (zero depth, R_d inside the contact, a contact wider than the tool, a vertical
-//! or horizontal tool tangent, NaN) has a defined, continuous answer.
+//! `fem`, the FEM's own top surface, [`SurfaceFamily`]: the calibration tabulates the depression
+//! of its block's surface against the radius at each depth of the table, and the viewer
+//! interpolates between the two nearest depths after scaling each row to the depth drawn the
+//! way the elastic contact itself scales (depression ∝ δ, radius ∝ the contact radius). The
+//! paper's Bézier is too shallow everywhere outside the contact and drops the tail beyond R_d
+//! (calibration report, "The drawn surface against the FEM surface"); this profile follows the
+//! FEM surface at every depth it was calibrated for.
+//!
+//! The viewer (web/src) implements the same functions in JavaScript; the shared vectors in
+//! `proto/vectors/deformation.json` and `proto/vectors/surface_profile.json`, written from this
+//! code, keep the two identical. Every degenerate input (zero depth, R_d inside the contact, a
+//! contact wider than the tool, a vertical or horizontal tool tangent, NaN) has a defined,
+//! continuous answer.
 
 use serde::{Deserialize, Serialize};
 
@@ -175,6 +185,315 @@ pub fn depression_m(
     DeformationProfile::new(tool, depth_m, contact_radius_m, deformed_radius_m).depression_m(r_m)
 }
 
+/// Which cross-section the viewer draws: a scene's `[render] profile`, carried to the viewer by
+/// the `scene` message's `render_profile` (proto/WIRE.md). The profile changes only what is
+/// drawn, never the force.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RenderProfile {
+    /// The paper's Bézier (§3.3), [`DeformationProfile`]. The default for a message or a
+    /// recording that does not name one: every viewer before the choice existed drew it.
+    #[default]
+    Paper,
+    /// The FEM's top surface as the calibration tabulated it ([`SurfaceFamily`], carried in the
+    /// scene's calibration table).
+    Fem,
+}
+
+impl RenderProfile {
+    /// The name a scene file and the wire use.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RenderProfile::Paper => "paper",
+            RenderProfile::Fem => "fem",
+        }
+    }
+}
+
+/// Why a [`SurfaceFamily`] was refused: the field (with the row and sample index where there is
+/// one) and the value.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SurfaceFamilyError {
+    #[error("radius_exponent must be finite and in (0, 2], got {0}")]
+    RadiusExponent(f64),
+    #[error("radius_step_m must be finite and > 0, got {0}")]
+    RadiusStep(f64),
+    #[error("rows must not be empty")]
+    NoRows,
+    #[error("rows[{index}].depth_m must be finite and > 0, got {value}")]
+    RowDepth { index: usize, value: f64 },
+    #[error(
+        "rows[{index}].depth_m = {value} is not greater than the row before it ({previous_value}): rows must be in increasing depth"
+    )]
+    RowsNotIncreasing {
+        index: usize,
+        value: f64,
+        previous_value: f64,
+    },
+    #[error("rows[{index}].depression_m must hold at least 2 samples, got {len}")]
+    TooFewSamples { index: usize, len: usize },
+    #[error("rows[{row}].depression_m[{index}] must be finite and >= 0, got {value}")]
+    Sample {
+        row: usize,
+        index: usize,
+        value: f64,
+    },
+    #[error(
+        "rows[{row}].depression_m must end at 0 (the surface beyond the table is unmoved), its last sample is {value}"
+    )]
+    OpenEnd { row: usize, value: f64 },
+}
+
+/// One depth of a [`SurfaceFamily`]: the surface's depression at the radii 0, Δ, 2Δ, … from the
+/// contact axis (Δ the family's `radius_step_m`), the last sample 0.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurfaceRow {
+    pub depth_m: f64,
+    pub depression_m: Vec<f64>,
+}
+
+/// The `fem` render profile: the depression of an object's surface against the distance from
+/// the contact axis, tabulated at a set of depths (the calibration's, from its FEM), and how to
+/// draw any depth from them (proto/WIRE.md, "Deformation profile", `fem`).
+///
+/// Between two rows the drawn depression blends the two rows, each first scaled to the depth
+/// drawn as an elastic contact scales: depression in proportion to δ, radius in proportion to
+/// δ^p (p = `radius_exponent`: ½ for a sphere, whose contact radius is √(Rδ), 1 for a cone).
+/// On a half-space that scaling is exact, so the blend only has to carry what the finite block
+/// and the large strains change from one row to the next; below the first row and beyond the
+/// last the nearest row is scaled alone.
+///
+/// Every `SurfaceFamily` in the program has been validated (deserialising runs the same checks
+/// as [`SurfaceFamily::new`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "SurfaceFamilyFields", into = "SurfaceFamilyFields")]
+pub struct SurfaceFamily {
+    radius_exponent: f64,
+    radius_step_m: f64,
+    rows: Vec<SurfaceRow>,
+}
+
+/// The JSON layout, checked on the way in.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SurfaceFamilyFields {
+    radius_exponent: f64,
+    radius_step_m: f64,
+    rows: Vec<SurfaceRow>,
+}
+
+impl TryFrom<SurfaceFamilyFields> for SurfaceFamily {
+    type Error = SurfaceFamilyError;
+    fn try_from(f: SurfaceFamilyFields) -> Result<Self, Self::Error> {
+        SurfaceFamily::new(f.radius_exponent, f.radius_step_m, f.rows)
+    }
+}
+
+impl From<SurfaceFamily> for SurfaceFamilyFields {
+    fn from(f: SurfaceFamily) -> Self {
+        SurfaceFamilyFields {
+            radius_exponent: f.radius_exponent,
+            radius_step_m: f.radius_step_m,
+            rows: f.rows,
+        }
+    }
+}
+
+impl SurfaceFamily {
+    /// A family from its rows, checked: exponent in (0, 2], step finite > 0, rows non-empty in
+    /// increasing depth, each with at least 2 finite non-negative samples ending at 0 (so the
+    /// drawn surface meets the unmoved one without a step).
+    pub fn new(
+        radius_exponent: f64,
+        radius_step_m: f64,
+        rows: Vec<SurfaceRow>,
+    ) -> Result<Self, SurfaceFamilyError> {
+        if !(radius_exponent.is_finite() && radius_exponent > 0.0 && radius_exponent <= 2.0) {
+            return Err(SurfaceFamilyError::RadiusExponent(radius_exponent));
+        }
+        if !(radius_step_m.is_finite() && radius_step_m > 0.0) {
+            return Err(SurfaceFamilyError::RadiusStep(radius_step_m));
+        }
+        if rows.is_empty() {
+            return Err(SurfaceFamilyError::NoRows);
+        }
+        for (index, row) in rows.iter().enumerate() {
+            if !(row.depth_m.is_finite() && row.depth_m > 0.0) {
+                return Err(SurfaceFamilyError::RowDepth {
+                    index,
+                    value: row.depth_m,
+                });
+            }
+            if index > 0 && row.depth_m <= rows[index - 1].depth_m {
+                return Err(SurfaceFamilyError::RowsNotIncreasing {
+                    index,
+                    value: row.depth_m,
+                    previous_value: rows[index - 1].depth_m,
+                });
+            }
+            if row.depression_m.len() < 2 {
+                return Err(SurfaceFamilyError::TooFewSamples {
+                    index,
+                    len: row.depression_m.len(),
+                });
+            }
+            if let Some((i, &value)) = row
+                .depression_m
+                .iter()
+                .enumerate()
+                .find(|(_, z)| !(z.is_finite() && **z >= 0.0))
+            {
+                return Err(SurfaceFamilyError::Sample {
+                    row: index,
+                    index: i,
+                    value,
+                });
+            }
+            if let Some(&last) = row.depression_m.last()
+                && last != 0.0
+            {
+                return Err(SurfaceFamilyError::OpenEnd {
+                    row: index,
+                    value: last,
+                });
+            }
+        }
+        Ok(SurfaceFamily {
+            radius_exponent,
+            radius_step_m,
+            rows,
+        })
+    }
+
+    pub fn radius_exponent(&self) -> f64 {
+        self.radius_exponent
+    }
+
+    pub fn radius_step_m(&self) -> f64 {
+        self.radius_step_m
+    }
+
+    pub fn rows(&self) -> &[SurfaceRow] {
+        &self.rows
+    }
+
+    /// The profile at indentation `depth_m`, ready to evaluate at any radius (proto/WIRE.md,
+    /// `fem`, steps 1–2). A non-finite or non-positive depth draws nothing.
+    pub fn at_depth(&self, depth_m: f64) -> SurfaceProfile<'_> {
+        let d = sanitise(depth_m);
+        let mut p = SurfaceProfile {
+            family: self,
+            depth_m: d,
+            terms: [SurfaceTerm::NONE; 2],
+            reach_m: 0.0,
+        };
+        if d == 0.0 {
+            return p;
+        }
+        let last = self.rows.len() - 1;
+        // The rows to blend and their weights: the nearest alone outside the table's depths.
+        let (k, w) = if d <= self.rows[0].depth_m {
+            (0, 0.0)
+        } else if d >= self.rows[last].depth_m {
+            (last, 0.0)
+        } else {
+            let k = self.rows.partition_point(|row| row.depth_m <= d) - 1;
+            let (d0, d1) = (self.rows[k].depth_m, self.rows[k + 1].depth_m);
+            (k, (d - d0) / (d1 - d0))
+        };
+        p.terms[0] = self.term(k, 1.0 - w, d);
+        if w > 0.0 {
+            p.terms[1] = self.term(k + 1, w, d);
+        }
+        p.reach_m = p.terms.iter().map(|t| t.reach_m).fold(0.0, f64::max);
+        p
+    }
+
+    /// Row `index` scaled to depth `d` with blend `weight`.
+    fn term(&self, index: usize, weight: f64, d: f64) -> SurfaceTerm {
+        let row = &self.rows[index];
+        // r at depth d corresponds to r (δ_k / d)^p on row k; in units of the sample spacing.
+        let index_per_m = (row.depth_m / d).powf(self.radius_exponent) / self.radius_step_m;
+        let samples = row.depression_m.len();
+        SurfaceTerm {
+            row: index,
+            amplitude: weight * d / row.depth_m,
+            index_per_m,
+            reach_m: (samples - 1) as f64 / index_per_m,
+        }
+    }
+}
+
+/// One scaled row of a [`SurfaceProfile`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SurfaceTerm {
+    row: usize,
+    /// Blend weight × δ / δ_k: what the row's depression is multiplied by.
+    amplitude: f64,
+    /// Sample index per metre of radius at the drawn depth: (δ_k / δ)^p / Δ.
+    index_per_m: f64,
+    /// Beyond this radius the row is 0.
+    reach_m: f64,
+}
+
+impl SurfaceTerm {
+    const NONE: SurfaceTerm = SurfaceTerm {
+        row: 0,
+        amplitude: 0.0,
+        index_per_m: 0.0,
+        reach_m: 0.0,
+    };
+}
+
+/// A [`SurfaceFamily`] at one depth, prepared once per frame and evaluated per vertex.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceProfile<'a> {
+    family: &'a SurfaceFamily,
+    depth_m: f64,
+    terms: [SurfaceTerm; 2],
+    reach_m: f64,
+}
+
+impl SurfaceProfile<'_> {
+    /// The sanitised indentation δ.
+    pub fn depth_m(&self) -> f64 {
+        self.depth_m
+    }
+
+    /// No vertex at or beyond this radius moves.
+    pub fn reach_m(&self) -> f64 {
+        self.reach_m
+    }
+
+    /// The depression z(r), 0 ≤ z ≤ δ, at radial distance `r_m` from the contact axis
+    /// (proto/WIRE.md, `fem`, step 3).
+    pub fn depression_m(&self, r_m: f64) -> f64 {
+        if self.depth_m == 0.0 {
+            return 0.0;
+        }
+        let r = sanitise(r_m);
+        let mut z = 0.0;
+        for term in &self.terms {
+            if term.amplitude == 0.0 {
+                continue;
+            }
+            let samples = &self.family.rows[term.row].depression_m;
+            let u = r * term.index_per_m;
+            // Past the last sample (which is 0) the row is 0. u is finite: r is sanitised and
+            // the scale is finite for a depth > 0.
+            if u >= (samples.len() - 1) as f64 {
+                continue;
+            }
+            let j = u.floor();
+            let f = u - j;
+            let j = j as usize;
+            z += term.amplitude * (samples[j] + f * (samples[j + 1] - samples[j]));
+        }
+        z.clamp(0.0, self.depth_m)
+    }
+}
+
 /// One entry of `proto/vectors/deformation.json`: inputs and the expected depression.
 ///
 /// JSON has no NaN or infinity, so non-finite inputs are written as the strings `"NaN"`,
@@ -307,6 +626,111 @@ pub fn deformation_vectors() -> Vec<DeformationVector> {
         }
     }
     out
+}
+
+/// `proto/vectors/surface_profile.json`: families of the `fem` profile and what they draw.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceProfileVectors {
+    pub families: Vec<SurfaceFamily>,
+    pub cases: Vec<SurfaceProfileVector>,
+}
+
+/// One case of [`SurfaceProfileVectors`]: family `family` drawn at `depth_m`, evaluated at
+/// `r_m`. Non-finite inputs are written as in [`DeformationVector`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceProfileVector {
+    pub family: usize,
+    #[serde(with = "number_or_name")]
+    pub depth_m: f64,
+    #[serde(with = "number_or_name")]
+    pub r_m: f64,
+    pub depression_m: f64,
+    pub reach_m: f64,
+}
+
+/// The shared vectors of the `fem` profile: a sphere's family (radius ∝ √δ) and a cone's
+/// (radius ∝ δ), each drawn below its first row, on a row, between rows, beyond its last row,
+/// and at no, negative and non-finite depths, at radii across the profile, at its reach, past
+/// it, and negative or non-finite.
+pub fn surface_profile_vectors() -> SurfaceProfileVectors {
+    const MM: f64 = 1e-3;
+    // Rows sampled from the half-space surface on a 50 mm base, cut where it falls below 10 µm.
+    let family = |tool: ToolShape, exponent: f64, step_m: f64, depths_mm: &[f64]| {
+        let rows = depths_mm
+            .iter()
+            .map(|&d_mm| {
+                let d = d_mm * MM;
+                let mut depression_m: Vec<f64> = (0..)
+                    .map(|k| {
+                        crate::calibration::half_space_on_base_depression_m(
+                            &tool,
+                            d,
+                            k as f64 * step_m,
+                            0.05,
+                        )
+                    })
+                    .take_while(|&z| z >= 0.01 * MM)
+                    .collect();
+                depression_m.push(0.0);
+                SurfaceRow {
+                    depth_m: d,
+                    depression_m,
+                }
+            })
+            .collect();
+        SurfaceFamily::new(exponent, step_m, rows)
+    };
+    let sphere = ToolShape::Sphere {
+        radius_m: 10.0 * MM,
+    };
+    let cone = ToolShape::Cone {
+        half_angle_rad: std::f64::consts::FRAC_PI_4,
+        radius_m: 10.0 * MM,
+    };
+    let families: Vec<SurfaceFamily> = [
+        family(sphere, 0.5, 0.5 * MM, &[1.0, 2.0, 4.0, 8.0]),
+        family(cone, 1.0, 0.25 * MM, &[1.0, 3.0]),
+    ]
+    .into_iter()
+    .filter_map(Result::ok)
+    .collect();
+    let mut cases = Vec::new();
+    for (index, f) in families.iter().enumerate() {
+        let first = f.rows()[0].depth_m;
+        let last = f.rows()[f.rows().len() - 1].depth_m;
+        let depths = [
+            0.3 * first,
+            first,
+            0.5 * (first + f.rows()[1].depth_m),
+            f.rows()[1].depth_m,
+            0.8 * last + 0.2 * f.rows()[f.rows().len() - 2].depth_m,
+            last,
+            1.5 * last,
+            0.0,
+            -MM,
+            f64::NAN,
+            f64::INFINITY,
+        ];
+        for depth_m in depths {
+            let p = f.at_depth(depth_m);
+            let reach = p.reach_m();
+            let mut radii: Vec<f64> = [0.0, 0.01, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 0.99]
+                .iter()
+                .map(|x| x * reach)
+                .collect();
+            radii.extend([reach, 1.2 * reach + MM, -MM, f64::NAN, f64::INFINITY]);
+            for r_m in radii {
+                cases.push(SurfaceProfileVector {
+                    family: index,
+                    depth_m,
+                    r_m,
+                    depression_m: p.depression_m(r_m),
+                    reach_m: reach,
+                });
+            }
+        }
+    }
+    SurfaceProfileVectors { families, cases }
 }
 
 #[cfg(test)]
@@ -573,6 +997,164 @@ mod tests {
                 let z = p.depression_m(p.deformed_radius_eff_m() * k as f64 / 450.0);
                 prop_assert!(z <= prev + 1e-15);
                 prev = z;
+            }
+        }
+    }
+
+    /// A family whose rows are exactly self-similar: z/δ = g(r / √δ) with g a cone-like ramp.
+    fn similar_family() -> SurfaceFamily {
+        let step = 0.5 * MM;
+        let rows = [1.0 * MM, 4.0 * MM]
+            .iter()
+            .map(|&d| {
+                // g falls from 1 at the axis to 0 at r = 10 mm × √(δ / 1 mm).
+                let r_end = 10.0 * MM * (d / MM).sqrt();
+                let n = (r_end / step).round() as usize;
+                SurfaceRow {
+                    depth_m: d,
+                    depression_m: (0..=n).map(|k| d * (1.0 - k as f64 / n as f64)).collect(),
+                }
+            })
+            .collect();
+        SurfaceFamily::new(0.5, step, rows).unwrap()
+    }
+
+    #[test]
+    fn fem_profile_reproduces_its_rows_at_their_depths() {
+        let f = similar_family();
+        for row in f.rows() {
+            let p = f.at_depth(row.depth_m);
+            for (k, &z) in row.depression_m.iter().enumerate() {
+                let r = k as f64 * f.radius_step_m();
+                assert!(
+                    (p.depression_m(r) - z).abs() < 1e-15,
+                    "row δ = {}, k = {k}",
+                    row.depth_m
+                );
+            }
+            // Halfway between samples: the linear interpolation.
+            let r = 2.5 * f.radius_step_m();
+            let expected = 0.5 * (row.depression_m[2] + row.depression_m[3]);
+            assert!((p.depression_m(r) - expected).abs() < 1e-15);
+            assert_eq!(
+                p.reach_m(),
+                (row.depression_m.len() - 1) as f64 * f.radius_step_m()
+            );
+        }
+    }
+
+    #[test]
+    fn fem_profile_scales_like_the_elastic_contact_between_and_beyond_its_rows() {
+        // Rows that are exactly self-similar are reproduced at every depth: the blend of two
+        // rows each scaled to δ is the scaled shape itself.
+        let f = similar_family();
+        for d_mm in [0.25, 1.0, 2.0, 3.3, 4.0, 9.0] {
+            let d = d_mm * MM;
+            let p = f.at_depth(d);
+            let r_end = 10.0 * MM * d_mm.sqrt();
+            assert!((p.reach_m() - r_end).abs() < 1e-12, "δ = {d_mm} mm");
+            for k in 0..=40 {
+                let r = r_end * k as f64 / 40.0;
+                let expected = d * (1.0 - r / r_end);
+                assert!(
+                    (p.depression_m(r) - expected).abs() < 1e-12,
+                    "δ = {d_mm} mm, r = {r}: {} vs {expected}",
+                    p.depression_m(r)
+                );
+            }
+            assert_eq!(p.depression_m(r_end * 1.01), 0.0);
+        }
+    }
+
+    #[test]
+    fn fem_profile_draws_nothing_for_no_depth_and_treats_bad_radii_as_the_axis() {
+        let f = similar_family();
+        for d in [0.0, -MM, f64::NAN, f64::INFINITY] {
+            let p = f.at_depth(d);
+            assert_eq!(p.depression_m(0.0), 0.0);
+            assert_eq!(p.reach_m(), 0.0);
+        }
+        let p = f.at_depth(2.0 * MM);
+        assert_eq!(p.depression_m(f64::NAN), p.depression_m(0.0));
+        assert_eq!(p.depression_m(-1.0), p.depression_m(0.0));
+        assert_eq!(p.depression_m(f64::INFINITY), p.depression_m(0.0));
+        assert_eq!(p.depression_m(p.reach_m()), 0.0);
+    }
+
+    #[test]
+    fn a_surface_family_is_refused_with_the_field_and_value() {
+        let row = |d: f64, z: Vec<f64>| SurfaceRow {
+            depth_m: d,
+            depression_m: z,
+        };
+        let ok = || {
+            vec![
+                row(MM, vec![MM, 0.0]),
+                row(2.0 * MM, vec![2.0 * MM, MM, 0.0]),
+            ]
+        };
+        assert!(SurfaceFamily::new(0.5, MM, ok()).is_ok());
+        let err = |e: f64, s: f64, rows| SurfaceFamily::new(e, s, rows).unwrap_err().to_string();
+        assert!(err(0.0, MM, ok()).contains("radius_exponent"));
+        assert!(err(0.5, f64::NAN, ok()).contains("radius_step_m"));
+        assert!(err(0.5, MM, vec![]).contains("rows must not be empty"));
+        let e = err(
+            0.5,
+            MM,
+            vec![row(MM, vec![MM, 0.0]), row(MM, vec![MM, 0.0])],
+        );
+        assert!(e.contains("rows[1].depth_m"), "{e}");
+        let e = err(0.5, MM, vec![row(MM, vec![MM])]);
+        assert!(e.contains("at least 2"), "{e}");
+        let e = err(0.5, MM, vec![row(MM, vec![MM, -1.0, 0.0])]);
+        assert!(
+            e.contains("rows[0].depression_m[1]") && e.contains("-1"),
+            "{e}"
+        );
+        let e = err(0.5, MM, vec![row(MM, vec![MM, 0.5 * MM])]);
+        assert!(e.contains("must end at 0"), "{e}");
+        // The same checks on the way in from JSON.
+        let text = r#"{"radius_exponent": 0.5, "radius_step_m": 0.001, "rows": [{"depth_m": 0.001, "depression_m": [0.001, 0.0005]}]}"#;
+        let e = serde_json::from_str::<SurfaceFamily>(text)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("must end at 0"), "{e}");
+    }
+
+    #[test]
+    fn surface_vectors_round_trip_and_match_the_code() {
+        let v = surface_profile_vectors();
+        assert_eq!(v.families.len(), 2);
+        assert!(v.cases.len() > 100);
+        assert!(v.cases.iter().any(|c| c.depth_m.is_nan()));
+        assert!(
+            v.cases
+                .iter()
+                .any(|c| c.depression_m > 0.0 && c.family == 1)
+        );
+        let text = serde_json::to_string(&v).unwrap();
+        let back: SurfaceProfileVectors = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.families, v.families);
+        for c in &back.cases {
+            let p = back.families[c.family].at_depth(c.depth_m);
+            assert_eq!(p.depression_m(c.r_m), c.depression_m);
+            assert_eq!(p.reach_m(), c.reach_m);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn fem_profile_is_bounded_and_continuous(d_mm in 0.0f64..12.0, r_mm in 0.0f64..60.0) {
+            let v = surface_profile_vectors();
+            for f in &v.families {
+                let z = |d: f64, r: f64| f.at_depth(d).depression_m(r);
+                let (d, r) = (d_mm * MM, r_mm * MM);
+                let here = z(d, r);
+                prop_assert!(here.is_finite() && here >= 0.0 && here <= d);
+                // Continuous in depth (across rows) and in radius (across samples and the reach).
+                let h = 1e-10;
+                prop_assert!((z(d + h, r) - here).abs() < 1e-6);
+                prop_assert!((z(d, r + h) - here).abs() < 1e-6);
             }
         }
     }

@@ -1067,9 +1067,11 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
 /// test of this crate so that the files cannot drift from the code.
 pub fn vector_files() -> Result<Vec<(&'static str, String)>, serde_json::Error> {
     let deformation = serde_json::to_string_pretty(&crate::deformation::deformation_vectors())?;
+    let surface = serde_json::to_string_pretty(&crate::deformation::surface_profile_vectors())?;
     let messages = serde_json::to_string_pretty(&message_vectors()?)?;
     Ok(vec![
         ("deformation.json", deformation + "\n"),
+        ("surface_profile.json", surface + "\n"),
         ("messages.json", messages + "\n"),
     ])
 }

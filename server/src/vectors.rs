@@ -78,7 +78,7 @@ mod tests {
             Err(VectorsError::Stale { .. })
         ));
         let files = write_or_check(&dir, false).unwrap();
-        assert_eq!(files.len(), 2);
+        assert_eq!(files.len(), 3);
         write_or_check(&dir, true).unwrap();
         std::fs::write(&files[0], "[]").unwrap();
         let err = write_or_check(&dir, true).unwrap_err();

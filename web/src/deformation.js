@@ -1,11 +1,14 @@
-// The Bézier deformation profile of the seed paper's §3.3 and its application to a render mesh.
+// The deformation profiles of proto/WIRE.md ("Deformation profile") and their application to a
+// render mesh: `paper`, the Bézier profile of the seed paper's §3.3, and `fem`, the FEM surface
+// the calibration tabulated (carried in the scene's calibration table as `surface`).
 //
-// `depression(...)` is the exact profile the wire contract defines (the Rust reference in
-// `proto` computes the same numbers; the shared vectors in proto/vectors/deformation.json keep the
-// two identical). `MeshDeformer` moves the vertices of a render mesh around a contact: it keeps a
-// uniform spatial grid over the rest positions so that a frame visits only the cells near the
-// contact, restores the vertices it moved the frame before, writes analytic normals for the moved
-// vertices, and allocates nothing after construction.
+// `depression(...)` and `surfaceDepression(...)` are the exact profiles the wire contract
+// defines (the Rust reference in `proto` computes the same numbers; the shared vectors in
+// proto/vectors/deformation.json and surface_profile.json keep the two identical).
+// `MeshDeformer` moves the vertices of a render mesh around a contact: it keeps a uniform spatial
+// grid over the rest positions so that a frame visits only the cells near the contact, restores
+// the vertices it moved the frame before, writes analytic normals for the moved vertices, and
+// allocates nothing after construction.
 
 /** Non-finite or negative inputs count as zero (profile step 1). */
 function sanitise(x) {
@@ -206,6 +209,133 @@ function evaluateAt(p, r, out) {
   return out;
 }
 
+// ----- the `fem` profile: the calibration's tabulated FEM surface -----
+
+/**
+ * The `fem` profile's family from the calibration table's `surface` object (proto
+ * `SurfaceFamily`): `{radius_exponent, radius_step_m, rows: [{depth_m, depression_m: [...]}]}`.
+ * Returns `{radiusExponent, radiusStepM, depths: Float64Array, rows: Float64Array[]}`, or throws
+ * naming the field, with the checks the Rust side makes (a server only sends valid ones).
+ */
+export function surfaceFamilyFromJson(json) {
+  if (json === null || typeof json !== 'object')
+    throw new Error(`surface must be an object, got ${JSON.stringify(json)}`);
+  const exponent = json.radius_exponent;
+  if (!(Number.isFinite(exponent) && exponent > 0 && exponent <= 2)) {
+    throw new Error(`surface.radius_exponent must be finite and in (0, 2], got ${JSON.stringify(exponent)}`);
+  }
+  const step = json.radius_step_m;
+  if (!(Number.isFinite(step) && step > 0)) {
+    throw new Error(`surface.radius_step_m must be finite and > 0, got ${JSON.stringify(step)}`);
+  }
+  if (!Array.isArray(json.rows) || json.rows.length === 0) throw new Error('surface.rows must not be empty');
+  const depths = new Float64Array(json.rows.length);
+  const rows = json.rows.map((row, i) => {
+    const d = row?.depth_m;
+    if (!(Number.isFinite(d) && d > 0) || (i > 0 && !(d > depths[i - 1]))) {
+      throw new Error(`surface.rows[${i}].depth_m must be finite, > 0 and increasing, got ${JSON.stringify(d)}`);
+    }
+    depths[i] = d;
+    const z = row.depression_m;
+    if (!Array.isArray(z) || z.length < 2 || z[z.length - 1] !== 0 || !z.every((x) => Number.isFinite(x) && x >= 0)) {
+      throw new Error(`surface.rows[${i}].depression_m must be ≥ 2 finite samples ≥ 0 ending at 0`);
+    }
+    return Float64Array.from(z);
+  });
+  return { radiusExponent: exponent, radiusStepM: step, depths, rows };
+}
+
+/** One scaled row of a prepared `fem` profile (see `surfaceSetup`). */
+function surfaceTerm(family, index, weight, d, term) {
+  const row = family.rows[index];
+  term.row = row;
+  term.amplitude = (weight * d) / family.depths[index];
+  term.indexPerM = Math.pow(family.depths[index] / d, family.radiusExponent) / family.radiusStepM;
+  term.reachM = (row.length - 1) / term.indexPerM;
+}
+
+/**
+ * The `fem` profile at indentation `depthM` (WIRE.md, steps 1–2): the one or two rows to
+ * blend, each with its amplitude (weight·δ/δ_k) and its samples per metre ((δ_k/δ)^p / Δ), and
+ * the reach beyond which nothing moves. Writes into `out`, allocating nothing once `out` has
+ * been used.
+ */
+export function surfaceSetup(family, depthM, out = {}) {
+  const d = sanitise(depthM);
+  out.depthM = d;
+  out.t0 ??= { row: null, amplitude: 0, indexPerM: 0, reachM: 0 };
+  out.t1 ??= { row: null, amplitude: 0, indexPerM: 0, reachM: 0 };
+  out.t0.amplitude = out.t1.amplitude = 0;
+  out.t0.reachM = out.t1.reachM = 0;
+  out.reachM = 0;
+  if (d === 0) return out;
+  const depths = family.depths;
+  const last = depths.length - 1;
+  let k, w;
+  if (d <= depths[0]) {
+    k = 0;
+    w = 0;
+  } else if (d >= depths[last]) {
+    k = last;
+    w = 0;
+  } else {
+    k = 0;
+    while (depths[k + 1] <= d) k++;
+    w = (d - depths[k]) / (depths[k + 1] - depths[k]);
+  }
+  surfaceTerm(family, k, 1 - w, d, out.t0);
+  if (w > 0) surfaceTerm(family, k + 1, w, d, out.t1);
+  out.reachM = Math.max(out.t0.reachM, out.t1.reachM);
+  return out;
+}
+
+/** One row's contribution at radius r ≥ 0: its interpolated sample times its amplitude. */
+function surfaceTermAt(t, r) {
+  if (t.amplitude === 0) return 0;
+  const z = t.row;
+  const u = r * t.indexPerM;
+  if (!(u < z.length - 1)) return 0;
+  const j = Math.floor(u);
+  const f = u - j;
+  return t.amplitude * (z[j] + f * (z[j + 1] - z[j]));
+}
+
+/** Depression z(r), 0 ≤ z ≤ δ, for a profile prepared by `surfaceSetup` (WIRE.md, step 3). */
+export function surfaceDepressionAt(p, rRaw) {
+  if (p.depthM === 0) return 0;
+  const r = sanitise(rRaw);
+  const z = surfaceTermAt(p.t0, r) + surfaceTermAt(p.t1, r);
+  return Math.min(Math.max(z, 0), p.depthM);
+}
+
+const scratchSurface = {};
+
+/** The `fem` profile's depression (m) at radial distance r for a family and a depth. */
+export function surfaceDepression(family, depthM, rM) {
+  return surfaceDepressionAt(surfaceSetup(family, depthM, scratchSurface), rM);
+}
+
+/** dz/dr of one row's contribution at r (the slope of the sample interval r falls in). */
+function surfaceTermSlope(t, r) {
+  if (t.amplitude === 0) return 0;
+  const z = t.row;
+  const u = r * t.indexPerM;
+  if (!(u < z.length - 1)) return 0;
+  const j = Math.floor(u);
+  return t.amplitude * t.indexPerM * (z[j + 1] - z[j]);
+}
+
+/**
+ * `evaluateAt` for the `fem` profile: out[0] = z(r), out[1], out[2] = the normal's axial and
+ * radial components, (1, dz/dr): perpendicular to the profile's tangent (1, −dz/dr).
+ */
+function evaluateSurfaceAt(p, r, out) {
+  out[0] = surfaceDepressionAt(p, r);
+  out[1] = 1;
+  out[2] = surfaceTermSlope(p.t0, r) + surfaceTermSlope(p.t1, r);
+  return out;
+}
+
 /**
  * Deforms one render mesh in its object frame. Built once per mesh; `apply` is called each
  * animation frame and allocates nothing.
@@ -292,6 +422,7 @@ export class MeshDeformer {
     this.stamp = new Uint32Array(n);
     this.frame = 0;
     this.profile = {};
+    this.surfaceProfile = surfaceSetup(null, 0, {});
     this.evaluation = new Float64Array(3);
     this.lastVisitedCells = 0;
   }
@@ -317,13 +448,15 @@ export class MeshDeformer {
    *
    * `contact`: `{inContact, depthM, contactRadiusM, deformedRadiusM, point: [x,y,z], normal:
    * [x,y,z]}` with point and normal already in the mesh's object frame; `tool` from
-   * `toolFromJson`. Vertices moved by the previous call are first restored to rest. A vertex v
-   * moves by −n·z(r) when r < R_d_eff and |(v − c)·n| ≤ R_d_eff (the far side never moves).
+   * `toolFromJson`; `surface` the `fem` profile's family (`surfaceFamilyFromJson`) to draw it,
+   * or null for the paper's Bézier. Vertices moved by the previous call are first restored to
+   * rest. A vertex v moves by −n·z(r) when r is inside the profile's reach (R_d_eff for the
+   * paper's) and |(v − c)·n| is too (the far side never moves).
    *
    * Returns the number of vertices written (moved or restored); their indices are
    * `this.touched[0 .. count]`, for partial normal or buffer updates.
    */
-  apply(positionsOut, normalsOut, contact, tool) {
+  apply(positionsOut, normalsOut, contact, tool, surface = null) {
     const rest = this.restPositions;
     const restN = this.restNormals;
     this.frame = (this.frame + 1) >>> 0;
@@ -349,7 +482,10 @@ export class MeshDeformer {
     this.lastVisitedCells = 0;
     if (!contact || !contact.inContact) return this.touchedCount;
 
-    const p = profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM, this.profile);
+    const fem = surface !== null;
+    const p = fem
+      ? surfaceSetup(surface, tool.valid ? contact.depthM : 0, this.surfaceProfile)
+      : profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM, this.profile);
     if (p.depthM === 0) return this.touchedCount;
     let nx = contact.normal[0],
       ny = contact.normal[1],
@@ -364,7 +500,7 @@ export class MeshDeformer {
       cz = contact.point[2];
     if (!(Number.isFinite(cx) && Number.isFinite(cy) && Number.isFinite(cz))) return this.touchedCount;
 
-    const reach = p.rdEff;
+    const reach = fem ? p.reachM : p.rdEff;
     const reach2 = reach * reach;
     // Every vertex that may move lies within √2·R_d_eff of c (r < R_d_eff and |axial| ≤ R_d_eff).
     const box = reach * Math.SQRT2;
@@ -403,7 +539,8 @@ export class MeshDeformer {
             const r2 = ex * ex + ey * ey + ez * ez;
             if (r2 >= reach2) continue;
             const r = Math.sqrt(r2);
-            evaluateAt(p, r, ev);
+            if (fem) evaluateSurfaceAt(p, r, ev);
+            else evaluateAt(p, r, ev);
             const z = ev[0];
             if (!(z > 0)) continue;
             positionsOut[j] = rest[j] - nx * z;

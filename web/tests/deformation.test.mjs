@@ -11,12 +11,17 @@ import {
   depression,
   depressionAt,
   profileSetup,
+  surfaceDepression,
+  surfaceDepressionAt,
+  surfaceFamilyFromJson,
+  surfaceSetup,
   toolFromJson,
   toolShape,
 } from '../src/deformation.js';
 import { flatGrid } from '../src/mesh.js';
 
 const VECTORS = fileURLToPath(new URL('../../proto/vectors/deformation.json', import.meta.url));
+const SURFACE_VECTORS = fileURLToPath(new URL('../../proto/vectors/surface_profile.json', import.meta.url));
 const MM = 1e-3;
 const sphere = toolFromJson({ shape: 'sphere', radius_m: 10 * MM });
 const cone = toolFromJson({ shape: 'cone', half_angle_rad: Math.PI / 4, radius_m: 10 * MM });
@@ -331,4 +336,77 @@ test('moved vertices get the normal of the deformed surface', () => {
     checked++;
   }
   assert.ok(checked > 100, `${checked} normals checked`);
+});
+
+// ----- the `fem` profile -----
+
+const surfaceVectors = JSON.parse(readFileSync(SURFACE_VECTORS, 'utf8'));
+const families = surfaceVectors.families.map(surfaceFamilyFromJson);
+
+test('the fem profile equals the Rust reference on every shared vector', () => {
+  assert.ok(surfaceVectors.cases.length > 100, 'the vector file holds the cases');
+  for (const [i, c] of surfaceVectors.cases.entries()) {
+    const p = surfaceSetup(families[c.family], num(c.depth_m));
+    close(p.reachM, c.reach_m, `case ${i} reach`);
+    close(surfaceDepressionAt(p, num(c.r_m)), c.depression_m, `case ${i} ${JSON.stringify(c)}`);
+  }
+});
+
+test('a malformed surface family is refused naming the field', () => {
+  const good = surfaceVectors.families[0];
+  assert.throws(() => surfaceFamilyFromJson({ ...good, radius_exponent: 0 }), /radius_exponent/);
+  assert.throws(() => surfaceFamilyFromJson({ ...good, radius_step_m: -1 }), /radius_step_m/);
+  assert.throws(() => surfaceFamilyFromJson({ ...good, rows: [] }), /rows must not be empty/);
+  const open = { ...good, rows: [{ depth_m: 0.001, depression_m: [0.001, 0.0005] }] };
+  assert.throws(() => surfaceFamilyFromJson(open), /rows\[0\]\.depression_m/);
+  const unordered = { ...good, rows: [good.rows[1], good.rows[0]] };
+  assert.throws(() => surfaceFamilyFromJson(unordered), /rows\[1\]\.depth_m/);
+});
+
+test('the deformer draws the fem profile: every vertex within its reach, by the profile', () => {
+  const family = families[0];
+  const grid = flatGrid(100, 0.2);
+  const out = Float32Array.from(grid.positions);
+  const normals = Float32Array.from(grid.normals);
+  const deformer = new MeshDeformer(grid.positions, grid.normals, { cellSizeM: 0.004 });
+  const contact = pressAt(0.013, -0.021, 3 * MM, 18 * MM);
+  deformer.apply(out, normals, contact, sphere, family);
+  const p = surfaceSetup(family, contact.depthM);
+  assert.ok(p.reachM > 18 * MM, `the profile reaches past R_d (${p.reachM})`);
+  let moved = 0;
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    const r = Math.hypot(grid.positions[3 * i] - 0.013, grid.positions[3 * i + 2] + 0.021);
+    const z = r < p.reachM ? surfaceDepression(family, contact.depthM, r) : 0;
+    const dy = grid.positions[3 * i + 1] - out[3 * i + 1];
+    assert.ok(Math.abs(dy - z) < 1e-7, `vertex ${i} at r=${r}: moved ${dy}, profile ${z}`);
+    if (z > 0) moved++;
+  }
+  assert.equal(deformer.movedCount, moved);
+  // Normals: unit, and ∝ n + z′(r)·e_r as for the paper's profile.
+  let checked = 0;
+  for (let k = 0; k < deformer.movedCount; k++) {
+    const i = deformer.moved[k];
+    const ex = grid.positions[3 * i] - 0.013;
+    const ez = grid.positions[3 * i + 2] + 0.021;
+    const r = Math.hypot(ex, ez);
+    const h = 1e-9;
+    const slope = (surfaceDepressionAt(p, r + h) - surfaceDepressionAt(p, r - h)) / (2 * h);
+    // Skip the sample boundaries, where the slope jumps.
+    const u0 = (r - h) * p.t0.indexPerM;
+    const u1 = (r + h) * p.t0.indexPerM;
+    if (r < 1e-6 || Math.floor(u0) !== Math.floor(u1)) continue;
+    const len = Math.hypot(1, slope);
+    const expected = [(slope * ex) / r / len, 1 / len, (slope * ez) / r / len];
+    const got = [normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]];
+    const err = Math.hypot(got[0] - expected[0], got[1] - expected[1], got[2] - expected[2]);
+    assert.ok(err < 1e-4, `vertex ${i} at r=${r}: normal ${got}, expected ${expected}`);
+    checked++;
+  }
+  assert.ok(checked > 100, `${checked} normals checked`);
+  // Switching back to the paper's profile restores what the fem profile moved beyond R_d.
+  deformer.apply(out, normals, contact, sphere);
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    const r = Math.hypot(grid.positions[3 * i] - 0.013, grid.positions[3 * i + 2] + 0.021);
+    if (r >= 18 * MM) assert.equal(out[3 * i + 1], grid.positions[3 * i + 1], `vertex ${i} at r=${r}`);
+  }
 });
