@@ -11,6 +11,8 @@
 //! | [`topic::CONTACT`] | the `contact` wire message, verbatim | each 50 Hz frame as it was sent |
 //! | [`topic::STATS`] | [`RecordingStats`] | about once a second, and a final one at the end |
 //! | [`topic::LOOP_STATS`] | the `stats` wire message, verbatim | each 1 Hz stats message as sent |
+//! | [`topic::MARKS`] | the `mark` wire message, verbatim | each instructor's mark as sent |
+//! | [`topic::METRICS`] | the `metrics` wire message, verbatim | each 1 Hz message as sent, and the final one at the end |
 //!
 //! Every message's log time is the device time in nanoseconds since the loop started, so a
 //! recording's timeline is the device's and replay can pace itself on it.
@@ -53,6 +55,9 @@ pub mod topic {
     pub const LOOP_STATS: &str = "/loop_stats";
     /// The instructors' `mark` wire messages, as sent to viewers.
     pub const MARKS: &str = "/marks";
+    /// The trainee's `metrics` wire messages: the 1 Hz ones as sent to viewers, and the final
+    /// one over every tick of the session, written when it ends.
+    pub const METRICS: &str = "/metrics";
 }
 
 /// The schema name of each channel (the MCAP schema record's `name`).
@@ -64,6 +69,7 @@ pub mod schema_name {
     pub const STATS: &str = "softhaptic.RecordingStats";
     pub const LOOP_STATS: &str = "softhaptic.StatsMessage";
     pub const MARKS: &str = "softhaptic.MarkMessage";
+    pub const METRICS: &str = "softhaptic.MetricsMessage";
 }
 
 /// One device sample as recorded (mirrors the device crate's sample; kept here so the file format
@@ -601,7 +607,6 @@ pub mod schema {
   "required": ["type", "loop_rate_hz", "period_error_us", "overruns", "compute_us"]
 }"##;
 
-    /// `(topic, schema name, schema)` of every channel.
     /// Schema of the `mark` wire message.
     pub const MARKS: &str = r##"{
   "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -618,7 +623,32 @@ pub mod schema {
   "required": ["type", "id", "time_ns", "note", "point_m"]
 }"##;
 
-    pub const ALL: [(&str, &str, &str); 7] = [
+    /// Schema of the `metrics` wire message.
+    pub const METRICS: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.MetricsMessage",
+  "description": "The trainee's metrics exactly as sent to viewers (protocol version 1), computed on the device host from every 1 kHz tick.",
+  "type": "object",
+  "properties": {
+    "type": {"type": "string", "const": "metrics"},
+    "peak_force_n": {"type": "number"},
+    "peak_force_time_s": {"type": "number", "description": "device time of the peak, s"},
+    "safe_force_n": {"type": "number", "description": "the scene's safe force, N"},
+    "time_above_safe_s": {"type": "number"},
+    "time_in_contact_s": {"type": "number"},
+    "path_length_in_contact_m": {"type": "number"},
+    "mean_squared_jerk_m2_s6": {"type": "number", "description": "of the tip in contact; lower is smoother"},
+    "pushes": {"type": "integer", "minimum": 0},
+    "device_fault_ticks": {"type": "integer", "minimum": 0},
+    "flags_raised": {"type": "object", "additionalProperties": {"type": "integer", "minimum": 0}, "description": "how many times each contact flag turned on, by its wire name"},
+    "ticks": {"type": "integer", "minimum": 0, "description": "ticks the metrics cover"},
+    "final": {"type": "boolean", "description": "the session's last metrics (it ended)"}
+  },
+  "required": ["type", "peak_force_n", "safe_force_n", "time_above_safe_s", "time_in_contact_s", "path_length_in_contact_m", "pushes", "ticks"]
+}"##;
+
+    /// `(topic, schema name, schema)` of every channel.
+    pub const ALL: [(&str, &str, &str); 8] = [
         (super::topic::BUILD, super::schema_name::BUILD, BUILD),
         (super::topic::SCENE, super::schema_name::SCENE, SCENE),
         (super::topic::DEVICE, super::schema_name::DEVICE, DEVICE),
@@ -630,6 +660,7 @@ pub mod schema {
             LOOP_STATS,
         ),
         (super::topic::MARKS, super::schema_name::MARKS, MARKS),
+        (super::topic::METRICS, super::schema_name::METRICS, METRICS),
     ];
 }
 
@@ -788,6 +819,7 @@ mod tests {
                 Some("contact") => schema::CONTACT,
                 Some("stats") => schema::LOOP_STATS,
                 Some("mark") => schema::MARKS,
+                Some("metrics") => schema::METRICS,
                 _ => continue,
             };
             let schema: Value = serde_json::from_str(schema).unwrap();

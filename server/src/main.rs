@@ -356,7 +356,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             .await
             .context("could not listen for the stop signals")?;
         tracing::info!(signal, "shutting down");
-        let stats = server.shutdown().await;
+        let (stats, metrics) = server.shutdown_with_metrics().await;
         tracing::info!(
             ticks = stats.ticks,
             overruns = stats.overruns,
@@ -365,7 +365,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             "haptic loop stopped"
         );
         if let Some(r) = recording {
-            let (path, rec) = r.finish()?;
+            let (path, rec) = r.finish(&metrics)?;
             tracing::info!(
                 file = %path.display(),
                 ticks = rec.ticks_recorded,

@@ -97,8 +97,8 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     let mut late = viewer(server.local_addr(), O).await;
     assert_eq!(mark_of(&next_of(&mut late, "mark").await), seen);
 
-    server.shutdown().await;
-    let (path, _) = recording.finish().unwrap();
+    let (_, metrics) = server.shutdown_with_metrics().await;
+    let (path, _) = recording.finish(&metrics).unwrap();
     let r = Recording::open(&path).unwrap();
     assert_eq!(r.marks, vec![seen.clone()]);
 

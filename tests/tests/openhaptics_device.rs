@@ -112,8 +112,8 @@ async fn start_with(
 
 /// Stops the server and returns its loop's final statistics and the recording.
 async fn finish(live: Live) -> (softhaptic_device::stats::LoopStats, Recording) {
-    let stats = live.server.shutdown().await;
-    let (path, _) = live.recording.finish().unwrap();
+    let (stats, metrics) = live.server.shutdown_with_metrics().await;
+    let (path, _) = live.recording.finish(&metrics).unwrap();
     (stats, Recording::open(&path).unwrap())
 }
 

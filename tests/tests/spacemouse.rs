@@ -146,8 +146,8 @@ async fn a_scripted_spacemouse_presses_the_liver_through_the_whole_server() {
         started.elapsed() > Duration::from_secs(7)
     })
     .await;
-    server.shutdown().await;
-    let (path, _) = recording.finish().unwrap();
+    let (_, metrics) = server.shutdown_with_metrics().await;
+    let (path, _) = recording.finish(&metrics).unwrap();
     let recorded = Recording::open(&path).unwrap();
     assert!(!recorded.scene.message.device.force_feedback);
 

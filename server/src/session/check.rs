@@ -78,12 +78,25 @@ pub struct CheckReport {
     /// The trainee's metrics of the replayed ticks, computed by the replaying world as the live
     /// loop computed them.
     pub metrics: softhaptic_device::metrics::TraineeMetrics,
+    /// When the recording holds the live loop's final metrics and every tick was replayed:
+    /// whether the replay's are the same (`None` when there is nothing to compare).
+    pub metrics_difference: Option<MetricsDifference>,
+}
+
+/// The replay's trainee metrics differ from those the live loop recorded at the session's end.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MetricsDifference {
+    pub recorded: softhaptic_proto::wire::MetricsMessage,
+    pub replayed: softhaptic_proto::wire::MetricsMessage,
 }
 
 impl CheckReport {
-    /// True when every compared force is identical and nothing was left unchecked.
+    /// True when every compared force is identical, the trainee's metrics are the recorded
+    /// ones (when recorded), and nothing was left unchecked.
     pub fn passed(&self) -> bool {
-        self.first_difference.is_none() && self.stopped_at_gap.is_none()
+        self.first_difference.is_none()
+            && self.stopped_at_gap.is_none()
+            && self.metrics_difference.is_none()
     }
 }
 
@@ -112,6 +125,16 @@ impl fmt::Display for CheckReport {
                     diff.length(),
                 )?;
             }
+        }
+        if let Some(d) = &self.metrics_difference {
+            let json = |m| serde_json::to_string(m).unwrap_or_default();
+            write!(
+                f,
+                "\n{path}: the trainee's metrics differ from those recorded at the session's end:\n  \
+                 recorded {}\n  replayed {}",
+                json(&d.recorded),
+                json(&d.replayed)
+            )?;
         }
         if let Some((after, next)) = self.stopped_at_gap {
             write!(
@@ -212,6 +235,19 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
             }
         }
     }
+    let metrics = world.metrics();
+    // The live loop's final metrics cover every tick it ran: comparable when the replay ran
+    // them all too (no gap, and the recording was not cut short of its last ticks).
+    let metrics_difference = recording
+        .final_metrics()
+        .filter(|recorded| stopped_at_gap.is_none() && recorded.ticks == metrics.ticks)
+        .and_then(|recorded| {
+            let replayed = crate::stream::metrics_message(&metrics, true);
+            (!same_metrics(recorded, &replayed)).then(|| MetricsDifference {
+                recorded: recorded.clone(),
+                replayed,
+            })
+        });
     Ok(CheckReport {
         path,
         ticks_compared: records.len() as u64,
@@ -219,6 +255,31 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
         differing_ticks,
         stopped_at_gap,
         replayed_n,
-        metrics: world.metrics(),
+        metrics,
+        metrics_difference,
     })
+}
+
+/// Equal metrics messages, comparing floating-point values by their bits (a recorded NaN is
+/// the same as a replayed NaN; the file keeps every bit of a finite value).
+pub fn same_metrics(
+    a: &softhaptic_proto::wire::MetricsMessage,
+    b: &softhaptic_proto::wire::MetricsMessage,
+) -> bool {
+    let floats = |m: &softhaptic_proto::wire::MetricsMessage| {
+        [
+            m.peak_force_n,
+            m.peak_force_time_s,
+            m.safe_force_n,
+            m.time_above_safe_s,
+            m.time_in_contact_s,
+            m.path_length_in_contact_m,
+            m.mean_squared_jerk_m2_s6,
+        ]
+        .map(f64::to_bits)
+    };
+    floats(a) == floats(b)
+        && (a.pushes, a.device_fault_ticks, a.ticks, a.is_final)
+            == (b.pushes, b.device_fault_ticks, b.ticks, b.is_final)
+        && a.flags_raised == b.flags_raised
 }

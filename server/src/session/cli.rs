@@ -354,10 +354,22 @@ impl LiveRecording {
         ));
     }
 
-    /// Closes the file (after the server, and so the loop, has stopped).
-    pub fn finish(self) -> anyhow::Result<(PathBuf, RecordingStats)> {
+    /// Closes the file (after the server, and so the loop, has stopped), with the session's
+    /// final trainee metrics as the loop computed them over every tick.
+    pub fn finish(
+        self,
+        final_metrics: &softhaptic_device::metrics::TraineeMetrics,
+    ) -> anyhow::Result<(PathBuf, RecordingStats)> {
         let path = self.recorder.path().to_path_buf();
-        let stats = self.recorder.finish()?;
+        let message = ServerMessage::Metrics(crate::stream::metrics_message(final_metrics, true));
+        let json = match message.encode() {
+            Ok(json) => Some(json),
+            Err(e) => {
+                tracing::error!(error = %e, "could not encode the final metrics for the recording");
+                None
+            }
+        };
+        let stats = self.recorder.finish_with_metrics(json)?;
         Ok((path, stats))
     }
 
@@ -401,10 +413,18 @@ async fn record_stream(
                 Err(broadcast::error::RecvError::Closed) => return,
             },
             s = stats.recv(), if stats_open => match s {
-                // The loop's stats; the trainee's metrics are not stored twice: they are
-                // computed again from the recorded ticks (`tools::Info`), exactly.
                 Ok(text) if text.as_str().starts_with(r#"{"type":"stats""#) => {
                     tap.record_loop_stats(text.to_string())
+                }
+                // The 1 Hz metrics as viewers saw them. The final one is written when the
+                // recording closes (`finish`), after the last tick, not from this stream.
+                Ok(text) if text.as_str().starts_with(r#"{"type":"metrics""#) => {
+                    if !matches!(
+                        ServerMessage::decode(text.as_str()),
+                        Ok(ServerMessage::Metrics(m)) if m.is_final
+                    ) {
+                        tap.record_metrics(text.to_string())
+                    }
                 }
                 Ok(_) => {}
                 Err(broadcast::error::RecvError::Lagged(_)) => {}

@@ -64,6 +64,10 @@ pub struct Recording {
     pub lost: Vec<LostSpan>,
     /// The instructors' marks, in the order made.
     pub marks: Vec<softhaptic_proto::wire::MarkMessage>,
+    /// The trainee's `metrics` messages as recorded: the 1 Hz ones viewers were sent, then the
+    /// final one over the whole session (absent from a recording cut short, and from recordings
+    /// made before the metrics were kept).
+    pub metrics: Vec<softhaptic_proto::wire::MetricsMessage>,
 }
 
 /// A stretch of a recording that could not be read and was skipped.
@@ -106,6 +110,7 @@ enum Kind {
     Stats,
     LoopStats,
     Marks,
+    Metrics,
     Unknown,
 }
 
@@ -189,6 +194,7 @@ impl Recording {
         let mut last_stats = None;
         let mut unknown_messages = 0;
         let mut marks = Vec::new();
+        let mut metrics = Vec::new();
         let mut ending = match &scanned.tail {
             Some(reason) => Ending::Truncated {
                 reason: reason.clone(),
@@ -316,6 +322,15 @@ impl Recording {
                         }
                     }
                 }
+                Kind::Metrics => {
+                    let json = String::from_utf8_lossy(&message.data);
+                    match ServerMessage::decode(&json) {
+                        Ok(ServerMessage::Metrics(m)) => metrics.push(m),
+                        // Derived data, computed again from the ticks when needed: one that
+                        // does not read costs nothing else of the file.
+                        _ => unknown_messages += 1,
+                    }
+                }
                 Kind::Unknown => unknown_messages += 1,
             }
         }
@@ -359,7 +374,14 @@ impl Recording {
             ending,
             lost: scanned.lost,
             marks,
+            metrics,
         })
+    }
+
+    /// The session's final metrics as the live loop computed them over every tick, when the
+    /// recording holds them (it closed normally, and was made by a build that keeps them).
+    pub fn final_metrics(&self) -> Option<&softhaptic_proto::wire::MetricsMessage> {
+        self.metrics.iter().rev().find(|m| m.is_final)
     }
 
     /// File name without directories, for messages and the replay status.
@@ -483,6 +505,7 @@ fn classify(path: &Path, channel: &mcap::Channel<'_>) -> Result<Kind, SessionErr
         topic::STATS => (Kind::Stats, schema_name::STATS),
         topic::LOOP_STATS => (Kind::LoopStats, schema_name::LOOP_STATS),
         topic::MARKS => (Kind::Marks, schema_name::MARKS),
+        topic::METRICS => (Kind::Metrics, schema_name::METRICS),
         _ => return Ok(Kind::Unknown),
     };
     let found_schema = channel

@@ -23,6 +23,7 @@ use std::time::Duration;
 
 use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
+use softhaptic_device::metrics::{MetricsAccumulator, TickInput};
 use softhaptic_proto::record::{
     DeviceRecord, GapCause, ReplayAction, ReplayControl, ReplayGap, ReplayMark, ReplaySpan,
     ReplayStatus,
@@ -356,9 +357,42 @@ fn above_safe(device: &[DeviceRecord], start_ns: u64, safe_force_n: f64) -> Vec<
     out
 }
 
+/// Device time between two replayed `metrics` messages, as the live server sends them.
+const METRICS_PERIOD_NS: u64 = 1_000_000_000;
+
+/// The trainee's `metrics` messages a replay sends, on the recording's device-time axis: one
+/// each second of ticks and the final one at the last tick, computed from the recorded ticks
+/// as `info` and `export` compute them (the live loop's own, when the file holds every tick).
+fn metrics_timeline(recording: &Recording) -> Vec<RecordedMessage> {
+    let mut acc = MetricsAccumulator::new(super::tools::recorded_safe_force_n(recording));
+    let mut out = Vec::new();
+    let Some(first) = recording.device.first() else {
+        return out;
+    };
+    let mut next_ns = first.time_ns.saturating_add(METRICS_PERIOD_NS);
+    let mut push = |time_ns: u64, acc: &MetricsAccumulator, is_final: bool| {
+        let message = crate::stream::metrics_message(&acc.metrics(), is_final);
+        match ServerMessage::Metrics(message).encode() {
+            Ok(json) => out.push(RecordedMessage { time_ns, json }),
+            Err(e) => tracing::error!(error = %e, "could not encode replayed metrics"),
+        }
+    };
+    for d in &recording.device {
+        acc.update(&TickInput::from_record(d));
+        if d.time_ns >= next_ns {
+            push(d.time_ns, &acc, false);
+            next_ns = d.time_ns.saturating_add(METRICS_PERIOD_NS);
+        }
+    }
+    let last_ns = recording.device.last().map_or(first.time_ns, |d| d.time_ns);
+    push(last_ns, &acc, true);
+    out
+}
+
 /// The replay clock and cursor.
 struct Player {
     contacts: Vec<RecordedMessage>,
+    /// The recorded `stats` messages and the replay's `metrics` ones, in device-time order.
     loop_stats: Vec<RecordedMessage>,
     /// Device time of the recording's first frame: replay time 0.
     start_ns: u64,
@@ -386,9 +420,18 @@ impl Player {
     fn new(recording: &Recording, speed: f64, paused: bool) -> Self {
         let start_ns = recording.contacts.first().map_or(0, |c| c.time_ns);
         let end_ns = recording.contacts.last().map_or(0, |c| c.time_ns);
+        let mut loop_stats = recording.loop_stats.clone();
+        // The final metrics come with the last frame, where the replay ends, even when the
+        // ticks went on a little after it.
+        loop_stats.extend(metrics_timeline(recording).into_iter().map(|mut m| {
+            m.time_ns = m.time_ns.min(end_ns);
+            m
+        }));
+        // Stable: a stats and a metrics message at the same time keep that order.
+        loop_stats.sort_by_key(|m| m.time_ns);
         Self {
             contacts: recording.contacts.clone(),
-            loop_stats: recording.loop_stats.clone(),
+            loop_stats,
             start_ns,
             duration_ns: end_ns.saturating_sub(start_ns),
             file: recording.file_name(),
@@ -520,8 +563,13 @@ impl Player {
     }
 
     fn send_stats(&self, hub: &StreamHub, recorded: &RecordedMessage) {
-        let Ok(ServerMessage::Stats(mut stats)) = ServerMessage::decode(&recorded.json) else {
-            return;
+        let mut stats = match ServerMessage::decode(&recorded.json) {
+            Ok(ServerMessage::Stats(stats)) => stats,
+            Ok(ServerMessage::Metrics(_)) => {
+                let _ = hub.stats.send(Utf8Bytes::from(recorded.json.as_str()));
+                return;
+            }
+            _ => return,
         };
         // Viewer counts are the replay's own.
         stats.viewers = hub.counters.viewers.load(Ordering::Relaxed);

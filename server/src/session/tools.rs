@@ -57,6 +57,9 @@ pub struct Info {
     pub recovery: String,
     /// The trainee's metrics, computed from the recorded ticks (as the live server computed them).
     pub metrics: TraineeMetrics,
+    /// The final metrics the live loop recorded at the session's end, and whether they are the
+    /// ones computed from the recorded ticks (`None`: the recording holds none).
+    pub recorded_metrics: Option<(softhaptic_proto::wire::MetricsMessage, bool)>,
 }
 
 /// The safe force a recording's scene set (`[haptics] safe_force_n`), or the default.
@@ -206,7 +209,18 @@ impl Info {
             damaged_stretches: r.lost.len(),
             recovery: r.recovery().to_string(),
             metrics: recording_metrics(r),
+            recorded_metrics: None,
         }
+        .with_recorded_metrics(r)
+    }
+
+    fn with_recorded_metrics(mut self, r: &Recording) -> Info {
+        self.recorded_metrics = r.final_metrics().map(|recorded| {
+            let computed = crate::stream::metrics_message(&self.metrics, true);
+            let same = crate::session::check::same_metrics(recorded, &computed);
+            (recorded.clone(), same)
+        });
+        self
     }
 }
 
@@ -325,6 +339,25 @@ impl fmt::Display for Info {
             m.pushes,
             m.mean_squared_jerk_m2_s6
         )?;
+        match &self.recorded_metrics {
+            Some((_, true)) => writeln!(
+                f,
+                "                   computed from the recorded ticks; the same as the live loop's, recorded at the end"
+            )?,
+            Some((recorded, false)) => writeln!(
+                f,
+                "                   computed from the {} recorded ticks; the live loop's, recorded at the end over {} ticks, differ: peak {:.3} N, {:.2} s in contact, {} pushes",
+                self.metrics.ticks,
+                recorded.ticks,
+                recorded.peak_force_n,
+                recorded.time_in_contact_s,
+                recorded.pushes
+            )?,
+            None => writeln!(
+                f,
+                "                   computed from the recorded ticks (the file holds no final metrics: cut short, or recorded before they were kept)"
+            )?,
+        }
         let status = match (&self.ending, self.damaged_stretches) {
             (Ending::Complete, 0) => "complete".to_owned(),
             (Ending::Complete, n) => format!("DAMAGED, recovered around {n} damaged stretches"),

@@ -56,6 +56,7 @@ struct Channels {
     stats: u16,
     loop_stats: u16,
     marks: u16,
+    metrics: u16,
 }
 
 /// Writes one session to one MCAP file. Not thread-safe by itself; see [`Recorder`].
@@ -66,7 +67,7 @@ pub struct SessionWriter {
     /// Reused serialisation buffer, so that a tick costs no allocation once warmed up.
     buf: Vec<u8>,
     /// Per-channel sequence numbers (MCAP's `sequence`), indexed by channel id.
-    sequences: [u32; 8],
+    sequences: [u32; 16],
     stats: RecordingStats,
     /// The tick expected next; a larger tick means the ring dropped the ones between.
     next_tick: Option<u64>,
@@ -113,7 +114,7 @@ impl SessionWriter {
         let mut mcap = options
             .create(NoSeek::new(BufWriter::new(file)))
             .map_err(mcap_err)?;
-        let mut ids = [0u16; 7];
+        let mut ids = [0u16; 8];
         for (slot, (topic, name, schema)) in ids.iter_mut().zip(schema::ALL) {
             let schema_id = mcap
                 .add_schema(name, record::SCHEMA_ENCODING, schema.as_bytes())
@@ -135,6 +136,7 @@ impl SessionWriter {
             stats_id,
             loop_stats_id,
             marks_id,
+            metrics_id,
         ] = ids;
         let mut w = SessionWriter {
             mcap,
@@ -147,9 +149,10 @@ impl SessionWriter {
                 stats: stats_id,
                 loop_stats: loop_stats_id,
                 marks: marks_id,
+                metrics: metrics_id,
             },
             buf: Vec::with_capacity(1024),
-            sequences: [0; 8],
+            sequences: [0; 16],
             stats: RecordingStats::default(),
             next_tick: None,
             chunk_start_ns: None,
@@ -197,11 +200,17 @@ impl SessionWriter {
         self.after_record(time_ns)
     }
 
-    /// Writes one `stats` wire message exactly as it was sent, at the latest device time.
+    /// Writes one `mark` wire message exactly as it was sent, at the latest device time.
     pub fn write_mark(&mut self, json: &str) -> Result<(), SessionError> {
         self.write_raw(self.channels.marks, self.last_time_ns, json.as_bytes())
     }
 
+    /// Writes one `metrics` wire message exactly as it was sent, at the latest device time.
+    pub fn write_metrics(&mut self, json: &str) -> Result<(), SessionError> {
+        self.write_raw(self.channels.metrics, self.last_time_ns, json.as_bytes())
+    }
+
+    /// Writes one `stats` wire message exactly as it was sent, at the latest device time.
     pub fn write_loop_stats(&mut self, json: &str) -> Result<(), SessionError> {
         self.write_raw(self.channels.loop_stats, self.last_time_ns, json.as_bytes())
     }
@@ -283,7 +292,7 @@ impl SessionWriter {
 
     fn write_raw(&mut self, channel: u16, time_ns: u64, data: &[u8]) -> Result<(), SessionError> {
         // Channel ids are small (MCAP numbers them from 0 or 1 in the order added).
-        let slot = &mut self.sequences[usize::from(channel) % 8];
+        let slot = &mut self.sequences[usize::from(channel) % 16];
         *slot = slot.wrapping_add(1);
         let header = MessageHeader {
             channel_id: channel,
@@ -345,6 +354,8 @@ enum StreamMessage {
     LoopStats { json: String },
     /// A `mark` message.
     Mark { json: String },
+    /// A `metrics` message.
+    Metrics { json: String },
 }
 
 /// The handle the server keeps to hand what it sends viewers to the recorder thread.
@@ -368,6 +379,12 @@ impl StreamTap {
     /// Queues one `mark` message for the file; never waits (a full queue drops it, counted).
     pub fn record_mark(&self, json: String) {
         self.send(StreamMessage::Mark { json }, true);
+    }
+
+    /// Queues one 1 Hz `metrics` message for the file; never waits (a full queue drops it: the
+    /// final one, written by [`Recorder::finish_with_metrics`], covers the whole session).
+    pub fn record_metrics(&self, json: String) {
+        self.send(StreamMessage::Metrics { json }, false);
     }
 
     /// Queues one `stats` message for the file; never waits (a full queue drops it).
@@ -446,7 +463,21 @@ impl Recorder {
 
     /// Drains what is left, writes the final stats and closes the file. Call after the haptic
     /// loop has stopped, so that every tick it produced is in the ring.
-    pub fn finish(mut self) -> Result<RecordingStats, SessionError> {
+    pub fn finish(self) -> Result<RecordingStats, SessionError> {
+        self.finish_with_metrics(None)
+    }
+
+    /// [`Recorder::finish`], writing the session's final `metrics` message (wire text) after
+    /// every tick: the trainee's metrics over the whole session, as the loop computed them.
+    pub fn finish_with_metrics(
+        mut self,
+        final_metrics: Option<String>,
+    ) -> Result<RecordingStats, SessionError> {
+        if let Some(json) = final_metrics {
+            // Waits for room if it must: the thread drains the queue until it sees the stop
+            // flag, which is set only after this message is in, so it is always written.
+            let _ = self.tap.tx.send(StreamMessage::Metrics { json });
+        }
         self.stop.store(true, Ordering::Release);
         match self.thread.take() {
             Some(t) => t.join().map_err(|_| SessionError::RecorderPanicked {
@@ -496,6 +527,7 @@ fn run_recorder(
                 StreamMessage::Contact { time_ns, json } => writer.write_contact(time_ns, &json)?,
                 StreamMessage::LoopStats { json } => writer.write_loop_stats(&json)?,
                 StreamMessage::Mark { json } => writer.write_mark(&json)?,
+                StreamMessage::Metrics { json } => writer.write_metrics(&json)?,
             }
             idle = false;
         }
