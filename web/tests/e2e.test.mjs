@@ -188,25 +188,6 @@ test("the trainee's metrics panel shows the server's metrics of the press", asyn
   assert.equal(m.peakShown, `${m.last.peak_force_n.toFixed(2)} N at ${m.last.peak_force_time_s.toFixed(1)} s`);
 });
 
-test("an instructor's mark made in one browser appears in another", async () => {
-  const other = await browser.newPage({ viewport: { width: 1024, height: 700 } });
-  try {
-    await other.goto(server.url);
-    await other.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
-    assert.equal(await page.evaluate(() => window.__softhaptic.marks().formShown), true);
-    await page.evaluate(() => window.__softhaptic.submitMark('  watch the approach speed  '));
-    await other.waitForFunction(() => window.__softhaptic.marks().marks.length === 1, null, { timeout: 30000 });
-    const there = await other.evaluate(() => window.__softhaptic.marks());
-    assert.equal(there.marks[0].note, 'watch the approach speed');
-    assert.match(there.listed[0], /^\d+\.\d s: watch the approach speed$/);
-    await page.waitForFunction(() => window.__softhaptic.marks().marks.length === 1, null, { timeout: 30000 });
-    const here = await page.evaluate(() => window.__softhaptic.marks());
-    assert.deepEqual(here.marks, there.marks);
-  } finally {
-    await other.close();
-  }
-});
-
 test('the viewer counted no malformed or unknown message and raised no page error', async () => {
   const conn = await page.evaluate(() => window.__softhaptic.connection());
   assert.equal(conn.stats.malformed, 0, conn.lastError ?? '');

@@ -1,0 +1,85 @@
+// End to end, instructor marks: a live session recorded to a scratch directory, a mark made in
+// one browser, seen in a second one, and then, after the server stops, in the replay of the
+// recording in a third (the list beside the timeline and a mark on its track).
+//
+//   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_BIN to reuse a built one)
+import { after, before, test } from 'node:test';
+import assert from 'node:assert/strict';
+import { mkdtempSync, readdirSync, rmSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
+
+import { launchBrowser } from './browser.mjs';
+import { startServer } from './server.mjs';
+
+const NOTE = 'too fast into the capsule';
+const WAIT = { timeout: 60000 };
+
+let browser;
+let recordDir;
+const pageErrors = [];
+
+async function openViewer(url) {
+  const page = await browser.newPage({ viewport: { width: 1024, height: 700 } });
+  page.on('pageerror', (e) => pageErrors.push(e.message));
+  await page.goto(url);
+  await page.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
+  return page;
+}
+
+before(async () => {
+  recordDir = mkdtempSync(join(tmpdir(), 'softhaptic-marks-'));
+  browser = await launchBrowser();
+});
+
+after(async () => {
+  await browser?.close();
+  if (recordDir) rmSync(recordDir, { recursive: true, force: true });
+});
+
+test('a mark made live shows in another browser and in the replay of the recording', async () => {
+  const live = await startServer({
+    extraArgs: ['--no-realtime', '--record-dir', recordDir],
+    external: false,
+  });
+  let marked;
+  try {
+    const instructor = await openViewer(live.url);
+    const other = await openViewer(live.url);
+    assert.equal(await instructor.evaluate(() => window.__softhaptic.marks().formShown), true);
+    await instructor.evaluate((note) => window.__softhaptic.submitMark(note), NOTE);
+    await other.waitForFunction(() => window.__softhaptic.marks().marks.length === 1, null, WAIT);
+    marked = (await other.evaluate(() => window.__softhaptic.marks())).marks[0];
+    assert.equal(marked.note, NOTE);
+  } finally {
+    // A stop signal closes the recording properly.
+    await live.stop();
+  }
+
+  const files = readdirSync(recordDir).filter((f) => f.endsWith('.mcap'));
+  assert.equal(files.length, 1, `recordings: ${files.join(', ')}`);
+  const replay = await startServer({
+    command: ['replay', join(recordDir, files[0]), '--paused'],
+    external: false,
+  });
+  try {
+    const page = await openViewer(replay.url);
+    await page.waitForFunction(() => window.__softhaptic.marks().marks.length === 1, null, WAIT);
+    const shown = await page.evaluate(() => window.__softhaptic.marks());
+    assert.deepEqual(shown.marks[0], marked);
+    assert.match(shown.listed[0], new RegExp(`^\\d+\\.\\d s: ${NOTE}$`));
+    // A replay takes no new marks: the form is not offered.
+    assert.equal(shown.formShown, false);
+    // The first status puts the mark on the timeline's track, where it was made.
+    await page.waitForFunction(() => window.__softhaptic.replay().gaps.some((g) => g.cause === 'mark'), null, WAIT);
+    const r = await page.evaluate(() => window.__softhaptic.replay());
+    const onTrack = r.gaps.filter((g) => g.cause === 'mark');
+    assert.equal(onTrack.length, 1);
+    assert.ok(onTrack[0].title.includes(NOTE), onTrack[0].title);
+    const status = r.lastStatus.marks[0];
+    assert.ok(Math.abs(onTrack[0].leftPct - (100 * status.time_s) / r.durationS) < 1e-3, JSON.stringify(onTrack));
+  } finally {
+    await replay.stop();
+  }
+  assert.deepEqual(pageErrors, []);
+});
