@@ -54,6 +54,14 @@ export function describeStation(s, nowMs) {
   return `${s.state} for ${ago(s.since_unix_ms, nowMs)} · ${s.scene} · ${watching}`;
 }
 
+/**
+ * The line of a station the hub has not heard from since it started but whose sessions are in
+ * the archive (a station retired, or a hub started after it stopped).
+ */
+export function describeArchivedOnly(count) {
+  return `not heard by this hub · ${count === 1 ? '1 archived session' : `${count} archived sessions`}`;
+}
+
 /** The station list of a hub's page. */
 export class StationList {
   constructor({ panel, list, fetchJson, current, currentArchive = null, now = () => Date.now() }) {
@@ -101,24 +109,40 @@ export class StationList {
     this.panel.hidden = false;
     const now = this.now();
     const seen = new Set();
-    const items = this.stations.map((s) => {
-      seen.add(s.name);
-      let entry = this.items.get(s.name);
+    const heard = new Set(this.stations.map((s) => s.name));
+    // Stations with archived sessions that this hub has not heard, after the ones it has: their
+    // sessions can be replayed although there is no live view to open.
+    const archivedOnly = [...new Set(this.archive.map((a) => a.station))]
+      .filter((name) => !heard.has(name))
+      .sort()
+      .map((name) => ({ name, archivedOnly: true }));
+    const items = [...this.stations, ...archivedOnly].map((s) => {
+      // Keyed by kind too: a station heard later gets a link in place of its plain name.
+      const key = s.archivedOnly ? `archived:${s.name}` : s.name;
+      seen.add(key);
+      let entry = this.items.get(key);
       if (!entry) {
         const item = doc.createElement('li');
         item.dataset.station = s.name;
-        const link = doc.createElement('a');
-        link.href = withStation('', s.name);
-        link.textContent = s.name;
+        let name;
+        if (s.archivedOnly) {
+          name = doc.createElement('span');
+        } else {
+          name = doc.createElement('a');
+          name.href = withStation('', s.name);
+        }
+        name.textContent = s.name;
         const what = doc.createElement('span');
         what.className = 'small muted';
-        item.append(link, what);
+        item.append(name, what);
         entry = { item, what, archiveKey: '', archived: null };
-        this.items.set(s.name, entry);
+        this.items.set(key, entry);
       }
-      const className = `station ${s.state}${s.name === this.current ? ' current' : ''}`;
+      const state = s.archivedOnly ? 'archived' : s.state;
+      const className = `station ${state}${s.name === this.current ? ' current' : ''}`;
       if (entry.item.className !== className) entry.item.className = className;
-      const text = ` ${describeStation(s, now)}`;
+      const count = this.archive.filter((a) => a.station === s.name).length;
+      const text = ` ${s.archivedOnly ? describeArchivedOnly(count) : describeStation(s, now)}`;
       if (entry.what.textContent !== text) entry.what.textContent = text;
       const recordings = this.archive.filter((a) => a.station === s.name);
       const archiveKey = recordings.map((a) => a.file).join('\n');

@@ -4,7 +4,15 @@
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 
-import { StationList, ago, archiveOf, describeStation, stationOf, withStation } from '../src/lab.js';
+import {
+  StationList,
+  ago,
+  archiveOf,
+  describeArchivedOnly,
+  describeStation,
+  stationOf,
+  withStation,
+} from '../src/lab.js';
 
 test('the address names a station only with a valid name', () => {
   assert.equal(stationOf({ search: '?station=desk-1' }), 'desk-1');
@@ -78,7 +86,8 @@ test("a hub's answer is drawn as links to each station, the current one marked",
     { hub: true, stations: [] },
   ];
   const asked = [];
-  const archive = { archive: [{ station: 'desk-2', file: 'a.mcap', bytes: 10, digest: 'SHA-256=x' }] };
+  // The second time, the archive is empty too (a lab's first start).
+  const archives = [{ archive: [{ station: 'desk-2', file: 'a.mcap', bytes: 10, digest: 'SHA-256=x' }] }, {}];
   const stations = new StationList({
     panel,
     list,
@@ -87,7 +96,7 @@ test("a hub's answer is drawn as links to each station, the current one marked",
     now: () => 1000,
     fetchJson: async (url) => {
       asked.push(url);
-      return url === '/api/archive' ? archive : answers.shift();
+      return url === '/api/archive' ? archives.shift() : answers.shift();
     },
   });
   assert.equal(await stations.refresh(), true);
@@ -157,4 +166,46 @@ test("a refresh keeps each station's element, so a link is never replaced under 
   assert.equal(list.children[0], first);
   assert.equal(list.children[0].children[0], link);
   assert.equal(first.children[1].textContent, ' live for 5 s · liver · 0 viewers');
+});
+
+test('a station known only from the archive is listed after the heard ones, with its replays', async () => {
+  const panel = new FakeNode('section');
+  const list = new FakeNode('ul');
+  const heard = { name: 'desk-1', state: 'live', since_unix_ms: 0, scene: 'liver', viewers: 0, hub_viewers: 0 };
+  const answers = [
+    { hub: true, stations: [heard] },
+    { hub: true, stations: [heard, { ...heard, name: 'old-desk' }] },
+  ];
+  const archive = {
+    archive: [
+      { station: 'old-desk', file: 'a.mcap', bytes: 10, digest: 'SHA-256=x' },
+      { station: 'old-desk', file: 'b.mcap', bytes: 10, digest: 'SHA-256=y' },
+    ],
+  };
+  const stations = new StationList({
+    panel,
+    list,
+    current: null,
+    now: () => 0,
+    fetchJson: async (url) => (url === '/api/archive' ? archive : answers.shift()),
+  });
+  await stations.refresh();
+  assert.equal(list.children.length, 2);
+  const old = list.children[1];
+  assert.equal(old.className, 'station archived');
+  assert.equal(old.dataset.station, 'old-desk');
+  // No live view to open: its name is not a link, its sessions are.
+  assert.equal(old.children[0].tag, 'span');
+  assert.equal(old.children[0].textContent, 'old-desk');
+  assert.equal(old.children[1].textContent, ` ${describeArchivedOnly(2)}`);
+  assert.equal(describeArchivedOnly(2), 'not heard by this hub · 2 archived sessions');
+  assert.equal(describeArchivedOnly(1), 'not heard by this hub · 1 archived session');
+  const replays = old.children[2].children.map((li) => li.children[0].href);
+  assert.deepEqual(replays, ['?station=old-desk&archive=a.mcap', '?station=old-desk&archive=b.mcap']);
+  // Once heard, it is a station like the others, with a link.
+  await stations.refresh();
+  assert.equal(list.children.length, 2);
+  assert.equal(list.children[1].className, 'station live');
+  assert.equal(list.children[1].children[0].tag, 'a');
+  assert.equal(list.children[1].children[2].children.length, 2);
 });
