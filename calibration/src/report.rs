@@ -10,13 +10,13 @@ use softhaptic_proto::ModelLimitsFile;
 use softhaptic_proto::model::ToolKind;
 
 use crate::element::LawKind;
+use crate::experiments::JND_PERCENT;
 use crate::experiments::force::{HyperelasticConstants, RowKind, TransferCheck};
 use crate::experiments::surface::{DrawnProfile, DrawnSurface};
 use crate::experiments::{
     CurvatureStudy, ForceDepthStudy, HyperelasticFit, InclinationStudy, Mode, RdStudy, RunTimings,
     SpeedAccuracyStudy, VerificationStudy,
 };
-use crate::experiments::{JND_PERCENT, RD_BLOCK_M};
 use crate::solver::SurfacePoint;
 
 const MM: f64 = 1e-3;
@@ -439,7 +439,12 @@ fn surface_section(dir: &Path, studies: &[RdStudy], md: &mut String) -> Result<(
          slide under the tool (compared at its undeformed radius) or the mesh's, the same for \
          every profile. The RMS is taken along the line. The depressions at 2a and ½R_d are FEM / paper / half-space. \"Inward\" is how \
          far the FEM surface at undeformed r = a moved towards the axis, which no profile drawn \
-         along −n reproduces.\n"
+         along −n reproduces. The last two profiles are the viewer's `fem` profile (proto's \
+         `SurfaceFamily`): the neo-Hookean run's surface tabulated every 0.5 mm at each table \
+         depth, as the table carries it (at a table depth that is the FEM row itself, so against \
+         the neo-Hookean FEM only the resampling remains), and with the scored depth's own row \
+         left out, so that it is interpolated from the rows beside it (the error of a depth \
+         between rows, over twice their spacing; the first and last depths are extrapolated).\n"
     );
     for s in studies {
         if s.surface.is_empty() {
@@ -599,7 +604,7 @@ fn surface_csv(dir: &Path, s: &RdStudy) -> Result<(), ReportError> {
         let Some((run, surface)) = run_surface(s, c.law, c.depth_m) else {
             continue;
         };
-        let drawn = DrawnSurface::new(&s.tool, c.depth_m, c.deformed_radius_m, RD_BLOCK_M[2]);
+        let drawn = DrawnSurface::of_study(s, c.depth_m, c.deformed_radius_m);
         for p in surface {
             let _ = write!(
                 text,
@@ -665,7 +670,7 @@ fn surface_plot(dir: &Path, s: &RdStudy, depth_m: f64) -> Result<Option<String>,
             });
         }
     }
-    let drawn = DrawnSurface::new(&s.tool, depth_m, c.deformed_radius_m, RD_BLOCK_M[2]);
+    let drawn = DrawnSurface::of_study(s, depth_m, c.deformed_radius_m);
     for kind in DrawnProfile::ALL {
         series.push(Series {
             name: kind.title(&s.tool).to_owned(),

@@ -14,6 +14,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::deformation::SurfaceFamily;
 use crate::material::Material;
 use crate::tool::ToolShape;
 
@@ -269,6 +270,8 @@ pub struct CalibrationTable {
     block_m: Option<[f64; 3]>,
     rows: Vec<CalibrationRow>,
     fit: CalibrationFit,
+    /// The FEM surface the `fem` render profile draws, when the calibration measured it.
+    surface: Option<SurfaceFamily>,
 }
 
 /// The JSON layout, checked by `TryFrom` on the way in.
@@ -286,6 +289,8 @@ struct RawCalibrationTable {
     block_m: Option<[f64; 3]>,
     rows: Vec<CalibrationRow>,
     fit: CalibrationFit,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    surface: Option<SurfaceFamily>,
 }
 
 impl TryFrom<RawCalibrationTable> for CalibrationTable {
@@ -306,6 +311,7 @@ impl TryFrom<RawCalibrationTable> for CalibrationTable {
             block_m: raw.block_m,
             rows: raw.rows,
             fit: raw.fit,
+            surface: raw.surface,
         };
         table.validate()?;
         Ok(table)
@@ -325,6 +331,7 @@ impl From<CalibrationTable> for RawCalibrationTable {
             block_m: t.block_m,
             rows: t.rows,
             fit: t.fit,
+            surface: t.surface,
         }
     }
 }
@@ -382,6 +389,7 @@ impl CalibrationTable {
             block_m,
             rows,
             fit,
+            surface: None,
         };
         table.validate()?;
         Ok(table)
@@ -559,6 +567,19 @@ impl CalibrationTable {
 
     pub fn fit_coefficients(&self) -> &CalibrationFit {
         &self.fit
+    }
+
+    /// The tabulated FEM surface the `fem` render profile draws (proto/WIRE.md, "Deformation
+    /// profile"), when the calibration wrote one.
+    pub fn surface(&self) -> Option<&SurfaceFamily> {
+        self.surface.as_ref()
+    }
+
+    /// The table with `surface` as its tabulated FEM surface (a [`SurfaceFamily`] is valid by
+    /// construction, so this cannot fail).
+    pub fn with_surface(mut self, surface: SurfaceFamily) -> Self {
+        self.surface = Some(surface);
+        self
     }
 }
 
@@ -747,6 +768,38 @@ mod tests {
             PAPER_THRESHOLD_M,
         )
         .unwrap()
+    }
+
+    #[test]
+    fn a_table_carries_its_surface_and_reads_without_one() {
+        use crate::deformation::{SurfaceFamily, SurfaceRow};
+        let family = SurfaceFamily::new(
+            0.5,
+            MM,
+            vec![SurfaceRow {
+                depth_m: MM,
+                depression_m: vec![MM, 0.5 * MM, 0.0],
+            }],
+        )
+        .unwrap();
+        let plain = sphere10();
+        assert!(plain.surface().is_none());
+        assert!(!serde_json::to_string(&plain).unwrap().contains("surface"));
+        let table = plain.clone().with_surface(family.clone());
+        let text = serde_json::to_string(&table).unwrap();
+        let back: CalibrationTable = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.surface(), Some(&family));
+        assert_eq!(back, table);
+        // A table whose surface is malformed is refused, naming the field.
+        let bad = text.replace(
+            "\"depression_m\":[0.001,0.0005,0.0]",
+            "\"depression_m\":[0.001,0.0005]",
+        );
+        assert_ne!(bad, text);
+        let err = serde_json::from_str::<CalibrationTable>(&bad)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("must end at 0"), "{err}");
     }
 
     #[test]

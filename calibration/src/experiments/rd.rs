@@ -4,7 +4,7 @@ use serde::Serialize;
 use softhaptic_proto::calibration::CalibrationRow;
 use softhaptic_proto::{CalibrationSource, CalibrationTable, Material, ToolShape};
 
-use super::surface::{SurfaceComparison, compare_runs};
+use super::surface::{SurfaceComparison, compare_runs, surface_family};
 use super::{
     ExperimentError, IndentationRun, MM, Mode, RD_BLOCK_M, RD_BREAKPOINT_M, RD_THRESHOLD_M,
     Resolution, RunCache, RunSpec, block_body, depths, paper_tools_10mm, spec, tool_description,
@@ -117,6 +117,11 @@ pub fn rd_table(mode: Mode, cache: &RunCache) -> Result<Vec<RdStudy>, Experiment
             .collect();
         let mut tables = Vec::new();
         if let Some(nh) = runs.iter().find(|r| r.law == LawKind::NeoHookean) {
+            // The surface the viewer's `fem` profile draws, from the same run as the rows.
+            let surface = surface_family(&tool, nh).map_err(|e| ExperimentError::Data {
+                study: format!("rd-table {name}"),
+                reason: format!("tabulated surface refused: {e}"),
+            })?;
             let rows: Vec<CalibrationRow> = nh
                 .depths_m
                 .iter()
@@ -154,7 +159,8 @@ pub fn rd_table(mode: Mode, cache: &RunCache) -> Result<Vec<RdStudy>, Experiment
                 .map_err(|source| ExperimentError::Table {
                     run: file.clone(),
                     source,
-                })?;
+                })?
+                .with_surface(surface.clone());
                 tables.push((file, table));
             }
         }

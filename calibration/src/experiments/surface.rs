@@ -13,12 +13,21 @@
 //! interpolation), from the axis to the block's side face; the RMS integrates the squared error
 //! over that line with the trapezoidal rule, so the graded mesh does not weight the contact zone
 //! more than the far field.
+//!
+//! It also tabulates the FEM surface for the `fem` render profile ([`surface_family`]: the
+//! neo-Hookean run's surface at each table depth, resampled on a uniform radius grid, carried in
+//! the calibration tables) and scores that profile the same way, twice: as written (at a table
+//! depth it is the FEM row itself, so what remains is the resampling), and with the row of the
+//! depth being scored left out, so the profile there is interpolated from the rows beside it:
+//! the error a depth between the table's rows sees, at twice the rows' spacing.
 
 use serde::Serialize;
 use softhaptic_device::law;
 use softhaptic_proto::ToolShape;
 use softhaptic_proto::calibration::{half_space_depression_m, half_space_on_base_depression_m};
-use softhaptic_proto::deformation::DeformationProfile;
+use softhaptic_proto::deformation::{
+    DeformationProfile, SurfaceFamily, SurfaceFamilyError, SurfaceRow,
+};
 
 use super::IndentationRun;
 use crate::element::LawKind;
@@ -34,14 +43,20 @@ pub enum DrawnProfile {
     HalfSpace,
     /// The half-space's surface with its far field removed by the rigid base.
     HalfSpaceOnBase,
+    /// The `fem` render profile: the neo-Hookean run's surface as the table carries it.
+    Fem,
+    /// The `fem` profile without the row of the depth drawn: interpolated from its neighbours.
+    FemHeldOut,
 }
 
 impl DrawnProfile {
     /// Every profile the comparison scores, the drawn one first.
-    pub const ALL: [DrawnProfile; 3] = [
+    pub const ALL: [DrawnProfile; 5] = [
         DrawnProfile::Paper,
         DrawnProfile::HalfSpace,
         DrawnProfile::HalfSpaceOnBase,
+        DrawnProfile::Fem,
+        DrawnProfile::FemHeldOut,
     ];
 
     /// Short name for files and tables.
@@ -50,6 +65,8 @@ impl DrawnProfile {
             DrawnProfile::Paper => "paper",
             DrawnProfile::HalfSpace => "half_space",
             DrawnProfile::HalfSpaceOnBase => "half_space_on_base",
+            DrawnProfile::Fem => "fem",
+            DrawnProfile::FemHeldOut => "fem_held_out",
         }
     }
 
@@ -60,17 +77,23 @@ impl DrawnProfile {
             (DrawnProfile::HalfSpace, ToolShape::Sphere { .. }) => "Johnson (half-space)",
             (DrawnProfile::HalfSpace, ToolShape::Cone { .. }) => "Sneddon (half-space)",
             (DrawnProfile::HalfSpaceOnBase, _) => "half-space on base",
+            (DrawnProfile::Fem, _) => "fem (tabulated FEM)",
+            (DrawnProfile::FemHeldOut, _) => "fem, row held out",
         }
     }
 }
 
 /// Every drawn profile of one contact, ready to evaluate at any radius.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct DrawnSurface {
     tool: ToolShape,
     depth_m: f64,
     thickness_m: f64,
     bezier: DeformationProfile,
+    /// The `fem` profile's family; without one the `fem` profiles are NaN.
+    fem: Option<SurfaceFamily>,
+    /// The same without the row at `depth_m`.
+    fem_held_out: Option<SurfaceFamily>,
 }
 
 impl DrawnSurface {
@@ -87,7 +110,31 @@ impl DrawnSurface {
                 law::contact_radius_m(tool, depth_m),
                 deformed_radius_m,
             ),
+            fem: None,
+            fem_held_out: None,
         }
+    }
+
+    /// The same with the `fem` profiles tabulated from `run` (the run the tables are written
+    /// from), once whole and once without its row at this depth.
+    pub fn with_fem_from(mut self, run: Option<&IndentationRun>) -> Self {
+        if let Some(run) = run {
+            self.fem = surface_family_without(&self.tool, run, None).ok();
+            self.fem_held_out = surface_family_without(&self.tool, run, Some(self.depth_m)).ok();
+        }
+        self
+    }
+
+    /// The profiles a study's report draws at `depth_m`: the paper's with `deformed_radius_m`,
+    /// the `fem` ones from the study's neo-Hookean run.
+    pub fn of_study(study: &super::RdStudy, depth_m: f64, deformed_radius_m: f64) -> Self {
+        DrawnSurface::new(
+            &study.tool,
+            depth_m,
+            deformed_radius_m,
+            super::RD_BLOCK_M[2],
+        )
+        .with_fem_from(fem_source(&study.runs))
     }
 
     /// Depression of `profile` at radius `r_m` from the contact axis.
@@ -98,7 +145,103 @@ impl DrawnSurface {
             DrawnProfile::HalfSpaceOnBase => {
                 half_space_on_base_depression_m(&self.tool, self.depth_m, r_m, self.thickness_m)
             }
+            DrawnProfile::Fem => self
+                .fem
+                .as_ref()
+                .map_or(f64::NAN, |f| f.at_depth(self.depth_m).depression_m(r_m)),
+            DrawnProfile::FemHeldOut => self
+                .fem_held_out
+                .as_ref()
+                .map_or(f64::NAN, |f| f.at_depth(self.depth_m).depression_m(r_m)),
         }
+    }
+}
+
+/// Radius spacing of the tabulated surface: 0.5 mm, under half the FEM's finest node spacing
+/// (1.25 mm on the calibration block), so resampling changes the surface by a few µm.
+pub const SURFACE_STEP_M: f64 = 0.5e-3;
+/// Where a row's depression falls below this for good, the row ends (with one sample of 0):
+/// 10 µm, a hundredth of a pixel on a 100 mm object filling the screen.
+pub const SURFACE_FLOOR_M: f64 = 1e-5;
+/// A row still sunk at the block's side (the surface beyond it is not known) ramps linearly to
+/// 0 over this distance past it, so the drawn surface meets the unmoved one without a step.
+pub const SURFACE_TAPER_M: f64 = 10e-3;
+
+/// How the contact radius grows with depth, the `fem` profile's radius exponent: √(Rδ) for a
+/// sphere, 2δ tanα/π for a cone.
+pub fn radius_exponent(tool: &ToolShape) -> f64 {
+    match tool {
+        ToolShape::Sphere { .. } => 0.5,
+        ToolShape::Cone { .. } => 1.0,
+    }
+}
+
+/// The run the `fem` profile is tabulated from: the neo-Hookean one, which writes the tables.
+pub fn fem_source(runs: &[IndentationRun]) -> Option<&IndentationRun> {
+    runs.iter().find(|r| r.law == LawKind::NeoHookean)
+}
+
+/// The `fem` render profile's family from `run`: its top surface at every depth, resampled every
+/// [`SURFACE_STEP_M`] from the axis to the block's side ([`surface_row`]).
+pub fn surface_family(
+    tool: &ToolShape,
+    run: &IndentationRun,
+) -> Result<SurfaceFamily, SurfaceFamilyError> {
+    surface_family_without(tool, run, None)
+}
+
+/// [`surface_family`] without the row at `skip_depth_m`.
+fn surface_family_without(
+    tool: &ToolShape,
+    run: &IndentationRun,
+    skip_depth_m: Option<f64>,
+) -> Result<SurfaceFamily, SurfaceFamilyError> {
+    let rows = run
+        .depths_m
+        .iter()
+        .zip(&run.surfaces)
+        .filter(|(d, _)| skip_depth_m.is_none_or(|skip| (**d - skip).abs() > 1e-9))
+        .map(|(&depth_m, surface)| surface_row(depth_m, surface))
+        .collect();
+    SurfaceFamily::new(radius_exponent(tool), SURFACE_STEP_M, rows)
+}
+
+/// One row of the `fem` profile: the FEM's depression (linear between its nodes, ≥ 0) every
+/// [`SURFACE_STEP_M`] out to the last node, rounded to 10 nm (the file stays short; the FEM is
+/// not that precise), ended where it falls below [`SURFACE_FLOOR_M`] for good, or ramped to 0
+/// over [`SURFACE_TAPER_M`] past the block's side when it is still sunk there.
+pub fn surface_row(depth_m: f64, surface: &[SurfacePoint]) -> SurfaceRow {
+    let last_m = surface.last().map_or(0.0, |p| p.radius_m);
+    let samples = (last_m / SURFACE_STEP_M).floor() as usize;
+    let round = |z: f64| (z * 1e8).round() / 1e8;
+    let mut depression_m: Vec<f64> = (0..=samples)
+        .map(|k| {
+            let z = surface_value_at(surface, k as f64 * SURFACE_STEP_M, |p| p.depression_m);
+            if z.is_finite() {
+                round(z.max(0.0))
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let kept = depression_m
+        .iter()
+        .rposition(|&z| z >= SURFACE_FLOOR_M)
+        .map_or(0, |k| k + 1);
+    if kept == depression_m.len() && kept > 0 {
+        let edge_m = depression_m[kept - 1];
+        let ramp = (SURFACE_TAPER_M / SURFACE_STEP_M).round().max(1.0) as usize;
+        depression_m.extend((1..ramp).map(|k| round(edge_m * (1.0 - k as f64 / ramp as f64))));
+    } else {
+        depression_m.truncate(kept);
+    }
+    depression_m.push(0.0);
+    if depression_m.len() < 2 {
+        depression_m.insert(0, 0.0);
+    }
+    SurfaceRow {
+        depth_m,
+        depression_m,
     }
 }
 
@@ -217,7 +360,8 @@ pub fn surface_value_at(
 }
 
 /// Compares every drawn profile with the FEM's `surface` of a run with `law` at `depth_m`, the
-/// paper's drawn with `deformed_radius_m`, on a block `thickness_m` deep.
+/// paper's drawn with `deformed_radius_m`, on a block `thickness_m` deep, the `fem` ones
+/// tabulated from `fem_source`.
 pub fn compare_surface(
     tool: &ToolShape,
     law: LawKind,
@@ -225,8 +369,10 @@ pub fn compare_surface(
     deformed_radius_m: f64,
     thickness_m: f64,
     surface: &[SurfacePoint],
+    fem_source: Option<&IndentationRun>,
 ) -> SurfaceComparison {
-    let drawn = DrawnSurface::new(tool, depth_m, deformed_radius_m, thickness_m);
+    let drawn =
+        DrawnSurface::new(tool, depth_m, deformed_radius_m, thickness_m).with_fem_from(fem_source);
     let a = law::contact_radius_m(tool, depth_m);
     let depression = |p: &SurfacePoint| p.depression_m;
     let profile: Vec<(f64, f64)> = surface
@@ -308,13 +454,15 @@ fn rms_along(errors: &[(f64, f64)]) -> f64 {
 
 /// The comparisons of every run at each of its depths up to δ = R (the tool's radius: the
 /// paper's sphere is then buried to its equator, and the Bézier's flank has vanished), the
-/// paper's profile drawn with `deformed_radius_m(δ)`.
+/// paper's profile drawn with `deformed_radius_m(δ)`, the `fem` ones tabulated from the
+/// neo-Hookean run among `runs`.
 pub fn compare_runs(
     tool: &ToolShape,
     runs: &[IndentationRun],
     thickness_m: f64,
     deformed_radius_m: impl Fn(f64) -> f64,
 ) -> Vec<SurfaceComparison> {
+    let source = fem_source(runs);
     let mut out = Vec::new();
     for run in runs {
         for (&depth_m, surface) in run.depths_m.iter().zip(&run.surfaces) {
@@ -328,6 +476,7 @@ pub fn compare_runs(
                 deformed_radius_m(depth_m),
                 thickness_m,
                 surface,
+                source,
             ));
         }
     }
@@ -371,6 +520,40 @@ mod tests {
     }
 
     #[test]
+    fn a_row_ends_where_the_surface_settles_or_ramps_down_past_the_block() {
+        // Settles inside the block: the row ends one sample after the last above the floor.
+        let settled: Vec<SurfacePoint> = (0..=100)
+            .map(|k| point(k as f64 * MM, (2.0 * MM - 0.1 * MM * k as f64).max(0.0)))
+            .collect();
+        let row = surface_row(2.0 * MM, &settled);
+        assert_eq!(row.depression_m[0], 2.0 * MM);
+        assert_eq!(row.depression_m[2], 1.9 * MM); // r = 1 mm, on a node
+        let last = *row.depression_m.last().unwrap();
+        assert_eq!(last, 0.0);
+        let kept = row.depression_m.len() - 1;
+        assert!(row.depression_m[kept - 1] >= SURFACE_FLOOR_M);
+        assert!((kept as f64 * SURFACE_STEP_M) < 20.5 * MM, "{kept}");
+        // Still sunk at the block's side (50 mm): a ramp to 0 over the taper beyond it.
+        let sunk: Vec<SurfacePoint> = (0..=50)
+            .map(|k| point(k as f64 * MM, 1.0 * MM / (1.0 + k as f64)))
+            .collect();
+        let row = surface_row(MM, &sunk);
+        let at_side = (50.0 * MM / SURFACE_STEP_M) as usize;
+        assert!((row.depression_m[at_side] - MM / 51.0).abs() < 1e-8);
+        let expected_len = at_side + (SURFACE_TAPER_M / SURFACE_STEP_M) as usize + 1;
+        assert_eq!(row.depression_m.len(), expected_len);
+        for w in row.depression_m[at_side..].windows(2) {
+            assert!(w[1] < w[0]);
+        }
+        // As a family it draws the FEM's surface at the row's depth.
+        let f = SurfaceFamily::new(0.5, SURFACE_STEP_M, vec![row]).unwrap();
+        let p = f.at_depth(MM);
+        for q in &sunk {
+            assert!((p.depression_m(q.radius_m) - q.depression_m).abs() < 1e-8);
+        }
+    }
+
+    #[test]
     fn a_surface_equal_to_the_half_space_scores_zero_for_it() {
         let tool = ToolShape::Sphere { radius_m: 0.01 };
         let d = 4.0 * MM;
@@ -380,7 +563,15 @@ mod tests {
                 point(r, half_space_depression_m(&tool, d, r))
             })
             .collect();
-        let c = compare_surface(&tool, LawKind::NeoHookean, d, 15.0 * MM, 0.05, &surface);
+        let c = compare_surface(
+            &tool,
+            LawKind::NeoHookean,
+            d,
+            15.0 * MM,
+            0.05,
+            &surface,
+            None,
+        );
         let hs = c.error(DrawnProfile::HalfSpace).unwrap();
         assert!(hs.max_error_m() < 1e-15 && hs.rms_error_m < 1e-15);
         assert!(hs.worst_error_outside_contact_m.abs() < 1e-15);
