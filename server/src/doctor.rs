@@ -122,8 +122,8 @@ pub struct DoctorArgs {
     /// Skip the loop-timing measurement.
     #[arg(long)]
     pub no_timing: bool,
-    /// Length of each of the two timing runs (idle, then beside a loaded neighbour), seconds
-    /// (0.2 to 600).
+    /// Length of each of the three timing runs (idle, beside CPU-burning threads, beside a disk
+    /// writer), seconds (0.2 to 600).
     #[arg(long, default_value_t = 3.0, value_name = "S", value_parser = parse_seconds)]
     pub seconds: f64,
     /// Check the loop as `run --no-realtime` would run it.
@@ -137,6 +137,11 @@ pub struct DoctorArgs {
     /// another machine's files); the device search and the timing still run here.
     #[arg(long, value_name = "DIR", default_value = "/")]
     pub root: PathBuf,
+    /// Where the disk writer of the timing's third run writes its scratch file (removed after):
+    /// the session recordings' directory, on the disk the host writes to [default: `sessions`
+    /// when it exists, else the system's temporary directory].
+    #[arg(long, value_name = "DIR")]
+    pub record_dir: Option<PathBuf>,
 }
 
 fn parse_seconds(text: &str) -> Result<f64, String> {
@@ -231,7 +236,15 @@ pub fn run(args: &DoctorArgs) -> anyhow::Result<i32> {
     };
     let tree = Tree::new(&args.root);
     let checks = checks::inspect(&tree, &plan, &device_facts());
-    let timing = (!args.no_timing).then(|| timing::measure(args.seconds, &plan));
+    let disk_dir = args.record_dir.clone().unwrap_or_else(|| {
+        let sessions = PathBuf::from("sessions");
+        if sessions.is_dir() {
+            sessions
+        } else {
+            std::env::temp_dir()
+        }
+    });
+    let timing = (!args.no_timing).then(|| timing::measure(args.seconds, &plan, &disk_dir));
     let report = Report::new(checks, timing);
     let text = if args.json {
         let mut s = serde_json::to_string_pretty(&report)?;
@@ -346,6 +359,8 @@ fn render_timing(out: &mut String, t: &timing::Timing) {
     for r in &t.runs {
         let name = if r.neighbour.starts_with("none") {
             "idle"
+        } else if r.neighbour.starts_with("disk") {
+            "disk writing"
         } else {
             "CPUs loaded"
         };
@@ -365,8 +380,8 @@ fn render_timing(out: &mut String, t: &timing::Timing) {
             }
         );
     }
-    if let Some(loaded) = t.runs.iter().find(|r| !r.neighbour.starts_with("none")) {
-        wrap(out, "loaded: ", &loaded.neighbour, 100);
+    for loaded in t.runs.iter().filter(|r| !r.neighbour.starts_with("none")) {
+        wrap(out, "beside: ", &loaded.neighbour, 100);
     }
     if let Some(first) = t.runs.first() {
         wrap(out, "loop thread: ", &first.loop_thread, 100);

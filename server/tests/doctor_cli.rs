@@ -122,7 +122,9 @@ fn doctor_without_timing_reports_every_check_as_json() {
 
 #[test]
 fn doctor_measures_the_loop_idle_and_loaded() {
-    let out = doctor(&["--json", "--seconds", "1"]);
+    let disk = tempfile::tempdir().unwrap();
+    let disk_dir = disk.path().to_str().unwrap();
+    let out = doctor(&["--json", "--seconds", "1", "--record-dir", disk_dir]);
     let report = assert_report(&out);
     let timing = &report["timing"];
     assert!(timing.is_object(), "{report:#}");
@@ -130,9 +132,13 @@ fn doctor_measures_the_loop_idle_and_loaded() {
     assert!(VERDICTS.contains(&timing["verdict"].as_str().unwrap()));
     if timing["error"].is_null() {
         let runs = timing["runs"].as_array().unwrap();
-        assert_eq!(runs.len(), 2, "{timing:#}");
+        assert_eq!(runs.len(), 3, "{timing:#}");
         assert!(runs[0]["neighbour"].as_str().unwrap().starts_with("none"));
         assert!(runs[1]["neighbour"].as_str().unwrap().contains("burning"));
+        assert!(runs[2]["neighbour"].as_str().unwrap().starts_with("disk"));
+        assert!(runs[2]["neighbour"].as_str().unwrap().contains(disk_dir));
+        // The disk writer's scratch file is gone.
+        assert_eq!(std::fs::read_dir(disk.path()).unwrap().count(), 0);
         for run in runs {
             // About a thousand ticks in one second, whatever the machine.
             let ticks = run["ticks"].as_u64().unwrap();

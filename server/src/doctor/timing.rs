@@ -1,7 +1,8 @@
 //! The short loop-timing measurement of `softhaptic doctor`: the server's own loop (the built-in
 //! scene, the simulated device, the same thread placement and real-time request as `run`) on an
-//! idle machine, then beside a loaded neighbour, with its lost ticks and period error set beside
-//! the goal.
+//! idle machine, then beside two loaded neighbours — threads burning every CPU, and a writer
+//! syncing to disk (the block-I/O kernel work that does not yield on stock kernels) — with its
+//! lost ticks and period error set beside the goal.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -186,14 +187,113 @@ impl Drop for Burners {
     }
 }
 
-/// Runs the loop for `seconds` with the neighbour `burners` (0: none).
-fn one_run(seconds: f64, plan: &LoopPlan, burners: usize) -> Result<Run, String> {
+/// Bytes the disk writer writes between two syncs, and the size its file is kept within.
+const WRITE_BLOCK_BYTES: usize = 1 << 20;
+const WRITE_FILE_BYTES: u64 = 32 << 20;
+
+/// A thread that writes and syncs a scratch file until dropped: the block-I/O neighbour (a
+/// recording, a log, a backup on the same host). The file is removed when it stops.
+struct DiskWriter {
+    stop: Arc<AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    path: std::path::PathBuf,
+}
+
+impl DiskWriter {
+    fn start(dir: &std::path::Path) -> std::io::Result<Self> {
+        use std::io::{Seek, SeekFrom, Write};
+        let path = dir.join(format!("softhaptic-doctor-{}.tmp", std::process::id()));
+        let mut file = std::fs::File::create(&path)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = std::thread::Builder::new()
+            .name("doctor-disk".into())
+            .spawn({
+                let stop = Arc::clone(&stop);
+                move || {
+                    // Not zeros: a filesystem that compresses or skips zero blocks would write less.
+                    let block: Vec<u8> = (0..WRITE_BLOCK_BYTES)
+                        .map(|i| (i * 31 % 251) as u8)
+                        .collect();
+                    let mut written = 0u64;
+                    while !stop.load(Ordering::Relaxed) {
+                        if written >= WRITE_FILE_BYTES {
+                            if file.seek(SeekFrom::Start(0)).is_err() {
+                                return;
+                            }
+                            written = 0;
+                        }
+                        if file.write_all(&block).is_err() || file.sync_data().is_err() {
+                            return;
+                        }
+                        written += WRITE_BLOCK_BYTES as u64;
+                    }
+                }
+            });
+        match thread {
+            Ok(thread) => Ok(DiskWriter {
+                stop,
+                thread: Some(thread),
+                path,
+            }),
+            Err(e) => {
+                let _ = std::fs::remove_file(&path);
+                Err(e)
+            }
+        }
+    }
+}
+
+impl Drop for DiskWriter {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// What runs beside the loop in one timing run.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Neighbour {
+    None,
+    /// This many threads burning CPU at normal priority.
+    Cpu(usize),
+    /// A writer syncing 1 MiB at a time to a scratch file in this directory.
+    Disk(std::path::PathBuf),
+}
+
+impl Neighbour {
+    /// How the run's report names it (its first word tells the kind; see the table's rows).
+    fn describe(&self) -> String {
+        match self {
+            Neighbour::None => "none (idle machine)".to_owned(),
+            Neighbour::Cpu(n) => format!("{n} threads burning CPU at normal priority, one per CPU"),
+            Neighbour::Disk(dir) => format!(
+                "disk: a writer syncing 1 MiB at a time to a {} MiB scratch file in {}",
+                WRITE_FILE_BYTES >> 20,
+                dir.display()
+            ),
+        }
+    }
+}
+
+/// Runs the loop for `seconds` beside `neighbour`.
+fn one_run(seconds: f64, plan: &LoopPlan, neighbour: &Neighbour) -> Result<Run, String> {
     let mut scene = Scene::builtin_default().map_err(|e| format!("the built-in scene: {e}"))?;
     let device = devices::open(&mut scene).map_err(|e| format!("the simulated device: {e}"))?;
-    let _neighbour = if burners > 0 {
-        Some(Burners::start(burners).map_err(|e| format!("starting the neighbour: {e}"))?)
-    } else {
-        None
+    let _burners = match neighbour {
+        Neighbour::Cpu(n) => {
+            Some(Burners::start(*n).map_err(|e| format!("starting the neighbour: {e}"))?)
+        }
+        _ => None,
+    };
+    let _writer = match neighbour {
+        Neighbour::Disk(dir) => Some(
+            DiskWriter::start(dir)
+                .map_err(|e| format!("starting the disk writer in {}: {e}", dir.display()))?,
+        ),
+        _ => None,
     };
     let haptic = HapticLoop::spawn_on(
         device,
@@ -212,20 +312,26 @@ fn one_run(seconds: f64, plan: &LoopPlan, burners: usize) -> Result<Run, String>
     std::thread::sleep(Duration::from_secs_f64(seconds));
     let elapsed = start.elapsed().as_secs_f64();
     let stats = haptic.stop();
-    let neighbour = if burners == 0 {
-        "none (idle machine)".to_owned()
-    } else {
-        format!("{burners} threads burning CPU at normal priority, one per CPU")
-    };
-    Ok(Run::from_stats(neighbour, elapsed, &stats, loop_thread))
+    Ok(Run::from_stats(
+        neighbour.describe(),
+        elapsed,
+        &stats,
+        loop_thread,
+    ))
 }
 
-/// Measures the loop for `seconds` idle, then for `seconds` beside a loaded neighbour.
-pub fn measure(seconds: f64, plan: &LoopPlan) -> Timing {
+/// Measures the loop for `seconds` idle, then for `seconds` beside CPU-burning threads, then
+/// for `seconds` beside a disk writer in `disk_dir` (where recordings go: the disk the host
+/// writes).
+pub fn measure(seconds: f64, plan: &LoopPlan, disk_dir: &std::path::Path) -> Timing {
     let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let mut runs = Vec::with_capacity(2);
-    for burners in [0, cpus] {
-        match one_run(seconds, plan, burners) {
+    let mut runs = Vec::with_capacity(3);
+    for neighbour in [
+        Neighbour::None,
+        Neighbour::Cpu(cpus),
+        Neighbour::Disk(disk_dir.to_path_buf()),
+    ] {
+        match one_run(seconds, plan, &neighbour) {
             Ok(run) => runs.push(run),
             Err(e) => return Timing::new(seconds, runs, Some(e)),
         }
