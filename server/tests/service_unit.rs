@@ -1,0 +1,114 @@
+//! The README's systemd unit for a device host: its command line is one this build accepts, its
+//! limits let the loop get what it asks for, its state directory is where the recordings go,
+//! and (where `systemd-analyze` is installed) systemd itself accepts the unit.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::path::Path;
+use std::process::Command;
+
+const UNIT_HEADER: &str = "# /etc/systemd/system/softhaptic.service";
+/// The binary's path in the README's unit.
+const UNIT_BINARY: &str = "/opt/softhaptic/softhaptic";
+
+/// The unit as the README gives it, from its header comment to the end of the code block.
+fn readme_unit() -> String {
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    let start = readme
+        .find(UNIT_HEADER)
+        .expect("the README gives the device host's systemd unit");
+    let body = &readme[start + UNIT_HEADER.len()..];
+    let end = body.find("\n```").expect("the unit's code block ends");
+    body[..end].trim_start_matches('\n').to_owned()
+}
+
+/// Each `key=value` of the unit, continuation lines joined, comments dropped.
+fn directives(unit: &str) -> Vec<(String, String)> {
+    let joined = unit.replace("\\\n", " ");
+    joined
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#') && !l.starts_with('['))
+        .filter_map(|l| l.split_once('='))
+        .map(|(k, v)| (k.trim().to_owned(), v.trim().to_owned()))
+        .collect()
+}
+
+fn value<'a>(directives: &'a [(String, String)], key: &str) -> &'a str {
+    directives
+        .iter()
+        .find(|(k, _)| k == key)
+        .map(|(_, v)| v.as_str())
+        .unwrap_or_else(|| panic!("the unit sets no {key}"))
+}
+
+#[test]
+fn the_readme_unit_runs_this_build_with_the_limits_the_loop_needs() {
+    let unit = readme_unit();
+    let d = directives(&unit);
+
+    // The command line: the binary, then arguments this build's `run` accepts (clap reads them
+    // in order and stops at `--help`, so an unknown option or a bad value fails first).
+    let exec: Vec<&str> = value(&d, "ExecStart").split_whitespace().collect();
+    assert_eq!(exec[0], UNIT_BINARY);
+    let out = Command::new(env!("CARGO_BIN_EXE_softhaptic"))
+        .args(&exec[1..])
+        .arg("--help")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{exec:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(exec[1], "run");
+
+    // The loop asks for SCHED_FIFO priority 80 and locked memory.
+    let rtprio: u32 = value(&d, "LimitRTPRIO").parse().unwrap();
+    assert!(rtprio >= 80, "LimitRTPRIO={rtprio}");
+    assert_eq!(value(&d, "LimitMEMLOCK"), "infinity");
+    // The recordings go to the state directory systemd makes for the service's user.
+    let state = value(&d, "StateDirectory");
+    let record_dir = exec
+        .windows(2)
+        .find(|w| w[0] == "--record-dir")
+        .map(|w| w[1])
+        .expect("the unit names the recordings' directory");
+    assert!(
+        record_dir.starts_with(&format!("/var/lib/{state}/")),
+        "{record_dir} is not under StateDirectory={state}"
+    );
+    // Restarted after a crash; given the time to close the recording on a stop.
+    assert_eq!(value(&d, "Restart"), "on-failure");
+    let stop_s: u32 = value(&d, "TimeoutStopSec").parse().unwrap();
+    assert!(stop_s >= 10);
+    // Beyond loopback the server refuses to start without tokens: the unit gives them.
+    assert!(exec.contains(&"--token-file"), "{exec:?}");
+}
+
+#[test]
+fn systemd_accepts_the_readme_unit() {
+    let Ok(version) = Command::new("systemd-analyze").arg("--version").output() else {
+        eprintln!("systemd-analyze is not installed: the unit's syntax is not checked here");
+        return;
+    };
+    assert!(version.status.success());
+    let dir = tempfile::tempdir().unwrap();
+    // The unit as installed, with this build's binary where the README puts its own.
+    let unit = readme_unit().replace(UNIT_BINARY, env!("CARGO_BIN_EXE_softhaptic"));
+    let path = dir.path().join("softhaptic.service");
+    std::fs::write(&path, unit).unwrap();
+    let out = Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "systemd-analyze verify: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
