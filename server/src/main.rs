@@ -120,8 +120,9 @@ struct RunArgs {
     /// This station's name in the lab (letters, digits, '-' and '_').
     #[arg(long, value_name = "NAME", requires = "nats")]
     station: Option<String>,
-    /// NATS credentials: a NATS .creds file, or TOML with `token = "…"` or `user = "…"` and
-    /// `password = "…"`.
+    /// NATS credentials: a NATS .creds file, a user nkey seed file (`SU…`, as `nk -gen user`
+    /// writes it), or TOML with `token = "…"`, `user = "…"` and `password = "…"`, or `nkey =
+    /// "SU…"`.
     #[arg(long, value_name = "FILE", requires = "nats")]
     nats_credentials: Option<PathBuf>,
 }
@@ -131,8 +132,9 @@ struct HubArgs {
     /// The lab's NATS (e.g. nats://lab-server:4222).
     #[arg(long, value_name = "URL")]
     nats: String,
-    /// NATS credentials: a NATS .creds file, or TOML with `token = "…"` or `user = "…"` and
-    /// `password = "…"`.
+    /// NATS credentials: a NATS .creds file, a user nkey seed file (`SU…`, as `nk -gen user`
+    /// writes it), or TOML with `token = "…"`, `user = "…"` and `password = "…"`, or `nkey =
+    /// "SU…"`.
     #[arg(long, value_name = "FILE")]
     nats_credentials: Option<PathBuf>,
     /// Address to serve the page and the relayed streams on; port 0 picks a free port.

@@ -13,7 +13,19 @@ pub struct NatsServer {
     child: Option<Child>,
     pub port: u16,
     store: PathBuf,
-    auth: Option<(String, String)>,
+    auth: Option<Auth>,
+}
+
+/// Whom the server takes.
+enum Auth {
+    User {
+        user: String,
+        password: String,
+    },
+    /// The user whose nkey has this public key (`U…`).
+    Nkey {
+        public_key: String,
+    },
 }
 
 impl NatsServer {
@@ -24,10 +36,27 @@ impl NatsServer {
 
     /// Starts a server that takes only `user` with `password`.
     pub fn start_with_user(name: &str, user: &str, password: &str) -> NatsServer {
-        Self::start_with(name, Some((user.to_owned(), password.to_owned())))
+        Self::start_with(
+            name,
+            Some(Auth::User {
+                user: user.to_owned(),
+                password: password.to_owned(),
+            }),
+        )
     }
 
-    fn start_with(name: &str, auth: Option<(String, String)>) -> NatsServer {
+    /// Starts a server that takes only the user of this nkey public key (`U…`), which proves
+    /// itself by signing the server's nonce with its seed.
+    pub fn start_with_nkey(name: &str, public_key: &str) -> NatsServer {
+        Self::start_with(
+            name,
+            Some(Auth::Nkey {
+                public_key: public_key.to_owned(),
+            }),
+        )
+    }
+
+    fn start_with(name: &str, auth: Option<Auth>) -> NatsServer {
         let port = TcpListener::bind("127.0.0.1:0")
             .and_then(|l| l.local_addr())
             .map(|a| a.port())
@@ -71,8 +100,22 @@ impl NatsServer {
             .arg(&self.store)
             .stdout(Stdio::null())
             .stderr(Stdio::null());
-        if let Some((user, password)) = &self.auth {
-            command.args(["--user", user, "--pass", password]);
+        match &self.auth {
+            Some(Auth::User { user, password }) => {
+                command.args(["--user", user, "--pass", password]);
+            }
+            Some(Auth::Nkey { public_key }) => {
+                // nkey users are set in a configuration file only; the flags above still apply.
+                let config = self.store.join("nkey.conf");
+                std::fs::create_dir_all(&self.store).expect("the store directory");
+                std::fs::write(
+                    &config,
+                    format!("authorization {{ users = [ {{ nkey: \"{public_key}\" }} ] }}\n"),
+                )
+                .expect("the server's configuration");
+                command.arg("-c").arg(&config);
+            }
+            None => {}
         }
         let child = command.spawn().unwrap_or_else(|e| {
             panic!(

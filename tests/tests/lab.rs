@@ -400,3 +400,36 @@ async fn recordings_are_archived_verified_retried_and_replayed_from_the_hub() {
     assert!(mesh.len() > 1 << 20);
     hub.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_station_and_a_hub_sign_in_with_a_user_nkey_and_another_key_is_refused() {
+    let key = nkeys::KeyPair::new_user();
+    let server = NatsServer::start_with_nkey("nkey", &key.public_key());
+    let dir = scratch_dir("lab-nkey");
+    // As `nk -gen user` writes it: the seed on a line of its own.
+    let seed_file = dir.join("desk.nk");
+    std::fs::write(&seed_file, format!("{}\n", key.seed().unwrap())).unwrap();
+    let stranger = nkeys::KeyPair::new_user().seed().unwrap();
+    let wrong = dir.join("stranger.nk");
+    std::fs::write(&wrong, format!("{stranger}\n")).unwrap();
+
+    let e = station("desk-n", nats(server.url(), Some(wrong)))
+        .await
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("refused this station"), "{e}");
+    assert!(!e.contains(&stranger[2..12]), "the seed is not shown: {e}");
+
+    let a = station("desk-n", nats(server.url(), Some(seed_file.clone())))
+        .await
+        .unwrap();
+    let hub = hub(nats(server.url(), Some(seed_file)), false).await;
+    wait_until("the station listed", || hub.stations().len() == 1).await;
+    let mut viewer =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-n", hub.local_addr())).await;
+    assert_eq!(frames(&mut viewer, 10).await.len(), 10);
+    hub.shutdown().await;
+    a.shutdown().await;
+    let _ = std::fs::remove_dir_all(&dir);
+}

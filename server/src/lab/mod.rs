@@ -132,8 +132,9 @@ pub struct MeshRequest {
 #[derive(Debug, Clone)]
 pub struct NatsOptions {
     pub url: String,
-    /// A file with the credentials: a NATS `.creds` file (a user JWT and its nkey seed), or
-    /// TOML with `token = "…"` or `user = "…"` and `password = "…"`.
+    /// A file with the credentials: a NATS `.creds` file (a user JWT and its nkey seed), a user
+    /// nkey seed file (`SU…`, as `nk -gen user` writes it), or TOML with `token = "…"`, `user =
+    /// "…"` and `password = "…"`, or `nkey = "SU…"`.
     pub credentials: Option<PathBuf>,
 }
 
@@ -163,6 +164,23 @@ struct CredentialsFile {
     token: Option<String>,
     user: Option<String>,
     password: Option<String>,
+    nkey: Option<String>,
+}
+
+/// What the credentials TOML may hold, for its errors.
+const CREDENTIALS_FORMS: &str =
+    "not a .creds file, nor a user nkey seed, nor TOML with token, user and password, or nkey";
+
+/// A user nkey seed checked before it is used (a bad one would fail only when NATS asks for a
+/// signature). The error never quotes the seed.
+fn user_nkey_seed(seed: &str) -> Result<String, String> {
+    let seed = seed.trim();
+    if !seed.starts_with("SU") {
+        return Err("the nkey is not a user seed (a user seed starts with SU)".into());
+    }
+    nkeys::KeyPair::from_seed(seed)
+        .map(|_| seed.to_owned())
+        .map_err(|_| "the nkey seed does not decode (a damaged or truncated seed)".into())
 }
 
 /// Connection options with the credentials of `path` (never logged, never in an error).
@@ -181,14 +199,23 @@ async fn with_credentials(
             .credentials(&text)
             .map_err(|e| refused(format!("not a valid .creds file: {}", e.kind())));
     }
+    // A seed file: the seed alone, on a line of its own (comment lines allowed around it).
+    let lines: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#') && !l.starts_with("//"))
+        .collect();
+    if let [only] = lines[..]
+        && only.starts_with("SU")
+        && !only.contains('=')
+    {
+        return Ok(options.nkey(user_nkey_seed(only).map_err(refused)?));
+    }
     // The TOML parser's message may quote the value it stopped at: keep only its position.
     let file: CredentialsFile = toml::from_str(&text).map_err(|e| {
         refused(match e.span() {
-            Some(span) => format!(
-                "not a .creds file, nor TOML with token or user and password (error at byte {})",
-                span.start
-            ),
-            None => "not a .creds file, nor TOML with token or user and password".into(),
+            Some(span) => format!("{CREDENTIALS_FORMS} (error at byte {})", span.start),
+            None => CREDENTIALS_FORMS.into(),
         })
     })?;
     match file {
@@ -196,14 +223,22 @@ async fn with_credentials(
             token: Some(token),
             user: None,
             password: None,
+            nkey: None,
         } => Ok(options.token(token)),
         CredentialsFile {
             token: None,
             user: Some(user),
             password: Some(password),
+            nkey: None,
         } => Ok(options.user_and_password(user, password)),
+        CredentialsFile {
+            token: None,
+            user: None,
+            password: None,
+            nkey: Some(seed),
+        } => Ok(options.nkey(user_nkey_seed(&seed).map_err(refused)?)),
         _ => Err(refused(
-            "give either token, or user and password (and nothing else)".into(),
+            "give either token, or user and password, or nkey (and nothing else)".into(),
         )),
     }
 }
@@ -319,6 +354,56 @@ mod tests {
                 .to_string();
             assert!(e.contains(name), "{e}");
             assert!(!e.contains("s3cret"), "{e}");
+        }
+    }
+
+    #[tokio::test]
+    async fn a_user_nkey_seed_is_taken_alone_or_in_toml_and_a_bad_one_is_refused_unquoted() {
+        let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
+        let write = |name: &str, text: &str| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, text).unwrap_or_else(|e| panic!("{e}"));
+            p
+        };
+        let seed = nkeys::KeyPair::new_user()
+            .seed()
+            .unwrap_or_else(|e| panic!("{e}"));
+        for (name, text) in [
+            ("user.nk", format!("{seed}\n")),
+            ("commented.nk", format!("# desk-3's key\n{seed}\n")),
+            ("nkey.toml", format!("nkey = \"{seed}\"\n")),
+        ] {
+            let path = write(name, &text);
+            let r = with_credentials(async_nats::ConnectOptions::new(), &path).await;
+            assert!(r.is_ok(), "{name}: {:?}", r.err().map(|e| e.to_string()));
+        }
+        // A damaged seed, an account's seed, a seed with a password: refused, never quoted.
+        let other = if &seed[20..21] == "A" { "B" } else { "A" };
+        let damaged = format!("{}{other}{}", &seed[..20], &seed[21..]);
+        let account = nkeys::KeyPair::new_account()
+            .seed()
+            .unwrap_or_else(|e| panic!("{e}"));
+        for (name, text, secret) in [
+            ("damaged.nk", damaged.clone(), damaged.as_str()),
+            (
+                "account.toml",
+                format!("nkey = \"{account}\"\n"),
+                account.as_str(),
+            ),
+            (
+                "mixed.toml",
+                format!("nkey = \"{seed}\"\npassword = \"x\"\n"),
+                seed.as_str(),
+            ),
+        ] {
+            let path = write(name, &text);
+            let e = with_credentials(async_nats::ConnectOptions::new(), &path)
+                .await
+                .err()
+                .unwrap_or_else(|| panic!("{name} accepted"))
+                .to_string();
+            assert!(e.contains(name), "{e}");
+            assert!(!e.contains(&secret[2..12]), "{name}: {e}");
         }
     }
 }
