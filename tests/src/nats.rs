@@ -26,6 +26,41 @@ enum Auth {
     Nkey {
         public_key: String,
     },
+    /// Decentralised auth: the operator's JWT, the system account's and one account's (public
+    /// key, JWT), preloaded.
+    Operator {
+        operator_jwt: String,
+        system: (String, String),
+        account: (String, String),
+    },
+}
+
+/// A NATS JWT (header, claims, signature; base64url without padding) signed by `signer`.
+fn jwt(signer: &nkeys::KeyPair, claims: serde_json::Value) -> String {
+    use base64::Engine;
+    let b64 = base64::engine::general_purpose::URL_SAFE_NO_PAD;
+    let header = b64.encode(br#"{"typ":"JWT","alg":"ed25519-nkey"}"#);
+    let body = b64.encode(claims.to_string());
+    let signed = format!("{header}.{body}");
+    let signature = signer.sign(signed.as_bytes()).expect("an nkey signs");
+    format!("{signed}.{}", b64.encode(signature))
+}
+
+/// The claims every JWT carries, for `subject` issued by `issuer`.
+fn claims(
+    issuer: &nkeys::KeyPair,
+    subject: &str,
+    name: &str,
+    nats: serde_json::Value,
+) -> serde_json::Value {
+    serde_json::json!({
+        "jti": format!("{name}-{subject}"),
+        "iat": 1_700_000_000u64,
+        "iss": issuer.public_key(),
+        "name": name,
+        "sub": subject,
+        "nats": nats,
+    })
 }
 
 impl NatsServer {
@@ -54,6 +89,79 @@ impl NatsServer {
                 public_key: public_key.to_owned(),
             }),
         )
+    }
+
+    /// Starts a server in operator mode (decentralised JWT auth, as a managed NATS service runs)
+    /// with one account, and returns it with a `.creds` file's text for one user of the account.
+    pub fn start_with_operator(name: &str) -> (NatsServer, String) {
+        let operator = nkeys::KeyPair::new_operator();
+        let account = nkeys::KeyPair::new_account();
+        // JetStream needs the server's own account for its internal subscriptions.
+        let system = nkeys::KeyPair::new_account();
+        let user = nkeys::KeyPair::new_user();
+        let operator_jwt = jwt(
+            &operator,
+            claims(
+                &operator,
+                &operator.public_key(),
+                "lab",
+                serde_json::json!({
+                    "type": "operator", "version": 2,
+                    "system_account": system.public_key(),
+                }),
+            ),
+        );
+        let system_jwt = jwt(
+            &operator,
+            claims(
+                &operator,
+                &system.public_key(),
+                "SYS",
+                serde_json::json!({"type": "account", "version": 2}),
+            ),
+        );
+        let unlimited = serde_json::json!({
+            "subs": -1, "data": -1, "payload": -1, "imports": -1, "exports": -1,
+            "wildcards": true, "conn": -1, "leaf": -1,
+            "mem_storage": -1, "disk_storage": -1, "streams": -1, "consumer": -1,
+        });
+        let account_jwt = jwt(
+            &operator,
+            claims(
+                &operator,
+                &account.public_key(),
+                "lab-account",
+                serde_json::json!({"limits": unlimited, "type": "account", "version": 2}),
+            ),
+        );
+        let user_jwt = jwt(
+            &account,
+            claims(
+                &account,
+                &user.public_key(),
+                "desk",
+                serde_json::json!({
+                    "pub": {}, "sub": {}, "subs": -1, "data": -1, "payload": -1,
+                    "type": "user", "version": 2,
+                }),
+            ),
+        );
+        let creds = format!(
+            "-----BEGIN NATS USER JWT-----\n{user_jwt}\n------END NATS USER JWT------\n\n\
+             ************************* IMPORTANT *************************\n\
+             NKEY Seed printed below can be used to sign and prove identity.\n\n\
+             -----BEGIN USER NKEY SEED-----\n{}\n------END USER NKEY SEED------\n",
+            user.seed().expect("a user seed")
+        );
+        let server = Self::start_with(
+            name,
+            Some(Auth::Operator {
+                operator_jwt,
+                system: (system.public_key(), system_jwt),
+                account: (account.public_key(), account_jwt),
+            }),
+        );
+        (server, creds)
     }
 
     fn start_with(name: &str, auth: Option<Auth>) -> NatsServer {
@@ -111,6 +219,24 @@ impl NatsServer {
                 std::fs::write(
                     &config,
                     format!("authorization {{ users = [ {{ nkey: \"{public_key}\" }} ] }}\n"),
+                )
+                .expect("the server's configuration");
+                command.arg("-c").arg(&config);
+            }
+            Some(Auth::Operator {
+                operator_jwt,
+                system: (system, system_jwt),
+                account: (account, account_jwt),
+            }) => {
+                let config = self.store.join("operator.conf");
+                std::fs::create_dir_all(&self.store).expect("the store directory");
+                std::fs::write(
+                    &config,
+                    format!(
+                        "operator: \"{operator_jwt}\"\nsystem_account: {system}\n\
+                         resolver: MEMORY\nresolver_preload: {{ {system}: \"{system_jwt}\", \
+                         {account}: \"{account_jwt}\" }}\n"
+                    ),
                 )
                 .expect("the server's configuration");
                 command.arg("-c").arg(&config);

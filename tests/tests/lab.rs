@@ -433,3 +433,30 @@ async fn a_station_and_a_hub_sign_in_with_a_user_nkey_and_another_key_is_refused
     a.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_station_signs_in_with_a_creds_file_to_a_nats_in_operator_mode() {
+    let (server, creds) = NatsServer::start_with_operator("operator");
+    let dir = scratch_dir("lab-creds");
+    let creds_file = dir.join("desk.creds");
+    std::fs::write(&creds_file, &creds).unwrap();
+    // Without it, refused.
+    let e = station("desk-c", nats(server.url(), None))
+        .await
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("refused this station"), "{e}");
+
+    let a = station("desk-c", nats(server.url(), Some(creds_file.clone())))
+        .await
+        .unwrap();
+    let hub = hub(nats(server.url(), Some(creds_file)), false).await;
+    wait_until("the station listed", || hub.stations().len() == 1).await;
+    let mut viewer =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-c", hub.local_addr())).await;
+    assert_eq!(frames(&mut viewer, 10).await.len(), 10);
+    hub.shutdown().await;
+    a.shutdown().await;
+    let _ = std::fs::remove_dir_all(&dir);
+}
