@@ -335,8 +335,30 @@ fn dechunk(mut body: &[u8]) -> Vec<u8> {
 }
 
 /// A fresh, empty directory for one test's files: `<tmp>/softhaptic-<name>-<pid>`.
+///
+/// The same test's directories left by earlier runs whose process is gone (a failed or killed
+/// test does not clean up after itself) are removed first, so a machine that runs the suite
+/// again and again keeps at most one per test.
 pub fn scratch_dir(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("softhaptic-{name}-{}", std::process::id()));
+    let tmp = std::env::temp_dir();
+    let prefix = format!("softhaptic-{name}-");
+    if let Ok(entries) = std::fs::read_dir(&tmp) {
+        for entry in entries.flatten() {
+            let file_name = entry.file_name();
+            let Some(pid) = file_name
+                .to_str()
+                .and_then(|n| n.strip_prefix(&prefix))
+                .and_then(|rest| rest.parse::<u32>().ok())
+            else {
+                continue;
+            };
+            if pid != std::process::id() && !std::path::Path::new(&format!("/proc/{pid}")).exists()
+            {
+                let _ = std::fs::remove_dir_all(entry.path());
+            }
+        }
+    }
+    let dir = tmp.join(format!("{prefix}{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     if let Err(e) = std::fs::create_dir_all(&dir) {
         panic!("could not create {}: {e}", dir.display());
