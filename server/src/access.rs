@@ -80,7 +80,7 @@ pub enum AccessError {
     TokenFileRead {
         path: PathBuf,
         #[source]
-        source: std::io::Error,
+        source: crate::files::ReadError,
     },
     #[error("{path}:{line}: {problem}")]
     TokenFileLine {
@@ -157,9 +157,10 @@ pub enum TokenProblem {
     },
 }
 
-/// One role's secret. Never displayed: see the module's first promise.
+/// One role's secret. Never displayed: see the module's first promise. Its memory is wiped when
+/// it is dropped, so a freed token does not linger for a core dump or a later allocation.
 #[derive(Clone, PartialEq, Eq)]
-pub struct Token(String);
+pub struct Token(zeroize::Zeroizing<String>);
 
 impl fmt::Debug for Token {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -177,7 +178,7 @@ impl Token {
             text.push(hex_digit(b >> 4));
             text.push(hex_digit(b & 0x0f));
         }
-        Ok(Token(text))
+        Ok(Token(zeroize::Zeroizing::new(text)))
     }
 
     /// A token given by a person (file, variable) for `role`: at least [`MIN_TOKEN_CHARS`]
@@ -201,7 +202,7 @@ impl Token {
         if chars > MAX_TOKEN_CHARS {
             return Err(TokenProblem::TooLong { role, chars });
         }
-        Ok(Token(text.to_owned()))
+        Ok(Token(zeroize::Zeroizing::new(text.to_owned())))
     }
 
     /// The secret itself, for the one place that must show it: the links printed at start.
@@ -319,10 +320,13 @@ impl Tokens {
 /// Reads a token file: `instructor = <token>` and `observer = <token>`, one per line; blank
 /// lines and lines starting with `#` are skipped. Errors name the file and the line.
 pub fn read_token_file(path: &Path) -> Result<Tokens, AccessError> {
-    let text = std::fs::read_to_string(path).map_err(|source| AccessError::TokenFileRead {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    // Bounded (a token file is a few lines), and wiped once parsed.
+    let text = crate::files::read_text(path, crate::files::FileKind::Secrets)
+        .map(zeroize::Zeroizing::new)
+        .map_err(|source| AccessError::TokenFileRead {
+            path: path.to_path_buf(),
+            source,
+        })?;
     warn_if_others_may_read(path);
     parse_token_file(path, &text)
 }
@@ -1295,6 +1299,30 @@ mod tests {
             Token::generate().unwrap()
         );
         assert!(!shown.contains(I) && !shown.contains(O), "{shown}");
+    }
+
+    #[test]
+    fn a_token_file_is_read_within_a_bound_and_only_from_a_regular_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = dir.path().join("tokens");
+        std::fs::write(&good, format!("instructor = {I}\nobserver = {O}\n")).unwrap();
+        assert_eq!(
+            read_token_file(&good).unwrap().role_of(O),
+            Some(Role::Observer)
+        );
+        // A device that never ends, a directory, a file far larger than a few lines of tokens:
+        // refused by name, without reading them whole.
+        let huge = dir.path().join("huge");
+        std::fs::write(&huge, vec![b'#'; 100 << 10]).unwrap();
+        for (path, expected) in [
+            (Path::new("/dev/zero"), "not a regular file"),
+            (dir.path(), "not a regular file"),
+            (huge.as_path(), "a token or credentials file may be"),
+        ] {
+            let e = read_token_file(path).err().unwrap().to_string();
+            assert!(e.contains(&path.display().to_string()), "{e}");
+            assert!(e.contains(expected), "{e}");
+        }
     }
 
     #[test]

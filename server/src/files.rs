@@ -21,6 +21,8 @@ pub enum FileKind {
     Table,
     /// A session recording (MCAP): about 85 kB per second of session, so 13 hours.
     Recording,
+    /// A token file or NATS credentials: a few lines (a `.creds` file is about 1 kB).
+    Secrets,
 }
 
 impl FileKind {
@@ -31,6 +33,7 @@ impl FileKind {
             FileKind::Mesh => 256 << 20,
             FileKind::Table => 16 << 20,
             FileKind::Recording => 4 << 30,
+            FileKind::Secrets => 64 << 10,
         }
     }
 
@@ -40,6 +43,7 @@ impl FileKind {
             FileKind::Mesh => "a mesh",
             FileKind::Table => "a calibration or limits file",
             FileKind::Recording => "a recording",
+            FileKind::Secrets => "a token or credentials file",
         }
     }
 }

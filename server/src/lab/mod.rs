@@ -192,7 +192,9 @@ async fn with_credentials(
         path: path.to_owned(),
         reason,
     };
-    let text = crate::files::read_text(path, crate::files::FileKind::Table)
+    // Bounded, and wiped once the client has what it needs.
+    let text = crate::files::read_text(path, crate::files::FileKind::Secrets)
+        .map(zeroize::Zeroizing::new)
         .map_err(|e| refused(e.to_string()))?;
     if text.contains("-----BEGIN NATS USER JWT-----") {
         return options
