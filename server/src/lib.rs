@@ -20,6 +20,8 @@
 //! - [`lab`]: the teaching lab on NATS: a station publishes its stream (`--nats`, `--station`),
 //!   a hub (`softhaptic hub`) lists the stations and relays any of them to browsers.
 //! - [`files`]: reading the files users name: regular files only, each kind bounded in size.
+//! - [`logging`]: the process's log, which never writes the libraries' payload traces (tokens,
+//!   NATS credentials), whatever `RUST_LOG` asks for.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
@@ -35,6 +37,7 @@ pub mod devices;
 pub mod doctor;
 pub mod files;
 pub mod lab;
+pub mod logging;
 pub mod scene;
 pub mod session;
 pub mod stream;

@@ -286,8 +286,9 @@ fn tokens_appear_only_in_the_printed_links_never_in_the_log_the_recording_or_an_
             "--record-dir",
             &record,
         ],
-        // Debug level: every line the server could log about a connection.
-        &[("RUST_LOG", "debug")],
+        // Trace level: every line the server and its libraries could log about a connection
+        // (the WebSocket and NATS libraries print what a connection carries at this level).
+        &[("RUST_LOG", "trace")],
     );
     let recording = PathBuf::from(server.line("recording: "));
     let (addr, instructor) = split_link(&server.line("viewer: "));

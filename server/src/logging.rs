@@ -1,0 +1,69 @@
+//! The server's log: `RUST_LOG` chooses what is written (default `info`), to stderr, coloured only
+//! for a person at a terminal; and whatever `RUST_LOG` says, the libraries' TRACE events that
+//! print what a connection carries are never written, because those bytes hold secrets: a
+//! viewer's first WebSocket message is its token (tungstenite logs each frame and message at
+//! TRACE), and async-nats logs its CONNECT, with the NATS password or token, at TRACE.
+
+use tracing::{Level, Metadata};
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
+use tracing_subscriber::{EnvFilter, Layer};
+
+/// Targets whose TRACE events print a connection's payload (see the module doc).
+const PAYLOAD_TRACING_TARGETS: [&str; 3] = ["tungstenite", "tokio_tungstenite", "async_nats"];
+
+/// Whether an event may print a secret and is therefore never written.
+pub fn may_print_secrets(metadata: &Metadata<'_>) -> bool {
+    may_print_secrets_at(metadata.target(), *metadata.level())
+}
+
+fn may_print_secrets_at(target: &str, level: Level) -> bool {
+    level == Level::TRACE
+        && PAYLOAD_TRACING_TARGETS.iter().any(|t| {
+            target == *t
+                || target
+                    .strip_prefix(t)
+                    .is_some_and(|rest| rest.starts_with("::"))
+        })
+}
+
+/// Installs the process's log. Call once, first.
+pub fn init() {
+    let env = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let layer = tracing_subscriber::fmt::layer()
+        .with_writer(std::io::stderr)
+        // Colour codes only for a person at a terminal, not in a log file or a pipe.
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_filter(env)
+        .with_filter(tracing_subscriber::filter::filter_fn(|m| {
+            !may_print_secrets(m)
+        }));
+    tracing_subscriber::registry().with(layer).init();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn payload_traces_of_the_websocket_and_nats_libraries_are_never_written() {
+        for target in [
+            "tungstenite",
+            "tungstenite::protocol",
+            "tokio_tungstenite",
+            "async_nats::connection",
+        ] {
+            assert!(may_print_secrets_at(target, Level::TRACE), "{target}");
+            // Their other levels say what happened, not what was carried.
+            assert!(!may_print_secrets_at(target, Level::DEBUG), "{target}");
+        }
+        for target in [
+            "softhaptic_server::stream",
+            "hyper",
+            "tungstenite_x",
+            "axum",
+        ] {
+            assert!(!may_print_secrets_at(target, Level::TRACE), "{target}");
+        }
+    }
+}
