@@ -441,8 +441,9 @@ fn surface_section(dir: &Path, studies: &[RdStudy], md: &mut String) -> Result<(
          far the FEM surface at undeformed r = a moved towards the axis, which no profile drawn \
          along −n reproduces. The last two profiles are the viewer's `fem` profile (proto's \
          `SurfaceFamily`): the neo-Hookean run's surface tabulated every 0.5 mm at each table \
-         depth, as the table carries it (at a table depth that is the FEM row itself, so against \
-         the neo-Hookean FEM only the resampling remains), and with the scored depth's own row \
+         depth, as the table carries it and held below the tool (at a table depth it is the FEM \
+         row itself, so against the neo-Hookean FEM only the resampling remains outside the \
+         contact), and with the scored depth's own row \
          left out, so that it is interpolated from the rows beside it (the error of a depth \
          between rows, over twice their spacing; the first and last depths are extrapolated).\n"
     );

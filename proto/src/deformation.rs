@@ -378,19 +378,35 @@ impl SurfaceFamily {
         &self.rows
     }
 
-    /// The profile at indentation `depth_m`, ready to evaluate at any radius (proto/WIRE.md,
-    /// `fem`, steps 1–2). A non-finite or non-positive depth draws nothing.
-    pub fn at_depth(&self, depth_m: f64) -> SurfaceProfile<'_> {
-        let d = sanitise(depth_m);
+    /// The profile of `tool` pressed `depth_m` deep, ready to evaluate at any radius
+    /// (proto/WIRE.md, `fem`, steps 1–2). A non-finite or non-positive depth, or a tool that
+    /// fails [`ToolShape::validate`], draws nothing.
+    pub fn at_depth(&self, tool: &ToolShape, depth_m: f64) -> SurfaceProfile<'_> {
+        let d = if tool.validate().is_ok() {
+            sanitise(depth_m)
+        } else {
+            0.0
+        };
         let mut p = SurfaceProfile {
             family: self,
+            tool: *tool,
             depth_m: d,
             terms: [SurfaceTerm::NONE; 2],
+            footprint_m: 0.0,
             reach_m: 0.0,
         };
         if d == 0.0 {
             return p;
         }
+        // Where the tool reaches below the undeformed surface: r with δ − h_tool(r) > 0.
+        p.footprint_m = match *tool {
+            ToolShape::Sphere { radius_m } if d < radius_m => (d * (2.0 * radius_m - d)).sqrt(),
+            ToolShape::Sphere { radius_m } => radius_m,
+            ToolShape::Cone {
+                half_angle_rad,
+                radius_m,
+            } => (d * half_angle_rad.tan()).min(radius_m),
+        };
         let last = self.rows.len() - 1;
         // The rows to blend and their weights: the nearest alone outside the table's depths.
         let (k, w) = if d <= self.rows[0].depth_m {
@@ -406,7 +422,11 @@ impl SurfaceFamily {
         if w > 0.0 {
             p.terms[1] = self.term(k + 1, w, d);
         }
-        p.reach_m = p.terms.iter().map(|t| t.reach_m).fold(0.0, f64::max);
+        p.reach_m = p
+            .terms
+            .iter()
+            .map(|t| t.reach_m)
+            .fold(p.footprint_m, f64::max);
         p
     }
 
@@ -450,8 +470,12 @@ impl SurfaceTerm {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SurfaceProfile<'a> {
     family: &'a SurfaceFamily,
+    tool: ToolShape,
     depth_m: f64,
     terms: [SurfaceTerm; 2],
+    /// Inside this radius the tool lies below the undeformed surface, and the drawn surface
+    /// never above the tool.
+    footprint_m: f64,
     reach_m: f64,
 }
 
@@ -466,8 +490,13 @@ impl SurfaceProfile<'_> {
         self.reach_m
     }
 
+    /// Inside this radius the drawn surface is held at or below the tool's.
+    pub fn footprint_m(&self) -> f64 {
+        self.footprint_m
+    }
+
     /// The depression z(r), 0 ≤ z ≤ δ, at radial distance `r_m` from the contact axis
-    /// (proto/WIRE.md, `fem`, step 3).
+    /// (proto/WIRE.md, `fem`, step 3): the rows' blend, never above the tool.
     pub fn depression_m(&self, r_m: f64) -> f64 {
         if self.depth_m == 0.0 {
             return 0.0;
@@ -489,6 +518,11 @@ impl SurfaceProfile<'_> {
             let f = u - j;
             let j = j as usize;
             z += term.amplitude * (samples[j] + f * (samples[j + 1] - samples[j]));
+        }
+        // Between the FEM's nodes the rows are straight chords, which under the curved tool
+        // would let the tool poke through the drawn surface; the tool's own surface bounds it.
+        if r < self.footprint_m {
+            z = z.max(self.depth_m - tool_height_m(&self.tool, r));
         }
         z.clamp(0.0, self.depth_m)
     }
@@ -640,6 +674,7 @@ pub struct SurfaceProfileVectors {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SurfaceProfileVector {
     pub family: usize,
+    pub tool: ToolShape,
     #[serde(with = "number_or_name")]
     pub depth_m: f64,
     #[serde(with = "number_or_name")]
@@ -687,6 +722,7 @@ pub fn surface_profile_vectors() -> SurfaceProfileVectors {
         half_angle_rad: std::f64::consts::FRAC_PI_4,
         radius_m: 10.0 * MM,
     };
+    let tools = [sphere, cone];
     let families: Vec<SurfaceFamily> = [
         family(sphere, 0.5, 0.5 * MM, &[1.0, 2.0, 4.0, 8.0]),
         family(cone, 1.0, 0.25 * MM, &[1.0, 3.0]),
@@ -696,6 +732,7 @@ pub fn surface_profile_vectors() -> SurfaceProfileVectors {
     .collect();
     let mut cases = Vec::new();
     for (index, f) in families.iter().enumerate() {
+        let tool = tools[index];
         let first = f.rows()[0].depth_m;
         let last = f.rows()[f.rows().len() - 1].depth_m;
         let depths = [
@@ -712,16 +749,19 @@ pub fn surface_profile_vectors() -> SurfaceProfileVectors {
             f64::INFINITY,
         ];
         for depth_m in depths {
-            let p = f.at_depth(depth_m);
+            let p = f.at_depth(&tool, depth_m);
             let reach = p.reach_m();
             let mut radii: Vec<f64> = [0.0, 0.01, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 0.99]
                 .iter()
                 .map(|x| x * reach)
                 .collect();
+            // Under the tool, where the chords between samples meet the tool's surface.
+            radii.extend([0.3, 0.6, 0.95].map(|x| x * p.footprint_m()));
             radii.extend([reach, 1.2 * reach + MM, -MM, f64::NAN, f64::INFINITY]);
             for r_m in radii {
                 cases.push(SurfaceProfileVector {
                     family: index,
+                    tool,
                     depth_m,
                     r_m,
                     depression_m: p.depression_m(r_m),
@@ -1001,6 +1041,12 @@ mod tests {
         }
     }
 
+    /// A slender cone whose flank (slope cot 0.1 ≈ 10) is steeper than any row of
+    /// `similar_family`, so that it never bounds them.
+    fn slender() -> ToolShape {
+        ToolShape::cone(0.1, 10.0 * MM).unwrap()
+    }
+
     /// A family whose rows are exactly self-similar: z/δ = g(r / √δ) with g a cone-like ramp.
     fn similar_family() -> SurfaceFamily {
         let step = 0.5 * MM;
@@ -1023,7 +1069,7 @@ mod tests {
     fn fem_profile_reproduces_its_rows_at_their_depths() {
         let f = similar_family();
         for row in f.rows() {
-            let p = f.at_depth(row.depth_m);
+            let p = f.at_depth(&slender(), row.depth_m);
             for (k, &z) in row.depression_m.iter().enumerate() {
                 let r = k as f64 * f.radius_step_m();
                 assert!(
@@ -1050,7 +1096,7 @@ mod tests {
         let f = similar_family();
         for d_mm in [0.25, 1.0, 2.0, 3.3, 4.0, 9.0] {
             let d = d_mm * MM;
-            let p = f.at_depth(d);
+            let p = f.at_depth(&slender(), d);
             let r_end = 10.0 * MM * d_mm.sqrt();
             assert!((p.reach_m() - r_end).abs() < 1e-12, "δ = {d_mm} mm");
             for k in 0..=40 {
@@ -1070,15 +1116,45 @@ mod tests {
     fn fem_profile_draws_nothing_for_no_depth_and_treats_bad_radii_as_the_axis() {
         let f = similar_family();
         for d in [0.0, -MM, f64::NAN, f64::INFINITY] {
-            let p = f.at_depth(d);
+            let p = f.at_depth(&slender(), d);
             assert_eq!(p.depression_m(0.0), 0.0);
             assert_eq!(p.reach_m(), 0.0);
         }
-        let p = f.at_depth(2.0 * MM);
+        let invalid = ToolShape::Sphere { radius_m: f64::NAN };
+        assert_eq!(f.at_depth(&invalid, 2.0 * MM).depression_m(0.0), 0.0);
+        let p = f.at_depth(&slender(), 2.0 * MM);
         assert_eq!(p.depression_m(f64::NAN), p.depression_m(0.0));
         assert_eq!(p.depression_m(-1.0), p.depression_m(0.0));
         assert_eq!(p.depression_m(f64::INFINITY), p.depression_m(0.0));
         assert_eq!(p.depression_m(p.reach_m()), 0.0);
+    }
+
+    #[test]
+    fn the_fem_profile_never_lies_above_the_tool() {
+        // One row that is a single chord from δ at the axis to 0 at 20 mm: under a 10 mm sphere
+        // the chord lies above the ball near the axis, and the ball's surface is drawn there.
+        let f = SurfaceFamily::new(
+            0.5,
+            20.0 * MM,
+            vec![SurfaceRow {
+                depth_m: 4.0 * MM,
+                depression_m: vec![4.0 * MM, 0.0],
+            }],
+        )
+        .unwrap();
+        let ball = sphere();
+        let p = f.at_depth(&ball, 4.0 * MM);
+        assert!((p.footprint_m() - (4.0 * MM * 16.0 * MM).sqrt()).abs() < 1e-15);
+        for k in 0..=100 {
+            let r = 20.0 * MM * k as f64 / 100.0;
+            let chord = 4.0 * MM * (1.0 - r / (20.0 * MM));
+            let tool = 4.0 * MM - tool_height_m(&ball, r);
+            let z = p.depression_m(r);
+            let expected = chord.max(if r < p.footprint_m() { tool } else { 0.0 });
+            assert!((z - expected).abs() < 1e-15, "r = {r}: {z} vs {expected}");
+            assert!(z >= tool - 1e-18);
+        }
+        assert!(p.depression_m(2.0 * MM) > 4.0 * MM * 0.9);
     }
 
     #[test]
@@ -1136,7 +1212,7 @@ mod tests {
         let back: SurfaceProfileVectors = serde_json::from_str(&text).unwrap();
         assert_eq!(back.families, v.families);
         for c in &back.cases {
-            let p = back.families[c.family].at_depth(c.depth_m);
+            let p = back.families[c.family].at_depth(&c.tool, c.depth_m);
             assert_eq!(p.depression_m(c.r_m), c.depression_m);
             assert_eq!(p.reach_m(), c.reach_m);
         }
@@ -1144,10 +1220,11 @@ mod tests {
 
     proptest! {
         #[test]
-        fn fem_profile_is_bounded_and_continuous(d_mm in 0.0f64..12.0, r_mm in 0.0f64..60.0) {
+        fn fem_profile_is_bounded_and_continuous(d_mm in 0.0f64..9.9, r_mm in 0.0f64..60.0) {
+            // Up to the tools' radius and height (10 mm): deeper, a buried tool's rim is a wall.
             let v = surface_profile_vectors();
-            for f in &v.families {
-                let z = |d: f64, r: f64| f.at_depth(d).depression_m(r);
+            for (f, tool) in v.families.iter().zip([sphere(), cone()]) {
+                let z = |d: f64, r: f64| f.at_depth(&tool, d).depression_m(r);
                 let (d, r) = (d_mm * MM, r_mm * MM);
                 let here = z(d, r);
                 prop_assert!(here.is_finite() && here >= 0.0 && here <= d);

@@ -255,14 +255,18 @@ function surfaceTerm(family, index, weight, d, term) {
 }
 
 /**
- * The `fem` profile at indentation `depthM` (WIRE.md, steps 1–2): the one or two rows to
- * blend, each with its amplitude (weight·δ/δ_k) and its samples per metre ((δ_k/δ)^p / Δ), and
- * the reach beyond which nothing moves. Writes into `out`, allocating nothing once `out` has
- * been used.
+ * The `fem` profile of `tool` (from `toolShape`) pressed `depthM` deep (WIRE.md, steps 1–2):
+ * the one or two rows to blend, each with its amplitude (weight·δ/δ_k) and its samples per metre
+ * ((δ_k/δ)^p / Δ), the tool's footprint (inside it the drawn surface is never above the tool)
+ * and the reach beyond which nothing moves. An invalid tool draws nothing. Writes into `out`,
+ * allocating nothing once `out` has been used.
  */
-export function surfaceSetup(family, depthM, out = {}) {
-  const d = sanitise(depthM);
+export function surfaceSetup(family, tool, depthM, out = {}) {
+  const d = tool.valid ? sanitise(depthM) : 0;
+  out.tool = tool;
+  out.isSphere = tool.shape === 'sphere';
   out.depthM = d;
+  out.footprintM = 0;
   out.t0 ??= { row: null, amplitude: 0, indexPerM: 0, reachM: 0 };
   out.t1 ??= { row: null, amplitude: 0, indexPerM: 0, reachM: 0 };
   out.t0.amplitude = out.t1.amplitude = 0;
@@ -283,9 +287,13 @@ export function surfaceSetup(family, depthM, out = {}) {
     while (depths[k + 1] <= d) k++;
     w = (d - depths[k]) / (depths[k + 1] - depths[k]);
   }
+  // Where the tool reaches below the undeformed surface: r with δ − h_tool(r) > 0.
+  const R = tool.radiusM;
+  if (out.isSphere) out.footprintM = d < R ? Math.sqrt(d * (2 * R - d)) : R;
+  else out.footprintM = Math.min(d * tool.tanAlpha, R);
   surfaceTerm(family, k, 1 - w, d, out.t0);
   if (w > 0) surfaceTerm(family, k + 1, w, d, out.t1);
-  out.reachM = Math.max(out.t0.reachM, out.t1.reachM);
+  out.reachM = Math.max(out.footprintM, out.t0.reachM, out.t1.reachM);
   return out;
 }
 
@@ -300,39 +308,69 @@ function surfaceTermAt(t, r) {
   return t.amplitude * (z[j] + f * (z[j + 1] - z[j]));
 }
 
-/** Depression z(r), 0 ≤ z ≤ δ, for a profile prepared by `surfaceSetup` (WIRE.md, step 3). */
+/**
+ * Depression z(r), 0 ≤ z ≤ δ, for a profile prepared by `surfaceSetup` (WIRE.md, step 3): the
+ * rows' blend, never above the tool (between the FEM's nodes the rows are straight chords, which
+ * the curved tool would otherwise poke through).
+ */
 export function surfaceDepressionAt(p, rRaw) {
   if (p.depthM === 0) return 0;
   const r = sanitise(rRaw);
-  const z = surfaceTermAt(p.t0, r) + surfaceTermAt(p.t1, r);
+  let z = surfaceTermAt(p.t0, r) + surfaceTermAt(p.t1, r);
+  if (r < p.footprintM) z = Math.max(z, p.depthM - toolHeight(p.tool, r));
   return Math.min(Math.max(z, 0), p.depthM);
 }
 
 const scratchSurface = {};
 
-/** The `fem` profile's depression (m) at radial distance r for a family and a depth. */
-export function surfaceDepression(family, depthM, rM) {
-  return surfaceDepressionAt(surfaceSetup(family, depthM, scratchSurface), rM);
-}
-
-/** dz/dr of one row's contribution at r (the slope of the sample interval r falls in). */
-function surfaceTermSlope(t, r) {
-  if (t.amplitude === 0) return 0;
-  const z = t.row;
-  const u = r * t.indexPerM;
-  if (!(u < z.length - 1)) return 0;
-  const j = Math.floor(u);
-  return t.amplitude * t.indexPerM * (z[j + 1] - z[j]);
+/** The `fem` profile's depression (m) at radial distance r for a family, a tool and a depth. */
+export function surfaceDepression(family, tool, depthM, rM) {
+  return surfaceDepressionAt(surfaceSetup(family, tool, depthM, scratchSurface), rM);
 }
 
 /**
- * `evaluateAt` for the `fem` profile: out[0] = z(r), out[1], out[2] = the normal's axial and
- * radial components, (1, dz/dr): perpendicular to the profile's tangent (1, −dz/dr).
+ * Adds one row's contribution at r ≥ 0 to `out[0]` (z, as `surfaceTermAt`) and its slope dz/dr
+ * (that of the sample interval r falls in) to `out[2]`, in one lookup.
+ */
+function accumulateSurfaceTerm(t, r, out) {
+  if (t.amplitude === 0) return;
+  const z = t.row;
+  const u = r * t.indexPerM;
+  if (!(u < z.length - 1)) return;
+  const j = Math.floor(u);
+  const f = u - j;
+  const step = z[j + 1] - z[j];
+  out[0] += t.amplitude * (z[j] + f * step);
+  out[2] += t.amplitude * t.indexPerM * step;
+}
+
+/**
+ * `evaluateAt` for the `fem` profile, for a finite r ≥ 0: out[0] = z(r), the same number as
+ * `surfaceDepressionAt`; out[1], out[2] = the normal's axial and radial components: (1, dz/dr),
+ * perpendicular to the profile's tangent (1, −dz/dr), or the tool's normal where the tool holds
+ * the surface down.
  */
 function evaluateSurfaceAt(p, r, out) {
-  out[0] = surfaceDepressionAt(p, r);
+  out[0] = 0;
   out[1] = 1;
-  out[2] = surfaceTermSlope(p.t0, r) + surfaceTermSlope(p.t1, r);
+  out[2] = 0;
+  accumulateSurfaceTerm(p.t0, r, out);
+  accumulateSurfaceTerm(p.t1, r, out);
+  if (r < p.footprintM) {
+    const onTool = p.depthM - toolHeight(p.tool, r);
+    if (onTool > out[0]) {
+      out[0] = onTool;
+      if (p.isSphere) {
+        const R = p.tool.radiusM;
+        out[1] = Math.sqrt(Math.max(0, R * R - r * r));
+        out[2] = -r;
+      } else {
+        out[1] = p.tool.tanAlpha;
+        out[2] = -1;
+      }
+    }
+  }
+  out[0] = Math.min(Math.max(out[0], 0), p.depthM);
   return out;
 }
 
@@ -422,7 +460,7 @@ export class MeshDeformer {
     this.stamp = new Uint32Array(n);
     this.frame = 0;
     this.profile = {};
-    this.surfaceProfile = surfaceSetup(null, 0, {});
+    this.surfaceProfile = surfaceSetup(null, { valid: false }, 0, {});
     this.evaluation = new Float64Array(3);
     this.lastVisitedCells = 0;
   }
@@ -484,7 +522,7 @@ export class MeshDeformer {
 
     const fem = surface !== null;
     const p = fem
-      ? surfaceSetup(surface, tool.valid ? contact.depthM : 0, this.surfaceProfile)
+      ? surfaceSetup(surface, tool, contact.depthM, this.surfaceProfile)
       : profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM, this.profile);
     if (p.depthM === 0) return this.touchedCount;
     let nx = contact.normal[0],

@@ -346,7 +346,7 @@ const families = surfaceVectors.families.map(surfaceFamilyFromJson);
 test('the fem profile equals the Rust reference on every shared vector', () => {
   assert.ok(surfaceVectors.cases.length > 100, 'the vector file holds the cases');
   for (const [i, c] of surfaceVectors.cases.entries()) {
-    const p = surfaceSetup(families[c.family], num(c.depth_m));
+    const p = surfaceSetup(families[c.family], toolShape(c.tool), num(c.depth_m));
     close(p.reachM, c.reach_m, `case ${i} reach`);
     close(surfaceDepressionAt(p, num(c.r_m)), c.depression_m, `case ${i} ${JSON.stringify(c)}`);
   }
@@ -371,12 +371,12 @@ test('the deformer draws the fem profile: every vertex within its reach, by the 
   const deformer = new MeshDeformer(grid.positions, grid.normals, { cellSizeM: 0.004 });
   const contact = pressAt(0.013, -0.021, 3 * MM, 18 * MM);
   deformer.apply(out, normals, contact, sphere, family);
-  const p = surfaceSetup(family, contact.depthM);
+  const p = surfaceSetup(family, sphere, contact.depthM);
   assert.ok(p.reachM > 18 * MM, `the profile reaches past R_d (${p.reachM})`);
   let moved = 0;
   for (let i = 0; i < deformer.vertexCount; i++) {
     const r = Math.hypot(grid.positions[3 * i] - 0.013, grid.positions[3 * i + 2] + 0.021);
-    const z = r < p.reachM ? surfaceDepression(family, contact.depthM, r) : 0;
+    const z = r < p.reachM ? surfaceDepression(family, sphere, contact.depthM, r) : 0;
     const dy = grid.positions[3 * i + 1] - out[3 * i + 1];
     assert.ok(Math.abs(dy - z) < 1e-7, `vertex ${i} at r=${r}: moved ${dy}, profile ${z}`);
     if (z > 0) moved++;

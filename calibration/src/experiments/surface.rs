@@ -145,14 +145,12 @@ impl DrawnSurface {
             DrawnProfile::HalfSpaceOnBase => {
                 half_space_on_base_depression_m(&self.tool, self.depth_m, r_m, self.thickness_m)
             }
-            DrawnProfile::Fem => self
-                .fem
-                .as_ref()
-                .map_or(f64::NAN, |f| f.at_depth(self.depth_m).depression_m(r_m)),
-            DrawnProfile::FemHeldOut => self
-                .fem_held_out
-                .as_ref()
-                .map_or(f64::NAN, |f| f.at_depth(self.depth_m).depression_m(r_m)),
+            DrawnProfile::Fem => self.fem.as_ref().map_or(f64::NAN, |f| {
+                f.at_depth(&self.tool, self.depth_m).depression_m(r_m)
+            }),
+            DrawnProfile::FemHeldOut => self.fem_held_out.as_ref().map_or(f64::NAN, |f| {
+                f.at_depth(&self.tool, self.depth_m).depression_m(r_m)
+            }),
         }
     }
 }
@@ -545,9 +543,10 @@ mod tests {
         for w in row.depression_m[at_side..].windows(2) {
             assert!(w[1] < w[0]);
         }
-        // As a family it draws the FEM's surface at the row's depth.
+        // As a family it draws the FEM's surface at the row's depth (under a slender cone, whose
+        // own surface, the lower bound of the drawn one, lies below this one's everywhere).
         let f = SurfaceFamily::new(0.5, SURFACE_STEP_M, vec![row]).unwrap();
-        let p = f.at_depth(MM);
+        let p = f.at_depth(&ToolShape::cone(0.1, 0.01).unwrap(), MM);
         for q in &sunk {
             assert!((p.depression_m(q.radius_m) - q.depression_m).abs() < 1e-8);
         }
