@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibration::CalibrationTable;
 use crate::contact::{ContactFlags, ContactState, Pose};
+use crate::deformation::RenderProfile;
 use crate::material::Material;
 use crate::model::{ModelSpec, ValidityLimits};
 use crate::tool::ToolShape;
@@ -217,7 +218,8 @@ pub struct DeviceInfo {
 /// device. Also served as JSON at `GET /api/scene`.
 ///
 /// A message without `contact_model` (from a server that predates it, or a recording it wrote)
-/// decodes with [`ContactModelInfo::paper`]: those servers ran the paper's law.
+/// decodes with [`ContactModelInfo::paper`]: those servers ran the paper's law. One without
+/// `render_profile` decodes as [`RenderProfile::Paper`]: their viewers drew the paper's profile.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(from = "SceneMessageFields")]
 pub struct SceneMessage {
@@ -230,11 +232,13 @@ pub struct SceneMessage {
     /// The active contact model, its corrections and where its limits come from.
     pub contact_model: ContactModelInfo,
     pub calibration: CalibrationTable,
+    /// The deformation profile the viewer draws (proto/WIRE.md, "Deformation profile").
+    pub render_profile: RenderProfile,
     pub render_meshes: Vec<RenderMeshInfo>,
     pub device: DeviceInfo,
 }
 
-/// [`SceneMessage`] as decoded, `contact_model` optional.
+/// [`SceneMessage`] as decoded, `contact_model` and `render_profile` optional.
 #[derive(Deserialize)]
 struct SceneMessageFields {
     protocol_version: u32,
@@ -244,6 +248,8 @@ struct SceneMessageFields {
     #[serde(default)]
     contact_model: Option<ContactModelInfo>,
     calibration: CalibrationTable,
+    #[serde(default)]
+    render_profile: RenderProfile,
     render_meshes: Vec<RenderMeshInfo>,
     device: DeviceInfo,
 }
@@ -259,6 +265,7 @@ impl From<SceneMessageFields> for SceneMessage {
             material: m.material,
             model: m.model,
             calibration: m.calibration,
+            render_profile: m.render_profile,
             render_meshes: m.render_meshes,
             device: m.device,
         }
@@ -707,6 +714,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             },
             contact_model: ContactModelInfo::new(&tool, &spec, &limits),
             calibration,
+            render_profile: RenderProfile::Paper,
             render_meshes: vec![RenderMeshInfo {
                 name: "liver".into(),
                 url: "/meshes/liver.bin".into(),
@@ -896,12 +904,14 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             json: serde_json::to_value(&message)?,
         });
     }
-    // A scene from a server that predates `contact_model` (and its recordings): still valid,
-    // read as the paper's law with the paper's limits.
+    // A scene from a server that predates `contact_model` and `render_profile` (and its
+    // recordings): still valid, read as the paper's law with the paper's limits, drawn with the
+    // paper's profile.
     if let Some(MessageVector::Valid { json, .. }) = out.get(1) {
         let mut old = json.clone();
         if let Some(fields) = old.as_object_mut() {
             fields.remove("contact_model");
+            fields.remove("render_profile");
             fields.insert(
                 "model".into(),
                 serde_json::json!({
@@ -1111,6 +1121,8 @@ mod tests {
                                 );
                                 json["contact_model"] =
                                     serde_json::to_value(&scene.contact_model).unwrap();
+                                assert_eq!(scene.render_profile, RenderProfile::Paper);
+                                json["render_profile"] = "paper".into();
                             }
                             // Re-encoding gives the same JSON value (no field lost or added).
                             assert_eq!(serde_json::to_value(&m).unwrap(), json, "{name}");

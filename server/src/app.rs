@@ -255,6 +255,7 @@ pub fn scene_message(scene: &Scene) -> SceneMessage {
         },
         contact_model: scene.contact_model_info(),
         calibration: scene.calibration.clone(),
+        render_profile: scene.render_profile,
         render_meshes: vec![RenderMeshInfo {
             name: scene.object_name.clone(),
             url: format!("/meshes/{}.bin", scene.object_name),

@@ -67,6 +67,11 @@
 //! collision = "continuous"         # or "paper_vertices"
 //! damping_n_s_per_m = 1.0
 //! safe_force_n = 2.0               # the trainee's metrics count the time above this force
+//!
+//! [render]                         # what the viewers draw; never changes the force
+//! profile = "fem"                  # the calibration's FEM surface (needs a table that carries
+//!                                  # it), or "paper": the paper's Bézier. Default: "fem" when
+//!                                  # the table carries a surface, else "paper"
 //! ```
 //!
 //! # Model only what the scene requires
@@ -102,6 +107,7 @@ use softhaptic_device::render::RenderConfig;
 use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
+use softhaptic_proto::deformation::RenderProfile;
 use softhaptic_proto::record::{MeshRecord, RecordedMeshes, SceneRecord};
 use softhaptic_proto::wire::ContactModelInfo;
 use softhaptic_proto::{
@@ -295,6 +301,33 @@ pub struct SceneFile {
     pub calibration: CalibrationSection,
     #[serde(default)]
     pub haptics: HapticsSection,
+    #[serde(default)]
+    pub render: RenderSection,
+}
+
+/// `[render]`: what the viewers draw. Nothing here reaches the haptic loop, so a recording
+/// replays to the same forces whichever profile it was drawn with.
+#[derive(Debug, Clone, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct RenderSection {
+    /// The deformation profile (proto/WIRE.md, "Deformation profile"); when absent, `fem` if the
+    /// calibration table carries the FEM surface, else `paper`.
+    pub profile: Option<RenderProfile>,
+}
+
+impl RenderSection {
+    /// The profile to draw with `table`: `fem` needs the table's tabulated surface.
+    pub fn profile(&self, table: &CalibrationTable) -> Result<RenderProfile, String> {
+        match self.profile {
+            Some(RenderProfile::Fem) if table.surface().is_none() => Err(format!(
+                "\"fem\" draws the FEM surface the calibration table carries, and this table ({}) has none: name an FEM table written by `softhaptic-calibrate rd-table`, or draw \"paper\"",
+                table.source().as_str()
+            )),
+            Some(profile) => Ok(profile),
+            None if table.surface().is_some() => Ok(RenderProfile::Fem),
+            None => Ok(RenderProfile::Paper),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -638,6 +671,8 @@ pub struct Scene {
     /// Where the simulated hand presses, object frame: a surface point and its outward normal.
     pub press_site_in_object: (DVec3, DVec3),
     pub calibration: CalibrationTable,
+    /// The deformation profile the viewers draw (`[render] profile`).
+    pub render_profile: RenderProfile,
     pub collision: CollisionMode,
     /// The safety layers, damping, and the validity limits of `validity`.
     pub render: RenderConfig,
@@ -1174,6 +1209,10 @@ impl Scene {
             field(name, e.to_string())
         })?;
         render = render.with_limits(&validity);
+        let render_profile = file
+            .render
+            .profile(&calibration)
+            .map_err(|reason| field("render.profile", reason))?;
 
         Ok(Scene {
             source: base.map(|_| path.to_owned()),
@@ -1200,6 +1239,7 @@ impl Scene {
             safe_force_n,
             press_site_in_object,
             calibration,
+            render_profile,
             collision: file.haptics.collision.into(),
             render,
             contact_model,
@@ -1512,6 +1552,51 @@ mod tests {
         );
         // The world measures the curvature, because the model uses it.
         assert!(s.haptic_world().collider().has_curvature());
+    }
+
+    #[test]
+    fn the_scene_chooses_the_drawn_profile_and_fem_needs_the_tables_surface() {
+        // The default scene names no profile: its FEM table carries the surface, so fem.
+        let text = include_str!("../../scenes/default.toml");
+        assert!(
+            text.trim_end()
+                .ends_with("instead, and \"fem\" with a table that carries no surface is refused.")
+        );
+        let load = |text: &str| Scene::from_toml(text, Path::new("<test>"), None);
+        let s = load(text).unwrap();
+        assert_eq!(s.render_profile, RenderProfile::Fem);
+        assert!(s.calibration.surface().is_some());
+        assert_eq!(
+            crate::app::scene_message(&s).render_profile,
+            RenderProfile::Fem
+        );
+        // The file ends in [render], so a line appended is that section's.
+        let with = |text: &str, line: &str| format!("{text}{line}\n");
+        let s = load(&with(text, "profile = \"paper\"")).unwrap();
+        assert_eq!(s.render_profile, RenderProfile::Paper);
+        let s = load(&with(text, "profile = \"fem\"")).unwrap();
+        assert_eq!(s.render_profile, RenderProfile::Fem);
+        // An analytical table carries no surface: paper by default, fem refused naming the field.
+        let analytical = text.replace(
+            "table = \"calibration/sphere10_50kpa.json\"",
+            "table = \"half_space\"",
+        );
+        assert_eq!(
+            load(&analytical).unwrap().render_profile,
+            RenderProfile::Paper
+        );
+        let err = load(&with(&analytical, "profile = \"fem\""))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("render.profile") && err.contains("half_space"),
+            "{err}"
+        );
+        // An unknown profile is refused with its line.
+        let err = load(&with(text, "profile = \"smooth\""))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("smooth"), "{err}");
     }
 
     #[test]

@@ -16,7 +16,7 @@ import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 import { AccessPrompt, TokenKeeper } from './access.js';
-import { MeshDeformer, profileSetup, toolFromJson } from './deformation.js';
+import { MeshDeformer, profileSetup, surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ForcePlot } from './forceplot.js';
 import { PlayoutBuffer, RenderedContact } from './interpolation.js';
 import { parseRenderMesh } from './mesh.js';
@@ -76,6 +76,8 @@ const state = {
   sceneJson: null,
   sceneKey: '',
   tool: null,
+  /** The `fem` profile's family when the scene draws it (`render_profile`), else null: the paper's Bézier. */
+  surface: null,
   meshes: [], // {name, positions, normals, rest, deformer, geometry, mesh, objectPosition, objectInverse}
   sessionId: null,
   lastStats: null,
@@ -547,6 +549,21 @@ async function loadSceneOverHttp() {
   }
 }
 
+/**
+ * The family of the `fem` deformation profile when the scene asks for it, else null (the paper's
+ * Bézier, also what a scene without `render_profile` was drawn with). A family the viewer cannot
+ * use falls back to the paper's profile rather than drawing nothing.
+ */
+function surfaceOf(scene) {
+  if (scene.render_profile !== 'fem') return null;
+  try {
+    return surfaceFamilyFromJson(scene.calibration.surface);
+  } catch (e) {
+    console.warn(`render_profile "fem": ${e.message}; drawing the paper's profile`);
+    return null;
+  }
+}
+
 /** Builds the tool and loads the render meshes of a scene, once per distinct scene. */
 async function applyScene(scene) {
   // The same scene arrives twice (GET /api/scene and the WebSocket); load it once.
@@ -555,6 +572,7 @@ async function applyScene(scene) {
   state.sceneKey = key;
   state.sceneJson = scene;
   state.tool = toolFromJson(scene.tool);
+  state.surface = surfaceOf(scene);
   plot.setPeakForce(scene.device.peak_force_n);
   dom['v-material'].textContent = `E ${formatPa(scene.material.youngs_modulus_pa)}, ν ${scene.material.poisson_ratio}`;
   const device = scene.device;
@@ -837,7 +855,7 @@ function deformMeshes() {
       c.normal[1] = scratch.n.y;
       c.normal[2] = scratch.n.z;
     }
-    const touched = m.deformer.apply(m.positions, m.normals, c, state.tool);
+    const touched = m.deformer.apply(m.positions, m.normals, c, state.tool, state.surface);
     moved += m.deformer.movedCount;
     if (touched > 0) {
       // Upload only the span of vertex indices written this frame (moved or restored).

@@ -3,7 +3,14 @@
 // the viewer.
 import assert from 'node:assert/strict';
 
-import { depressionAt, profileSetup, toolFromJson } from '../src/deformation.js';
+import {
+  depressionAt,
+  profileSetup,
+  surfaceDepressionAt,
+  surfaceFamilyFromJson,
+  surfaceSetup,
+  toolFromJson,
+} from '../src/deformation.js';
 
 // Vertex positions are float32 (≈ 1e-8 m at 0.1 m) and the displacement is recomputed from the
 // same contact, so 1 µm is far above rounding and far below any real error (δ is millimetres).
@@ -30,10 +37,24 @@ export async function freezeOnPress(page, minDepthM, { timeout = 120000 } = {}) 
 }
 
 /**
- * On a page frozen on a press (`freezeOnPress`): every render vertex within 2·R_d,eff of the
- * contact point sits where the JavaScript profile puts it for the drawn contact, the vertex
- * under the tool sank by about δ, and vertices beyond R_d did not move. Returns the frozen
- * `{contact, scene, inside, beyond}` for further checks.
+ * The deformation profile a page draws for contact `c` of `scene` (its `render_profile`):
+ * `{name, reachM, at(r)}`, no vertex at or beyond `reachM` from the contact axis moving (R_d,eff
+ * for the paper's Bézier, the tabulated surface's reach for `fem`).
+ */
+export function drawnProfile(scene, c) {
+  if (scene.render_profile === 'fem') {
+    const p = surfaceSetup(surfaceFamilyFromJson(scene.calibration.surface), toolFromJson(scene.tool), c.depthM);
+    return { name: 'fem', reachM: p.reachM, at: (r) => surfaceDepressionAt(p, r) };
+  }
+  const p = profileSetup(toolFromJson(scene.tool), c.depthM, c.contactRadiusM, c.deformedRadiusM);
+  return { name: 'paper', reachM: p.rdEff, at: (r) => depressionAt(p, r) };
+}
+
+/**
+ * On a page frozen on a press (`freezeOnPress`): every render vertex within twice the profile's
+ * reach of the contact point sits where the JavaScript profile the scene names puts it for the
+ * drawn contact, the vertex under the tool sank by about δ, and vertices beyond the reach did
+ * not move. Returns the frozen `{contact, scene, inside, beyond}` for further checks.
  */
 export async function assertPressBendsMesh(page) {
   const frozen = await page.evaluate(() => ({
@@ -42,9 +63,10 @@ export async function assertPressBendsMesh(page) {
   }));
   const c = frozen.contact;
   const tool = toolFromJson(frozen.scene.tool);
-  const profile = profileSetup(tool, c.depthM, c.contactRadiusM, c.deformedRadiusM);
-  assert.ok(profile.rdEff > 0);
-  // Every vertex within 2·R_d_eff of the contact point: rest and drawn positions (world frame).
+  const profile = drawnProfile(frozen.scene, c);
+  assert.ok(profile.reachM > 0);
+  // Every vertex within twice the reach of the contact point: rest and drawn positions (world
+  // frame).
   const near = await page.evaluate(
     ({ point, radius }) => {
       const h = window.__softhaptic;
@@ -56,7 +78,7 @@ export async function assertPressBendsMesh(page) {
       }
       return out;
     },
-    { point: c.point, radius: 2 * profile.rdEff },
+    { point: c.point, radius: 2 * profile.reachM },
   );
   const n = c.normal;
   let inside = 0;
@@ -68,20 +90,20 @@ export async function assertPressBendsMesh(page) {
     const vz = rz - c.point[2];
     const axial = vx * n[0] + vy * n[1] + vz * n[2];
     const r = Math.hypot(vx - axial * n[0], vy - axial * n[1], vz - axial * n[2]);
-    const expected = Math.abs(axial) <= profile.rdEff ? depressionAt(profile, r) : 0;
+    const expected = Math.abs(axial) < profile.reachM ? profile.at(r) : 0;
     // The drawn vertex must sit at rest − n·z(r).
     const err = Math.hypot(x - (rx - n[0] * expected), y - (ry - n[1] * expected), z - (rz - n[2] * expected));
     assert.ok(
       err <= TOLERANCE_M,
-      `vertex ${i} at r = ${r} m, axial ${axial} m: off by ${err} m (profile ${expected} m)`,
+      `vertex ${i} at r = ${r} m, axial ${axial} m: off by ${err} m (${profile.name} profile ${expected} m)`,
     );
-    if (r >= profile.rdEff) beyond++;
+    if (r >= profile.reachM) beyond++;
     else if (expected > 0) inside++;
     if (Math.abs(axial) < 2e-3 && (underTool === null || r < underTool.r))
       underTool = { i, r, moved: Math.hypot(x - rx, y - ry, z - rz) };
   }
-  assert.ok(inside > 20, `${inside} vertices inside R_d moved`);
-  assert.ok(beyond > 20, `${beyond} vertices beyond R_d were checked to be still`);
+  assert.ok(inside > 20, `${inside} vertices inside the reach moved`);
+  assert.ok(beyond > 20, `${beyond} vertices beyond the reach were checked to be still`);
   assert.ok(underTool !== null, 'a render vertex lies near the contact point');
   // The vertex under the tool sank by about the depth: z(r) = δ − (R − √(R² − r²)) there.
   assert.ok(

@@ -21,7 +21,8 @@
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
 
-import { profileSetup, toolFromJson } from '../src/deformation.js';
+import { toolFromJson } from '../src/deformation.js';
+import { drawnProfile } from './e2e-checks.mjs';
 import { launchBrowser } from './browser.mjs';
 import { hdStandinPath, startServer } from './server.mjs';
 
@@ -103,8 +104,8 @@ test('the stand-in hand presses the liver: a real force pushes back and the mesh
     }));
     assert.ok(c.forceMagnitudeN <= scene.device.peak_force_n + 1e-9, `${c.forceMagnitudeN} N beyond the peak`);
     const tool = toolFromJson(scene.tool);
-    const profile = profileSetup(tool, c.depthM, c.contactRadiusM, c.deformedRadiusM);
-    assert.ok(profile.rdEff > 0);
+    const profile = drawnProfile(scene, c);
+    assert.ok(profile.reachM > 0);
     // Every moved vertex: its rest position, and how far it moved (world frame).
     const moved = await page.evaluate(() =>
       window.__softhaptic.movedVertices().map((i) => {
@@ -121,8 +122,12 @@ test('the stand-in hand presses the liver: a real force pushes back and the mesh
       const vz = rz - c.point[2];
       const axial = vx * n[0] + vy * n[1] + vz * n[2];
       const r = Math.hypot(vx - axial * n[0], vy - axial * n[1], vz - axial * n[2]);
-      // The deformation stays within R_d of the contact and never sinks deeper than δ.
-      assert.ok(r <= profile.rdEff + TOLERANCE_M, `vertex ${i} moved at r = ${r} m, beyond R_d ${profile.rdEff} m`);
+      // The deformation stays within the profile's reach (R_d for the paper's) and never sinks
+      // deeper than δ.
+      assert.ok(
+        r <= profile.reachM + TOLERANCE_M,
+        `vertex ${i} moved at r = ${r} m, beyond the ${profile.name} profile's reach ${profile.reachM} m`,
+      );
       assert.ok(displacementM <= c.depthM + TOLERANCE_M, `vertex ${i} moved ${displacementM} m for δ = ${c.depthM} m`);
       if (Math.abs(axial) < 2e-3 && (underTool === null || r < underTool.r)) underTool = { i, r, displacementM };
     }

@@ -4,8 +4,9 @@
 //   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_URL / SOFTHAPTIC_BIN to reuse one)
 //
 // Checks, on the frame the page drew during a press: the render vertices moved exactly as the
-// JavaScript profile says for the contact the page rendered (so the vertex under the tool sank
-// by about δ, and nothing beyond R_d moved); the force plot shows the press; the connection
+// JavaScript profile the scene names says for the contact the page rendered (so the vertex
+// under the tool sank by about δ, and nothing beyond the profile's reach moved); the force plot
+// shows the press; the connection
 // counted no malformed message. Then stops the server and starts it again on the same port:
 // the page must notice, reconnect by itself and draw the new session. Saves a screenshot to
 // web/test-results/e2e.png.
@@ -104,7 +105,7 @@ test('from the default camera the dent shows through the see-through tool', asyn
   assert.ok(meanDiff > 6, `mean colour difference ${meanDiff.toFixed(2)} in the contact region`);
 });
 
-test('a press bends the render mesh exactly as the profile says, and only within R_d', async () => {
+test('a press bends the render mesh exactly as the profile says, and only within its reach', async () => {
   // The default scene holds its press about 3 mm deep; 2 mm catches the hold, not the approach.
   await freezeOnPress(page, 2e-3);
   const { contact: c, scene } = await assertPressBendsMesh(page);
@@ -138,12 +139,16 @@ test('the depression map colours the vertices that moved, and only while it is o
       under: h.vertexColor(under),
       moved: h.vertexDisplacement(under),
       far: h.vertexColor(far),
+      farMoved: h.vertexDisplacement(far),
       scale: document.getElementById('map-scale').textContent,
     };
   });
   assert.ok(on.moved > 1e-3, `the vertex under the tool moved ${on.moved} m`);
   assert.ok(on.under[0] < 0.95 && on.under[2] > on.under[0], `coloured: ${on.under}`);
-  assert.deepEqual(on.far, [1, 1, 1]);
+  // 5 cm away the paper's profile moves nothing (white); the FEM surface's far tail moves it by
+  // micrometres, a tint too faint to see.
+  if (on.farMoved === 0) assert.deepEqual(on.far, [1, 1, 1]);
+  else assert.ok(on.farMoved < 1e-4 && on.far.every((x) => x > 0.98), `far: ${on.far}, moved ${on.farMoved} m`);
   assert.equal(on.scale, 'white 0 … blue 5 mm');
   await page.evaluate(() => window.__softhaptic.depressionMap(false));
   const off = await page.evaluate(() => {
