@@ -27,6 +27,7 @@ use softhaptic_proto::{CalibrationTable, ModelLimitsFile, ModelSpec, ToolShape, 
 use softhaptic_server::scene::{self, Scene};
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::tools::Info;
+use softhaptic_server::session::writer::SessionWriter;
 
 /// What one input did.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -101,7 +102,7 @@ pub fn targets(root: &Path) -> Result<Vec<Target>, String> {
             name: "mcap",
             extension: "mcap",
             text: false,
-            seeds: files_with_extension(&root.join("tests/sessions"), "mcap")?,
+            seeds: mcap_seeds(root)?,
             run: mcap,
         },
         Target {
@@ -288,6 +289,75 @@ fn files_with_extension(dir: &Path, extension: &str) -> Result<Vec<Vec<u8>>, Str
         ));
     }
     paths.iter().map(|p| read(p)).collect()
+}
+
+/// Ticks of each short recording cut from a test recording, and ticks per chunk in it.
+const SHORT_TICKS: usize = 300;
+const SHORT_CHUNK_TICKS: usize = 100;
+
+/// The recorded sessions cut short (their first 0.3 s, in chunks of 0.1 s: the same records,
+/// channels and chunk structure, a tenth of the bytes to parse), and one whole recording. An
+/// input costs about its size to read, and most mutations of a whole 4 s recording land in
+/// one chunk's compressed data the reader skips, so the short ones test as much ten times as
+/// fast.
+fn mcap_seeds(root: &Path) -> Result<Vec<Vec<u8>>, String> {
+    let dir = root.join("tests/sessions");
+    let whole = dir.join("sphere-press.mcap");
+    let mut seeds = vec![read(&whole)?];
+    let entries = std::fs::read_dir(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let mut paths: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    paths.sort();
+    for path in paths {
+        seeds.push(short_recording(&path)?);
+    }
+    Ok(seeds)
+}
+
+/// The first [`SHORT_TICKS`] ticks of a recording, its contact frames and marks up to then,
+/// written anew by the session writer.
+fn short_recording(path: &Path) -> Result<Vec<u8>, String> {
+    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let r = Recording::open(path).map_err(|e| err(&e))?;
+    // Unique per call: the test suite builds the targets on several threads at once.
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let out = std::env::temp_dir().join(format!(
+        "softhaptic-fuzz-seed-{}-{call}-{}",
+        std::process::id(),
+        path.file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
+    ));
+    let written = (|| -> Result<Vec<u8>, String> {
+        let mut w = SessionWriter::create(&out, &r.build, &r.scene).map_err(|e| err(&e))?;
+        let mut contacts = r.contacts.iter().peekable();
+        for chunk in r
+            .device
+            .chunks(SHORT_CHUNK_TICKS)
+            .take(SHORT_TICKS / SHORT_CHUNK_TICKS)
+        {
+            let end_ns = chunk.last().map_or(0, |d| d.time_ns);
+            for d in chunk {
+                w.write_device(d).map_err(|e| err(&e))?;
+            }
+            while let Some(c) = contacts.next_if(|c| c.time_ns <= end_ns) {
+                w.write_contact(c.time_ns, &c.json).map_err(|e| err(&e))?;
+            }
+            w.end_chunk().map_err(|e| err(&e))?;
+        }
+        for m in &r.marks {
+            let json = ServerMessage::Mark(m.clone())
+                .encode()
+                .map_err(|e| err(&e))?;
+            w.write_mark(&json).map_err(|e| err(&e))?;
+        }
+        w.finish().map_err(|e| err(&e))?;
+        read(&out)
+    })();
+    let _ = std::fs::remove_file(&out);
+    written
 }
 
 fn calibration_seeds(root: &Path) -> Result<Vec<Vec<u8>>, String> {
