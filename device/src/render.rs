@@ -568,6 +568,34 @@ mod tests {
 
     const MS: u64 = 1_000_000;
 
+    #[test]
+    fn every_preset_gives_a_stiffness_cap_the_renderer_can_use() {
+        use softhaptic_proto::Material;
+        let tool = ToolShape::sphere(0.01).unwrap();
+        for l in [
+            DeviceLimits::PHANTOM_DESKTOP,
+            DeviceLimits::TOUCH,
+            DeviceLimits::OMNI,
+        ] {
+            // A stable stiffness that puts the cap's depth δ* inside the tool's reach on soft
+            // tissue, and a force there below the peak.
+            let r =
+                ForceRenderer::new(tool, Material::PAPER_SOFT, RenderConfig::for_tool(&tool), l);
+            let cap = r.cap_depth_m();
+            assert!(
+                cap.is_finite() && cap > 0.0 && cap < 0.02,
+                "{}: δ* = {cap}",
+                l.name
+            );
+            let (force_at_cap, _) = r.elastic_force_n(cap);
+            assert!(
+                force_at_cap < l.peak_force_n,
+                "{}: {force_at_cap} N",
+                l.name
+            );
+        }
+    }
+
     fn sphere() -> ToolShape {
         ToolShape::sphere(0.01).unwrap()
     }

@@ -62,8 +62,9 @@ use glam::DVec3;
 
 use crate::device::DeviceLimits;
 
-/// Time constant of the motors' heating model, seconds (see the module documentation).
-pub const MOTOR_TIME_CONSTANT_S: f64 = 5.0;
+/// Time constant of the motors' heating model, seconds (see the module documentation); the
+/// device presets carry it.
+pub use crate::device::MOTOR_TIME_CONSTANT_S;
 
 /// Largest change of the limiter's gain per second: 0.005 per millisecond, 25 mN per tick on a
 /// 5 N command, below what a hand resolves, and fast enough that a held press reaches the rating
@@ -248,6 +249,19 @@ mod tests {
 
     const T: f64 = 0.001;
     const DESKTOP: DeviceLimits = DeviceLimits::PHANTOM_DESKTOP;
+
+    #[test]
+    fn every_preset_gives_a_heating_model() {
+        for l in [
+            DeviceLimits::PHANTOM_DESKTOP,
+            DeviceLimits::TOUCH,
+            DeviceLimits::OMNI,
+        ] {
+            // A continuous rating the heating model accepts (below the peak, positive time
+            // constant): otherwise the continuous-force limit would silently be off.
+            assert!(ContinuousForceLimiter::for_device(&l).is_ok(), "{}", l.name);
+        }
+    }
 
     fn limiter() -> ContinuousForceLimiter {
         ContinuousForceLimiter::for_device(&DESKTOP).unwrap()

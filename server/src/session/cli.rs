@@ -15,15 +15,11 @@ use super::reader::Recording;
 use super::replay::{self, ReplayOptions};
 use super::script::{ScriptName, record_script};
 use super::tools::{Info, export};
-use super::writer::{Recorder, StreamTap, recording_file_name};
+use super::writer::{Recorder, StreamTap, TICK_RING_CAPACITY, recording_file_name};
 use crate::access::AccessArgs;
 use crate::app::{RunningServer, SERVER_NAME, scene_message};
 use crate::scene::Scene;
 use crate::stream::{EncodedFrame, ViewerLimits};
-
-/// Ticks the loop → recorder ring holds: 4 s at 1 kHz, so the recorder thread may stall that long
-/// (a slow disk) before a tick is lost.
-pub const TICK_RING_CAPACITY: usize = 4096;
 
 /// Recording options of `softhaptic run`.
 #[derive(clap::Args, Debug, Clone)]

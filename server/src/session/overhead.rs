@@ -17,8 +17,8 @@ use softhaptic_proto::record::{BuildRecord, SESSION_FORMAT_VERSION, SceneRecord}
 use softhaptic_proto::wire::PROTOCOL_VERSION;
 
 use super::check::haptic_world;
-use super::cli::TICK_RING_CAPACITY;
 use super::writer::Recorder;
+use super::writer::TICK_RING_CAPACITY;
 use crate::app::{SERVER_NAME, scene_message};
 use crate::scene::Scene;
 

@@ -35,6 +35,10 @@ use super::SessionError;
 /// Device time covered by one chunk. Small, so that a crash loses at most about this much.
 pub const CHUNK_SPAN_NS: u64 = 1_000_000_000;
 
+/// Ticks the loop → recorder ring holds: 4 s at 1 kHz, so the recorder thread may stall that long
+/// (a slow disk) before a tick is lost.
+pub const TICK_RING_CAPACITY: usize = 4096;
+
 /// Upper bound on one chunk's uncompressed size, whatever its time span.
 const CHUNK_SIZE_BYTES: u64 = 1 << 20;
 
