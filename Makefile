@@ -19,7 +19,7 @@ test: lint test-rust test-web
 
 lint: rust-tools web-deps
 	$(CARGO) fmt --all -- --check
-	$(CARGO) clippy --workspace --all-targets -- -D warnings
+	$(CARGO) clippy --workspace --all-targets --all-features -- -D warnings
 	cd web && npm run lint && npm run format:check
 
 test-rust: rust-tools nats

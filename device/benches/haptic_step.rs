@@ -5,7 +5,7 @@
 //! around the grid centre so consecutive steps do not repeat the same pose.
 //!
 //! `cargo bench -p softhaptic-device --bench haptic_step`; the step report
-//! (`cargo run --release -p softhaptic-device --bin step-report`) prints the same step side by
+//! (`cargo run --release -p softhaptic-device --features tools --bin step-report`) prints the same step side by
 //! side with the paper's figures. Measurement windows are short: CI machines have two cores.
 
 use std::hint::black_box;

@@ -1,7 +1,7 @@
 //! Loop timing report: runs the 1 kHz loop with the simulated PHANTOM pressing the built-in liver
 //! for a number of seconds, prints the statistics once a second and a final table.
 //!
-//! `cargo run --release -p softhaptic-device --bin loop-timing -- --seconds 10 [--burn]`
+//! `cargo run --release -p softhaptic-device --features tools --bin loop-timing -- --seconds 10 [--burn]`
 //! (`--cpu auto|last|none|N` chooses the loop thread's CPU).
 //!
 //! `--burn` starts one CPU-burning neighbour process per core beside the loop (this program

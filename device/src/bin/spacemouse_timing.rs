@@ -1,7 +1,7 @@
 //! SpaceMouse timing report: how long a puck report takes to move the tool, and the lag the
 //! velocity's smoothing adds.
 //!
-//! `cargo run --release -p softhaptic-device --bin spacemouse-timing -- --pushes 20`
+//! `cargo run --release -p softhaptic-device --features tools --bin spacemouse-timing -- --pushes 20`
 //!
 //! The 1 kHz loop runs with the SpaceMouse backend fed by a report stream played in real time
 //! (a full push along x, a report every 16 ms for 0.3 s, then a release, repeated): the same

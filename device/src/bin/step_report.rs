@@ -1,6 +1,6 @@
 //! Times one haptic step on the paper's timing surfaces and prints it beside the paper's Table 1.
 //!
-//! `cargo run --release -p softhaptic-device --bin step-report`
+//! `cargo run --release -p softhaptic-device --features tools --bin step-report`
 //!
 //! The step is [`timing_step_force_n`]: collision query, contact law and damping along the
 //! normal, with a 10 mm sphere 5 mm into a flat 0.1 m grid, the tip circling 1 mm around the
@@ -264,7 +264,7 @@ fn row(vertices: usize, triangles: usize, build_ms: f64, c: Timing, p: Timing, t
 
 /// Times one haptic step (collision, contact law, damping) on the paper's Table 1 surfaces and
 /// beyond, in both collision modes, beside the paper's figures; then the contact model's costs.
-/// Run it on a release build: `cargo run --release -p softhaptic-device --bin step-report`.
+/// Run it on a release build: `cargo run --release -p softhaptic-device --features tools --bin step-report`.
 #[derive(clap::Parser)]
 #[command(name = "step-report", version)]
 struct Args {}
