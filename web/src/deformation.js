@@ -451,9 +451,12 @@ export class MeshDeformer {
     this.cellVertices = new Uint32Array(n);
     for (let i = 0; i < n; i++) this.cellVertices[fill[cellOf[i]]++] = i;
 
-    // Per-frame bookkeeping, preallocated: the vertices moved last frame (restored first), the
-    // vertices written this frame (moved now or restored), and a stamp to list each vertex once.
+    // Per-frame bookkeeping, preallocated: the vertices moved this frame and, in the spare list,
+    // those moved the frame before (the two swap each frame; a vertex moved in both is written
+    // once, not restored and then moved), the vertices written this frame (moved now or
+    // restored), and a stamp to list each vertex once.
     this.moved = new Uint32Array(n);
+    this.movedSpare = new Uint32Array(n);
     this.movedCount = 0;
     this.touched = new Uint32Array(n);
     this.touchedCount = 0;
@@ -487,9 +490,9 @@ export class MeshDeformer {
    * `contact`: `{inContact, depthM, contactRadiusM, deformedRadiusM, point: [x,y,z], normal:
    * [x,y,z]}` with point and normal already in the mesh's object frame; `tool` from
    * `toolFromJson`; `surface` the `fem` profile's family (`surfaceFamilyFromJson`) to draw it,
-   * or null for the paper's Bézier. Vertices moved by the previous call are first restored to
-   * rest. A vertex v moves by −n·z(r) when r is inside the profile's reach (R_d_eff for the
-   * paper's) and |(v − c)·n| is too (the far side never moves).
+   * or null for the paper's Bézier. A vertex v moves by −n·z(r) when r is inside the profile's
+   * reach (R_d_eff for the paper's) and |(v − c)·n| is too (the far side never moves); the
+   * vertices moved by the previous call and not by this one go back to rest.
    *
    * Returns the number of vertices written (moved or restored); their indices are
    * `this.touched[0 .. count]`, for partial normal or buffer updates.
@@ -503,8 +506,18 @@ export class MeshDeformer {
       this.frame = 1;
     }
     this.touchedCount = 0;
-    for (let m = 0; m < this.movedCount; m++) {
-      const i = this.moved[m];
+    const previous = this.moved;
+    const previousCount = this.movedCount;
+    this.moved = this.movedSpare;
+    this.movedSpare = previous;
+    this.movedCount = 0;
+    this.lastVisitedCells = 0;
+    this.#move(positionsOut, normalsOut, contact, tool, surface);
+    // Then back to rest every vertex moved the frame before and not this one (the stamp marks
+    // the ones moved this frame).
+    for (let m = 0; m < previousCount; m++) {
+      const i = previous[m];
+      if (this.stamp[i] === this.frame) continue;
       const j = 3 * i;
       positionsOut[j] = rest[j];
       positionsOut[j + 1] = rest[j + 1];
@@ -516,27 +529,32 @@ export class MeshDeformer {
       }
       this.#touch(i);
     }
-    this.movedCount = 0;
-    this.lastVisitedCells = 0;
-    if (!contact || !contact.inContact) return this.touchedCount;
+    return this.touchedCount;
+  }
+
+  /** The moving half of `apply`: writes and lists the vertices the contact moves this frame. */
+  #move(positionsOut, normalsOut, contact, tool, surface) {
+    const rest = this.restPositions;
+    const restN = this.restNormals;
+    if (!contact || !contact.inContact) return;
 
     const fem = surface !== null;
     const p = fem
       ? surfaceSetup(surface, tool, contact.depthM, this.surfaceProfile)
       : profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM, this.profile);
-    if (p.depthM === 0) return this.touchedCount;
+    if (p.depthM === 0) return;
     let nx = contact.normal[0],
       ny = contact.normal[1],
       nz = contact.normal[2];
     const nLen = Math.sqrt(nx * nx + ny * ny + nz * nz);
-    if (!(nLen > 0 && Number.isFinite(nLen))) return this.touchedCount;
+    if (!(nLen > 0 && Number.isFinite(nLen))) return;
     nx /= nLen;
     ny /= nLen;
     nz /= nLen;
     const cx = contact.point[0],
       cy = contact.point[1],
       cz = contact.point[2];
-    if (!(Number.isFinite(cx) && Number.isFinite(cy) && Number.isFinite(cz))) return this.touchedCount;
+    if (!(Number.isFinite(cx) && Number.isFinite(cy) && Number.isFinite(cz))) return;
 
     const reach = fem ? p.reachM : p.rdEff;
     const reach2 = reach * reach;
@@ -611,6 +629,5 @@ export class MeshDeformer {
         }
       }
     }
-    return this.touchedCount;
   }
 }

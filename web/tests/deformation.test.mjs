@@ -410,3 +410,34 @@ test('the deformer draws the fem profile: every vertex within its reach, by the 
     if (r >= 18 * MM) assert.equal(out[3 * i + 1], grid.positions[3 * i + 1], `vertex ${i} at r=${r}`);
   }
 });
+
+test('a press that slides writes every vertex of both dimples once, each where the new press puts it', () => {
+  const grid = flatGrid(80, 0.1);
+  const out = Float32Array.from(grid.positions);
+  const normals = Float32Array.from(grid.normals);
+  const deformer = new MeshDeformer(grid.positions, grid.normals);
+  for (const surface of [null, families[0]]) {
+    deformer.apply(out, normals, pressAt(0, 0, 3 * MM, 12 * MM), sphere, surface);
+    const before = new Set(deformer.moved.subarray(0, deformer.movedCount));
+    const press = pressAt(0.001, 0, 3 * MM, 12 * MM);
+    const touched = deformer.apply(out, normals, press, sphere, surface);
+    const now = new Set(deformer.moved.subarray(0, deformer.movedCount));
+    const list = deformer.touched.subarray(0, touched);
+    assert.equal(new Set(list).size, touched, 'each vertex listed once');
+    assert.equal(touched, new Set([...before, ...now]).size, 'the union of both dimples');
+    const p = surface ? surfaceSetup(surface, sphere, press.depthM) : null;
+    for (let i = 0; i < deformer.vertexCount; i++) {
+      const r = Math.hypot(grid.positions[3 * i] - 0.001, grid.positions[3 * i + 2]);
+      const z = surface
+        ? r < p.reachM
+          ? surfaceDepressionAt(p, r)
+          : 0
+        : depression(sphere, press.depthM, press.contactRadiusM, press.deformedRadiusM, r);
+      const dy = grid.positions[3 * i + 1] - out[3 * i + 1];
+      assert.ok(Math.abs(dy - z) < 1e-7, `${surface ? 'fem' : 'paper'} vertex ${i}: moved ${dy}, profile ${z}`);
+      if (!now.has(i)) assert.equal(normals[3 * i + 1], grid.normals[3 * i + 1], `vertex ${i} normal restored`);
+    }
+    deformer.apply(out, normals, { inContact: false }, sphere, surface);
+    assert.equal(deformer.movedCount, 0);
+  }
+});
