@@ -158,12 +158,15 @@ impl DrawnSurface {
 /// Radius spacing of the tabulated surface: 0.5 mm, under half the FEM's finest node spacing
 /// (1.25 mm on the calibration block), so resampling changes the surface by a few µm.
 pub const SURFACE_STEP_M: f64 = 0.5e-3;
-/// Where a row's depression falls below this for good, the row ends (with one sample of 0):
-/// 10 µm, a hundredth of a pixel on a 100 mm object filling the screen.
-pub const SURFACE_FLOOR_M: f64 = 1e-5;
-/// A row still sunk at the block's side (the surface beyond it is not known) ramps linearly to
-/// 0 over this distance past it, so the drawn surface meets the unmoved one without a step.
-pub const SURFACE_TAPER_M: f64 = 10e-3;
+/// Where a row's depression falls below this for good, the row ends (ramped down, see
+/// [`SURFACE_RAMP_SLOPE`]): 0.05 mm, a tenth of the paper's R_d threshold and a fifth of the
+/// profile's error budget; the last few hundredths of a millimetre of the far tail would move
+/// most of a large mesh every frame for a depression no one can see.
+pub const SURFACE_FLOOR_M: f64 = 5e-5;
+/// Where a row ends (below the floor, or at the block's side, beyond which the surface is not
+/// known), it ramps linearly to 0 at this slope, 1 in 100 (the drawn normal tilts by 0.6°), so
+/// the drawn surface meets the unmoved one without a step or a ring in its shading.
+pub const SURFACE_RAMP_SLOPE: f64 = 0.01;
 
 /// How the contact radius grows with depth, the `fem` profile's radius exponent: √(Rδ) for a
 /// sphere, 2δ tanα/π for a cone.
@@ -206,8 +209,8 @@ fn surface_family_without(
 
 /// One row of the `fem` profile: the FEM's depression (linear between its nodes, ≥ 0) every
 /// [`SURFACE_STEP_M`] out to the last node, rounded to 10 nm (the file stays short; the FEM is
-/// not that precise), ended where it falls below [`SURFACE_FLOOR_M`] for good, or ramped to 0
-/// over [`SURFACE_TAPER_M`] past the block's side when it is still sunk there.
+/// not that precise), ended after the last sample at or above [`SURFACE_FLOOR_M`] (or at the
+/// block's side) by a ramp to 0 at [`SURFACE_RAMP_SLOPE`].
 pub fn surface_row(depth_m: f64, surface: &[SurfacePoint]) -> SurfaceRow {
     let last_m = surface.last().map_or(0.0, |p| p.radius_m);
     let samples = (last_m / SURFACE_STEP_M).floor() as usize;
@@ -226,12 +229,12 @@ pub fn surface_row(depth_m: f64, surface: &[SurfacePoint]) -> SurfaceRow {
         .iter()
         .rposition(|&z| z >= SURFACE_FLOOR_M)
         .map_or(0, |k| k + 1);
-    if kept == depression_m.len() && kept > 0 {
-        let edge_m = depression_m[kept - 1];
-        let ramp = (SURFACE_TAPER_M / SURFACE_STEP_M).round().max(1.0) as usize;
-        depression_m.extend((1..ramp).map(|k| round(edge_m * (1.0 - k as f64 / ramp as f64))));
-    } else {
-        depression_m.truncate(kept);
+    depression_m.truncate(kept);
+    if let Some(&end_m) = depression_m.last() {
+        let ramp = (end_m / (SURFACE_RAMP_SLOPE * SURFACE_STEP_M))
+            .ceil()
+            .max(1.0) as usize;
+        depression_m.extend((1..ramp).map(|k| round(end_m * (1.0 - k as f64 / ramp as f64))));
     }
     depression_m.push(0.0);
     if depression_m.len() < 2 {
@@ -519,34 +522,39 @@ mod tests {
 
     #[test]
     fn a_row_ends_where_the_surface_settles_or_ramps_down_past_the_block() {
-        // Settles inside the block: the row ends one sample after the last above the floor.
+        // Settles inside the block: the FEM row up to the last sample above the floor, then a
+        // ramp to 0 no steeper than the ramp slope.
         let settled: Vec<SurfacePoint> = (0..=100)
             .map(|k| point(k as f64 * MM, (2.0 * MM - 0.1 * MM * k as f64).max(0.0)))
             .collect();
         let row = surface_row(2.0 * MM, &settled);
         assert_eq!(row.depression_m[0], 2.0 * MM);
         assert_eq!(row.depression_m[2], 1.9 * MM); // r = 1 mm, on a node
-        let last = *row.depression_m.last().unwrap();
-        assert_eq!(last, 0.0);
-        let kept = row.depression_m.len() - 1;
-        assert!(row.depression_m[kept - 1] >= SURFACE_FLOOR_M);
-        assert!((kept as f64 * SURFACE_STEP_M) < 20.5 * MM, "{kept}");
-        // Still sunk at the block's side (50 mm): a ramp to 0 over the taper beyond it.
+        assert_eq!(*row.depression_m.last().unwrap(), 0.0);
+        // The FEM row falls to 0.05 mm at r = 19.5 mm (sample 39): kept, then the ramp.
+        assert!((row.depression_m[39] - SURFACE_FLOOR_M).abs() < 1e-9);
+        let ramp = &row.depression_m[39..];
+        for w in ramp.windows(2) {
+            assert!(w[1] < w[0]);
+            assert!(w[0] - w[1] <= SURFACE_RAMP_SLOPE * SURFACE_STEP_M * (1.0 + 1e-6));
+        }
+        assert_eq!(ramp.len(), 11, "{ramp:?}");
+        // Still sunk at the block's side (50 mm): a ramp to 0 beyond it.
         let sunk: Vec<SurfacePoint> = (0..=50)
-            .map(|k| point(k as f64 * MM, 1.0 * MM / (1.0 + k as f64)))
+            .map(|k| point(k as f64 * MM, 5.0 * MM / (1.0 + k as f64)))
             .collect();
-        let row = surface_row(MM, &sunk);
+        let row = surface_row(5.0 * MM, &sunk);
         let at_side = (50.0 * MM / SURFACE_STEP_M) as usize;
-        assert!((row.depression_m[at_side] - MM / 51.0).abs() < 1e-8);
-        let expected_len = at_side + (SURFACE_TAPER_M / SURFACE_STEP_M) as usize + 1;
-        assert_eq!(row.depression_m.len(), expected_len);
+        assert!((row.depression_m[at_side] - 5.0 * MM / 51.0).abs() < 1e-8);
+        assert!(row.depression_m.len() > at_side + 3);
         for w in row.depression_m[at_side..].windows(2) {
             assert!(w[1] < w[0]);
+            assert!(w[0] - w[1] <= SURFACE_RAMP_SLOPE * SURFACE_STEP_M * (1.0 + 1e-6));
         }
         // As a family it draws the FEM's surface at the row's depth (under a slender cone, whose
         // own surface, the lower bound of the drawn one, lies below this one's everywhere).
         let f = SurfaceFamily::new(0.5, SURFACE_STEP_M, vec![row]).unwrap();
-        let p = f.at_depth(&ToolShape::cone(0.1, 0.01).unwrap(), MM);
+        let p = f.at_depth(&ToolShape::cone(0.1, 0.01).unwrap(), 5.0 * MM);
         for q in &sunk {
             assert!((p.depression_m(q.radius_m) - q.depression_m).abs() < 1e-8);
         }
