@@ -151,7 +151,7 @@ struct HubArgs {
 
 fn main() -> std::process::ExitCode {
     match try_main() {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+        Ok(code) => code,
         Err(e) => {
             // The whole chain, one cause per line; no backtrace: these are user-facing errors.
             eprintln!("error: {e:#}");
@@ -160,13 +160,16 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-fn try_main() -> anyhow::Result<()> {
+/// Runs the command; its exit status when it has one of its own (the doctor's 0, 1 or 2).
+fn try_main() -> anyhow::Result<std::process::ExitCode> {
     softhaptic_server::logging::init();
     let cli = Cli::parse();
+    let status = |code: i32| std::process::ExitCode::from(u8::try_from(code).unwrap_or(u8::MAX));
+    let done = |r: anyhow::Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     match cli.command {
-        None => run(cli.run),
-        Some(Command::Run(args)) => run(args),
-        Some(Command::Hub(args)) => hub(args),
+        None => done(run(cli.run)),
+        Some(Command::Run(args)) => done(run(args)),
+        Some(Command::Hub(args)) => done(hub(args)),
         Some(Command::Vectors {
             action: VectorsAction::Write { check, dir },
         }) => {
@@ -179,13 +182,14 @@ fn try_main() -> anyhow::Result<()> {
                     f.display()
                 );
             }
-            Ok(())
+            Ok(std::process::ExitCode::SUCCESS)
         }
-        Some(Command::Session(command)) => session::cli::run(command),
-        Some(Command::Doctor(args)) => std::process::exit(softhaptic_server::doctor::run(&args)?),
-        Some(Command::Devices { name }) => {
-            session::cli::print_report(format_args!("{}", devices::listing(&name)))
-        }
+        Some(Command::Session(command)) => done(session::cli::run(command)),
+        Some(Command::Doctor(args)) => Ok(status(softhaptic_server::doctor::run(&args)?)),
+        Some(Command::Devices { name }) => done(session::cli::print_report(format_args!(
+            "{}",
+            devices::listing(&name)
+        ))),
     }
 }
 

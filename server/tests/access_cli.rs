@@ -77,7 +77,8 @@ impl Server {
         let mut child = command(args, env).spawn().expect("softhaptic runs");
         let out = child.stdout.take().unwrap();
         let mut err = child.stderr.take().unwrap();
-        let (tx, lines) = mpsc::channel();
+        // The links and a few status lines: far fewer than the queue holds.
+        let (tx, lines) = mpsc::sync_channel(1024);
         std::thread::spawn(move || {
             for line in BufReader::new(out).lines() {
                 let Ok(line) = line else { break };

@@ -307,6 +307,7 @@ impl Drop for Burner {
 }
 
 /// The body of a burner process: spins until killed, or until its parent exits.
+#[allow(clippy::disallowed_methods)] // A burner has nothing to close: it only spins.
 fn burn() -> ! {
     // SAFETY: PR_SET_PDEATHSIG takes a signal number and affects only the calling process.
     unsafe {

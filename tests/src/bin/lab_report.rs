@@ -29,7 +29,8 @@ struct Options {
     seconds: f64,
 }
 
-fn parse() -> anyhow::Result<Options> {
+/// The options, or `None` when the help was asked for (and printed).
+fn parse() -> anyhow::Result<Option<Options>> {
     let mut o = Options {
         stations: 4,
         hubs: 2,
@@ -48,7 +49,7 @@ fn parse() -> anyhow::Result<Options> {
                 println!(
                     "lab-report [--stations N (4)] [--hubs N (2)] [--viewers N (200)] [--seconds S (10)]"
                 );
-                std::process::exit(0);
+                return Ok(None);
             }
             other => bail!("unknown option {other:?} (see --help)"),
         }
@@ -56,7 +57,7 @@ fn parse() -> anyhow::Result<Options> {
     if o.stations == 0 || o.hubs == 0 || !(1.0..=600.0).contains(&o.seconds) || o.viewers > 10_000 {
         bail!("--stations and --hubs ≥ 1, --viewers ≤ 10000, --seconds in [1, 600]");
     }
-    Ok(o)
+    Ok(Some(o))
 }
 
 /// A `softhaptic` process, killed when dropped; `addr` once it printed its URL.
@@ -197,7 +198,9 @@ fn percentile(mut v: Vec<f64>, p: f64) -> f64 {
 
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
-    let o = parse()?;
+    let Some(o) = parse()? else {
+        return Ok(());
+    };
     let nats = NatsServer::start("lab-report");
     let url = nats.url();
     let mut stations = Vec::new();

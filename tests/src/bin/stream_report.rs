@@ -129,7 +129,7 @@ fn print(label: &str, r: &Run) {
     );
 }
 
-fn main() {
+fn main() -> std::process::ExitCode {
     let seconds = std::env::args()
         .skip_while(|a| a != "--seconds")
         .nth(1)
@@ -143,7 +143,7 @@ fn main() {
         Ok(r) => r,
         Err(e) => {
             eprintln!("could not start the async runtime: {e}");
-            std::process::exit(1);
+            return std::process::ExitCode::FAILURE;
         }
     };
     runtime.block_on(async {
@@ -154,4 +154,5 @@ fn main() {
             &run(199, true, seconds, standby).await,
         );
     });
+    std::process::ExitCode::SUCCESS
 }
