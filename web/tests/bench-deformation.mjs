@@ -5,8 +5,10 @@
 //
 // For flat square grids of the paper's sizes (40² … 100² vertices) and for the scene's render
 // mesh, times MeshDeformer.apply (restore the previous dimple, move the new one, analytic
-// normals) over a press that slides a little each update, and prints the median. Then lets the
-// live page run and reports its frame rate, the frames it receives per second, and the median
+// normals) over a press that slides a little each update, and prints the median. Then, on
+// 100 000 vertices, each deformation profile (`paper`, the paper's Bézier, and `fem`, the
+// calibration's FEM surface from the scene's table) at several depths. Then lets the live page
+// run and reports its frame rate, the frames it receives per second, and the median
 // deformation time it measured while drawing. Nothing here is asserted: it is a measurement.
 import os from 'node:os';
 
@@ -27,11 +29,14 @@ const UPDATES = Number(process.env.BENCH_UPDATES ?? 400);
 const LIVE_SECONDS = Number(process.env.BENCH_LIVE_SECONDS ?? 8);
 
 /** Runs inside the page: times `updates` deformation updates on a grid or the render mesh. */
-async function timeInPage({ kind, side, updates }) {
-  const { MeshDeformer, contactRadius, toolFromJson } = await import('/src/deformation.js');
+async function timeInPage({ kind, side, updates, profile = 'paper', depthM = 0.004, deformedRadiusM = 0.02 }) {
+  const { MeshDeformer, contactRadius, surfaceFamilyFromJson, toolFromJson } = await import('/src/deformation.js');
   const { flatGrid, parseRenderMesh } = await import('/src/mesh.js');
   const scene = await (await fetch('/api/scene')).json();
   const tool = toolFromJson(scene.tool);
+  // The `fem` profile needs the table's tabulated surface; without one there is nothing to time.
+  if (profile === 'fem' && !scene.calibration.surface) return null;
+  const surface = profile === 'fem' ? surfaceFamilyFromJson(scene.calibration.surface) : null;
   let mesh;
   let centre;
   let normal;
@@ -53,13 +58,12 @@ async function timeInPage({ kind, side, updates }) {
   const deformer = new MeshDeformer(mesh.positions, mesh.normals);
   const positions = Float32Array.from(mesh.positions);
   const normals = Float32Array.from(mesh.normals);
-  // A 4 mm press (the paper's valid depth for a 10 mm sphere is 4.3 mm), R_d = 20 mm.
-  const depthM = 0.004;
+  // By default a 4 mm press (the paper's valid depth for a 10 mm sphere is 4.3 mm), R_d = 20 mm.
   const contact = {
     inContact: true,
     depthM,
     contactRadiusM: contactRadius(tool, depthM),
-    deformedRadiusM: 0.02,
+    deformedRadiusM,
     point: [0, 0, 0],
     normal,
   };
@@ -76,7 +80,7 @@ async function timeInPage({ kind, side, updates }) {
     contact.point[1] = centre[1];
     contact.point[2] = centre[2] + 0.001 * Math.cos(k * 0.3);
     k++;
-    deformer.apply(positions, normals, contact, tool);
+    deformer.apply(positions, normals, contact, tool, surface);
   };
   for (let w = 0; w < 50; w++) step(); // warm-up: let the JIT compile apply()
   for (let b = 0; b < batches; b++) {
@@ -125,6 +129,40 @@ try {
   );
   const r = await page.evaluate(timeInPage, { kind: 'render', side: 0, updates: UPDATES });
   console.log(`| ${r.vertices} (render mesh) | ${r.moved} | ${r.medianMs.toFixed(3)} | ${r.meanMs.toFixed(3)} | — |`);
+  console.log('');
+  console.log('Each profile on the 100 000-vertex grid (100 mm square, press at its centre), R_d from the');
+  console.log("scene's table; `fem` draws the tabulated FEM surface out to where it settles, the block's");
+  console.log('side plus its 10 mm ramp at depth, so it moves more vertices than R_d holds:');
+  console.log('');
+  console.log('| profile | δ (mm) | R_d (mm) | moved | median ms | mean ms |');
+  console.log('|---|---:|---:|---:|---:|---:|');
+  const table = await page.evaluate(async () => (await (await fetch('/api/scene')).json()).calibration);
+  const fit = table.fit;
+  const deformedRadius = (d) =>
+    d < fit.breakpoint_m
+      ? fit.linear[0] + fit.linear[1] * d
+      : fit.quadratic[0] + fit.quadratic[1] * d + fit.quadratic[2] * d * d;
+  for (const profile of ['paper', 'fem']) {
+    for (const depthMm of [1, 4, 8, 10]) {
+      const depthM = depthMm / 1000;
+      const deformedRadiusM = Math.max(0, deformedRadius(depthM));
+      const p = await page.evaluate(timeInPage, {
+        kind: 'grid',
+        side: 317,
+        updates: UPDATES,
+        profile,
+        depthM,
+        deformedRadiusM,
+      });
+      if (p === null) {
+        console.log(`| ${profile} | ${depthMm} | — | — | (the scene's table carries no surface) | — |`);
+        continue;
+      }
+      console.log(
+        `| ${profile} | ${depthMm} | ${(deformedRadiusM * 1000).toFixed(1)} | ${p.moved} | ${p.medianMs.toFixed(3)} | ${p.meanMs.toFixed(3)} |`,
+      );
+    }
+  }
   console.log('');
   console.log('The paper reports the computation time per step of its whole simulator on an Intel Core');
   console.log("i7-2600 at 3.4 GHz; these times are the viewer's deformation update alone, in JavaScript,");
