@@ -68,6 +68,11 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     if stats.ticks_dropped == 0 && r.missing_ticks() == 0 {
         assert_eq!(recorded, final_live);
         assert!(matches!(Info::of(&r).recorded_metrics, Some((_, true))));
+        assert!(report.metrics_compared);
+        assert!(
+            report.to_string().contains("metrics are the ones recorded"),
+            "{report}"
+        );
         // `check` holds the replay's metrics against the recorded ones, to the bit.
         let mut tampered = r.clone();
         let last = tampered.metrics.len() - 1;

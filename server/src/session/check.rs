@@ -81,6 +81,8 @@ pub struct CheckReport {
     /// When the recording holds the live loop's final metrics and every tick was replayed:
     /// whether the replay's are the same (`None` when there is nothing to compare).
     pub metrics_difference: Option<MetricsDifference>,
+    /// Whether the replay's metrics were held against recorded ones at all.
+    pub metrics_compared: bool,
 }
 
 /// The replay's trainee metrics differ from those the live loop recorded at the session's end.
@@ -106,8 +108,13 @@ impl fmt::Display for CheckReport {
         match &self.first_difference {
             None => write!(
                 f,
-                "{path}: {} ticks replayed, every force identical bit for bit",
-                self.ticks_compared
+                "{path}: {} ticks replayed, every force identical bit for bit{}",
+                self.ticks_compared,
+                if self.metrics_compared && self.metrics_difference.is_none() {
+                    "; the trainee's metrics are the ones recorded"
+                } else {
+                    ""
+                }
             )?,
             Some(d) => {
                 let diff = d.difference_n();
@@ -238,16 +245,17 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
     let metrics = world.metrics();
     // The live loop's final metrics cover every tick it ran: comparable when the replay ran
     // them all too (no gap, and the recording was not cut short of its last ticks).
-    let metrics_difference = recording
+    let comparable = recording
         .final_metrics()
-        .filter(|recorded| stopped_at_gap.is_none() && recorded.ticks == metrics.ticks)
-        .and_then(|recorded| {
-            let replayed = crate::stream::metrics_message(&metrics, true);
-            (!same_metrics(recorded, &replayed)).then(|| MetricsDifference {
-                recorded: recorded.clone(),
-                replayed,
-            })
-        });
+        .filter(|recorded| stopped_at_gap.is_none() && recorded.ticks == metrics.ticks);
+    let metrics_compared = comparable.is_some();
+    let metrics_difference = comparable.and_then(|recorded| {
+        let replayed = crate::stream::metrics_message(&metrics, true);
+        (!same_metrics(recorded, &replayed)).then(|| MetricsDifference {
+            recorded: recorded.clone(),
+            replayed,
+        })
+    });
     Ok(CheckReport {
         path,
         ticks_compared: records.len() as u64,
@@ -257,6 +265,7 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
         replayed_n,
         metrics,
         metrics_difference,
+        metrics_compared,
     })
 }
 
