@@ -614,10 +614,10 @@ impl AccessConfig {
         let base = self.public_base(url, addr);
         match self.links(&base) {
             Some((instructor, observer)) => {
-                println!("{}: {instructor}", labels[0]);
-                println!("{}: {observer}", labels[1]);
+                crate::logging::print_line(format_args!("{}: {instructor}", labels[0]));
+                crate::logging::print_line(format_args!("{}: {observer}", labels[1]));
             }
-            None => println!("{}: {base}", labels[0]),
+            None => crate::logging::print_line(format_args!("{}: {base}", labels[0])),
         }
     }
 }

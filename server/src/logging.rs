@@ -27,6 +27,19 @@ fn may_print_secrets_at(target: &str, level: Level) -> bool {
         })
 }
 
+/// Writes one line to stdout (a link, a fingerprint, the recording's path) for a person or a
+/// supervisor to read. A server runs on when nobody reads its stdout any more (a closed pipe, a
+/// supervisor gone), so a failed write is ignored, where `println!` would panic and stop the
+/// loop and the recording with it.
+pub fn print_line(line: std::fmt::Arguments<'_>) {
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    let _ = out
+        .write_fmt(line)
+        .and_then(|()| out.write_all(b"\n"))
+        .and_then(|()| out.flush());
+}
+
 /// Installs the process's log. Call once, first.
 pub fn init() {
     let env = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));

@@ -212,7 +212,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
     let access = args.access.resolve(args.addr)?;
     let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
     if let Some(t) = &tls {
-        println!("{t}");
+        softhaptic_server::logging::print_line(format_args!("{t}"));
     }
     let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
@@ -251,7 +251,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     // A certificate that does not load stops the start too, before a recording is begun.
     let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
     if let Some(t) = &tls {
-        println!("{t}");
+        softhaptic_server::logging::print_line(format_args!("{t}"));
     }
     // Refuse a bad scene before anything starts.
     let mut scene = match &args.scene {
@@ -314,7 +314,10 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         };
         if let Some(r) = &recording {
             r.attach(&server);
-            println!("recording: {}", r.path().display());
+            softhaptic_server::logging::print_line(format_args!(
+                "recording: {}",
+                r.path().display()
+            ));
         }
         // A lab station archives its finished recordings (earlier sessions now, this one when it
         // stops) in the lab's object store; a file not verified there is tried again next start.
@@ -350,6 +353,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             server.local_addr(),
             ["viewer", "observer"],
         );
+        // For a supervisor: up, and where (the links, with their tokens, are on stdout only).
+        tracing::info!(addr = %server.local_addr(), "serving viewers");
         let signal = app::shutdown_signal()
             .await
             .context("could not listen for the stop signals")?;

@@ -180,7 +180,7 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             let access = access.resolve(addr)?;
             let tls = crate::tls::server_config(&tls, addr.ip())?;
             if let Some(t) = &tls {
-                println!("{t}");
+                crate::logging::print_line(format_args!("{t}"));
             }
             let recording = Recording::open(&file)?;
             if !recording.is_complete() {
