@@ -182,10 +182,6 @@ export function installTestHook(ctx) {
     animation: (on) => {
       if (view.renderer) view.renderer.setAnimationLoop(on ? ctx.animate : null);
     },
-    /**
-     * Moves the camera to look at a world point from `distanceM` away, `elevationRad` above the
-     * horizontal (screenshots; a low camera shows the dimple's profile beside the tool).
-     */
     /** The marks received, in id order, and the list's text. */
     marks: () => ({
       marks: [...state.marks.values()].sort((a, b) => a.id - b.id),
@@ -236,6 +232,10 @@ export function installTestHook(ctx) {
       gl.readPixels(px, py, size, size, gl.RGBA, gl.UNSIGNED_BYTE, out);
       return Array.from(out);
     },
+    /**
+     * Moves the camera to look at a world point from `distanceM` away, `elevationRad` above the
+     * horizontal (screenshots; a low camera shows the dimple's profile beside the tool).
+     */
     focusCamera: (point, distanceM, elevationRad = 0.6) => {
       const h = distanceM * Math.cos(elevationRad);
       view.camera.position.set(point[0] + h * 0.6, point[1] + distanceM * Math.sin(elevationRad), point[2] + h * 0.8);

@@ -1,0 +1,403 @@
+// The 3-D view: the three.js scene (lights, grid, the deformed-region ring, the force arrow),
+// the tool and the render meshes of a scene, and what each animation frame does to them: bend
+// the meshes with the scene's deformation profile, place the tool, the ring, the arrow and the
+// section plane, colour the depression map. Without WebGL the meshes are still bent (the panels
+// and the tests read them); nothing is drawn.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+import { MeshDeformer, profileSetup } from './deformation.js';
+import { TIMING_SAMPLES, dom, rendered, scratch, state, timings, view } from './context.js';
+import { setText } from './panels.js';
+
+/**
+ * The tool's opacity while it touches the object: the dent it makes is under it, and from most
+ * viewpoints an opaque tool hides it entirely.
+ */
+const TOOL_OPACITY_IN_CONTACT = 0.3;
+/** The depression map's colour at full scale (multiplies the object's). */
+const DEPRESSION_COLOR = [0.25, 0.45, 1.0];
+
+/** Creates the WebGL renderer and the static scene; without WebGL, says so and goes on. */
+export function initThree() {
+  view.scene = new THREE.Scene();
+  view.scene.background = new THREE.Color(0x14171c);
+  view.camera = new THREE.PerspectiveCamera(40, window.innerWidth / window.innerHeight, 0.001, 10);
+  view.camera.position.set(0.18, 0.16, 0.26);
+
+  view.scene.add(new THREE.HemisphereLight(0xdde6ff, 0x2a2018, 1.2));
+  const key = new THREE.DirectionalLight(0xffffff, 2.2);
+  key.position.set(0.3, 0.6, 0.4);
+  view.scene.add(key);
+  const rim = new THREE.DirectionalLight(0x88aaff, 0.8);
+  rim.position.set(-0.4, 0.2, -0.3);
+  view.scene.add(rim);
+
+  const grid = new THREE.GridHelper(0.4, 20, 0x3a4250, 0x262c36);
+  grid.position.y = -0.08;
+  view.scene.add(grid);
+
+  view.objectsGroup = new THREE.Group();
+  view.scene.add(view.objectsGroup);
+
+  // The deformed-region ring: a thin unit annulus in the xz plane, scaled to R_d and turned to
+  // the contact normal each frame. Drawn over the surface so the dimple cannot hide it.
+  const ringGeometry = new THREE.RingGeometry(0.965, 1, 128, 1);
+  ringGeometry.rotateX(-Math.PI / 2);
+  view.ring = new THREE.Mesh(
+    ringGeometry,
+    new THREE.MeshBasicMaterial({
+      color: 0xffa657,
+      side: THREE.DoubleSide,
+      depthTest: false,
+      transparent: true,
+      opacity: 0.95,
+    }),
+  );
+  view.ring.renderOrder = 2;
+  view.ring.visible = false;
+  view.scene.add(view.ring);
+
+  view.arrow = new THREE.ArrowHelper(new THREE.Vector3(0, 1, 0), new THREE.Vector3(), 0.02, 0x58a6ff, 0.008, 0.005);
+  view.arrow.visible = false;
+  // The arrow starts at the tip, inside the tool: draw it through the tool.
+  for (const part of [view.arrow.line, view.arrow.cone]) {
+    part.material.depthTest = false;
+    part.material.transparent = true;
+    part.renderOrder = 3;
+  }
+  view.scene.add(view.arrow);
+
+  try {
+    // On a software rasteriser (SwiftShader, llvmpipe: no GPU) multisampling costs more than the
+    // mesh itself; drop it there and keep the frame rate.
+    view.gpuName = webglRendererName();
+    view.software = /swiftshader|llvmpipe|softpipe|software/i.test(view.gpuName ?? '');
+    const renderer = new THREE.WebGLRenderer({ antialias: !view.software });
+    renderer.setPixelRatio(Math.min(window.devicePixelRatio, view.software ? 1 : 2));
+    renderer.setSize(window.innerWidth, window.innerHeight);
+    dom.view.appendChild(renderer.domElement);
+    // The section view clips the object's material only.
+    renderer.localClippingEnabled = true;
+    view.renderer = renderer;
+    view.controls = new OrbitControls(view.camera, renderer.domElement);
+    view.controls.target.set(0, 0, 0);
+    view.controls.enableDamping = true;
+  } catch (e) {
+    view.renderer = null;
+    dom['webgl-message'].hidden = false;
+    console.warn(`softhaptic: WebGL unavailable (${e.message}); drawing panels only`);
+  }
+}
+
+/** The WebGL implementation's name, or null when WebGL is unavailable. */
+function webglRendererName() {
+  const gl = document.createElement('canvas').getContext('webgl2');
+  if (!gl) return null;
+  const info = gl.getExtension('WEBGL_debug_renderer_info');
+  const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+  gl.getExtension('WEBGL_lose_context')?.loseContext();
+  return name;
+}
+
+/** Fits the renderer and the camera to the window. */
+export function resizeView() {
+  if (!view.renderer) return;
+  view.camera.aspect = window.innerWidth / window.innerHeight;
+  view.camera.updateProjectionMatrix();
+  view.renderer.setSize(window.innerWidth, window.innerHeight);
+}
+
+export function buildTool(tool) {
+  if (view.toolGroup) {
+    view.scene.remove(view.toolGroup);
+    view.toolGroup.traverse((o) => o.geometry?.dispose());
+  }
+  const group = new THREE.Group();
+  // Transparent from the start (only the opacity changes with contact, no shader rebuild).
+  const material = new THREE.MeshStandardMaterial({
+    color: 0xc9d1d9,
+    metalness: 0.6,
+    roughness: 0.3,
+    transparent: true,
+  });
+  const R = tool.radius_m;
+  let tipLength;
+  if (tool.shape === 'sphere') {
+    // The tool frame's origin is the tip: the bottom of the sphere.
+    const ball = new THREE.Mesh(new THREE.SphereGeometry(R, 48, 24), material);
+    ball.position.y = R;
+    group.add(ball);
+    tipLength = R;
+  } else {
+    const height = R / Math.tan(tool.half_angle_rad);
+    const cone = new THREE.Mesh(new THREE.ConeGeometry(R, height, 48, 1, false), material);
+    cone.rotation.x = Math.PI; // apex down, at the origin
+    cone.position.y = height / 2;
+    group.add(cone);
+    tipLength = height;
+  }
+  const shaftLength = 0.12;
+  const shaft = new THREE.Mesh(
+    new THREE.CylinderGeometry(R * 0.35, R * 0.35, shaftLength, 24),
+    new THREE.MeshStandardMaterial({ color: 0x6e7681, metalness: 0.4, roughness: 0.5, transparent: true }),
+  );
+  shaft.position.y = tipLength + shaftLength / 2;
+  group.add(shaft);
+  view.toolMaterials = [material, shaft.material];
+  view.toolGroup = group;
+  view.scene.add(group);
+}
+
+export function buildMesh(desc, data) {
+  const positions = Float32Array.from(data.positions);
+  const normals = Float32Array.from(data.normals);
+  const geometry = new THREE.BufferGeometry();
+  const positionAttr = new THREE.BufferAttribute(positions, 3);
+  const normalAttr = new THREE.BufferAttribute(normals, 3);
+  positionAttr.setUsage(THREE.DynamicDrawUsage);
+  normalAttr.setUsage(THREE.DynamicDrawUsage);
+  geometry.setAttribute('position', positionAttr);
+  geometry.setAttribute('normal', normalAttr);
+  // The depression map's colours, multiplied with the object's: white (no change) until it is on.
+  const colors = new Float32Array(positions.length).fill(1);
+  const colorAttr = new THREE.BufferAttribute(colors, 3);
+  colorAttr.setUsage(THREE.DynamicDrawUsage);
+  geometry.setAttribute('color', colorAttr);
+  geometry.setIndex(new THREE.BufferAttribute(data.indices, 1));
+  geometry.computeBoundingSphere();
+  // The dimple stays inside the rest bounds grown by the deepest press; skip per-frame bounds.
+  geometry.boundingSphere.radius *= 1.2;
+  const mesh = new THREE.Mesh(
+    geometry,
+    new THREE.MeshStandardMaterial({
+      color: 0xd98c8c,
+      roughness: 0.55,
+      metalness: 0.0,
+      vertexColors: true,
+      // Seen from inside too, where the section view cuts it open.
+      side: THREE.DoubleSide,
+      clippingPlanes: view.sectionPlanes,
+    }),
+  );
+  const [px, py, pz] = desc.object_in_world.position_m;
+  const [qx, qy, qz, qw] = desc.object_in_world.orientation;
+  mesh.position.set(px, py, pz);
+  mesh.quaternion.set(qx, qy, qz, qw).normalize();
+  view.objectsGroup.add(mesh);
+  return {
+    name: desc.name,
+    positions,
+    normals,
+    positionAttr,
+    normalAttr,
+    colors,
+    colorAttr,
+    rest: data.positions,
+    restNormals: data.normals,
+    deformer: new MeshDeformer(data.positions, data.normals),
+    geometry,
+    mesh,
+    range: { start: 0, count: 0 },
+    objectPosition: new THREE.Vector3(px, py, pz),
+    objectInverse: mesh.quaternion.clone().invert(),
+  };
+}
+
+/** Points the camera at the loaded meshes. */
+export function frameCamera() {
+  const box = new THREE.Box3();
+  for (const m of state.meshes) box.expandByObject(m.mesh);
+  if (box.isEmpty()) return;
+  const centre = box.getCenter(new THREE.Vector3());
+  const size = box.getSize(new THREE.Vector3()).length();
+  view.camera.position.set(centre.x + size * 0.55, centre.y + size * 0.5, centre.z + size * 0.85);
+  view.camera.near = size / 200;
+  view.camera.far = size * 20;
+  view.camera.updateProjectionMatrix();
+  if (view.controls) {
+    view.controls.target.copy(centre);
+    view.controls.update();
+  }
+}
+
+export function deformMeshes() {
+  if (!state.tool || state.meshes.length === 0) return;
+  const c = scratch.contact;
+  c.inContact = rendered.valid && rendered.inContact;
+  c.depthM = rendered.depthM;
+  c.contactRadiusM = rendered.contactRadiusM;
+  c.deformedRadiusM = rendered.deformedRadiusM;
+  const t0 = performance.now();
+  let moved = 0;
+  let touchedAny = false;
+  for (let k = 0; k < state.meshes.length; k++) {
+    const m = state.meshes[k];
+    if (c.inContact) {
+      // World → object frame: p_obj = q⁻¹(p − t), n_obj = q⁻¹ n.
+      scratch.v
+        .set(rendered.point[0], rendered.point[1], rendered.point[2])
+        .sub(m.objectPosition)
+        .applyQuaternion(m.objectInverse);
+      scratch.n.set(rendered.normal[0], rendered.normal[1], rendered.normal[2]).applyQuaternion(m.objectInverse);
+      c.point[0] = scratch.v.x;
+      c.point[1] = scratch.v.y;
+      c.point[2] = scratch.v.z;
+      c.normal[0] = scratch.n.x;
+      c.normal[1] = scratch.n.y;
+      c.normal[2] = scratch.n.z;
+    }
+    const touched = m.deformer.apply(m.positions, m.normals, c, state.tool, state.surface);
+    moved += m.deformer.movedCount;
+    if (touched > 0) {
+      // Upload only the span of vertex indices written this frame (moved or restored).
+      const list = m.deformer.touched;
+      let lo = list[0];
+      let hi = list[0];
+      for (let j = 1; j < touched; j++) {
+        const i = list[j];
+        if (i < lo) lo = i;
+        else if (i > hi) hi = i;
+      }
+      m.range.start = 3 * lo;
+      m.range.count = 3 * (hi - lo + 1);
+      // three.js empties updateRanges after each upload; the same range object is pushed back.
+      m.positionAttr.updateRanges.length = 0;
+      m.positionAttr.updateRanges.push(m.range);
+      m.normalAttr.updateRanges.length = 0;
+      m.normalAttr.updateRanges.push(m.range);
+      m.positionAttr.needsUpdate = true;
+      m.normalAttr.needsUpdate = true;
+      if (state.depressionMap) paintDepression(m, list, touched);
+      touchedAny = true;
+    }
+  }
+  if (c.inContact || touchedAny) {
+    timings.ms[timings.head] = performance.now() - t0;
+    timings.head = (timings.head + 1) % TIMING_SAMPLES;
+    if (timings.count < TIMING_SAMPLES) timings.count++;
+  }
+  timings.moved = moved;
+}
+
+/**
+ * The depression map: each vertex written this frame coloured by how far it moved, from white
+ * (none) to the map's colour at the scale's full depth.
+ */
+function paintDepression(m, list, count) {
+  const scaleM = state.depressionScaleM;
+  for (let j = 0; j < count; j++) {
+    const i = list[j];
+    const dx = m.positions[3 * i] - m.rest[3 * i];
+    const dy = m.positions[3 * i + 1] - m.rest[3 * i + 1];
+    const dz = m.positions[3 * i + 2] - m.rest[3 * i + 2];
+    const t = Math.min(Math.hypot(dx, dy, dz) / scaleM, 1);
+    m.colors[3 * i] = 1 - t * (1 - DEPRESSION_COLOR[0]);
+    m.colors[3 * i + 1] = 1 - t * (1 - DEPRESSION_COLOR[1]);
+    m.colors[3 * i + 2] = 1 - t * (1 - DEPRESSION_COLOR[2]);
+  }
+  m.colorAttr.updateRanges.length = 0;
+  m.colorAttr.updateRanges.push(m.range);
+  m.colorAttr.needsUpdate = true;
+}
+
+/** A small marker at a mark's point on the object, when it has one. */
+export function addMarker(m) {
+  if (m.point_m === null || !view.scene) return;
+  const marker = new THREE.Mesh(
+    new THREE.SphereGeometry(0.0025, 16, 8),
+    new THREE.MeshStandardMaterial({ color: 0xffd33d, emissive: 0x664d00 }),
+  );
+  marker.position.set(m.point_m[0], m.point_m[1], m.point_m[2]);
+  view.scene.add(marker);
+}
+
+/** Turns the section view on or off. */
+export function setSection(on) {
+  state.section = Boolean(on);
+  dom['section-toggle'].checked = state.section;
+  view.sectionPlanes.length = 0;
+  if (state.section) {
+    view.sectionPlane ??= new THREE.Plane();
+    view.sectionPlanes.push(view.sectionPlane);
+  }
+}
+
+/**
+ * Places the section plane: through the contact point (the last one, while free), containing
+ * the contact normal, turned to face the camera as far as that allows, and cutting away the half
+ * nearer the camera, so the dent's profile shows against the surface beside it.
+ */
+export function placeSection() {
+  if (!state.section || !view.sectionPlane || !view.camera) return;
+  if (rendered.valid && rendered.inContact) {
+    state.sectionPoint[0] = rendered.point[0];
+    state.sectionPoint[1] = rendered.point[1];
+    state.sectionPoint[2] = rendered.point[2];
+    state.sectionNormal[0] = rendered.normal[0];
+    state.sectionNormal[1] = rendered.normal[1];
+    state.sectionNormal[2] = rendered.normal[2];
+  }
+  const n = scratch.n.set(state.sectionNormal[0], state.sectionNormal[1], state.sectionNormal[2]);
+  const toCamera = scratch.v
+    .copy(view.camera.position)
+    .sub(scratch.p.set(state.sectionPoint[0], state.sectionPoint[1], state.sectionPoint[2]));
+  toCamera.addScaledVector(n, -toCamera.dot(n));
+  if (toCamera.lengthSq() < 1e-12) toCamera.set(1, 0, 0);
+  // Keep what lies away from the camera: the plane's normal points away from it.
+  view.sectionPlane.setFromNormalAndCoplanarPoint(toCamera.normalize().negate(), scratch.p);
+}
+
+/** Turns the depression map on or off; off, every vertex gets its own colour back. */
+export function setDepressionMap(on) {
+  state.depressionMap = Boolean(on);
+  dom['map-toggle'].checked = state.depressionMap;
+  dom['map-scale'].hidden = !state.depressionMap;
+  setText(dom['map-scale'], `white 0 … blue ${(state.depressionScaleM * 1e3).toFixed(0)} mm`);
+  if (state.depressionMap) return;
+  for (const m of state.meshes) {
+    m.colors.fill(1);
+    m.colorAttr.updateRanges.length = 0;
+    m.colorAttr.needsUpdate = true;
+  }
+}
+
+export function placeToolAndMarkers() {
+  if (!view.toolGroup || !rendered.valid) return;
+  view.toolGroup.position.set(rendered.position[0], rendered.position[1], rendered.position[2]);
+  view.toolGroup.quaternion.set(
+    rendered.orientation[0],
+    rendered.orientation[1],
+    rendered.orientation[2],
+    rendered.orientation[3],
+  );
+
+  const inContact = rendered.inContact && state.tool !== null;
+  const opacity = inContact ? TOOL_OPACITY_IN_CONTACT : 1;
+  for (const m of view.toolMaterials) {
+    if (m.opacity !== opacity) m.opacity = opacity;
+  }
+  view.ring.visible = inContact;
+  if (inContact) {
+    const p = profileSetup(
+      state.tool,
+      rendered.depthM,
+      rendered.contactRadiusM,
+      rendered.deformedRadiusM,
+      scratch.profile,
+    );
+    scratch.n.set(rendered.normal[0], rendered.normal[1], rendered.normal[2]);
+    view.ring.position.set(rendered.point[0], rendered.point[1], rendered.point[2]);
+    view.ring.quaternion.setFromUnitVectors(scratch.up, scratch.n);
+    view.ring.scale.setScalar(Math.max(p.rdEff, 1e-6));
+  }
+  const f = rendered.forceMagnitudeN;
+  view.arrow.visible = f > 1e-3;
+  if (view.arrow.visible) {
+    scratch.v.set(rendered.force[0] / f, rendered.force[1] / f, rendered.force[2] / f);
+    view.arrow.position.set(rendered.position[0], rendered.position[1], rendered.position[2]);
+    view.arrow.setDirection(scratch.v);
+    // 1 cm per newton, so the arrow reads as a force scale next to a 1 cm tool.
+    view.arrow.setLength(0.01 * f + 0.004, 0.006, 0.004);
+  }
+}
