@@ -90,6 +90,10 @@ test('the instructor’s play, seek and pause move the observer’s timeline', a
   const duration = (await replay(observer)).durationS;
   assert.ok(duration > 1, `the recording lasts ${duration} s`);
 
+  // A quarter speed: the recording plays for 12 s, so that a loaded machine pauses it before
+  // its end (a play at the end starts it over).
+  await instructor.selectOption('#replay-speed', '0.25');
+  await observer.waitForFunction(() => window.__softhaptic.replay().lastStatus.speed === 0.25, null, WAIT);
   const before = await replay(observer);
   await instructor.click('#replay-play');
   await observer.waitForFunction(() => window.__softhaptic.replay().lastStatus.paused === false, null, WAIT);

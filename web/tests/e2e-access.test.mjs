@@ -95,7 +95,7 @@ test('opened without the fragment the page asks for the link, and the observerâ€
   const page = await openPage();
   await page.goto(server.baseUrl);
   // The scene's 401 shows the prompt at once, without waiting for the socket's auth timeout.
-  await page.waitForFunction(() => window.__softhaptic?.prompt().shown, null, { timeout: 5000 });
+  await page.waitForFunction(() => window.__softhaptic?.prompt().shown, null, { timeout: 30000 });
   const prompt = await hook(page, () => window.__softhaptic.prompt());
   assert.equal(prompt.reason, 'needs_token');
   assert.ok(await page.locator('#token-prompt').isVisible());
@@ -125,7 +125,7 @@ test('opened without the fragment the page asks for the link, and the observerâ€
 test('a link whose token this server does not know says so and is not kept; the right one opened in the tab is taken', async () => {
   const page = await openPage();
   await page.goto(`${server.baseUrl}#token=${'0'.repeat(32)}`);
-  await page.waitForFunction(() => window.__softhaptic?.prompt().shown, null, { timeout: 5000 });
+  await page.waitForFunction(() => window.__softhaptic?.prompt().shown, null, { timeout: 30000 });
   const prompt = await hook(page, () => window.__softhaptic.prompt());
   assert.equal(prompt.reason, 'token_refused');
   assert.match(prompt.detail, /not valid for this server, or has expired/);
