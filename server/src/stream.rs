@@ -31,7 +31,7 @@ use softhaptic_device::haptic_loop::HapticLoop;
 use softhaptic_device::metrics::TraineeMetrics;
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::CalibrationTable;
-use softhaptic_proto::record::ReplayControl;
+use softhaptic_proto::wire::ReplayControl;
 use softhaptic_proto::wire::{
     Auth, ComputeUs, ContactFrame, DeviceStatus, Hello, MarkMessage, MarkRequest, MetricsMessage,
     PeriodErrorUs, Refused, Role, ServerMessage, StatsMessage, message_type,

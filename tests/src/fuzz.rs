@@ -21,7 +21,7 @@ use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 use softhaptic_device::collision::{Collider, CollisionMode};
-use softhaptic_proto::record::ReplayControl;
+use softhaptic_proto::wire::ReplayControl;
 use softhaptic_proto::wire::{self, Auth, ServerMessage};
 use softhaptic_proto::{CalibrationTable, ModelLimitsFile, ModelSpec, ToolShape, ValidityLimits};
 use softhaptic_server::scene::{self, Scene};

@@ -385,7 +385,7 @@ async fn recordings_are_archived_verified_retried_and_replayed_from_the_hub() {
         if let Ok(Some(Ok(tokio_tungstenite::tungstenite::Message::Text(t)))) = next
             && t.starts_with(r#"{"type":"replay""#)
         {
-            let r: softhaptic_proto::record::ReplayStatus = serde_json::from_str(&t).unwrap();
+            let r: softhaptic_proto::wire::ReplayStatus = serde_json::from_str(&t).unwrap();
             assert_eq!(r.file, "slide.mcap");
             assert!(r.paused);
             break;

@@ -7,7 +7,7 @@
 use std::time::{Duration, Instant};
 
 use futures_util::StreamExt;
-use softhaptic_proto::record::ReplayStatus;
+use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{MarkMessage, ServerMessage};
 use softhaptic_server::access::AccessConfig;
 use softhaptic_server::app::{self, default_web_dir};

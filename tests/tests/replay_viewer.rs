@@ -9,7 +9,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use futures_util::{SinkExt, StreamExt};
-use softhaptic_proto::record::ReplayStatus;
+use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{ContactFrame, ServerMessage};
 use softhaptic_server::app::default_web_dir;
 use softhaptic_server::session::reader::Recording;

@@ -16,7 +16,7 @@ use std::time::Duration;
 use base64::Engine;
 use futures_util::{SinkExt, StreamExt};
 use sha2::{Digest, Sha256};
-use softhaptic_proto::record::ReplayStatus;
+use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{Hello, Mode, Refused, Role, ServerMessage};
 use softhaptic_server::access::{AccessConfig, Origin, Token, TokenSource, Tokens};
 use softhaptic_server::app::{ServerOptions, default_web_dir};

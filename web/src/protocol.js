@@ -28,7 +28,7 @@ export const CONTACT_FLAGS = Object.freeze([
 ]);
 
 /**
- * The haptic device's states a `stats` message names (`DeviceStatus` in proto/src/wire.rs), with
+ * The haptic device's states a `stats` message names (`DeviceStatus` in proto/src/wire/mod.rs), with
  * what the viewer shows for each: words a trainee understands, not a driver's code.
  */
 export const DEVICE_STATUS_MESSAGES = Object.freeze({
@@ -388,7 +388,7 @@ function validateMark(m) {
   return m;
 }
 
-/** Longest note of a mark, characters (`MARK_NOTE_MAX_CHARS` in proto/src/wire.rs). */
+/** Longest note of a mark, characters (`MARK_NOTE_MAX_CHARS` in proto/src/wire/mod.rs). */
 export const MARK_NOTE_MAX_CHARS = 280;
 
 /**

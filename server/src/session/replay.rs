@@ -24,11 +24,11 @@ use std::time::Duration;
 use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_device::metrics::{MetricsAccumulator, TickInput};
-use softhaptic_proto::record::{
-    DeviceRecord, GapCause, ReplayAction, ReplayControl, ReplayGap, ReplayMark, ReplaySpan,
-    ReplayStatus,
+use softhaptic_proto::record::DeviceRecord;
+use softhaptic_proto::wire::{
+    GapCause, Hello, Mode, PROTOCOL_VERSION, ReplayAction, ReplayControl, ReplayGap, ReplayMark,
+    ReplaySpan, ReplayStatus, Role, ServerMessage,
 };
-use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage};
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
@@ -580,7 +580,7 @@ impl Player {
     }
 
     fn send_status(&self, hub: &StreamHub, now: Instant) {
-        match serde_json::to_string(&self.status(now)) {
+        match ServerMessage::Replay(self.status(now)).encode() {
             // The stats channel carries every low-rate message to every viewer.
             Ok(text) => {
                 let _ = hub.stats.send(Utf8Bytes::from(text));
