@@ -27,9 +27,10 @@ pub enum LawKind {
     LinearDeformedContact,
     /// The textbook small-deformation (geometrically linear) contact problem that Hertz and
     /// Sneddon solve: small strain, and the gap measured on the reference configuration along
-    /// the tool's axis (the direction of approach), g = h(X) − f(ρ(X)) + u·e with f the tool's
-    /// profile, so only the displacement along the axis closes it and the contact reaction acts
-    /// along the axis. The contact problem is then linear apart from the active set.
+    /// the body's surface normal (+z; the tool's axis when it presses straight down),
+    /// g = f(X) − Z + u·(−z) with f the height of the tool's lower surface above the point, so
+    /// only the normal displacement closes it and the contact reaction is normal to the
+    /// undeformed surface. The contact problem is then linear apart from the active set.
     LinearSmallDeformation,
     /// Compressible neo-Hookean, W = μ/2 (I₁ − 3 − 2 ln J) + λ/2 (ln J)², large strain, contact
     /// on the deformed surface.
@@ -315,7 +316,13 @@ pub fn element_response(
                     }
                 }
                 if let Some(k) = tangent.as_deref_mut() {
-                    let geo = mu - lambda * ln_j;
+                    // μ − λ ln J turns negative where the element dilates by more than e^{μ/λ}:
+                    // never at ν = 0.33 (J > 1.67), but at ν = 0.49 (λ = 49 μ) from J > 1.02,
+                    // which a coarse mesh reaches at a Gauss point or two near the contact edge.
+                    // The tangent is then indefinite and the Cholesky factorisation fails. Its
+                    // negative part is dropped: the residual stays exact, so Newton converges to
+                    // the same solution, only more slowly in those elements.
+                    let geo = (mu - lambda * ln_j).max(0.0);
                     for a in 0..10 {
                         for b in 0..10 {
                             let dot = g[a][0] * g[b][0] + g[a][1] * g[b][1] + g[a][2] * g[b][2];

@@ -192,6 +192,73 @@ impl Indenter {
 }
 
 impl Indenter {
+    /// Gap of a point of the reference configuration measured along the body's surface normal,
+    /// +z in the FEM frame (the direction the tool's lowest point approaches along), as the
+    /// small-deformation contact problem measures it for a tilted tool: the height of the tool's
+    /// lower surface above the point's vertical line, minus the point's height. Its normal is
+    /// −z, so the reaction is normal to the undeformed surface, as in the textbook half-space
+    /// problem of an inclined punch. For a tool pressing straight down this is [`Self::axial_gap`]
+    /// (same arithmetic, bit for bit).
+    ///
+    /// Where the vertical line misses the tool (beyond a sphere's silhouette, or a cone tilted
+    /// past its half-angle) the Euclidean gap, positive there, stands in.
+    pub fn surface_normal_gap(&self, x: [f64; 3]) -> Gap {
+        const DOWN: [f64; 3] = [0.0, 0.0, -1.0];
+        if self.axis == [0.0, 0.0, 1.0] {
+            return self.axial_gap(x);
+        }
+        let miss = || Gap {
+            distance_m: self.gap(x).distance_m.max(0.0),
+            normal: DOWN,
+        };
+        let lower_m = match self.shape {
+            IndenterShape::Sphere { radius_m } | IndenterShape::Paraboloid { radius_m } => {
+                // The paraboloid is a verification shape that is never tilted; its sphere of
+                // curvature stands in.
+                let c = [
+                    self.tip_m[0] + radius_m * self.axis[0],
+                    self.tip_m[1] + radius_m * self.axis[1],
+                    self.tip_m[2] + radius_m * self.axis[2],
+                ];
+                let s2 = (x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2);
+                if s2 >= radius_m * radius_m {
+                    return miss();
+                }
+                c[2] - (radius_m * radius_m - s2).sqrt()
+            }
+            IndenterShape::Cone { half_angle_rad } => {
+                // Points p = (x, y, z) of the cone's flank satisfy (d·e)² = cos²α |d|², d = p − tip,
+                // on the nappe d·e ≥ 0: a quadratic in t = z − tip_z. The vertical line enters the
+                // solid cone at its lower root on that nappe.
+                let e = self.axis;
+                let (dx, dy) = (x[0] - self.tip_m[0], x[1] - self.tip_m[1]);
+                let p = dx * e[0] + dy * e[1];
+                let q = e[2];
+                let c2 = half_angle_rad.cos().powi(2);
+                let a = q * q - c2;
+                let b = 2.0 * p * q;
+                let k = p * p - c2 * (dx * dx + dy * dy);
+                let disc = b * b - 4.0 * a * k;
+                if a <= 0.0 || disc < 0.0 {
+                    return miss();
+                }
+                let root = disc.sqrt();
+                let mut roots = [(-b - root) / (2.0 * a), (-b + root) / (2.0 * a)];
+                roots.sort_by(f64::total_cmp);
+                match roots.iter().find(|&&t| p + q * t >= 0.0) {
+                    Some(&t) => self.tip_m[2] + t,
+                    None => return miss(),
+                }
+            }
+        };
+        Gap {
+            distance_m: lower_m - x[2],
+            normal: DOWN,
+        }
+    }
+}
+
+impl Indenter {
     /// Derivative of the surface normal with respect to the point, dn/dx (3×3, symmetric): the
     /// indenter's curvature, which enters the Newton tangent of a node sliding on it (without
     /// it the normal is only updated between iterations and Newton converges linearly).
@@ -308,6 +375,56 @@ mod tests {
         assert!((g.distance_m - expect).abs() < 1e-15);
         // Outside the silhouette: no contact.
         assert!(sphere.axial_gap([0.011, 0.0, 0.0]).distance_m > 0.0);
+    }
+
+    #[test]
+    fn surface_normal_gap_is_the_axial_gap_when_upright_and_vertical_when_tilted() {
+        let alpha = std::f64::consts::FRAC_PI_4;
+        let cone = Indenter::vertical(
+            IndenterShape::Cone {
+                half_angle_rad: alpha,
+            },
+            0.003,
+        );
+        for x in [[0.0, 0.0, 0.0], [0.001, 0.0005, -0.0002]] {
+            assert_eq!(cone.surface_normal_gap(x), cone.axial_gap(x));
+        }
+        // A cone tilted by θ toward +x, apex at the origin: in the x–z plane its flanks are the
+        // generators at α + θ from the vertical on the +x side and α − θ on the −x side.
+        let theta: f64 = 0.3;
+        let tilted = Indenter {
+            shape: IndenterShape::Cone {
+                half_angle_rad: alpha,
+            },
+            tip_m: [0.0, 0.0, 0.0],
+            axis: [theta.sin(), 0.0, theta.cos()],
+        };
+        let r = 0.002;
+        let g = tilted.surface_normal_gap([r, 0.0, 0.0]);
+        assert_eq!(g.normal, [0.0, 0.0, -1.0]);
+        let expect = r / (alpha + theta).tan();
+        assert!(
+            (g.distance_m - expect).abs() < 1e-12,
+            "{} {expect}",
+            g.distance_m
+        );
+        let g = tilted.surface_normal_gap([-r, 0.0, 0.0]);
+        let expect = r / (alpha - theta).tan();
+        assert!(
+            (g.distance_m - expect).abs() < 1e-12,
+            "{} {expect}",
+            g.distance_m
+        );
+        // A tilted sphere is the same sphere: its lower surface, measured vertically.
+        let sphere = Indenter {
+            shape: IndenterShape::Sphere { radius_m: 0.01 },
+            tip_m: [-0.01 * theta.sin(), 0.0, 0.01 - 0.01 * theta.cos()],
+            axis: [theta.sin(), 0.0, theta.cos()],
+        };
+        let g = sphere.surface_normal_gap([0.006, 0.0, 0.0]);
+        let expect = 0.01 - (0.01f64.powi(2) - 0.006f64.powi(2)).sqrt();
+        assert!((g.distance_m - expect).abs() < 1e-12);
+        assert!(sphere.surface_normal_gap([0.011, 0.0, 0.0]).distance_m > 0.0);
     }
 
     #[test]

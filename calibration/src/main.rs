@@ -50,6 +50,9 @@ enum Command {
     SpeedAccuracy,
     /// Verification: Hertz on a large block, half-space profile, patch tests.
     Verify,
+    /// Poisson's ratio 0.30 … 0.49: the hyperelastic factor, the bonded-layer factor and the
+    /// R_d tables at each ν.
+    Poisson,
     /// Everything, then the report.
     All,
 }
@@ -63,6 +66,7 @@ impl Command {
             Command::Inclination => "inclination",
             Command::SpeedAccuracy => "speed-accuracy",
             Command::Verify => "verify",
+            Command::Poisson => "poisson",
             Command::All => "all",
         }
     }
@@ -76,6 +80,7 @@ struct Plan {
     speed: bool,
     curvature: bool,
     inclination: bool,
+    poisson: bool,
 }
 
 impl Plan {
@@ -88,6 +93,7 @@ impl Plan {
             speed: all || command == Command::SpeedAccuracy,
             curvature: all || command == Command::Curvature,
             inclination: all || command == Command::Inclination,
+            poisson: all || command == Command::Poisson,
         }
     }
 
@@ -110,6 +116,9 @@ impl Plan {
         }
         if self.inclination {
             runs.extend(experiments::inclination_runs(mode));
+        }
+        if self.poisson {
+            runs.extend(experiments::poisson_runs(mode));
         }
         runs
     }
@@ -194,11 +203,39 @@ fn main() -> Result<()> {
         results.inclination = Some(experiments::inclination(mode, &cache).context("inclination")?);
         report::write_report(&out, mode, &results)?;
     }
+    if plan.poisson {
+        let study = experiments::poisson_study(mode, &cache).context("poisson")?;
+        for path in report::write_poisson_tables(&tables_dir, &study)? {
+            tracing::info!(path = %path.display(), "calibration table written");
+        }
+        results.poisson = Some(study);
+        report::write_report(&out, mode, &results)?;
+    }
+    if cli.command == Command::Poisson {
+        // `poisson` alone refreshes the entries measured over ν in the limits file beside the
+        // tables, keeping those of the paper's ν (which only `all` measures).
+        let path = tables_dir.join("model_limits.json");
+        let existing = match std::fs::read_to_string(&path) {
+            Ok(text) => serde_json::from_str(&text)
+                .with_context(|| format!("{} does not parse", path.display()))?,
+            Err(_) => softhaptic_proto::ModelLimitsFile {
+                version: softhaptic_proto::ModelLimitsFile::VERSION,
+                threshold_percent: experiments::JND_PERCENT,
+                limits: Vec::new(),
+            },
+        };
+        let fresh = experiments::limits::poisson_limits(results.poisson.as_ref(), None)
+            .context("model limits over ν")?;
+        let merged = experiments::limits::merge_poisson_limits(existing, fresh);
+        report::write_json(&path, &merged)?;
+        tracing::info!(path = %path.display(), entries = merged.limits.len(), "model limits over ν written");
+    }
     if results.speed.is_some() || results.curvature.is_some() {
         let limits = experiments::model_limits(
             results.speed.as_ref(),
             results.curvature.as_deref(),
             results.inclination.as_deref(),
+            results.poisson.as_ref(),
         )
         .context("model limits")?;
         // Only `all` measures every model the file lists, so only `all` replaces the file the

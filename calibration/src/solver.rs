@@ -519,13 +519,14 @@ impl ContactModel {
 
     /// Gap of contact candidate `i` and the direction its reaction acts along, as the
     /// formulation defines them: on the deformed surface, the current distance from the
-    /// indenter and its normal there; on the reference configuration, the axial gap of the
-    /// reference position linearised in the displacement, g₀(X) + n·u (exact, the gap being
-    /// linear in u), with the fixed direction n = −axis.
+    /// indenter and its normal there; on the reference configuration, the gap of the reference
+    /// position along the body's surface normal (the tool's axis when it presses straight
+    /// down), linearised in the displacement, g₀(X) + n·u (exact, the gap being linear in u),
+    /// with the fixed direction n = −z.
     fn contact_gap(&self, indenter: &Indenter, i: usize) -> Gap {
         let x = self.mesh.nodes_m[i];
         if self.law.kind.contact_on_reference() {
-            let g = indenter.axial_gap(x);
+            let g = indenter.surface_normal_gap(x);
             Gap {
                 distance_m: g.distance_m + dot(g.normal, self.u[i]),
                 normal: g.normal,

@@ -11,7 +11,7 @@ use std::process::Command;
 
 use softhaptic_calibration::experiments::force::HyperelasticConstants;
 use softhaptic_proto::model::ToolKind;
-use softhaptic_proto::{CalibrationTable, ModelLimitsFile, ModelSpec, ToolShape};
+use softhaptic_proto::{CalibrationTable, ModelLimitsFile, ModelSpec, ToolShape, ValidityLimits};
 
 /// The runtime's fitted factor may differ from the quick pipeline's refit by this much, relative,
 /// anywhere in the fitted range. The quick meshes (3 mm cells against the full 1.5 mm) move the
@@ -60,6 +60,9 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
         "22°",
         "Lin et al.",
         "(best combined)",
+        "## Nearly incompressible tissue",
+        "Small-deformation linear FEM against Sneddon",
+        "the bonded layer",
     ] {
         assert!(report.contains(section), "report lacks {section:?}");
     }
@@ -69,6 +72,9 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
         "sphere10_1500kpa",
         "cone10_45_50kpa",
         "cone10_45_1500kpa",
+        "sphere10_50kpa_nu30",
+        "sphere10_50kpa_nu49",
+        "cone10_45_50kpa_nu45",
     ] {
         let text =
             std::fs::read_to_string(out.join("tables").join(format!("{name}.json"))).unwrap();
@@ -119,11 +125,24 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
             ToolKind::Sphere => (sphere, "sphere6"),
             ToolKind::Cone => (cone, "cone6_45"),
         };
-        assert!(
-            listed.insert((tool_name, l.model.label(&tool))),
-            "duplicate limit for {tool_name} {}",
-            l.model.label(&tool)
-        );
+        if l.poisson_ratio.is_some() {
+            // Measured over ν by the Poisson sweep; checked below.
+            assert!(
+                !limits.limits.iter().any(|o| o.tool == l.tool
+                    && o.model == l.model
+                    && o.poisson_ratio == l.poisson_ratio
+                    && !std::ptr::eq(o, l)),
+                "duplicate limit for {tool_name} {} at {:?}",
+                l.model.label(&tool),
+                l.poisson_ratio
+            );
+        } else {
+            assert!(
+                listed.insert((tool_name, l.model.label(&tool))),
+                "duplicate limit for {tool_name} {}",
+                l.model.label(&tool)
+            );
+        }
         assert!(
             l.valid_depth_m.is_finite() && l.valid_depth_m > 0.0 && l.valid_depth_m <= 0.0101,
             "{l:?}"
@@ -162,6 +181,24 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
         let got = limits.lookup(&tool, &spec).unwrap();
         assert!(got.valid_inclination_rad.is_some(), "{got:?}");
     }
+    // A scene at ν = 0.49 runs with limits measured at ν = 0.49, and one between two measured
+    // ν with limits interpolated between them.
+    let best = ModelSpec {
+        exact_sphere: true,
+        thickness: Some(softhaptic_proto::LayerSpec {
+            thickness_m: 0.03,
+            bonded: true,
+        }),
+        hyperelastic: true,
+        ..ModelSpec::PAPER
+    };
+    let at_049 = limits.lookup_at(&sphere, &best, 0.49).unwrap();
+    assert_eq!(at_049.poisson_ratio, Some(0.49));
+    let between = ValidityLimits::at_poisson_ratio(Some(&limits), &sphere, &best, 0.47);
+    assert!(
+        between.source.starts_with("interpolated in ν"),
+        "{between:?}"
+    );
 
     // Every CSV parses (the speed-accuracy table's text columns apart) and every SVG has a curve.
     let mut csv_count = 0;

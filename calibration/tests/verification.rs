@@ -4,6 +4,7 @@
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use softhaptic_calibration::element::{Constitutive, LawKind};
+use softhaptic_calibration::experiments::MATERIAL;
 use softhaptic_calibration::indenter::{Indenter, IndenterShape};
 use softhaptic_calibration::mesh::{self, BlockSpec, Symmetry};
 use softhaptic_calibration::solver::{ContactModel, SolverOptions, deformed_radius_m};
@@ -367,8 +368,10 @@ fn small_deformation_matches_sneddon_on_a_deep_block() {
     }];
     let depths_m = depths(1.0, 6.0, 1.0);
     let mut cache = RunCache::new(2);
-    cache.ensure(&sneddon_runs(&meshes, &depths_m)).unwrap();
-    let checks = sneddon_checks(&cache, &meshes, &depths_m).unwrap();
+    cache
+        .ensure(&sneddon_runs(&meshes, &depths_m, &MATERIAL))
+        .unwrap();
+    let checks = sneddon_checks(&cache, &meshes, &depths_m, &MATERIAL).unwrap();
     assert_eq!(checks.len(), 2);
     for check in &checks {
         assert_eq!(check.points.len(), 6);
@@ -400,7 +403,7 @@ fn small_deformation_converges_to_sneddon_from_above() {
         radius_m: 0.006,
     };
     let depth = 0.004;
-    let exact = sneddon_force_n(&tool, depth);
+    let exact = sneddon_force_n(&tool, &MATERIAL, depth);
     let meshes = [
         SneddonMesh {
             name: "a/1.5",
@@ -415,7 +418,7 @@ fn small_deformation_converges_to_sneddon_from_above() {
     ];
     let specs: Vec<_> = meshes
         .iter()
-        .map(|&m| sneddon_run("cone", &tool, depth, m))
+        .map(|&m| sneddon_run("cone", &tool, depth, m, &MATERIAL))
         .collect();
     let mut cache = RunCache::new(2);
     cache.ensure(&specs).unwrap();
@@ -438,4 +441,19 @@ fn small_deformation_converges_to_sneddon_from_above() {
         "deformed-surface formulation {ratio:.3} × Sneddon, small deformation {:.3}",
         1.0 + errors[1]
     );
+}
+
+/// At ν = 0.49 (bulk modulus 25 times the shear modulus) both laws still reproduce a constant
+/// strain exactly: the patch test does not see locking, but an element that failed it could not
+/// converge at all.
+#[test]
+fn patch_test_holds_at_nearly_incompressible_poisson_ratio() {
+    use softhaptic_calibration::experiments::verification::{
+        NEARLY_INCOMPRESSIBLE_POISSON, material_with_poisson, patch_test_error,
+    };
+    let material = material_with_poisson(NEARLY_INCOMPRESSIBLE_POISSON).unwrap();
+    for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+        let err = patch_test_error(law, &material).unwrap();
+        assert!(err < 1e-10, "{}: {err:e}", law.name());
+    }
 }

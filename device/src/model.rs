@@ -62,6 +62,67 @@ pub mod hyperelastic_fit {
     pub const SPHERE_X_MAX: f64 = 1.0;
     /// The cone's constant factor.
     pub const CONE_RATIO: f64 = 1.016;
+
+    /// Poisson's ratios the factor was fitted at (`softhaptic-calibrate poisson`, the same fit
+    /// against the closed form of each ν: the layer's factor depends on ν), increasing. The
+    /// ν = 0.33 entry is the constants above, unchanged so that recorded sessions replay bit for
+    /// bit.
+    pub const POISSON_RATIOS: [f64; 1] = [0.33];
+    /// c1 at each of [`POISSON_RATIOS`].
+    pub const SPHERE_C1_BY_POISSON: [f64; 1] = [SPHERE_C1];
+    /// c2 at each of [`POISSON_RATIOS`].
+    pub const SPHERE_C2_BY_POISSON: [f64; 1] = [SPHERE_C2];
+    /// The cone's factor at each of [`POISSON_RATIOS`].
+    pub const CONE_RATIO_BY_POISSON: [f64; 1] = [CONE_RATIO];
+
+    /// The factor's constants at one Poisson's ratio.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Constants {
+        pub sphere_c1: f64,
+        pub sphere_c2: f64,
+        pub cone_ratio: f64,
+    }
+
+    /// The ν = 0.33 constants.
+    pub const PAPER: Constants = Constants {
+        sphere_c1: SPHERE_C1,
+        sphere_c2: SPHERE_C2,
+        cone_ratio: CONE_RATIO,
+    };
+
+    /// The constants at `poisson_ratio`: the fitted ones at a fitted ν (exactly), linearly
+    /// interpolated between the two fitted ν around it, and the nearest fit's outside the
+    /// fitted range (a NaN ratio, which a material cannot have, gives the ν = 0.33 fit).
+    pub fn at(poisson_ratio: f64) -> Constants {
+        let entry = |i: usize| Constants {
+            sphere_c1: SPHERE_C1_BY_POISSON[i],
+            sphere_c2: SPHERE_C2_BY_POISSON[i],
+            cone_ratio: CONE_RATIO_BY_POISSON[i],
+        };
+        let last = POISSON_RATIOS.len() - 1;
+        if poisson_ratio.is_nan() {
+            return PAPER;
+        }
+        if poisson_ratio <= POISSON_RATIOS[0] {
+            return entry(0);
+        }
+        if poisson_ratio >= POISSON_RATIOS[last] {
+            return entry(last);
+        }
+        // The interval [ν_i, ν_{i+1}) holding ν: at a fitted ν the weight is exactly zero and
+        // a + 0 · (b − a) is a, bit for bit.
+        let i = (0..last)
+            .rfind(|&i| POISSON_RATIOS[i] <= poisson_ratio)
+            .unwrap_or(0);
+        let t = (poisson_ratio - POISSON_RATIOS[i]) / (POISSON_RATIOS[i + 1] - POISSON_RATIOS[i]);
+        let (a, b) = (entry(i), entry(i + 1));
+        let lerp = |x: f64, y: f64| x + t * (y - x);
+        Constants {
+            sphere_c1: lerp(a.sphere_c1, b.sphere_c1),
+            sphere_c2: lerp(a.sphere_c2, b.sphere_c2),
+            cone_ratio: lerp(a.cone_ratio, b.cone_ratio),
+        }
+    }
 }
 
 /// Dimitriadis' series is derived for small χ = a/h; beyond this it is continued by its tangent
@@ -155,6 +216,8 @@ pub struct ForceModel {
     spec: ModelSpec,
     e_star_pa: f64,
     layer: Option<LayerSeries>,
+    /// The hyperelastic factor's constants at the material's ν.
+    hyper: hyperelastic_fit::Constants,
     /// Value and slope of the hyperelastic ratio at its fit limit (sphere).
     hyper_at_max: f64,
     hyper_slope_at_max: f64,
@@ -168,17 +231,17 @@ impl ForceModel {
             ToolShape::Sphere { .. } => LayerSeries::sphere(material.poisson_ratio(), layer),
             ToolShape::Cone { .. } => LayerSeries::cone(layer),
         });
+        let hyper = hyperelastic_fit::at(material.poisson_ratio());
         let x = hyperelastic_fit::SPHERE_X_MAX;
-        let hyper_at_max =
-            1.0 + hyperelastic_fit::SPHERE_C1 * x + hyperelastic_fit::SPHERE_C2 * x * x;
-        let hyper_slope_at_max =
-            (hyperelastic_fit::SPHERE_C1 + 2.0 * hyperelastic_fit::SPHERE_C2 * x).max(0.0);
+        let hyper_at_max = 1.0 + hyper.sphere_c1 * x + hyper.sphere_c2 * x * x;
+        let hyper_slope_at_max = (hyper.sphere_c1 + 2.0 * hyper.sphere_c2 * x).max(0.0);
         Ok(Self {
             tool,
             material,
             spec,
             e_star_pa: material.plane_strain_modulus_pa(),
             layer,
+            hyper,
             hyper_at_max,
             hyper_slope_at_max,
         })
@@ -291,7 +354,7 @@ impl ForceModel {
             force *= layer.factor(depth_m * tan_alpha / layer.thickness_m);
         }
         if self.spec.hyperelastic {
-            force *= hyperelastic_fit::CONE_RATIO;
+            force *= self.hyper.cone_ratio;
         }
         force
     }
@@ -299,7 +362,7 @@ impl ForceModel {
     #[inline]
     fn hyperelastic_sphere_factor(&self, x: f64) -> f64 {
         if x <= hyperelastic_fit::SPHERE_X_MAX {
-            1.0 + x * (hyperelastic_fit::SPHERE_C1 + x * hyperelastic_fit::SPHERE_C2)
+            1.0 + x * (self.hyper.sphere_c1 + x * self.hyper.sphere_c2)
         } else {
             self.hyper_at_max + self.hyper_slope_at_max * (x - hyperelastic_fit::SPHERE_X_MAX)
         }
@@ -463,6 +526,45 @@ mod tests {
         let a = 0.5 * (lo + hi);
         0.5 * m.plane_strain_modulus_pa()
             * ((a * a + r * r) * ((r + a) / (r - a)).ln() - 2.0 * a * r)
+    }
+
+    #[test]
+    fn hyperelastic_constants_are_the_fits_at_fitted_poisson_ratios_and_interpolate_between() {
+        use hyperelastic_fit::*;
+        assert_eq!(at(0.33), PAPER);
+        assert_eq!(PAPER.sphere_c1, SPHERE_C1);
+        for (i, &nu) in POISSON_RATIOS.iter().enumerate() {
+            let c = at(nu);
+            assert_eq!(c.sphere_c1, SPHERE_C1_BY_POISSON[i]);
+            assert_eq!(c.sphere_c2, SPHERE_C2_BY_POISSON[i]);
+            assert_eq!(c.cone_ratio, CONE_RATIO_BY_POISSON[i]);
+        }
+        for w in POISSON_RATIOS.windows(2) {
+            let (i, mid) = (
+                POISSON_RATIOS.iter().position(|&n| n == w[0]).unwrap(),
+                0.5 * (w[0] + w[1]),
+            );
+            let half = 0.5 * (CONE_RATIO_BY_POISSON[i] + CONE_RATIO_BY_POISSON[i + 1]);
+            assert!((at(mid).cone_ratio - half).abs() < 1e-12);
+        }
+        let last = POISSON_RATIOS.len() - 1;
+        assert_eq!(at(0.0), at(POISSON_RATIOS[0]));
+        assert_eq!(at(0.4999), at(POISSON_RATIOS[last]));
+        assert_eq!(at(f64::NAN), PAPER);
+        // The model built at the stiffest fitted ν uses that fit.
+        let m = Material::new(50e3, 0.4999).unwrap();
+        let spec = ModelSpec {
+            hyperelastic: true,
+            ..ModelSpec::PAPER
+        };
+        let cone = ForceModel::new(cone45(), m, spec).unwrap();
+        let plain = ForceModel::paper(cone45(), m);
+        let ratio =
+            cone.force_n(0.004, &LocalGeometry::FLAT) / plain.force_n(0.004, &LocalGeometry::FLAT);
+        assert!(
+            (ratio - CONE_RATIO_BY_POISSON[last]).abs() < 1e-12,
+            "{ratio}"
+        );
     }
 
     #[test]

@@ -170,6 +170,20 @@ pub struct MeasuredLimit {
     pub valid_inclination_rad: Option<f64>,
     /// The experiment the figure comes from (tool size, block, FEM law and mesh).
     pub reference: String,
+    /// Poisson's ratio of the material the limit was measured on; absent for the paper's
+    /// [`PAPER_POISSON_RATIO`] (the files written before limits were measured over ν).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub poisson_ratio: Option<f64>,
+}
+
+/// Poisson's ratio of the paper's experiments, and of a measured limit that names none.
+pub const PAPER_POISSON_RATIO: f64 = 0.33;
+
+impl MeasuredLimit {
+    /// Poisson's ratio the limit was measured at.
+    pub fn measured_poisson_ratio(&self) -> f64 {
+        self.poisson_ratio.unwrap_or(PAPER_POISSON_RATIO)
+    }
 }
 
 /// The file `softhaptic-calibrate all` writes (`scenes/calibration/model_limits.json`; a single
@@ -189,12 +203,83 @@ pub struct ModelLimitsFile {
 impl ModelLimitsFile {
     pub const VERSION: u32 = 1;
 
-    /// The measured limit of exactly this tool kind and model, if it was measured.
+    /// The measured limit of exactly this tool kind and model at the paper's ν, if it was
+    /// measured.
     pub fn lookup(&self, tool: &ToolShape, spec: &ModelSpec) -> Option<&MeasuredLimit> {
+        self.lookup_at(tool, spec, PAPER_POISSON_RATIO)
+    }
+
+    /// The measured limit of exactly this tool kind and model at Poisson's ratio
+    /// `poisson_ratio` (within 1e-6), if it was measured there.
+    pub fn lookup_at(
+        &self,
+        tool: &ToolShape,
+        spec: &ModelSpec,
+        poisson_ratio: f64,
+    ) -> Option<&MeasuredLimit> {
+        self.measured(tool, spec)
+            .find(|l| (l.measured_poisson_ratio() - poisson_ratio).abs() < 1e-6)
+    }
+
+    /// Every limit of this tool kind and model, whatever its ν.
+    fn measured(&self, tool: &ToolShape, spec: &ModelSpec) -> impl Iterator<Item = &MeasuredLimit> {
         let kind = ToolKind::of(tool);
+        let spec = *spec;
         self.limits
             .iter()
-            .find(|l| l.tool == kind && l.model == *spec)
+            .filter(move |l| l.tool == kind && l.model == spec)
+    }
+
+    /// The limit of this tool kind and model at `poisson_ratio`: the one measured there, or,
+    /// between two measured ν, the depth and inclination interpolated linearly in ν between the
+    /// nearest measured on either side (its `reference` names both); `None` outside the measured
+    /// range.
+    pub fn limit_at(
+        &self,
+        tool: &ToolShape,
+        spec: &ModelSpec,
+        poisson_ratio: f64,
+    ) -> Option<MeasuredLimit> {
+        if let Some(exact) = self.lookup_at(tool, spec, poisson_ratio) {
+            return Some(exact.clone());
+        }
+        let nu = poisson_ratio;
+        let below = self
+            .measured(tool, spec)
+            .filter(|l| l.measured_poisson_ratio() < nu)
+            .max_by(|a, b| {
+                a.measured_poisson_ratio()
+                    .total_cmp(&b.measured_poisson_ratio())
+            })?;
+        let above = self
+            .measured(tool, spec)
+            .filter(|l| l.measured_poisson_ratio() > nu)
+            .min_by(|a, b| {
+                a.measured_poisson_ratio()
+                    .total_cmp(&b.measured_poisson_ratio())
+            })?;
+        let (nu0, nu1) = (
+            below.measured_poisson_ratio(),
+            above.measured_poisson_ratio(),
+        );
+        let t = (nu - nu0) / (nu1 - nu0);
+        let lerp = |a: f64, b: f64| a + t * (b - a);
+        Some(MeasuredLimit {
+            tool: below.tool,
+            model: below.model,
+            valid_depth_m: lerp(below.valid_depth_m, above.valid_depth_m),
+            crossed: below.crossed || above.crossed,
+            valid_inclination_rad: match (below.valid_inclination_rad, above.valid_inclination_rad)
+            {
+                (Some(a), Some(b)) => Some(lerp(a, b)),
+                (a, b) => a.or(b),
+            },
+            reference: format!(
+                "interpolated in ν between {} (ν = {nu0:.2}) and {} (ν = {nu1:.2})",
+                below.reference, above.reference
+            ),
+            poisson_ratio: Some(nu),
+        })
     }
 }
 
@@ -236,10 +321,23 @@ impl ValidityLimits {
         }
     }
 
-    /// The limits of `spec` with `tool`: measured when `file` has them, the paper's otherwise.
-    /// A measured limit without an inclination keeps the paper's inclination, and says so.
+    /// The limits of `spec` with `tool` on a material of the paper's ν: measured when `file`
+    /// has them, the paper's otherwise. A measured limit without an inclination keeps the
+    /// paper's inclination, and says so.
     pub fn of(file: Option<&ModelLimitsFile>, tool: &ToolShape, spec: &ModelSpec) -> Self {
-        let Some(measured) = file.and_then(|f| f.lookup(tool, spec)) else {
+        Self::at_poisson_ratio(file, tool, spec, PAPER_POISSON_RATIO)
+    }
+
+    /// The limits of `spec` with `tool` on a material of Poisson's ratio `poisson_ratio`:
+    /// measured (or interpolated between two measured ν, see [`ModelLimitsFile::limit_at`])
+    /// when `file` has them, the paper's otherwise.
+    pub fn at_poisson_ratio(
+        file: Option<&ModelLimitsFile>,
+        tool: &ToolShape,
+        spec: &ModelSpec,
+        poisson_ratio: f64,
+    ) -> Self {
+        let Some(measured) = file.and_then(|f| f.limit_at(tool, spec, poisson_ratio)) else {
             return Self::paper(tool);
         };
         match measured.valid_inclination_rad {
@@ -321,6 +419,7 @@ mod tests {
                 crossed: false,
                 valid_inclination_rad: None,
                 reference: "test".into(),
+                poisson_ratio: None,
             }],
         };
         let text = serde_json::to_string(&file).unwrap();
@@ -333,6 +432,47 @@ mod tests {
             radius_m: 0.01,
         };
         assert!(back.lookup(&cone, &best).is_none());
+    }
+
+    #[test]
+    fn limits_between_two_measured_poisson_ratios_are_interpolated_and_outside_are_the_papers() {
+        let sphere = ToolShape::Sphere { radius_m: 0.006 };
+        let at = |nu: Option<f64>, depth: f64| MeasuredLimit {
+            tool: ToolKind::Sphere,
+            model: ModelSpec::PAPER,
+            valid_depth_m: depth,
+            crossed: true,
+            valid_inclination_rad: Some(0.4),
+            reference: format!("block at {nu:?}"),
+            poisson_ratio: nu,
+        };
+        let file = ModelLimitsFile {
+            version: 1,
+            threshold_percent: 7.0,
+            limits: vec![
+                at(None, 0.004),
+                at(Some(0.49), 0.002),
+                at(Some(0.40), 0.003),
+            ],
+        };
+        // At the paper's ν the entry without a ν, exactly as before.
+        let paper = ValidityLimits::of(Some(&file), &sphere, &ModelSpec::PAPER);
+        assert_eq!(paper.valid_depth_m, 0.004);
+        assert_eq!(paper.source, "block at None");
+        let measured =
+            ValidityLimits::at_poisson_ratio(Some(&file), &sphere, &ModelSpec::PAPER, 0.49);
+        assert_eq!(measured.valid_depth_m, 0.002);
+        let between =
+            ValidityLimits::at_poisson_ratio(Some(&file), &sphere, &ModelSpec::PAPER, 0.445);
+        assert!((between.valid_depth_m - 0.0025).abs() < 1e-12);
+        assert!(
+            between
+                .source
+                .starts_with("interpolated in ν between block at Some(0.4)")
+        );
+        let outside =
+            ValidityLimits::at_poisson_ratio(Some(&file), &sphere, &ModelSpec::PAPER, 0.2);
+        assert!(outside.is_paper());
     }
 
     #[test]
@@ -353,6 +493,7 @@ mod tests {
             crossed: true,
             valid_inclination_rad,
             reference: "sphere 10 mm on a 50 mm ball, neo-Hookean FEM".into(),
+            poisson_ratio: None,
         };
         let mut file = ModelLimitsFile {
             version: 1,

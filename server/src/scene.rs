@@ -1192,7 +1192,12 @@ impl Scene {
             ModelSource::File => {
                 let spec = file.object.model;
                 let limits = load_limits(file.calibration.limits.as_deref(), files, path)?;
-                let validity = ValidityLimits::of(limits.as_ref(), &tool, &spec);
+                let validity = ValidityLimits::at_poisson_ratio(
+                    limits.as_ref(),
+                    &tool,
+                    &spec,
+                    material.poisson_ratio(),
+                );
                 (spec, validity)
             }
             ModelSource::Recorded(record) => {

@@ -92,6 +92,7 @@ fn limits_file(valid_depth_m: f64, spec: ModelSpec, inclination: Option<f64>) ->
             crossed: true,
             valid_inclination_rad: inclination,
             reference: "test block, neo-Hookean FEM".into(),
+            poisson_ratio: None,
         }],
     })
     .unwrap()

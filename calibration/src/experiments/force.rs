@@ -81,7 +81,13 @@ pub fn force_tools() -> [(&'static str, ToolShape); 2] {
 /// Thickness of the §4.3 block: the layer of the thickness-corrected models.
 pub const FORCE_LAYER_M: f64 = FORCE_BLOCK_M[2];
 
-fn force_run(mode: Mode, name: &str, tool: &ToolShape, law: LawKind, res: Resolution) -> RunSpec {
+pub(crate) fn force_run(
+    mode: Mode,
+    name: &str,
+    tool: &ToolShape,
+    law: LawKind,
+    res: Resolution,
+) -> RunSpec {
     let ds = force_depths(mode);
     let max_depth = ds.last().copied().unwrap_or(0.006);
     let body = block_body(FORCE_BLOCK_M, tool, max_depth, 0.0, res, Symmetry::Quarter);
@@ -96,24 +102,34 @@ fn force_run(mode: Mode, name: &str, tool: &ToolShape, law: LawKind, res: Resolu
     )
 }
 
-/// The runs of the force study: both tools, both laws, on the finest mesh.
+/// The formulations of the force study: the textbook small-deformation contact (the problem
+/// Hertz and Sneddon solve, the study's "linear" FEM), the small-strain law with contact on the
+/// deformed surface beside it, and the neo-Hookean law.
+pub const FORCE_LAWS: [LawKind; 3] = [
+    LawKind::LinearSmallDeformation,
+    LawKind::LinearDeformedContact,
+    LawKind::NeoHookean,
+];
+
+/// The runs of the force study: both tools, every formulation, on the finest mesh.
 pub fn force_runs(mode: Mode) -> Vec<RunSpec> {
     let res = force_resolutions(mode)[2];
     let mut out = Vec::new();
     for (name, tool) in force_tools() {
-        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+        for law in FORCE_LAWS {
             out.push(force_run(mode, name, &tool, law, res));
         }
     }
     out
 }
 
-/// The runs of the speed-accuracy study: both tools, both laws, three meshes (the finest are
-/// the force study's).
+/// The runs of the speed-accuracy study: both tools, every formulation, three meshes (the
+/// finest are the force study's); the small-deformation ones are also the convergence table of
+/// the linear FEM on the paper's block.
 pub fn speed_accuracy_runs(mode: Mode) -> Vec<RunSpec> {
     let mut out = Vec::new();
     for (name, tool) in force_tools() {
-        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+        for law in FORCE_LAWS {
             for res in force_resolutions(mode) {
                 out.push(force_run(mode, name, &tool, law, res));
             }
@@ -152,9 +168,48 @@ pub struct ForceDepthStudy {
     pub error_percent: Vec<Vec<f64>>,
     /// Depth where e_f first reaches 7%, per run.
     pub crossing_m: Vec<Option<f64>>,
+    /// The small-deformation FEM on the 30 mm layer against Sneddon's half-space and the
+    /// bonded-layer correction.
+    pub layer_check: Option<LayerCheck>,
 }
 
-/// Paper §4.3: force against depth, linear and neo-Hookean FEM against Hertz / Sneddon.
+/// The small-deformation FEM on the paper's 100 × 100 × 30 mm block held against Sneddon's
+/// half-space (exact sphere, or cone): a layer bonded to a rigid base must be stiffer than the
+/// half-space, by the factor of Dimitriadis et al. (sphere) or Garcia & Garcia (cone) that the
+/// runtime's bonded-layer correction applies.
+#[derive(Debug, Clone, Serialize)]
+pub struct LayerCheck {
+    pub depths_m: Vec<f64>,
+    /// Sneddon's half-space force (exact sphere, or cone), N.
+    pub half_space_n: Vec<f64>,
+    /// The runtime's closed form on the bonded layer (exact sphere or cone, bonded layer 30 mm).
+    pub layer_closed_form_n: Vec<f64>,
+    /// The small-deformation FEM, N.
+    pub fem_n: Vec<f64>,
+}
+
+impl LayerCheck {
+    /// FEM / half-space, the measured layer factor.
+    pub fn measured_factor(&self, i: usize) -> f64 {
+        self.fem_n[i] / self.half_space_n[i]
+    }
+
+    /// Closed form on the layer / half-space, the predicted layer factor.
+    pub fn predicted_factor(&self, i: usize) -> f64 {
+        self.layer_closed_form_n[i] / self.half_space_n[i]
+    }
+
+    /// Largest |FEM / closed form on the layer − 1| over the depths from `from_m`, percent.
+    pub fn worst_error_percent(&self, from_m: f64) -> f64 {
+        (0..self.depths_m.len())
+            .filter(|&i| self.depths_m[i] >= from_m - 1e-12)
+            .map(|i| 100.0 * (self.fem_n[i] / self.layer_closed_form_n[i] - 1.0).abs())
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Paper §4.3: force against depth, the linear FEMs and the neo-Hookean FEM against Hertz /
+/// Sneddon.
 pub fn force_depth(mode: Mode, cache: &RunCache) -> Result<Vec<ForceDepthStudy>, ExperimentError> {
     let ds = force_depths(mode);
     let mut out = Vec::new();
@@ -166,8 +221,12 @@ pub fn force_depth(mode: Mode, cache: &RunCache) -> Result<Vec<ForceDepthStudy>,
         let mut runs = Vec::new();
         let mut error_percent = Vec::new();
         let mut crossing_m = Vec::new();
-        for law_kind in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+        let mut layer_check = None;
+        for law_kind in FORCE_LAWS {
             let run = fine_run("force-depth", mode, cache, name, &tool, law_kind)?.clone();
+            if law_kind == LawKind::LinearSmallDeformation {
+                layer_check = Some(layer_check_of(name, &tool, &run)?);
+            }
             let err: Vec<f64> = ErrorCurve::new(&analytic_n, &run.normal_forces_n())
                 .eq9_percent
                 .iter()
@@ -185,9 +244,38 @@ pub fn force_depth(mode: Mode, cache: &RunCache) -> Result<Vec<ForceDepthStudy>,
             runs,
             error_percent,
             crossing_m,
+            layer_check,
         });
     }
     Ok(out)
+}
+
+/// The bonded-layer check of one tool's small-deformation run.
+fn layer_check_of(
+    name: &str,
+    tool: &ToolShape,
+    run: &IndentationRun,
+) -> Result<LayerCheck, ExperimentError> {
+    let spec = ModelSpec {
+        exact_sphere: matches!(tool, ToolShape::Sphere { .. }),
+        thickness: layer(FORCE_LAYER_M, true),
+        ..ModelSpec::PAPER
+    };
+    let closed =
+        RuntimeModel::new(*tool, MATERIAL, spec).map_err(|source| ExperimentError::Model {
+            run: format!("force-depth layer check {name}"),
+            source,
+        })?;
+    Ok(LayerCheck {
+        depths_m: run.depths_m.clone(),
+        half_space_n: run
+            .depths_m
+            .iter()
+            .map(|&d| super::verification::sneddon_force_n(tool, &MATERIAL, d))
+            .collect(),
+        layer_closed_form_n: closed.forces_n(&run.depths_m, &LocalGeometry::FLAT),
+        fem_n: run.normal_forces_n(),
+    })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -254,7 +342,7 @@ pub struct HyperelasticFit {
 }
 
 /// c1, c2 minimising Σ (F_nH − F_b (1 + c1 x + c2 x²))².
-fn fit_quadratic_ratio(x: &[f64], nh: &[f64], base: &[f64]) -> [f64; 2] {
+pub(crate) fn fit_quadratic_ratio(x: &[f64], nh: &[f64], base: &[f64]) -> [f64; 2] {
     // Normal equations of y = c1 u + c2 v with u = F_b x, v = F_b x², y = F_nH − F_b.
     let (mut uu, mut uv, mut vv, mut uy, mut vy) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for ((&x, &f), &b) in x.iter().zip(nh).zip(base) {
@@ -273,7 +361,7 @@ fn fit_quadratic_ratio(x: &[f64], nh: &[f64], base: &[f64]) -> [f64; 2] {
 }
 
 /// c minimising Σ (F_nH − c F_b)².
-fn fit_constant_ratio(nh: &[f64], base: &[f64]) -> f64 {
+pub(crate) fn fit_constant_ratio(nh: &[f64], base: &[f64]) -> f64 {
     let num: f64 = nh.iter().zip(base).map(|(f, b)| f * b).sum();
     let den: f64 = base.iter().map(|b| b * b).sum();
     if den > 0.0 { num / den } else { 1.0 }
@@ -570,7 +658,7 @@ pub fn speed_accuracy(mode: Mode, cache: &RunCache) -> Result<SpeedAccuracyStudy
                 &|d| analytic::lin_neo_hookean_sphere_force_n(&MATERIAL, radius_m, d),
             );
         }
-        for law_kind in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+        for law_kind in FORCE_LAWS {
             for res in force_resolutions(mode) {
                 let run = cache.get(study, &force_run(mode, name, &tool, law_kind, res))?;
                 let forces_n: Vec<f64> = table_depths

@@ -6,6 +6,12 @@
 //! perpendicular one, so the perpendicular FEM force F(0) stands for what the runtime renders
 //! without a correction (the law's own error against the FEM is the force study's business, not
 //! this one's), and k(θ) F(0) with the correction, k the runtime's factor for the tilt.
+//!
+//! Two linear formulations are tilted. The small-deformation one is the textbook inclined punch
+//! on a half-space: the gap is measured along the undeformed surface's normal and the reaction
+//! is normal to it, so its force has no lateral part and only its magnitude can depart. The
+//! deformed-contact one pushes along the tool's flank where it touches the deformed surface, so
+//! its force also turns; it measures the direction error, and the runtime's limits come from it.
 
 use serde::Serialize;
 use softhaptic_device::law;
@@ -23,6 +29,8 @@ use crate::models::RuntimeModel;
 #[derive(Debug, Clone, Serialize)]
 pub struct InclinationStudy {
     pub tool_name: String,
+    /// The FEM formulation of the tilted runs.
+    pub law: LawKind,
     pub tool: ToolShape,
     pub depths_m: Vec<f64>,
     pub angles_rad: Vec<f64>,
@@ -64,6 +72,155 @@ pub struct InclinationStudy {
     pub threshold_corrected_magnitude_rad: Option<f64>,
     /// Largest direction error over the resolved depths and every angle, degrees.
     pub worst_direction_deg: f64,
+    /// The cone's inclination correction refitted to this study's FEM (cone only).
+    pub refit: Option<InclinationRefit>,
+}
+
+/// The cone's inclination correction refitted to the tilted FEM.
+///
+/// Magnitude: the runtime's factor k(θ) (the equal-area equivalent cone) raised to a power β,
+/// k(θ)^β, fitted by least squares to |F(θ)| / |F(0)| over the resolved depths of the fitting
+/// angles; β = 1 is the factor in use. Direction: the angle between the FEM force and the
+/// contact normal, φ ≈ γ θ, fitted the same way (the runtime renders along the normal, so γ
+/// measures what it leaves out). The angles alternate between the fit and the check, so every
+/// checked angle lies between two fitted ones and none of them took part in the fit.
+#[derive(Debug, Clone, Serialize)]
+pub struct InclinationRefit {
+    pub fit_angles_rad: Vec<f64>,
+    pub check_angles_rad: Vec<f64>,
+    pub exponent: f64,
+    pub direction_gain: f64,
+    /// Per angle of the study, the refitted magnitude's worst error over the resolved depths
+    /// against |F(θ)|, percent (signed, of the largest |value|).
+    pub refit_magnitude_error_percent: Vec<f64>,
+    /// The same with the factor in use.
+    pub in_use_magnitude_error_percent: Vec<f64>,
+    /// Per angle, the direction fit's worst error over the resolved depths, degrees.
+    pub direction_fit_error_deg: Vec<f64>,
+    /// The angle where the refitted magnitude's error first reaches 7% (or the direction 32°),
+    /// `None` when it does not within the angles measured.
+    pub valid_inclination_rad: Option<f64>,
+}
+
+impl InclinationRefit {
+    /// Largest |error| over `angles`, percent.
+    fn worst_over(&self, errors: &[f64], all: &[f64], angles: &[f64]) -> f64 {
+        all.iter()
+            .zip(errors)
+            .filter(|(a, _)| angles.iter().any(|b| (*a - b).abs() < 1e-12))
+            .fold(0.0_f64, |m, (_, e)| m.max(e.abs()))
+    }
+
+    /// Largest |refitted magnitude error| over the fitting angles (in sample) and the checking
+    /// angles (out of sample), percent.
+    pub fn in_and_out_of_sample_percent(&self, all_angles_rad: &[f64]) -> (f64, f64) {
+        (
+            self.worst_over(
+                &self.refit_magnitude_error_percent,
+                all_angles_rad,
+                &self.fit_angles_rad,
+            ),
+            self.worst_over(
+                &self.refit_magnitude_error_percent,
+                all_angles_rad,
+                &self.check_angles_rad,
+            ),
+        )
+    }
+}
+
+/// The refit of the cone's inclination correction from one study's runs.
+fn refit_inclination(
+    tool: &ToolShape,
+    angles_rad: &[f64],
+    depths_m: &[f64],
+    resolved_from_m: f64,
+    runs: &[IndentationRun],
+) -> Option<InclinationRefit> {
+    let ToolShape::Cone { half_angle_rad, .. } = *tool else {
+        return None;
+    };
+    let perpendicular = &runs.first()?.forces_n;
+    let resolved: Vec<usize> = (0..depths_m.len())
+        .filter(|&i| depths_m[i] >= resolved_from_m - 1e-12)
+        .collect();
+    let k_area = |theta: f64| softhaptic_device::model::inclined_cone_factor(half_angle_rad, theta);
+    // Even positions (0°, 10°, 20° …) fit, odd ones (5°, 15°, 25° …) check.
+    let fit_angles_rad: Vec<f64> = angles_rad.iter().copied().step_by(2).collect();
+    let check_angles_rad: Vec<f64> = angles_rad.iter().copied().skip(1).step_by(2).collect();
+    // β minimises Σ (ln r − β ln k)², r = |F(θ)|/|F(0)|: the ratio's error in log space.
+    let (mut num, mut den, mut gnum, mut gden) = (0.0, 0.0, 0.0, 0.0);
+    for (k, &theta) in angles_rad.iter().enumerate() {
+        if !fit_angles_rad.contains(&theta) || theta == 0.0 {
+            continue;
+        }
+        let ln_k = k_area(theta).ln();
+        for &i in &resolved {
+            let f = runs[k].forces_n[i];
+            let ratio = norm3(f) / norm3(perpendicular[i]).max(f64::MIN_POSITIVE);
+            num += ratio.ln() * ln_k;
+            den += ln_k * ln_k;
+            let phi = f[0].hypot(f[1]).atan2(f[2]);
+            gnum += phi * theta;
+            gden += theta * theta;
+        }
+    }
+    let exponent = if den > 0.0 { num / den } else { 1.0 };
+    let direction_gain = if gden > 0.0 { gnum / gden } else { 0.0 };
+    let worst = |k: usize, factor: f64| {
+        resolved
+            .iter()
+            .map(|&i| {
+                let n0 = norm3(perpendicular[i]).max(f64::MIN_POSITIVE);
+                100.0 * (factor * n0 - norm3(runs[k].forces_n[i])) / n0
+            })
+            .fold(0.0_f64, |m, e| if e.abs() > m.abs() { e } else { m })
+    };
+    let mut refit_magnitude_error_percent = Vec::new();
+    let mut in_use_magnitude_error_percent = Vec::new();
+    let mut direction_fit_error_deg = Vec::new();
+    let mut worst_refit = Vec::new();
+    let mut worst_direction = Vec::new();
+    for (k, &theta) in angles_rad.iter().enumerate() {
+        let kf = k_area(theta);
+        let e = worst(k, kf.powf(exponent));
+        refit_magnitude_error_percent.push(e);
+        worst_refit.push(e.abs());
+        in_use_magnitude_error_percent.push(worst(k, kf));
+        let de = resolved
+            .iter()
+            .map(|&i| {
+                let f = runs[k].forces_n[i];
+                (f[0].hypot(f[1]).atan2(f[2]) - direction_gain * theta).to_degrees()
+            })
+            .fold(0.0_f64, |m, e| if e.abs() > m.abs() { e } else { m });
+        direction_fit_error_deg.push(de);
+        worst_direction.push(
+            resolved
+                .iter()
+                .map(|&i| {
+                    let f = runs[k].forces_n[i];
+                    f[0].hypot(f[1]).atan2(f[2]).to_degrees()
+                })
+                .fold(0.0_f64, f64::max),
+        );
+    }
+    let magnitude = first_crossing(angles_rad, &worst_refit, JND_PERCENT);
+    let direction = first_crossing(angles_rad, &worst_direction, DIRECTION_THRESHOLD_DEG);
+    let valid_inclination_rad = match (magnitude, direction) {
+        (Some(m), Some(d)) => Some(m.min(d)),
+        (m, d) => m.or(d),
+    };
+    Some(InclinationRefit {
+        fit_angles_rad,
+        check_angles_rad,
+        exponent,
+        direction_gain,
+        refit_magnitude_error_percent,
+        in_use_magnitude_error_percent,
+        direction_fit_error_deg,
+        valid_inclination_rad,
+    })
 }
 
 impl InclinationStudy {
@@ -153,7 +310,14 @@ fn setup(mode: Mode, tool: &ToolShape) -> (Resolution, Vec<f64>, Vec<f64>) {
     }
 }
 
-fn tilted_run(mode: Mode, name: &str, tool: &ToolShape, theta_rad: f64) -> RunSpec {
+/// The formulations tilted: the small-deformation one (magnitude; the reproduction), and the
+/// deformed-contact one (magnitude and direction; the runtime's limits).
+pub const INCLINATION_LAWS: [LawKind; 2] = [
+    LawKind::LinearSmallDeformation,
+    LawKind::LinearDeformedContact,
+];
+
+fn tilted_run(mode: Mode, name: &str, tool: &ToolShape, theta_rad: f64, law: LawKind) -> RunSpec {
     let (res, ds, _) = setup(mode, tool);
     let max_depth = ds.last().copied().unwrap_or(0.006);
     // The tilted tool slides sideways by δ tan θ: widen the refined zone to cover it.
@@ -165,11 +329,16 @@ fn tilted_run(mode: Mode, name: &str, tool: &ToolShape, theta_rad: f64) -> RunSp
         res,
         Symmetry::HalfY,
     );
+    // The deformed-contact runs keep their historical labels (the committed report names them).
+    let law_tag = match law {
+        LawKind::LinearDeformedContact => String::new(),
+        other => format!(" {}", other.name()),
+    };
     spec(
-        format!("tilt {name} {:.0}°", theta_rad.to_degrees()),
+        format!("tilt {name} {:.0}°{law_tag}", theta_rad.to_degrees()),
         body,
         tool,
-        LawKind::LinearDeformedContact,
+        law,
         res,
         &ds,
         theta_rad,
@@ -180,12 +349,15 @@ fn angles(mode: Mode, tool: &ToolShape) -> Vec<f64> {
     setup(mode, tool).2.iter().map(|a| a.to_radians()).collect()
 }
 
-/// The runs: each tool at each angle, half model (mirror plane y = 0), linear FEM.
+/// The runs: each tool at each angle, half model (mirror plane y = 0), both linear
+/// formulations.
 pub fn inclination_runs(mode: Mode) -> Vec<RunSpec> {
     let mut out = Vec::new();
     for (name, tool) in paper_tools_10mm() {
-        for theta in angles(mode, &tool) {
-            out.push(tilted_run(mode, name, &tool, theta));
+        for law in INCLINATION_LAWS {
+            for theta in angles(mode, &tool) {
+                out.push(tilted_run(mode, name, &tool, theta, law));
+            }
         }
     }
     out
@@ -196,11 +368,27 @@ fn norm3(v: [f64; 3]) -> f64 {
 }
 
 /// Paper §3.2: tools tilted in the x–z plane and pushed along their axis into the
-/// 100 × 100 × 50 mm block (half model, mirror plane y = 0), linear FEM, E = 50 kPa.
+/// 100 × 100 × 50 mm block (half model, mirror plane y = 0), both linear formulations,
+/// E = 50 kPa; one study per tool and formulation, in the order of [`INCLINATION_LAWS`].
 pub fn inclination(mode: Mode, cache: &RunCache) -> Result<Vec<InclinationStudy>, ExperimentError> {
-    let study = "inclination";
     let mut out = Vec::new();
     for (name, tool) in paper_tools_10mm() {
+        for law in INCLINATION_LAWS {
+            out.push(inclination_of(mode, cache, name, tool, law)?);
+        }
+    }
+    Ok(out)
+}
+
+fn inclination_of(
+    mode: Mode,
+    cache: &RunCache,
+    name: &str,
+    tool: ToolShape,
+    law: LawKind,
+) -> Result<InclinationStudy, ExperimentError> {
+    let study = "inclination";
+    {
         let (res, ds, _) = setup(mode, &tool);
         let max_depth = ds.last().copied().unwrap_or(0.006);
         let angles_rad = angles(mode, &tool);
@@ -208,7 +396,7 @@ pub fn inclination(mode: Mode, cache: &RunCache) -> Result<Vec<InclinationStudy>
         for &theta in &angles_rad {
             runs.push(
                 cache
-                    .get(study, &tilted_run(mode, name, &tool, theta))?
+                    .get(study, &tilted_run(mode, name, &tool, theta, law))?
                     .clone(),
             );
         }
@@ -295,8 +483,11 @@ pub fn inclination(mode: Mode, cache: &RunCache) -> Result<Vec<InclinationStudy>
             .flat_map(|e| e.iter().zip(&ds))
             .filter(|(_, d)| **d >= resolved_from_m - 1e-12)
             .fold(0.0_f64, |m, (v, _)| m.max(v.abs()));
-        out.push(InclinationStudy {
+        let refit = refit_inclination(&tool, &angles_rad, &ds, resolved_from_m, &runs);
+        Ok(InclinationStudy {
+            refit,
             tool_name: name.to_owned(),
+            law,
             tool,
             depths_m: ds.clone(),
             resolved_from_m,
@@ -315,7 +506,6 @@ pub fn inclination(mode: Mode, cache: &RunCache) -> Result<Vec<InclinationStudy>
             axial_error_percent,
             correction_factor,
             corrected_error_percent,
-        });
+        })
     }
-    Ok(out)
 }

@@ -8,14 +8,17 @@ use softhaptic_proto::model::{MeasuredLimit, ToolKind};
 use softhaptic_proto::{ModelLimitsFile, ModelSpec, ToolShape};
 
 use super::curvature::CurvatureStudy;
+use super::force::FORCE_LAYER_M;
 use super::force::{RowKind, SpeedAccuracyStudy};
 use super::inclination::InclinationStudy;
-use super::{ExperimentError, JND_PERCENT, MATERIAL, MM};
+use super::poisson::PoissonStudy;
+use super::{ExperimentError, JND_PERCENT, MATERIAL, MM, first_crossing};
 use crate::element::LawKind;
-use crate::models::RuntimeModel;
+use crate::models::{self, ErrorCurve, RuntimeModel};
 
 /// The inclination limit of `spec` on `tool`, and how it was found, from the inclination study
-/// of the same tool kind, by the paper's criterion: the angle where the error of the force
+/// of the same tool kind with the deformed-contact linear FEM (the formulation whose force turns
+/// with the contact, so that the direction is measured too), by the paper's criterion: the angle where the error of the force
 /// magnitude reaches 7% (against the corrected magnitude for a cone model with the inclination
 /// correction) or its direction 32°, or the largest angle measured if neither does.
 fn inclination_limit(
@@ -23,11 +26,9 @@ fn inclination_limit(
     tool: &ToolShape,
     spec: &ModelSpec,
 ) -> (Option<f64>, String) {
-    let Some(s) = studies
-        .into_iter()
-        .flatten()
-        .find(|s| ToolKind::of(&s.tool) == ToolKind::of(tool))
-    else {
+    let Some(s) = studies.into_iter().flatten().find(|s| {
+        ToolKind::of(&s.tool) == ToolKind::of(tool) && s.law == LawKind::LinearDeformedContact
+    }) else {
         return (None, String::new());
     };
     let corrected = spec.inclination && matches!(tool, ToolShape::Cone { .. });
@@ -104,16 +105,21 @@ pub fn model_limits(
     speed: Option<&SpeedAccuracyStudy>,
     curvature: Option<&[CurvatureStudy]>,
     inclination: Option<&[InclinationStudy]>,
+    poisson: Option<&PoissonStudy>,
 ) -> Result<ModelLimitsFile, ExperimentError> {
     let mut limits: Vec<MeasuredLimit> = Vec::new();
-    let push = |tool: &ToolShape,
-                spec: ModelSpec,
-                crossing: Option<f64>,
-                deepest_m: f64,
-                reference: &str,
-                limits: &mut Vec<MeasuredLimit>| {
+    let push_at = |tool: &ToolShape,
+                   spec: ModelSpec,
+                   crossing: Option<f64>,
+                   deepest_m: f64,
+                   reference: &str,
+                   poisson_ratio: Option<f64>,
+                   limits: &mut Vec<MeasuredLimit>| {
         let kind = ToolKind::of(tool);
-        if limits.iter().any(|l| l.tool == kind && l.model == spec) {
+        if limits
+            .iter()
+            .any(|l| l.tool == kind && l.model == spec && l.poisson_ratio == poisson_ratio)
+        {
             return;
         }
         let (valid_inclination_rad, inclination_note) = inclination_limit(inclination, tool, &spec);
@@ -124,7 +130,16 @@ pub fn model_limits(
             crossed: crossing.is_some(),
             valid_inclination_rad,
             reference: format!("{reference}{inclination_note}"),
+            poisson_ratio,
         });
+    };
+    let push = |tool: &ToolShape,
+                spec: ModelSpec,
+                crossing: Option<f64>,
+                deepest_m: f64,
+                reference: &str,
+                limits: &mut Vec<MeasuredLimit>| {
+        push_at(tool, spec, crossing, deepest_m, reference, None, limits)
     };
     if let Some(speed) = speed {
         for t in &speed.tools {
@@ -199,9 +214,108 @@ pub fn model_limits(
             }
         }
     }
+    for l in poisson_limits(poisson, inclination)? {
+        if !limits
+            .iter()
+            .any(|o| o.tool == l.tool && o.model == l.model && o.poisson_ratio == l.poisson_ratio)
+        {
+            limits.push(l);
+        }
+    }
     Ok(ModelLimitsFile {
         version: ModelLimitsFile::VERSION,
         threshold_percent: JND_PERCENT,
         limits,
     })
+}
+
+/// The limits of the flat-object models at every ν of the sweep but the paper's, against the
+/// neo-Hookean FEM of that ν on the §4.3 block; the inclination limit is the paper's-ν one of
+/// the inclination study when it ran, none otherwise.
+pub fn poisson_limits(
+    poisson: Option<&PoissonStudy>,
+    inclination: Option<&[InclinationStudy]>,
+) -> Result<Vec<MeasuredLimit>, ExperimentError> {
+    let mut limits = Vec::new();
+    for p in poisson.into_iter().flat_map(|s| &s.points) {
+        if p.poisson_ratio == MATERIAL.poisson_ratio() {
+            continue;
+        }
+        let material = super::verification::material_with_poisson(p.poisson_ratio)?;
+        let deepest_m = p.layer_depths_m.last().copied().unwrap_or(0.0);
+        let grid: Vec<f64> = (1..=60).map(|i| i as f64 * 0.1 * MM).collect();
+        for (tool, reference_n, specs) in [
+            (
+                p.tools[0],
+                &p.sphere_nh_n,
+                models::sphere_specs(FORCE_LAYER_M),
+            ),
+            (p.tools[1], &p.cone_nh_n, models::cone_specs(FORCE_LAYER_M)),
+        ] {
+            let reference = format!(
+                "{} on the §4.3 block 100 × 100 × 30 mm (bottom clamped), ν = {:.2}, δ ≤ {:.1} \
+                 mm: eq. 9 against the neo-Hookean FEM of that ν, 10-node tets, {:.1} mm cells",
+                super::tool_description(&tool),
+                p.poisson_ratio,
+                deepest_m / MM,
+                p.layer_cell_m / MM,
+            );
+            for spec in specs {
+                let model = RuntimeModel::new(tool, material, spec).map_err(|source| {
+                    ExperimentError::Model {
+                        run: format!("model limits ν = {:.2}", p.poisson_ratio),
+                        source,
+                    }
+                })?;
+                let errors = ErrorCurve::new(
+                    &model.forces_n(&p.layer_depths_m, &LocalGeometry::FLAT),
+                    reference_n,
+                );
+                let crossing = first_crossing(&p.layer_depths_m, &errors.eq9_percent, JND_PERCENT);
+                let mut variants = vec![spec];
+                variants.extend(inclined_variant(&tool, &spec, &grid)?);
+                for model in variants {
+                    let (valid_inclination_rad, note) =
+                        inclination_limit(inclination, &tool, &model);
+                    limits.push(MeasuredLimit {
+                        tool: ToolKind::of(&tool),
+                        model,
+                        valid_depth_m: crossing.unwrap_or(deepest_m),
+                        crossed: crossing.is_some(),
+                        valid_inclination_rad,
+                        reference: format!("{reference}{note}"),
+                        poisson_ratio: Some(p.poisson_ratio),
+                    });
+                }
+            }
+        }
+    }
+    Ok(limits)
+}
+
+/// `file` with its entries measured over ν replaced by `at_other_poisson` (what `poisson` alone
+/// refreshes). A new entry without an inclination takes the one measured at the paper's ν for
+/// the same model, and says so.
+pub fn merge_poisson_limits(
+    mut file: ModelLimitsFile,
+    at_other_poisson: Vec<MeasuredLimit>,
+) -> ModelLimitsFile {
+    file.limits.retain(|l| l.poisson_ratio.is_none());
+    for mut l in at_other_poisson {
+        let paper = file
+            .limits
+            .iter()
+            .find(|o| o.tool == l.tool && o.model == l.model && o.poisson_ratio.is_none())
+            .and_then(|o| o.valid_inclination_rad);
+        if let (None, Some(a)) = (l.valid_inclination_rad, paper) {
+            l.valid_inclination_rad = Some(a);
+            l.reference.push_str(&format!(
+                "; inclination as measured at ν = {:.2}: {:.1}°",
+                MATERIAL.poisson_ratio(),
+                a.to_degrees()
+            ));
+        }
+        file.limits.push(l);
+    }
+    file
 }

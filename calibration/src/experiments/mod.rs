@@ -20,12 +20,15 @@
 //! - [`curvature`]: balls against the block (§3.2, eq. 6), with the curvature-corrected models.
 //! - [`inclination`]: tilted tools (§3.2, eq. 7), with the inclination-corrected cone.
 //! - [`limits`]: the measured validity limits of every runtime model evaluated.
+//! - [`poisson`]: the hyperelastic factor, the bonded-layer factor and the R_d tables over ν
+//!   from 0.30 to 0.49.
 //! - [`verification`]: Hertz, the half-space profile and the patch tests, before the rest.
 
 pub mod curvature;
 pub mod force;
 pub mod inclination;
 pub mod limits;
+pub mod poisson;
 pub mod rd;
 pub mod surface;
 pub mod verification;
@@ -37,6 +40,7 @@ pub use force::{
 };
 pub use inclination::{InclinationStudy, inclination, inclination_runs};
 pub use limits::model_limits;
+pub use poisson::{PoissonStudy, poisson_runs, poisson_study};
 pub use rd::{RdStudy, rd_runs, rd_table};
 pub use verification::{VerificationStudy, verification, verification_runs};
 

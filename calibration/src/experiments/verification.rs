@@ -5,7 +5,7 @@
 use serde::Serialize;
 use softhaptic_device::law;
 use softhaptic_device::model::LocalGeometry;
-use softhaptic_proto::{ModelSpec, ToolShape};
+use softhaptic_proto::{Material, ModelSpec, ToolShape};
 
 use super::{
     Body, ExperimentError, MATERIAL, MM, Mode, Resolution, RunCache, RunSpec, depths,
@@ -40,10 +40,18 @@ pub struct VerificationStudy {
     pub depth_over_radius: f64,
     pub block_over_radius: f64,
     pub checks: Vec<HertzCheck>,
-    /// Largest nodal error of the patch test relative to the largest displacement, per law.
-    pub patch_test: Vec<(LawKind, f64)>,
+    /// The patch tests: each law at ν = 0.33 and at ν = 0.49.
+    pub patch_test: Vec<PatchTest>,
     /// The small-deformation formulation against Sneddon on a deep block, per tool.
     pub sneddon: Vec<SneddonCheck>,
+}
+
+/// One patch test: the largest nodal error relative to the largest displacement.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct PatchTest {
+    pub law: LawKind,
+    pub poisson_ratio: f64,
+    pub error: f64,
 }
 
 /// Mesh of the deep-block check at one depth, relative to that depth's contact radius a: the
@@ -98,13 +106,35 @@ pub fn sneddon_depths(mode: Mode) -> Vec<f64> {
     }
 }
 
-/// Sneddon's closed form for `tool` on the half-space: the exact sphere, or the cone.
-pub fn sneddon_force_n(tool: &ToolShape, depth_m: f64) -> f64 {
+/// Sneddon's closed form for `tool` on the half-space of `material`: the exact sphere, or the
+/// cone.
+pub fn sneddon_force_n(tool: &ToolShape, material: &Material, depth_m: f64) -> f64 {
     match *tool {
         ToolShape::Sphere { radius_m } => {
-            analytic::exact_sphere_force_n(&MATERIAL, radius_m, depth_m)
+            analytic::exact_sphere_force_n(material, radius_m, depth_m)
         }
-        ToolShape::Cone { .. } => law::contact_force_n(tool, &MATERIAL, depth_m),
+        ToolShape::Cone { .. } => law::contact_force_n(tool, material, depth_m),
+    }
+}
+
+/// Poisson's ratio of the nearly incompressible checks (soft tissue: 0.45–0.49).
+pub const NEARLY_INCOMPRESSIBLE_POISSON: f64 = 0.49;
+
+/// The paper's soft material with Poisson's ratio `poisson_ratio` instead of 0.33.
+pub fn material_with_poisson(poisson_ratio: f64) -> Result<Material, ExperimentError> {
+    Material::new(MATERIAL.youngs_modulus_pa(), poisson_ratio).map_err(|e| ExperimentError::Data {
+        study: "material".to_owned(),
+        reason: format!("ν = {poisson_ratio}: {e}"),
+    })
+}
+
+/// " ν = 0.49" for a material other than the paper's, nothing for the paper's (its run labels
+/// stay as they were).
+pub fn poisson_tag(material: &Material) -> String {
+    if material.poisson_ratio() == MATERIAL.poisson_ratio() {
+        String::new()
+    } else {
+        format!(", ν = {:.2}", material.poisson_ratio())
     }
 }
 
@@ -112,15 +142,22 @@ pub fn sneddon_force_n(tool: &ToolShape, depth_m: f64) -> f64 {
 /// from the active set, so there is no load path to follow), on a mesh scaled to that depth's
 /// contact radius. Scaling the mesh with a keeps the relative resolution the same at every depth,
 /// which one mesh cannot do for the cone: its contact radius grows sixfold from 1 to 6 mm.
-pub fn sneddon_run(name: &str, tool: &ToolShape, depth_m: f64, mesh: SneddonMesh) -> RunSpec {
+pub fn sneddon_run(
+    name: &str,
+    tool: &ToolShape,
+    depth_m: f64,
+    mesh: SneddonMesh,
+    material: &Material,
+) -> RunSpec {
     let a = max_contact_radius_m(tool, depth_m);
     let size = SNEDDON_BLOCK_OVER_CONTACT_RADIUS * a;
     let cell = a / mesh.cells_per_contact_radius;
     RunSpec {
         label: format!(
-            "deep block {name} δ = {:.1} mm, cells {}",
+            "deep block {name} δ = {:.1} mm, cells {}{}",
             depth_m / MM,
-            mesh.name
+            mesh.name,
+            poisson_tag(material)
         ),
         body: Body::Block(BlockSpec::graded(
             [size, size, size],
@@ -131,7 +168,7 @@ pub fn sneddon_run(name: &str, tool: &ToolShape, depth_m: f64, mesh: SneddonMesh
         )),
         indenter: IndenterShape::from(tool),
         law: LawKind::LinearSmallDeformation,
-        material: MATERIAL,
+        material: *material,
         resolution: Resolution {
             name: mesh.name,
             fine_cell_m: cell,
@@ -143,12 +180,12 @@ pub fn sneddon_run(name: &str, tool: &ToolShape, depth_m: f64, mesh: SneddonMesh
 }
 
 /// The deep-block runs of every tool, depth and mesh.
-pub fn sneddon_runs(meshes: &[SneddonMesh], depths_m: &[f64]) -> Vec<RunSpec> {
+pub fn sneddon_runs(meshes: &[SneddonMesh], depths_m: &[f64], material: &Material) -> Vec<RunSpec> {
     let mut out = Vec::new();
     for (name, tool) in force_tools() {
         for &mesh in meshes {
             for &d in depths_m {
-                out.push(sneddon_run(name, &tool, d, mesh));
+                out.push(sneddon_run(name, &tool, d, mesh, material));
             }
         }
     }
@@ -173,6 +210,7 @@ pub struct SneddonPoint {
 pub struct SneddonCheck {
     pub tool_name: String,
     pub tool: ToolShape,
+    pub material: Material,
     pub meshes: Vec<SneddonMesh>,
     pub points: Vec<SneddonPoint>,
 }
@@ -193,17 +231,18 @@ pub fn sneddon_checks(
     cache: &RunCache,
     meshes: &[SneddonMesh],
     depths_m: &[f64],
+    material: &Material,
 ) -> Result<Vec<SneddonCheck>, ExperimentError> {
     let study = "verify (Sneddon)";
     let mut out = Vec::new();
     for (name, tool) in force_tools() {
         let mut points = Vec::new();
         for &d in depths_m {
-            let sneddon_n = sneddon_force_n(&tool, d);
+            let sneddon_n = sneddon_force_n(&tool, material, d);
             let mut fem_n = Vec::new();
             let mut dofs = Vec::new();
             for &mesh in meshes {
-                let run = cache.get(study, &sneddon_run(name, &tool, d, mesh))?;
+                let run = cache.get(study, &sneddon_run(name, &tool, d, mesh, material))?;
                 fem_n.push(run.normal_force_at_n(d));
                 dofs.push(run.dofs);
             }
@@ -222,6 +261,7 @@ pub fn sneddon_checks(
         out.push(SneddonCheck {
             tool_name: name.to_owned(),
             tool,
+            material: *material,
             meshes: meshes.to_vec(),
             points,
         });
@@ -284,7 +324,18 @@ pub fn verification_runs(mode: Mode) -> Vec<RunSpec> {
             out.push(check_run(cell, name, shape));
         }
     }
-    out.extend(sneddon_runs(sneddon_meshes(mode), &sneddon_depths(mode)));
+    out.extend(sneddon_runs(
+        sneddon_meshes(mode),
+        &sneddon_depths(mode),
+        &MATERIAL,
+    ));
+    if let Ok(nearly_incompressible) = material_with_poisson(NEARLY_INCOMPRESSIBLE_POISSON) {
+        out.extend(sneddon_runs(
+            sneddon_meshes(mode),
+            &sneddon_depths(mode),
+            &nearly_incompressible,
+        ));
+    }
     out
 }
 
@@ -342,29 +393,44 @@ pub fn verification(mode: Mode, cache: &RunCache) -> Result<VerificationStudy, E
             });
         }
     }
+    let nearly_incompressible = material_with_poisson(NEARLY_INCOMPRESSIBLE_POISSON)?;
     let mut patch_test = Vec::new();
-    for kind in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
-        patch_test.push((
-            kind,
-            patch_test_error(kind).map_err(|source| ExperimentError::Solve {
-                run: format!("patch test {}", kind.name()),
-                source,
-            })?,
-        ));
+    for material in [MATERIAL, nearly_incompressible] {
+        for law in [LawKind::LinearDeformedContact, LawKind::NeoHookean] {
+            patch_test.push(PatchTest {
+                law,
+                poisson_ratio: material.poisson_ratio(),
+                error: patch_test_error(law, &material).map_err(|source| {
+                    ExperimentError::Solve {
+                        run: format!("patch test {}{}", law.name(), poisson_tag(&material)),
+                        source,
+                    }
+                })?,
+            });
+        }
+    }
+    let mut sneddon = Vec::new();
+    for material in [MATERIAL, nearly_incompressible] {
+        sneddon.extend(sneddon_checks(
+            cache,
+            sneddon_meshes(mode),
+            &sneddon_depths(mode),
+            &material,
+        )?);
     }
     Ok(VerificationStudy {
         depth_over_radius: DEPTH_OVER_RADIUS,
         block_over_radius: BLOCK_OVER_RADIUS,
         checks,
         patch_test,
-        sneddon: sneddon_checks(cache, sneddon_meshes(mode), &sneddon_depths(mode))?,
+        sneddon,
     })
 }
 
 /// Imposes u = G·X (G a constant displacement gradient, 5% strain for the neo-Hookean law) on
 /// the boundary of a graded block and returns the largest interior error relative to the
 /// largest displacement.
-pub fn patch_test_error(kind: LawKind) -> Result<f64, SolveError> {
+pub fn patch_test_error(kind: LawKind, material: &Material) -> Result<f64, SolveError> {
     let spec = BlockSpec {
         size_m: [0.04, 0.03, 0.02],
         fine_cell_m: 0.004,
@@ -411,7 +477,7 @@ pub fn patch_test_error(kind: LawKind) -> Result<f64, SolveError> {
     let nodes = m.nodes_m.clone();
     let mut model = ContactModel::new(
         m,
-        Constitutive::new(kind, &MATERIAL),
+        Constitutive::new(kind, material),
         SolverOptions::default(),
     )?;
     model.solve_prescribed(&targets)?;
