@@ -60,6 +60,52 @@ pub fn test_options() -> ServerOptions {
     options
 }
 
+/// A live server whose session is recorded into a directory, as `softhaptic run` records it.
+pub struct RecordedServer {
+    pub server: RunningServer,
+    pub recording: softhaptic_server::session::cli::LiveRecording,
+}
+
+/// Starts `scene` with `options`, recording the session into `record_dir`.
+pub async fn start_recorded(
+    scene: Scene,
+    record_dir: &std::path::Path,
+    mut options: ServerOptions,
+) -> RecordedServer {
+    let args = softhaptic_server::session::cli::RecordArgs {
+        no_record: false,
+        record_dir: record_dir.to_path_buf(),
+    };
+    let mut recording = softhaptic_server::session::cli::LiveRecording::start(&args, &scene, None)
+        .expect("the recording starts")
+        .expect("recording is on");
+    options.tick_sink = recording.take_tick_sink();
+    options.session_id = Some(recording.session_id().to_owned());
+    let server = app::start(scene, options).await.expect("the server starts");
+    recording.attach(&server);
+    RecordedServer { server, recording }
+}
+
+impl RecordedServer {
+    /// Stops the server, closes the recording with the loop's final metrics, and returns the
+    /// loop's statistics, those metrics and the recording's path.
+    pub async fn finish(
+        self,
+    ) -> (
+        softhaptic_device::stats::LoopStats,
+        softhaptic_device::metrics::TraineeMetrics,
+        std::path::PathBuf,
+        softhaptic_proto::record::RecordingStats,
+    ) {
+        let (stats, metrics) = self.server.shutdown_with_metrics().await;
+        let (path, recorded) = self
+            .recording
+            .finish(&metrics)
+            .expect("the recording closes");
+        (stats, metrics, path, recorded)
+    }
+}
+
 /// Starts the built-in default scene with `options`.
 pub async fn start_default(options: ServerOptions) -> RunningServer {
     let scene = Scene::builtin_default().expect("the built-in scene loads");

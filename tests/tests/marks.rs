@@ -10,13 +10,12 @@ use futures_util::StreamExt;
 use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{MarkMessage, ServerMessage};
 use softhaptic_server::access::AccessConfig;
-use softhaptic_server::app::{self, default_web_dir};
+use softhaptic_server::app::default_web_dir;
 use softhaptic_server::scene::Scene;
-use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::replay::{self, ReplayOptions};
 use softhaptic_server::stream::{REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, ViewerLimits};
-use softhaptic_tests::{Viewer, scratch_dir, test_options};
+use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
 use tokio_tungstenite::tungstenite::Message;
 
 const I: &str = softhaptic_tests::INSTRUCTOR_TOKEN;
@@ -54,17 +53,10 @@ fn mark_of(text: &str) -> MarkMessage {
 async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     let scene = Scene::builtin_default().unwrap();
     let dir = scratch_dir("marks");
-    let args = RecordArgs {
-        no_record: false,
-        record_dir: dir.clone(),
-    };
-    let mut recording = LiveRecording::start(&args, &scene, None).unwrap().unwrap();
     let mut options = test_options();
     options.access.tokens = Some(softhaptic_tests::test_tokens());
-    options.tick_sink = recording.take_tick_sink();
-    options.session_id = Some(recording.session_id().to_owned());
-    let server = app::start(scene, options).await.unwrap();
-    recording.attach(&server);
+    let live = start_recorded(scene, &dir, options).await;
+    let server = &live.server;
 
     let mut instructor = viewer(server.local_addr(), I).await;
     let mut observer = viewer(server.local_addr(), O).await;
@@ -97,8 +89,7 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     let mut late = viewer(server.local_addr(), O).await;
     assert_eq!(mark_of(&next_of(&mut late, "mark").await), seen);
 
-    let (_, metrics) = server.shutdown_with_metrics().await;
-    let (path, _) = recording.finish(&metrics).unwrap();
+    let (_, _, path, _) = live.finish().await;
     let r = Recording::open(&path).unwrap();
     assert_eq!(r.marks, vec![seen.clone()]);
 

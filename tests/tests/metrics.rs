@@ -8,30 +8,21 @@ use std::time::{Duration, Instant};
 
 use softhaptic_proto::wire::ServerMessage;
 use softhaptic_server::access::AccessConfig;
-use softhaptic_server::app::{self, default_web_dir};
+use softhaptic_server::app::default_web_dir;
 use softhaptic_server::scene::Scene;
 use softhaptic_server::session::check::{CheckOverrides, check};
-use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::replay::{self, ReplayOptions};
 use softhaptic_server::session::tools::{Info, export, recording_metrics};
 use softhaptic_server::stream::{ViewerLimits, metrics_message};
-use softhaptic_tests::{Viewer, scratch_dir, test_options};
+use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     let scene = Scene::builtin_default().unwrap();
     let dir = scratch_dir("metrics");
-    let args = RecordArgs {
-        no_record: false,
-        record_dir: dir.clone(),
-    };
-    let mut recording = LiveRecording::start(&args, &scene, None).unwrap().unwrap();
-    let mut options = test_options();
-    options.tick_sink = recording.take_tick_sink();
-    options.session_id = Some(recording.session_id().to_owned());
-    let server = app::start(scene, options).await.unwrap();
-    recording.attach(&server);
+    let session = start_recorded(scene, &dir, test_options()).await;
+    let server = &session.server;
 
     // A viewer gets the metrics; once the simulated hand has pressed, they show it.
     let mut viewer = Viewer::connect(server.local_addr()).await;
@@ -49,8 +40,7 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     assert!(live.peak_force_n > 0.1 && live.ticks > 500, "{live:?}");
     assert_eq!(live.safe_force_n, 2.0);
 
-    let (_, final_live) = server.shutdown_with_metrics().await;
-    let (path, stats) = recording.finish(&final_live).unwrap();
+    let (_, final_live, path, stats) = session.finish().await;
     let r = Recording::open(&path).unwrap();
     let recorded = recording_metrics(&r);
 

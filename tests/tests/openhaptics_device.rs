@@ -19,14 +19,13 @@ use softhaptic_device::sim::{SimParams, SimulatedPhantom};
 use softhaptic_proto::ContactFlags;
 use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
 use softhaptic_proto::wire::{DeviceStatus, ServerMessage};
-use softhaptic_server::app::{self, RunningServer};
+use softhaptic_server::app;
 use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
 use softhaptic_server::session::check::{CheckOverrides, check};
-use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
 use softhaptic_server::session::reader::Recording;
 use softhaptic_tests::standin::{StandIn, hd, missing_symbol_path, standin_path};
-use softhaptic_tests::{Viewer, scratch_dir, test_options};
+use softhaptic_tests::{RecordedServer, Viewer, scratch_dir, start_recorded, test_options};
 
 /// One test at a time owns the stand-in (an async mutex: the tests hold it across awaits, and a
 /// test that fails releases it as it unwinds).
@@ -70,13 +69,7 @@ fn liver_scene() -> Scene {
     scene
 }
 
-/// A running server recording its session.
-struct Live {
-    server: RunningServer,
-    recording: LiveRecording,
-}
-
-async fn start(scene: Scene, name: &str) -> Live {
+async fn start(scene: Scene, name: &str) -> RecordedServer {
     start_with(scene, name, |config| config).await
 }
 
@@ -85,35 +78,23 @@ async fn start_with(
     mut scene: Scene,
     name: &str,
     configure: impl FnOnce(OpenHapticsConfig) -> OpenHapticsConfig,
-) -> Live {
+) -> RecordedServer {
     let config = configure(devices::openhaptics_config(&scene));
     let opened = OpenHapticsDevice::open(&config).unwrap();
     scene.device_limits = opened.limits();
     scene.device_label = Some(format!("{} (OpenHaptics)", opened.description().model));
     let device: Box<dyn HapticDevice> = Box::new(opened);
-    let args = RecordArgs {
-        no_record: false,
-        record_dir: scratch_dir(name),
-    };
-    let mut recording = LiveRecording::start(&args, &scene, None).unwrap().unwrap();
     let mut options = test_options();
     options.device = Some(device);
-    options.tick_sink = recording.take_tick_sink();
-    options.session_id = Some(recording.session_id().to_owned());
-    let server = app::start(scene, options).await.unwrap();
-    assert!(
-        server.scene_message().device.name.contains("OpenHaptics"),
-        "{}",
-        server.scene_message().device.name
-    );
-    recording.attach(&server);
-    Live { server, recording }
+    let live = start_recorded(scene, &scratch_dir(name), options).await;
+    let device_name = &live.server.scene_message().device.name;
+    assert!(device_name.contains("OpenHaptics"), "{device_name}");
+    live
 }
 
 /// Stops the server and returns its loop's final statistics and the recording.
-async fn finish(live: Live) -> (softhaptic_device::stats::LoopStats, Recording) {
-    let (stats, metrics) = live.server.shutdown_with_metrics().await;
-    let (path, _) = live.recording.finish(&metrics).unwrap();
+async fn finish(live: RecordedServer) -> (softhaptic_device::stats::LoopStats, Recording) {
+    let (stats, _, path, _) = live.finish().await;
     (stats, Recording::open(&path).unwrap())
 }
 

@@ -18,13 +18,11 @@ use softhaptic_device::spacemouse::script::{ReportScript, axis_report};
 use softhaptic_proto::ContactFlags;
 use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
 use softhaptic_proto::wire::{DeviceStatus, ServerMessage};
-use softhaptic_server::app;
 use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
 use softhaptic_server::session::check::{CheckOverrides, check};
-use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
 use softhaptic_server::session::reader::Recording;
-use softhaptic_tests::{Viewer, scratch_dir, test_options};
+use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
 
 /// A report every 16 ms, as a wired SpaceMouse sends them while its puck is off centre.
 const REPORT_EVERY_S: f64 = 0.016;
@@ -77,17 +75,10 @@ async fn a_scripted_spacemouse_presses_the_liver_through_the_whole_server() {
     scene.device_label = Some(format!("{} (SpaceMouse)", device.model().name));
     scene.device_renders_force = device.renders_force();
 
-    let args = RecordArgs {
-        no_record: false,
-        record_dir: scratch_dir("spacemouse-press"),
-    };
-    let mut recording = LiveRecording::start(&args, &scene, None).unwrap().unwrap();
     let mut options = test_options();
     options.device = Some(Box::new(device));
-    options.tick_sink = recording.take_tick_sink();
-    options.session_id = Some(recording.session_id().to_owned());
-    let server = app::start(scene, options).await.unwrap();
-    recording.attach(&server);
+    let live = start_recorded(scene, &scratch_dir("spacemouse-press"), options).await;
+    let server = &live.server;
     assert!(!server.scene_message().device.force_feedback);
 
     let mut viewer = Viewer::connect(server.local_addr()).await;
@@ -146,8 +137,7 @@ async fn a_scripted_spacemouse_presses_the_liver_through_the_whole_server() {
         started.elapsed() > Duration::from_secs(7)
     })
     .await;
-    let (_, metrics) = server.shutdown_with_metrics().await;
-    let (path, _) = recording.finish(&metrics).unwrap();
+    let (_, _, path, _) = live.finish().await;
     let recorded = Recording::open(&path).unwrap();
     assert!(!recorded.scene.message.device.force_feedback);
 
