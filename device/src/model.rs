@@ -67,13 +67,15 @@ pub mod hyperelastic_fit {
     /// against the closed form of each ν: the layer's factor depends on ν), increasing. The
     /// ν = 0.33 entry is the constants above, unchanged so that recorded sessions replay bit for
     /// bit.
-    pub const POISSON_RATIOS: [f64; 1] = [0.33];
+    /// Full-mode fits (calibration report, "Nearly incompressible tissue"): the refit at
+    /// ν = 0.33 reproduces the constants above to the printed digits.
+    pub const POISSON_RATIOS: [f64; 5] = [0.30, 0.33, 0.40, 0.45, 0.49];
     /// c1 at each of [`POISSON_RATIOS`].
-    pub const SPHERE_C1_BY_POISSON: [f64; 1] = [SPHERE_C1];
+    pub const SPHERE_C1_BY_POISSON: [f64; 5] = [0.1467, SPHERE_C1, 0.0194, -0.0506, -0.0948];
     /// c2 at each of [`POISSON_RATIOS`].
-    pub const SPHERE_C2_BY_POISSON: [f64; 1] = [SPHERE_C2];
+    pub const SPHERE_C2_BY_POISSON: [f64; 5] = [-0.1187, SPHERE_C2, -0.0707, -0.0440, -0.0320];
     /// The cone's factor at each of [`POISSON_RATIOS`].
-    pub const CONE_RATIO_BY_POISSON: [f64; 1] = [CONE_RATIO];
+    pub const CONE_RATIO_BY_POISSON: [f64; 5] = [1.0328, CONE_RATIO, 0.9770, 0.9511, 0.9376];
 
     /// The factor's constants at one Poisson's ratio.
     #[derive(Debug, Clone, Copy, PartialEq)]
