@@ -326,14 +326,17 @@ mod tests {
         assert_eq!(s.status, "softhaptic.stations.desk-3");
     }
 
+    /// Writes a credentials file for a test; returns its path.
+    fn write_file(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap_or_else(|e| panic!("{e}"));
+        p
+    }
+
     #[tokio::test]
     async fn credentials_files_are_read_and_their_errors_name_the_file_not_the_secret() {
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let write = |name: &str, text: &str| {
-            let p = dir.path().join(name);
-            std::fs::write(&p, text).unwrap_or_else(|e| panic!("{e}"));
-            p
-        };
+        let write = |name: &str, text: &str| write_file(dir.path(), name, text);
         let o = async_nats::ConnectOptions::new();
         assert!(
             with_credentials(o, &write("t.toml", "token = \"s3cret\"\n"))
@@ -362,11 +365,7 @@ mod tests {
     #[tokio::test]
     async fn a_user_nkey_seed_is_taken_alone_or_in_toml_and_a_bad_one_is_refused_unquoted() {
         let dir = tempfile::tempdir().unwrap_or_else(|e| panic!("{e}"));
-        let write = |name: &str, text: &str| {
-            let p = dir.path().join(name);
-            std::fs::write(&p, text).unwrap_or_else(|e| panic!("{e}"));
-            p
-        };
+        let write = |name: &str, text: &str| write_file(dir.path(), name, text);
         let seed = nkeys::KeyPair::new_user()
             .seed()
             .unwrap_or_else(|e| panic!("{e}"));
