@@ -1064,8 +1064,8 @@ mod tests {
     fn grid_core() -> TickCore {
         use crate::collision::{Collider, CollisionMode};
         use crate::device::DeviceLimits;
+        use crate::force::ForceConfig;
         use crate::mesh::HapticMesh;
-        use crate::render::RenderConfig;
         use crate::sim::{HandScript, SimulatedPhantom};
         use softhaptic_proto::{Material, ToolShape};
         let tool = ToolShape::sphere(0.01).unwrap();
@@ -1074,7 +1074,7 @@ mod tests {
             Pose::IDENTITY,
             tool,
             Material::PAPER_SOFT,
-            RenderConfig::for_tool(&tool),
+            ForceConfig::for_tool(&tool),
             DeviceLimits::PHANTOM_DESKTOP,
         );
         TickCore::new(

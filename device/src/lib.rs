@@ -26,7 +26,7 @@
 //! - [`spacemouse`]: a 3Dconnexion SpaceMouse through hidapi (feature `spacemouse`, on by
 //!   default): its reports read off the loop's thread, the puck's deflection as the tool's
 //!   velocity (rate control); it renders no force.
-//! - [`render`]: the scene's contact model at the contact's geometry (curvature, the tool's
+//! - [`force`]: the scene's contact model at the contact's geometry (curvature, the tool's
 //!   inclination) + damping, then the safety layer (stiffness cap at the model's δ*, ramp,
 //!   passivity, saturation, fault guard) with a flag for every limit that acts, and the validity
 //!   flags at the active model's limits.
@@ -47,6 +47,7 @@
 pub mod collision;
 pub mod curvature;
 pub mod device;
+pub mod force;
 pub mod haptic_loop;
 pub mod law;
 pub mod liver;
@@ -55,7 +56,6 @@ pub mod metrics;
 pub mod model;
 pub mod openhaptics;
 pub mod passivity;
-pub mod render;
 pub mod replay;
 pub mod rt;
 pub mod shape;

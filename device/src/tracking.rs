@@ -25,7 +25,7 @@
 //! A held contact has the entry plane's normal and curvature, and its depth is the tip's depth
 //! below the entry plane along that normal (the tip's support point, as the collision measures
 //! a cone), unclamped: past the tip's height the renderer continues the force as a line of the
-//! device's stable stiffness ([`crate::render`]), so it keeps rising, continuously, until the
+//! device's stable stiffness ([`crate::force`]), so it keeps rising, continuously, until the
 //! device saturates. The haptic world flags every held tick
 //! [`PUSHED_THROUGH`](softhaptic_proto::ContactFlags::PUSHED_THROUGH). The collision takes the
 //! contact back when it measures it cleanly again on the same side with the tip within its

@@ -16,9 +16,9 @@ use crate::metrics::{MetricsAccumulator, TickInput, TraineeMetrics};
 
 /// The safe force of a world whose scene sets none, N.
 pub const DEFAULT_SAFE_FORCE_N: f64 = 2.0;
+use crate::force::{ForceConfig, ForceRenderer, RenderedForce, WorldContact};
 use crate::law;
 use crate::model::{ForceModel, LocalGeometry};
-use crate::render::{ForceRenderer, RenderConfig, RenderedForce, WorldContact};
 use crate::tracking::ContactTracker;
 
 /// What [`HapticWorld::tick`] read, computed and commanded.
@@ -58,14 +58,14 @@ impl HapticWorld {
         object_in_world: Pose,
         tool: ToolShape,
         material: Material,
-        render: RenderConfig,
+        force: ForceConfig,
         limits: DeviceLimits,
     ) -> Self {
         Self::with_model(
             collider,
             object_in_world,
             ForceModel::paper(tool, material),
-            render,
+            force,
             limits,
         )
     }
@@ -77,7 +77,7 @@ impl HapticWorld {
         collider: Collider,
         object_in_world: Pose,
         model: ForceModel,
-        render: RenderConfig,
+        force: ForceConfig,
         limits: DeviceLimits,
     ) -> Self {
         let collider = if model.spec().curvature {
@@ -89,7 +89,7 @@ impl HapticWorld {
             collider,
             tracker: ContactTracker::new(),
             object_in_world,
-            renderer: ForceRenderer::with_model(model, render, limits),
+            renderer: ForceRenderer::with_model(model, force, limits),
             tick: 0,
             last_good: None,
             metrics: MetricsAccumulator::new(DEFAULT_SAFE_FORCE_N),
@@ -118,7 +118,7 @@ impl HapticWorld {
         self.renderer.limits()
     }
 
-    pub fn render_config(&self) -> &RenderConfig {
+    pub fn force_config(&self) -> &ForceConfig {
         self.renderer.config()
     }
 
@@ -310,7 +310,7 @@ mod tests {
             object_in_world,
             tool,
             Material::PAPER_SOFT,
-            RenderConfig::for_tool(&tool),
+            ForceConfig::for_tool(&tool),
             DeviceLimits::PHANTOM_DESKTOP,
         )
     }

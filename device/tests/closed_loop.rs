@@ -12,8 +12,8 @@
 use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceError, DeviceLimits, HapticDevice};
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::liver;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::sim::{HandScript, SimFault, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{ContactFlags, Material, Pose, ToolShape};
@@ -83,16 +83,16 @@ fn sphere() -> ToolShape {
     ToolShape::sphere(TOOL_RADIUS_M).unwrap()
 }
 
-fn world(material: Material, configure: impl FnOnce(&mut RenderConfig)) -> HapticWorld {
+fn world(material: Material, configure: impl FnOnce(&mut ForceConfig)) -> HapticWorld {
     world_with(sphere(), material, configure)
 }
 
 fn world_with(
     tool: ToolShape,
     material: Material,
-    configure: impl FnOnce(&mut RenderConfig),
+    configure: impl FnOnce(&mut ForceConfig),
 ) -> HapticWorld {
-    let mut render = RenderConfig::for_tool(&tool);
+    let mut render = ForceConfig::for_tool(&tool);
     configure(&mut render);
     HapticWorld::new(
         Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
@@ -160,15 +160,15 @@ fn run_script(mut world: HapticWorld, mut device: SimulatedPhantom) -> Run {
 /// down to the device's 1.75 N rating within a second (the tool would then sink); it is
 /// switched off there so that what is measured is the cap and the controller alone.
 fn without_continuous_limit(
-    configure: impl FnOnce(&mut RenderConfig),
-) -> impl FnOnce(&mut RenderConfig) {
+    configure: impl FnOnce(&mut ForceConfig),
+) -> impl FnOnce(&mut ForceConfig) {
     move |c| {
         c.continuous_force_limit = false;
         configure(c);
     }
 }
 
-fn press(material: Material, configure: impl FnOnce(&mut RenderConfig)) -> Run {
+fn press(material: Material, configure: impl FnOnce(&mut ForceConfig)) -> Run {
     let top = liver::top_contact();
     let script = HandScript::press(top.point_m, top.normal, hand_depth_for_target(material));
     run_script(world(material, configure), SimulatedPhantom::new(script))

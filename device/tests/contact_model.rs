@@ -8,10 +8,10 @@
 use glam::{DQuat, DVec3};
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceLimits, DeviceSample};
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::law;
 use softhaptic_device::liver;
 use softhaptic_device::model::ForceModel;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{Material, ModelSpec, Pose, ToolShape};
 
@@ -34,7 +34,7 @@ fn combined() -> ModelSpec {
 /// A world on the liver whose rendered force is the elastic force alone (no damping, ramp or
 /// passivity controller), so a slide shows the model's force tick by tick.
 fn static_world(spec: ModelSpec) -> HapticWorld {
-    let mut render = RenderConfig::for_tool(&sphere());
+    let mut render = ForceConfig::for_tool(&sphere());
     render.damping_n_s_per_m = 0.0;
     render.passivity = false;
     render.ramp_threshold_n = f64::INFINITY;

@@ -18,9 +18,9 @@ use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{
     DeviceError, DeviceLimits, DeviceSample, HapticDevice, ServoClock,
 };
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
 use softhaptic_device::liver;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::rt;
 use softhaptic_device::sim::{HandScript, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
@@ -165,7 +165,7 @@ fn a_device_clocked_loop_ticks_on_the_driver_s_calls_without_allocating_and_stop
         Pose::IDENTITY,
         tool,
         Material::PAPER_SOFT,
-        RenderConfig::for_tool(&tool),
+        ForceConfig::for_tool(&tool),
         DeviceLimits::PHANTOM_DESKTOP,
     );
     let probe = Arc::new(Probe::default());

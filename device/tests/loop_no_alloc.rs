@@ -10,10 +10,10 @@ use std::time::{Duration, Instant};
 
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceLimits, HapticDevice};
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
 use softhaptic_device::liver;
 use softhaptic_device::model::ForceModel;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{ContactFlags, Material, ModelSpec, Pose, ToolShape};
@@ -34,7 +34,7 @@ fn setup(material: Material, spec: ModelSpec) -> (SimulatedPhantom, HapticWorld)
         Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
         Pose::IDENTITY,
         ForceModel::new(tool, material, spec).unwrap(),
-        RenderConfig::for_tool(&tool),
+        ForceConfig::for_tool(&tool),
         DeviceLimits::PHANTOM_DESKTOP,
     );
     (SimulatedPhantom::new(script), world)
@@ -98,7 +98,7 @@ fn ticks_do_not_allocate() {
             Collider::new(mesh, mode),
             Pose::IDENTITY,
             ForceModel::new(tool, Material::PAPER_SOFT, combined).unwrap(),
-            RenderConfig::for_tool(&tool),
+            ForceConfig::for_tool(&tool),
             DeviceLimits::PHANTOM_DESKTOP,
         );
         let before = ALLOCATIONS.load(Ordering::Relaxed);

@@ -11,9 +11,9 @@ use std::time::Duration;
 use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
 use softhaptic_device::liver;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::sim::{HandScript, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{Material, Pose, ToolShape};
@@ -60,7 +60,7 @@ fn setup() -> (Watched, HapticWorld, Arc<AtomicU64>, Arc<AtomicU64>) {
         Pose::IDENTITY,
         tool,
         Material::PAPER_SOFT,
-        RenderConfig::for_tool(&tool),
+        ForceConfig::for_tool(&tool),
         DeviceLimits::PHANTOM_DESKTOP,
     );
     (device, world, last_force_bits, commands)

@@ -29,10 +29,10 @@ use std::f64::consts::FRAC_PI_4;
 use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceLimits, HapticDevice};
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::liver;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::shape;
 use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
@@ -137,7 +137,7 @@ fn press(
         Collider::new(target.mesh.clone(), mode),
         Pose::IDENTITY,
         ForceModel::new(tool, Material::PAPER_SOFT, spec).unwrap(),
-        RenderConfig::for_tool(&tool),
+        ForceConfig::for_tool(&tool),
         DeviceLimits::PHANTOM_DESKTOP,
     );
     let mut surface = Collider::new(target.mesh.clone(), CollisionMode::Continuous);
@@ -355,7 +355,7 @@ fn the_reported_one_millimetre_sphere_on_the_default_liver_keeps_its_contact() {
         Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
         Pose::IDENTITY,
         ForceModel::new(tool, Material::PAPER_SOFT, COMBINED).unwrap(),
-        RenderConfig::for_tool(&tool),
+        ForceConfig::for_tool(&tool),
         DeviceLimits::PHANTOM_DESKTOP,
     );
     let script = HandScript::press(top.point_m, top.normal, 0.008);

@@ -250,8 +250,8 @@ pub fn scene_message(scene: &Scene) -> SceneMessage {
         material: scene.material,
         model: ModelInfo {
             name: model_name(&scene.tool).into(),
-            valid_depth_m: scene.render.valid_depth_m,
-            valid_inclination_rad: scene.render.valid_inclination_rad,
+            valid_depth_m: scene.force.valid_depth_m,
+            valid_inclination_rad: scene.force.valid_inclination_rad,
         },
         contact_model: scene.contact_model_info(),
         calibration: scene.calibration.clone(),

@@ -101,9 +101,9 @@ use glam::{DQuat, DVec3};
 use serde::Deserialize;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::DeviceLimits;
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
@@ -675,7 +675,7 @@ pub struct Scene {
     pub render_profile: RenderProfile,
     pub collision: CollisionMode,
     /// The safety layers, damping, and the validity limits of `validity`.
-    pub render: RenderConfig,
+    pub force: ForceConfig,
     /// The object's contact model, built for the scene's tool (and only for it).
     pub contact_model: ForceModel,
     /// The limits the validity flags use, and where they come from.
@@ -789,14 +789,14 @@ impl Scene {
         self.device_kind = choice.kind;
     }
 
-    /// The haptic world of this scene: its mesh, pose, contact model, render configuration and
+    /// The haptic world of this scene: its mesh, pose, contact model, force configuration and
     /// device limits. The world estimates the mesh's curvature only if the model uses it.
     pub fn haptic_world(&self) -> HapticWorld {
         let mut world = HapticWorld::with_model(
             Collider::new(self.haptic_mesh.clone(), self.collision),
             self.object_in_world,
             self.contact_model.clone(),
-            self.render,
+            self.force,
             self.device_limits,
         );
         world.set_safe_force(self.safe_force_n);
@@ -1088,7 +1088,7 @@ impl Scene {
             config
         };
         let spacemouse_script = file.device.report_script.as_deref().map(resolve);
-        let mut render = RenderConfig::for_tool(&tool);
+        let mut force = ForceConfig::for_tool(&tool);
         if let Some(d) = file.haptics.damping_n_s_per_m {
             if !(d.is_finite() && d >= 0.0) {
                 return Err(field(
@@ -1096,7 +1096,7 @@ impl Scene {
                     format!("must be finite and >= 0, got {d}"),
                 ));
             }
-            render.damping_n_s_per_m = d;
+            force.damping_n_s_per_m = d;
         }
         let safe_force_n = file
             .haptics
@@ -1213,7 +1213,7 @@ impl Scene {
             };
             field(name, e.to_string())
         })?;
-        render = render.with_limits(&validity);
+        force = force.with_limits(&validity);
         let render_profile = file
             .render
             .profile(&calibration)
@@ -1246,7 +1246,7 @@ impl Scene {
             calibration,
             render_profile,
             collision: file.haptics.collision.into(),
-            render,
+            force,
             contact_model,
             validity,
         })
@@ -1550,9 +1550,9 @@ mod tests {
             s.validity,
             ValidityLimits::of(file.as_ref(), &s.tool, &spec)
         );
-        assert_eq!(s.render.valid_depth_m, s.validity.valid_depth_m);
+        assert_eq!(s.force.valid_depth_m, s.validity.valid_depth_m);
         assert_eq!(
-            s.render.valid_inclination_rad,
+            s.force.valid_inclination_rad,
             s.validity.valid_inclination_rad
         );
         // The world measures the curvature, because the model uses it.
@@ -1775,8 +1775,8 @@ mod tests {
         let s = Scene::from_recording(&recording_of(text, recorded.clone()), Path::new("<test>"))
             .unwrap();
         assert!(s.contact_model.spec().is_paper());
-        assert_eq!(s.render.valid_depth_m, 0.002);
-        assert_eq!(s.render.valid_inclination_rad, 0.1);
+        assert_eq!(s.force.valid_depth_m, 0.002);
+        assert_eq!(s.force.valid_inclination_rad, 0.1);
         assert_eq!(s.contact_model_info(), recorded);
         // A recorded model the tool cannot take is refused, naming the field.
         let cone = Scene::from_toml(

@@ -167,8 +167,8 @@ fn the_limits_file_is_validated_and_its_default_may_be_missing() {
     // No limits named and no default file next to the scene: the paper's limits.
     let scene = load(&dir, &sphere_scene(COMBINED_TOML)).unwrap();
     assert!(scene.validity.is_paper());
-    assert_eq!(scene.render.valid_depth_m, 4.3e-3);
-    assert_eq!(scene.render.valid_inclination_rad, 22f64.to_radians());
+    assert_eq!(scene.force.valid_depth_m, 4.3e-3);
+    assert_eq!(scene.force.valid_inclination_rad, 22f64.to_radians());
     assert_eq!(scene.contact_model_info().limits_source, "paper");
 
     // The default file next to the scene is read when present.
@@ -179,8 +179,8 @@ fn the_limits_file_is_validated_and_its_default_may_be_missing() {
     )
     .unwrap();
     let scene = load(&dir, &sphere_scene(COMBINED_TOML)).unwrap();
-    assert_eq!(scene.render.valid_depth_m, 0.0062);
-    assert_eq!(scene.render.valid_inclination_rad, 0.3);
+    assert_eq!(scene.force.valid_depth_m, 0.0062);
+    assert_eq!(scene.force.valid_inclination_rad, 0.3);
     assert_eq!(scene.validity.source, "test block, neo-Hookean FEM");
     // A model the file does not list keeps the paper's limits.
     let paper = load(&dir, &sphere_scene("")).unwrap();
@@ -233,8 +233,8 @@ fn the_limits_file_is_validated_and_its_default_may_be_missing() {
     // A named file that exists is used.
     std::fs::write(dir.join("mine.json"), limits_file(0.0031, combined(), None)).unwrap();
     let scene = load(&dir, &with_limits("mine.json")).unwrap();
-    assert_eq!(scene.render.valid_depth_m, 0.0031);
-    assert_eq!(scene.render.valid_inclination_rad, 22f64.to_radians());
+    assert_eq!(scene.force.valid_depth_m, 0.0031);
+    assert_eq!(scene.force.valid_inclination_rad, 22f64.to_radians());
     assert!(scene.validity.source.contains("(inclination: paper)"));
 }
 
@@ -412,8 +412,8 @@ fn a_recording_from_before_the_model_field_reads_as_the_papers_law() {
     let scene = softhaptic_server::session::check::recorded_scene(&recording).unwrap();
     assert!(scene.contact_model.spec().is_paper());
     assert!(matches!(scene.contact_model.tool(), ToolShape::Cone { .. }));
-    assert_eq!(scene.render.valid_depth_m, 4.3e-3);
-    assert_eq!(scene.render.valid_inclination_rad, 9f64.to_radians());
+    assert_eq!(scene.force.valid_depth_m, 4.3e-3);
+    assert_eq!(scene.force.valid_inclination_rad, 9f64.to_radians());
     // The check runs over every tick (whether the forces still match depends on everything
     // else that changed since, which the regenerated recordings pin).
     let report = softhaptic_server::session::check::check(&recording, Default::default()).unwrap();

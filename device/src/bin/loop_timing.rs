@@ -29,9 +29,9 @@ use anyhow::Context;
 use clap::Parser;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceLimits, HapticDevice};
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig};
 use softhaptic_device::liver;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::rt::{self, CpuChoice, RealtimeStatus};
 use softhaptic_device::sim::{HandScript, SimulatedPhantom};
 use softhaptic_device::stats::{LateWake, LoopStats};
@@ -347,7 +347,7 @@ fn main() -> anyhow::Result<()> {
         Pose::IDENTITY,
         tool,
         material,
-        RenderConfig::for_tool(&tool),
+        ForceConfig::for_tool(&tool),
         limits,
     );
 

@@ -25,9 +25,9 @@ use clap::Parser;
 use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::DeviceLimits;
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
 use softhaptic_device::mesh::HapticMesh;
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::rt;
 use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_device::spacemouse::report::{Model, find_model};
@@ -128,7 +128,7 @@ fn main() -> anyhow::Result<()> {
         Pose::IDENTITY,
         tool,
         Material::PAPER_SOFT,
-        RenderConfig::for_tool(&tool),
+        ForceConfig::for_tool(&tool),
         DeviceLimits::PHANTOM_DESKTOP,
     );
     let capacity = (total_s * 1000.0) as usize + 5000;

@@ -24,10 +24,10 @@ use glam::DQuat;
 use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode, timing_step_force_n};
 use softhaptic_device::device::{DeviceLimits, DeviceSample};
+use softhaptic_device::force::ForceConfig;
 use softhaptic_device::liver;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::{ForceModel, LocalGeometry};
-use softhaptic_device::render::RenderConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{Material, ModelSpec, Pose, ToolShape};
 
@@ -208,7 +208,7 @@ fn model_report(tool: ToolShape, material: Material) {
             Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
             Pose::IDENTITY,
             model,
-            RenderConfig::for_tool(&tool),
+            ForceConfig::for_tool(&tool),
             DeviceLimits::PHANTOM_DESKTOP,
         );
         time_calls(|steps, start| {

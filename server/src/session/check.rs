@@ -194,7 +194,7 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
         if !(d.is_finite() && d >= 0.0) {
             return Err(CheckError::Override { path, value: d });
         }
-        scene.render.damping_n_s_per_m = d;
+        scene.force.damping_n_s_per_m = d;
     }
     let records = &recording.device;
     let Some(first) = records.first() else {

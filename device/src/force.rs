@@ -52,7 +52,7 @@ pub const CAP_INCLINATION_TOLERANCE_RAD: f64 = 1e-3;
 
 /// How the force is rendered and which safety layers are on.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RenderConfig {
+pub struct ForceConfig {
     /// Virtual damping b along the contact normal, N·s/m. Bounded by the device's
     /// `damping_n_s_per_m` at render time.
     pub damping_n_s_per_m: f64,
@@ -77,7 +77,7 @@ pub struct RenderConfig {
     pub continuous_force_limit: bool,
 }
 
-impl RenderConfig {
+impl ForceConfig {
     /// The paper's validity limits for `tool`: within 7 % of the linear FEM up to 4.3 mm for
     /// both tips (§4.3), inclination up to 22° for the sphere (eq. 7) and 9° for the cone (§3.2);
     /// 1 N·s/m damping, 80 ms ramps, every safety layer on.
@@ -95,7 +95,7 @@ impl RenderConfig {
         }
     }
 
-    /// [`RenderConfig::for_tool`] with the validity limits of the active model.
+    /// [`ForceConfig::for_tool`] with the validity limits of the active model.
     pub fn with_limits(mut self, limits: &softhaptic_proto::ValidityLimits) -> Self {
         self.valid_depth_m = limits.valid_depth_m;
         self.valid_inclination_rad = limits.valid_inclination_rad;
@@ -136,7 +136,7 @@ impl RenderedForce {
 #[derive(Debug, Clone)]
 pub struct ForceRenderer {
     model: ForceModel,
-    config: RenderConfig,
+    config: ForceConfig,
     limits: DeviceLimits,
     /// The geometry the model is evaluated at: the last contact's, with the parts the model
     /// does not use set to zero (so they can never move δ*). Flat before the first contact.
@@ -179,14 +179,14 @@ impl ForceRenderer {
     pub fn new(
         tool: ToolShape,
         material: Material,
-        config: RenderConfig,
+        config: ForceConfig,
         limits: DeviceLimits,
     ) -> Self {
         Self::with_model(ForceModel::paper(tool, material), config, limits)
     }
 
     /// A renderer of `model` (the scene's contact model).
-    pub fn with_model(model: ForceModel, config: RenderConfig, limits: DeviceLimits) -> Self {
+    pub fn with_model(model: ForceModel, config: ForceConfig, limits: DeviceLimits) -> Self {
         let geometry = LocalGeometry::FLAT;
         let cap_depth_m = model.depth_at_stiffness_m(limits.max_stiffness_n_per_m, &geometry);
         let cap_force_n = model.force_n(cap_depth_m, &geometry);
@@ -230,7 +230,7 @@ impl ForceRenderer {
         }
     }
 
-    pub fn config(&self) -> &RenderConfig {
+    pub fn config(&self) -> &ForceConfig {
         &self.config
     }
 
@@ -579,8 +579,7 @@ mod tests {
         ] {
             // A stable stiffness that puts the cap's depth δ* inside the tool's reach on soft
             // tissue, and a force there below the peak.
-            let r =
-                ForceRenderer::new(tool, Material::PAPER_SOFT, RenderConfig::for_tool(&tool), l);
+            let r = ForceRenderer::new(tool, Material::PAPER_SOFT, ForceConfig::for_tool(&tool), l);
             let cap = r.cap_depth_m();
             assert!(
                 cap.is_finite() && cap > 0.0 && cap < 0.02,
@@ -600,8 +599,8 @@ mod tests {
         ToolShape::sphere(0.01).unwrap()
     }
 
-    fn renderer(material: Material, config: impl FnOnce(&mut RenderConfig)) -> ForceRenderer {
-        let mut c = RenderConfig::for_tool(&sphere());
+    fn renderer(material: Material, config: impl FnOnce(&mut ForceConfig)) -> ForceRenderer {
+        let mut c = ForceConfig::for_tool(&sphere());
         config(&mut c);
         ForceRenderer::new(sphere(), material, c, DeviceLimits::PHANTOM_DESKTOP)
     }
@@ -982,7 +981,7 @@ mod tests {
             ForceRenderer::new(
                 small,
                 Material::PAPER_SOFT,
-                RenderConfig::for_tool(&small),
+                ForceConfig::for_tool(&small),
                 DeviceLimits::PHANTOM_DESKTOP,
             ),
             renderer(Material::PAPER_STIFF, |_| {}),
@@ -1027,7 +1026,7 @@ mod tests {
         let model = ForceModel::new(sphere(), Material::PAPER_STIFF, spec).unwrap();
         ForceRenderer::with_model(
             model,
-            RenderConfig::for_tool(&sphere()),
+            ForceConfig::for_tool(&sphere()),
             DeviceLimits::PHANTOM_DESKTOP,
         )
     }
@@ -1109,7 +1108,7 @@ mod tests {
             ..softhaptic_proto::ModelSpec::PAPER
         };
         let model = ForceModel::new(cone, Material::PAPER_SOFT, spec).unwrap();
-        let mut config = RenderConfig::for_tool(&cone);
+        let mut config = ForceConfig::for_tool(&cone);
         config.passivity = false;
         let mut r = ForceRenderer::with_model(model.clone(), config, DeviceLimits::PHANTOM_DESKTOP);
         let tilt = 0.3f64;
@@ -1192,7 +1191,7 @@ mod tests {
             ticks in 1usize..20,
         ) {
             let m = Material::new(e, nu).unwrap();
-            let mut c = RenderConfig::for_tool(&sphere());
+            let mut c = ForceConfig::for_tool(&sphere());
             c.stiffness_cap = cap;
             c.passivity = passivity;
             let mut r = ForceRenderer::new(sphere(), m, c, DeviceLimits::PHANTOM_DESKTOP);
