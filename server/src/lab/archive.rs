@@ -2,17 +2,25 @@
 //!
 //! A station with a recording directory uploads every finished recording there (all but the one
 //! being written) when it starts, and the session's own recording when it stops, each as
-//! `STATION/FILE` in the bucket [`BUCKET`]. A file is archived once the store holds an object of
-//! that name whose SHA-256 (computed by the store as the chunks arrive) equals the file's own:
-//! then, and only then, it counts as uploaded. Nothing is ever deleted here: the local file stays
-//! where it is (a lab that wants its disks back removes archived files after checking with
-//! `/api/archive`). An upload cut short (NATS gone, the station stopped) leaves no verified
-//! object, so the next start uploads that file again, from the beginning: the object store
-//! replaces a partial object whole.
+//! `STATION/FILE` in the bucket [`BUCKET`]. An upload goes part by part and resumes: a pass cut
+//! short (NATS restarted, the station stopped) leaves the parts it stored in the store, and the
+//! next attempt, in the same pass once NATS is back or at the next start, asks the store how far
+//! it got and sends only the rest ([`mod@upload`] explains how the store keeps that count exact).
+//! A file is archived once every part is stored, read back with the file's SHA-256, and the
+//! object's meta written: only then do hubs list it, and they read it with the object store's
+//! ordinary reader, the same for objects older stations wrote with a plain `put`.
+//!
+//! Nothing is ever deleted here: the local file stays where it is (a lab that wants its disks
+//! back removes archived files after checking with `/api/archive`).
+
+pub mod upload;
+
+pub use upload::{UploadEvent, UploadOptions, upload_with};
 
 use std::path::{Path, PathBuf};
 
 use async_nats::jetstream::object_store::{self, ObjectStore};
+use async_nats::jetstream::{self, stream::Stream};
 use base64::Engine;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
@@ -70,65 +78,55 @@ fn same_digest(a: &str, b: &str) -> bool {
     a.trim_end_matches('=') == b.trim_end_matches('=')
 }
 
-/// The lab's recording store, made on first use.
-pub async fn store(client: &async_nats::Client) -> Result<ObjectStore, String> {
-    let js = async_nats::jetstream::new(client.clone());
-    if let Ok(store) = js.get_object_store(BUCKET).await {
-        return Ok(store);
-    }
-    js.create_object_store(object_store::Config {
-        bucket: BUCKET.to_owned(),
-        description: Some("softhaptic session recordings, STATION/FILE".to_owned()),
-        ..Default::default()
-    })
-    .await
-    .map_err(|e| format!("the object store {BUCKET:?}: {e}"))
+/// The lab's recording store: the object store, and the stream under it that resumable
+/// uploads write their parts to.
+#[derive(Clone)]
+pub struct Store {
+    client: async_nats::Client,
+    js: jetstream::Context,
+    objects: ObjectStore,
+    stream: Stream,
 }
 
-/// Uploads `path` as `STATION/FILE` unless the store already has it; verifies by digest.
-/// `Ok(true)` uploaded now, `Ok(false)` already there.
-pub async fn upload(store: &ObjectStore, station: &str, path: &Path) -> Result<bool, String> {
-    let file = path
-        .file_name()
-        .and_then(|f| f.to_str())
-        .ok_or_else(|| format!("{}: not a file name", path.display()))?
-        .to_owned();
-    let name = object_name(station, &file);
-    let local = {
-        let owned = path.to_owned();
-        tokio::task::spawn_blocking(move || digest_of(&owned))
-            .await
-            .map_err(|e| e.to_string())?
-            .map_err(|e| format!("{}: {e}", path.display()))?
-    };
-    if let Ok(info) = store.info(&name).await
-        && info
-            .digest
-            .as_deref()
-            .is_some_and(|d| same_digest(d, &local))
-    {
-        return Ok(false);
+impl Store {
+    /// The object store itself, read as any NATS client reads it.
+    pub fn objects(&self) -> &ObjectStore {
+        &self.objects
     }
-    let mut reader = tokio::fs::File::open(path)
-        .await
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    let info = store
-        .put(
-            object_store::ObjectMetadata {
-                name: name.clone(),
-                description: Some(format!("recording of station {station}")),
+}
+
+/// The lab's recording store, made on first use.
+pub async fn store(client: &async_nats::Client) -> Result<Store, String> {
+    let js = jetstream::new(client.clone());
+    let objects = match js.get_object_store(BUCKET).await {
+        Ok(store) => store,
+        Err(_) => js
+            .create_object_store(object_store::Config {
+                bucket: BUCKET.to_owned(),
+                description: Some("softhaptic session recordings, STATION/FILE".to_owned()),
                 ..Default::default()
-            },
-            &mut reader,
-        )
+            })
+            .await
+            .map_err(|e| format!("the object store {BUCKET:?}: {e}"))?,
+    };
+    // The object store's stream, by the name the object store gives it.
+    let stream = js
+        .get_stream(format!("OBJ_{BUCKET}"))
         .await
-        .map_err(|e| format!("{name}: {e}"))?;
-    match info.digest.as_deref() {
-        Some(d) if same_digest(d, &local) => Ok(true),
-        other => Err(format!(
-            "{name}: the store's digest {other:?} is not the file's {local}; it stays for the next pass"
-        )),
-    }
+        .map_err(|e| format!("the object store {BUCKET:?}'s stream: {e}"))?;
+    Ok(Store {
+        client: client.clone(),
+        js,
+        objects,
+        stream,
+    })
+}
+
+/// Uploads `path` as `STATION/FILE` unless the store already has it, resuming an earlier
+/// attempt, with the default [`UploadOptions`]; verified before it counts. `Ok(true)` archived
+/// now, `Ok(false)` already there.
+pub async fn upload(store: &Store, station: &str, path: &Path) -> Result<bool, String> {
+    upload_with(store, station, path, &UploadOptions::default()).await
 }
 
 /// Uploads every finished recording (`*.mcap`) of `dir` but `skip` (the one being written).
