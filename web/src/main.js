@@ -18,15 +18,8 @@ import { buffer, dom, frameTimes, rendered, state, timings, view } from './conte
 import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ForcePlot } from './forceplot.js';
 import { parseRenderMesh } from './mesh.js';
-import {
-  encodeMark,
-  forceFeedbackOf,
-  ViewerConnection,
-  accessOf,
-  contactModelOf,
-  validateMessage,
-  webSocketUrl,
-} from './protocol.js';
+import { ViewerConnection, webSocketUrl } from './connection.js';
+import { encodeMark, forceFeedbackOf, accessOf, contactModelOf, validateMessage } from './protocol.js';
 import {
   bindPanels,
   flagNames,

@@ -5,7 +5,8 @@
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 
-import { ProtocolError, ViewerConnection, decodeMessage, encodeReplayControl } from '../src/protocol.js';
+import { ViewerConnection } from '../src/connection.js';
+import { ProtocolError, decodeMessage, encodeReplayControl } from '../src/protocol.js';
 import { PlayoutBuffer, RenderedContact } from '../src/interpolation.js';
 import {
   ReplayClock,
