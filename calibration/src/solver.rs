@@ -1,6 +1,9 @@
 //! Static frictionless contact of a rigid indenter with an elastic body, solved by Newton's
 //! method with an active set.
 //!
+//! One file because the Newton iteration and the active set share the assembled system and its
+//! invariants; split, neither half reads on its own.
+//!
 //! # Contact enforcement
 //! Every node on the contact surface that penetrates the indenter joins the active set. An active
 //! node gets its own orthonormal frame whose first free axis is the indenter's normal at that

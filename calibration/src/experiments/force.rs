@@ -1,5 +1,8 @@
 //! Force against depth (paper §4.3), the fit of the runtime's hyperelastic correction to the
 //! neo-Hookean FEM, and the speed-versus-accuracy table of every runtime model.
+//!
+//! One file for three studies because they share their FEM runs and constants: the hyperelastic fit
+//! is made on the force study's runs and feeds the speed-accuracy table.
 
 use serde::Serialize;
 use softhaptic_device::law;

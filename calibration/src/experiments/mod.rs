@@ -1,6 +1,9 @@
 //! The paper's experiments (§3.2 curvature and inclination, §3.3.2 R_d calibration, §4.3 force
 //! accuracy), the fit of the hyperelastic correction and the speed-versus-accuracy study.
 //!
+//! Long because it holds what every experiment shares (run specs, the run cache, meshes'
+//! resolutions); each experiment is in its own file.
+//!
 //! Every experiment is two functions: one lists the FEM runs it needs ([`RunSpec`]s), the other
 //! turns the finished runs into its figures. The command collects the runs of every experiment
 //! it was asked for, drops duplicates (the curvature study's flat block is the R_d study's block;

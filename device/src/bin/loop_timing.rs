@@ -1,6 +1,9 @@
 //! Loop timing report: runs the 1 kHz loop with the simulated PHANTOM pressing the built-in liver
 //! for a number of seconds, prints the statistics once a second and a final table.
 //!
+//! A report command in one file: its options, the run and the tables; the last 50 lines are its
+//! tests.
+//!
 //! `cargo run --release -p softhaptic-device --features tools --bin loop-timing -- --seconds 10 [--burn]`
 //! (`--cpu auto|last|none|N` chooses the loop thread's CPU).
 //!

@@ -1,5 +1,8 @@
 //! Streaming a recording to viewers exactly as a live session (`softhaptic replay FILE`).
 //!
+//! One file because the player, its controls and its routes are one state machine; the last 70
+//! lines are its tests.
+//!
 //! The replay serves the same routes with the same code as the live server
 //! ([`crate::app::viewer_router`], [`crate::stream::serve_viewer`]); only the source of the
 //! frames differs: instead of the haptic loop, a player task walks the recorded `/contact` frames
