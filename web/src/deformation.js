@@ -8,7 +8,10 @@
 // `MeshDeformer` moves the vertices of a render mesh around a contact: it keeps a uniform spatial
 // grid over the rest positions so that a frame visits only the cells near the contact, restores
 // the vertices it moved the frame before, writes analytic normals for the moved vertices, and
-// allocates nothing after construction.
+// allocates nothing after construction. The `fem` profile reaches far (to where the FEM block's
+// surface settles, tens of millimetres), so a frame may move most of a 100 000-vertex mesh: it
+// is drawn from a radial table of the profile (`surfaceTable`, proto's `SurfaceTable`) sampled
+// once per frame, one lookup per vertex.
 
 /** Non-finite or negative inputs count as zero (profile step 1). */
 function sanitise(x) {
@@ -329,49 +332,50 @@ export function surfaceDepression(family, tool, depthM, rM) {
 }
 
 /**
- * Adds one row's contribution at r ≥ 0 to `out[0]` (z, as `surfaceTermAt`) and its slope dz/dr
- * (that of the sample interval r falls in) to `out[2]`, in one lookup.
+ * Intervals of a `fem` profile's radial table (`surfaceTable`, proto's
+ * `SURFACE_TABLE_INTERVALS`): the profile sampled at 4097 radii from the axis to its reach.
+ * Interpolated linearly it stays within 1.1 µm of the profile for the repository's tables (it
+ * misses the rows' kinks between two samples, so the error falls with the interval), and
+ * sampling it once per update costs about what 4 000 vertices cost.
  */
-function accumulateSurfaceTerm(t, r, out) {
-  if (t.amplitude === 0) return;
-  const z = t.row;
-  const u = r * t.indexPerM;
-  if (!(u < z.length - 1)) return;
-  const j = Math.floor(u);
-  const f = u - j;
-  const step = z[j + 1] - z[j];
-  out[0] += t.amplitude * (z[j] + f * step);
-  out[2] += t.amplitude * t.indexPerM * step;
+export const SURFACE_TABLE_INTERVALS = 4096;
+
+/**
+ * The `fem` profile prepared by `surfaceSetup`, sampled once per update for the render mesh
+ * (proto's `SurfaceTable`): `z[k]` = z(k·reach / N) for k = 0 … N (N = SURFACE_TABLE_INTERVALS;
+ * `z[N]` is 0, the profile's value at its reach). Each vertex then costs one lookup instead of
+ * a blend of two rows bounded by the tool. Writes into `out` (its array is allocated once). A
+ * profile that draws nothing gives a table with `reachM` 0.
+ */
+export function surfaceTable(p, out = {}) {
+  const n = SURFACE_TABLE_INTERVALS;
+  if (!(out.z instanceof Float64Array)) out.z = new Float64Array(n + 1);
+  const z = out.z;
+  const reach = p.depthM === 0 ? 0 : p.reachM;
+  out.reachM = reach;
+  out.samplesPerM = reach > 0 ? n / reach : 0;
+  if (reach === 0) {
+    z.fill(0);
+    return out;
+  }
+  const step = reach / n;
+  for (let k = 0; k < n; k++) z[k] = surfaceDepressionAt(p, k * step);
+  z[n] = 0;
+  return out;
 }
 
 /**
- * `evaluateAt` for the `fem` profile, for a finite r ≥ 0: out[0] = z(r), the same number as
- * `surfaceDepressionAt`; out[1], out[2] = the normal's axial and radial components: (1, dz/dr),
- * perpendicular to the profile's tangent (1, −dz/dr), or the tool's normal where the tool holds
- * the surface down.
+ * The drawn depression at radial distance r from a `surfaceTable`: linear between its samples,
+ * 0 at and beyond the reach; r sanitised as everywhere (a NaN radius is the axis).
  */
-function evaluateSurfaceAt(p, r, out) {
-  out[0] = 0;
-  out[1] = 1;
-  out[2] = 0;
-  accumulateSurfaceTerm(p.t0, r, out);
-  accumulateSurfaceTerm(p.t1, r, out);
-  if (r < p.footprintM) {
-    const onTool = p.depthM - toolHeight(p.tool, r);
-    if (onTool > out[0]) {
-      out[0] = onTool;
-      if (p.isSphere) {
-        const R = p.tool.radiusM;
-        out[1] = Math.sqrt(Math.max(0, R * R - r * r));
-        out[2] = -r;
-      } else {
-        out[1] = p.tool.tanAlpha;
-        out[2] = -1;
-      }
-    }
-  }
-  out[0] = Math.min(Math.max(out[0], 0), p.depthM);
-  return out;
+export function surfaceTableAt(table, rRaw) {
+  const r = sanitise(rRaw);
+  if (!(r < table.reachM)) return 0;
+  const u = r * table.samplesPerM;
+  // u < N in exact arithmetic; the last interval also takes a product that rounds up to N.
+  const j = Math.min(Math.floor(u), SURFACE_TABLE_INTERVALS - 1);
+  const z = table.z;
+  return z[j] + (u - j) * (z[j + 1] - z[j]);
 }
 
 /**
@@ -451,19 +455,21 @@ export class MeshDeformer {
     this.cellVertices = new Uint32Array(n);
     for (let i = 0; i < n; i++) this.cellVertices[fill[cellOf[i]]++] = i;
 
-    // Per-frame bookkeeping, preallocated: the vertices moved this frame and, in the spare list,
-    // those moved the frame before (the two swap each frame; a vertex moved in both is written
-    // once, not restored and then moved), the vertices written this frame (moved now or
-    // restored), and a stamp to list each vertex once.
-    this.moved = new Uint32Array(n);
-    this.movedSpare = new Uint32Array(n);
+    // Per-frame bookkeeping, preallocated: the vertices written this frame, those it moved
+    // first and then those it put back to rest (`written`), and the same list of the frame
+    // before in `writtenSpare` (the two swap each frame), whose first `movedBefore` entries are
+    // what that frame moved. A stamp marks the vertices moved this frame, so that one moved in
+    // both frames is written once, not restored and then moved; it is a byte (the frame number
+    // modulo 255, every stamp cleared when it wraps) to keep the memory each vertex costs down.
+    this.written = new Int32Array(n);
+    this.writtenSpare = new Int32Array(n);
     this.movedCount = 0;
-    this.touched = new Uint32Array(n);
     this.touchedCount = 0;
-    this.stamp = new Uint32Array(n);
+    this.stamp = new Uint8Array(n);
     this.frame = 0;
     this.profile = {};
     this.surfaceProfile = surfaceSetup(null, { valid: false }, 0, {});
+    this.table = surfaceTable(this.surfaceProfile, {});
     this.evaluation = new Float64Array(3);
     this.lastVisitedCells = 0;
   }
@@ -477,11 +483,14 @@ export class MeshDeformer {
     return (iz * ny + iy) * nx + ix;
   }
 
-  #touch(i) {
-    if (this.stamp[i] !== this.frame) {
-      this.stamp[i] = this.frame;
-      this.touched[this.touchedCount++] = i;
-    }
+  /** The vertices the last `apply` moved: `moved[0 .. movedCount]`. */
+  get moved() {
+    return this.written;
+  }
+
+  /** The vertices the last `apply` wrote, moved or restored: `touched[0 .. touchedCount]`. */
+  get touched() {
+    return this.written;
   }
 
   /**
@@ -498,51 +507,58 @@ export class MeshDeformer {
    * `this.touched[0 .. count]`, for partial normal or buffer updates.
    */
   apply(positionsOut, normalsOut, contact, tool, surface = null) {
-    const rest = this.restPositions;
-    const restN = this.restNormals;
-    this.frame = (this.frame + 1) >>> 0;
-    if (this.frame === 0) {
-      this.stamp.fill(0);
-      this.frame = 1;
-    }
-    this.touchedCount = 0;
-    const previous = this.moved;
+    this.frame = this.frame === 255 ? 1 : this.frame + 1;
+    if (this.frame === 1) this.stamp.fill(0);
+    const previous = this.written;
     const previousCount = this.movedCount;
-    this.moved = this.movedSpare;
-    this.movedSpare = previous;
+    this.written = this.writtenSpare;
+    this.writtenSpare = previous;
     this.movedCount = 0;
+    this.touchedCount = 0;
     this.lastVisitedCells = 0;
     this.#move(positionsOut, normalsOut, contact, tool, surface);
     // Then back to rest every vertex moved the frame before and not this one (the stamp marks
     // the ones moved this frame).
+    const rest = this.restPositions;
+    const restN = normalsOut ? this.restNormals : null;
+    const stamp = this.stamp;
+    const frame = this.frame;
+    const written = this.written;
+    let count = this.movedCount;
     for (let m = 0; m < previousCount; m++) {
       const i = previous[m];
-      if (this.stamp[i] === this.frame) continue;
+      if (stamp[i] === frame) continue;
       const j = 3 * i;
       positionsOut[j] = rest[j];
       positionsOut[j + 1] = rest[j + 1];
       positionsOut[j + 2] = rest[j + 2];
-      if (normalsOut && restN) {
+      if (restN !== null) {
         normalsOut[j] = restN[j];
         normalsOut[j + 1] = restN[j + 1];
         normalsOut[j + 2] = restN[j + 2];
       }
-      this.#touch(i);
+      written[count++] = i;
     }
-    return this.touchedCount;
+    this.touchedCount = count;
+    return count;
   }
 
   /** The moving half of `apply`: writes and lists the vertices the contact moves this frame. */
   #move(positionsOut, normalsOut, contact, tool, surface) {
-    const rest = this.restPositions;
-    const restN = this.restNormals;
     if (!contact || !contact.inContact) return;
 
     const fem = surface !== null;
-    const p = fem
-      ? surfaceSetup(surface, tool, contact.depthM, this.surfaceProfile)
-      : profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM, this.profile);
-    if (p.depthM === 0) return;
+    let reach;
+    if (fem) {
+      const p = surfaceSetup(surface, tool, contact.depthM, this.surfaceProfile);
+      if (p.depthM === 0) return;
+      reach = p.reachM;
+    } else {
+      const p = profileSetup(tool, contact.depthM, contact.contactRadiusM, contact.deformedRadiusM, this.profile);
+      if (p.depthM === 0) return;
+      reach = p.rdEff;
+    }
+    if (!(reach > 0)) return;
     let nx = contact.normal[0],
       ny = contact.normal[1],
       nz = contact.normal[2];
@@ -555,79 +571,118 @@ export class MeshDeformer {
       cy = contact.point[1],
       cz = contact.point[2];
     if (!(Number.isFinite(cx) && Number.isFinite(cy) && Number.isFinite(cz))) return;
+    if (fem) surfaceTable(this.surfaceProfile, this.table);
 
-    const reach = fem ? p.reachM : p.rdEff;
-    const reach2 = reach * reach;
-    // Every vertex that may move lies within √2·R_d_eff of c (r < R_d_eff and |axial| ≤ R_d_eff).
-    const box = reach * Math.SQRT2;
+    // A vertex that may move is u = h·n + e with |h| < reach and |e| < reach; along axis i that
+    // is at most reach·(|n_i| + √(1 − n_i²)) from c (reach·√2 at worst, reach along n's own
+    // axis and across it), so only the cells of that box are visited.
     const h = this.cellSizeM;
+    const origin = this.origin;
     const dims = this.dims;
     const dx = dims[0],
       dy = dims[1],
       dz = dims[2];
-    const ix0 = Math.max(0, Math.floor((cx - box - this.origin[0]) / h));
-    const iy0 = Math.max(0, Math.floor((cy - box - this.origin[1]) / h));
-    const iz0 = Math.max(0, Math.floor((cz - box - this.origin[2]) / h));
-    const ix1 = Math.min(dx - 1, Math.floor((cx + box - this.origin[0]) / h));
-    const iy1 = Math.min(dy - 1, Math.floor((cy + box - this.origin[1]) / h));
-    const iz1 = Math.min(dz - 1, Math.floor((cz + box - this.origin[2]) / h));
-    const ev = this.evaluation;
+    const bx = reach * (Math.abs(nx) + Math.sqrt(Math.max(0, 1 - nx * nx)));
+    const by = reach * (Math.abs(ny) + Math.sqrt(Math.max(0, 1 - ny * ny)));
+    const bz = reach * (Math.abs(nz) + Math.sqrt(Math.max(0, 1 - nz * nz)));
+    const ix0 = Math.max(0, Math.floor((cx - bx - origin[0]) / h));
+    const iy0 = Math.max(0, Math.floor((cy - by - origin[1]) / h));
+    const iz0 = Math.max(0, Math.floor((cz - bz - origin[2]) / h));
+    const ix1 = Math.min(dx - 1, Math.floor((cx + bx - origin[0]) / h));
+    const iy1 = Math.min(dy - 1, Math.floor((cy + by - origin[1]) / h));
+    const iz1 = Math.min(dz - 1, Math.floor((cz + bz - origin[2]) / h));
+    if (ix0 > ix1 || iy0 > iy1 || iz0 > iz1) return;
+    this.lastVisitedCells = (ix1 - ix0 + 1) * (iy1 - iy0 + 1) * (iz1 - iz0 + 1);
+
+    // The hot loop reads everything from locals: a property of `this` or of the profile would
+    // be loaded again for every vertex, since the stores in the loop could have changed it.
+    const rest = this.restPositions;
+    const restN = normalsOut ? this.restNormals : null;
     const cellStart = this.cellStart;
     const cellVertices = this.cellVertices;
+    const moved = this.written;
+    const stamp = this.stamp;
+    const frame = this.frame;
+    let movedCount = 0;
+    const reach2 = reach * reach;
+    // `fem`: the radial table of this update; `paper`: its exact profile, per vertex.
+    const tableZ = this.table.z;
+    const samplesPerM = this.table.samplesPerM;
+    const lastInterval = SURFACE_TABLE_INTERVALS - 1;
+    const p = this.profile;
+    const ev = this.evaluation;
     for (let iz = iz0; iz <= iz1; iz++) {
       for (let iy = iy0; iy <= iy1; iy++) {
         const row = (iz * dy + iy) * dx;
-        for (let ix = ix0; ix <= ix1; ix++) {
-          const k = row + ix;
-          this.lastVisitedCells++;
-          const end = cellStart[k + 1];
-          for (let s = cellStart[k]; s < end; s++) {
-            const i = cellVertices[s];
-            const j = 3 * i;
-            const vx = rest[j] - cx,
-              vy = rest[j + 1] - cy,
-              vz = rest[j + 2] - cz;
-            const axial = vx * nx + vy * ny + vz * nz;
-            if (axial > reach || axial < -reach) continue;
-            const ex = vx - axial * nx,
-              ey = vy - axial * ny,
-              ez = vz - axial * nz;
-            const r2 = ex * ex + ey * ey + ez * ez;
-            if (r2 >= reach2) continue;
-            const r = Math.sqrt(r2);
-            if (fem) evaluateSurfaceAt(p, r, ev);
-            else evaluateAt(p, r, ev);
-            const z = ev[0];
-            if (!(z > 0)) continue;
-            positionsOut[j] = rest[j] - nx * z;
-            positionsOut[j + 1] = rest[j + 1] - ny * z;
-            positionsOut[j + 2] = rest[j + 2] - nz * z;
-            if (normalsOut && restN) {
-              // Analytic normal: the profile's (axial, radial) components applied to the rest
-              // normal and the radial direction, so curved objects keep their own shading.
-              let ox, oy, oz;
-              if (r > 0) {
-                const inv = 1 / r;
-                ox = restN[j] * ev[1] + ex * inv * ev[2];
-                oy = restN[j + 1] * ev[1] + ey * inv * ev[2];
-                oz = restN[j + 2] * ev[1] + ez * inv * ev[2];
-              } else {
-                ox = restN[j];
-                oy = restN[j + 1];
-                oz = restN[j + 2];
-              }
-              const len = Math.sqrt(ox * ox + oy * oy + oz * oz);
-              if (len > 0) {
-                normalsOut[j] = ox / len;
-                normalsOut[j + 1] = oy / len;
-                normalsOut[j + 2] = oz / len;
-              }
-            }
-            this.moved[this.movedCount++] = i;
-            this.#touch(i);
+        const end = cellStart[row + ix1 + 1];
+        // The cells ix0 … ix1 of one grid row are contiguous in the cell lists.
+        for (let s = cellStart[row + ix0]; s < end; s++) {
+          const i = cellVertices[s];
+          const j = 3 * i;
+          const vx = rest[j] - cx,
+            vy = rest[j + 1] - cy,
+            vz = rest[j + 2] - cz;
+          const axial = vx * nx + vy * ny + vz * nz;
+          if (axial >= reach || axial <= -reach) continue;
+          const ex = vx - axial * nx,
+            ey = vy - axial * ny,
+            ez = vz - axial * nz;
+          const r2 = ex * ex + ey * ey + ez * ez;
+          if (r2 >= reach2) continue;
+          const r = Math.sqrt(r2);
+          // z and the normal's axial and radial components (normal ∝ a·n + b·e_r).
+          let z, a, b;
+          if (fem) {
+            const u = r * samplesPerM;
+            // u ≥ 0, so truncation is the floor; u < N but for rounding.
+            let k = u | 0;
+            if (k > lastInterval) k = lastInterval;
+            const z0 = tableZ[k];
+            const rise = tableZ[k + 1] - z0;
+            z = z0 + (u - k) * rise;
+            // Perpendicular to the drawn surface: the slope of the table interval r lies in.
+            a = 1;
+            b = rise * samplesPerM;
+          } else {
+            evaluateAt(p, r, ev);
+            z = ev[0];
+            a = ev[1];
+            b = ev[2];
           }
+          if (!(z > 0)) continue;
+          positionsOut[j] = rest[j] - nx * z;
+          positionsOut[j + 1] = rest[j + 1] - ny * z;
+          positionsOut[j + 2] = rest[j + 2] - nz * z;
+          if (restN !== null) {
+            // Analytic normal: the profile's (axial, radial) components applied to the rest
+            // normal and the radial direction, so curved objects keep their own shading.
+            let ox = restN[j] * a,
+              oy = restN[j + 1] * a,
+              oz = restN[j + 2] * a;
+            if (r > 0) {
+              const br = b / r;
+              ox += ex * br;
+              oy += ey * br;
+              oz += ez * br;
+            } else {
+              ox = restN[j];
+              oy = restN[j + 1];
+              oz = restN[j + 2];
+            }
+            const len2 = ox * ox + oy * oy + oz * oz;
+            if (len2 > 0) {
+              const inv = 1 / Math.sqrt(len2);
+              normalsOut[j] = ox * inv;
+              normalsOut[j + 1] = oy * inv;
+              normalsOut[j + 2] = oz * inv;
+            }
+          }
+          // Each vertex lies in one cell, so it is met once: no need to check the stamp.
+          moved[movedCount++] = i;
+          stamp[i] = frame;
         }
       }
     }
+    this.movedCount = movedCount;
   }
 }

@@ -6,9 +6,10 @@ import assert from 'node:assert/strict';
 import {
   depressionAt,
   profileSetup,
-  surfaceDepressionAt,
   surfaceFamilyFromJson,
   surfaceSetup,
+  surfaceTable,
+  surfaceTableAt,
   toolFromJson,
 } from '../src/deformation.js';
 
@@ -39,12 +40,13 @@ export async function freezeOnPress(page, minDepthM, { timeout = 120000 } = {}) 
 /**
  * The deformation profile a page draws for contact `c` of `scene` (its `render_profile`):
  * `{name, reachM, at(r)}`, no vertex at or beyond `reachM` from the contact axis moving (R_d,eff
- * for the paper's Bézier, the tabulated surface's reach for `fem`).
+ * for the paper's Bézier, the tabulated surface's reach for `fem`, drawn from its radial table).
  */
 export function drawnProfile(scene, c) {
   if (scene.render_profile === 'fem') {
     const p = surfaceSetup(surfaceFamilyFromJson(scene.calibration.surface), toolFromJson(scene.tool), c.depthM);
-    return { name: 'fem', reachM: p.reachM, at: (r) => surfaceDepressionAt(p, r) };
+    const table = surfaceTable(p);
+    return { name: 'fem', reachM: table.reachM, at: (r) => surfaceTableAt(table, r) };
   }
   const p = profileSetup(toolFromJson(scene.tool), c.depthM, c.contactRadiusM, c.deformedRadiusM);
   return { name: 'paper', reachM: p.rdEff, at: (r) => depressionAt(p, r) };
