@@ -27,6 +27,10 @@
 //!
 //! Nothing here deletes the local file: it stays the copy until the meta is written and read
 //! back, and after that too (see the parent module).
+//!
+//! One file because the chain (each part's expected sequence), the resume (the last part's index,
+//! digest and sequence) and the read-back are one protocol whose promise is read in one place;
+//! the last 40 lines are its tests.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -458,13 +462,31 @@ impl Upload<'_> {
         Ok(ack.sequence)
     }
 
-    /// Reads every part back in order and checks each part's and the whole file's SHA-256.
+    /// Reads every part back in order and checks each part's and the whole file's SHA-256. Parts
+    /// that read back wrong are purged, so that the next attempt sends them again rather than
+    /// failing on them for ever.
     async fn read_back(&self) -> Result<(), String> {
+        match self.read_back_parts().await {
+            Ok(()) => Ok(()),
+            Err(ReadBack::Unavailable(e)) => Err(e),
+            Err(ReadBack::Wrong(e)) => {
+                tracing::warn!(object = %self.name, "{e}; its parts are purged and sent again at the next attempt");
+                if let Err(p) = self.purge_parts().await {
+                    tracing::warn!(object = %self.name, "{p}");
+                }
+                Err(e)
+            }
+        }
+    }
+
+    async fn read_back_parts(&self) -> Result<(), ReadBack> {
         let total = self.plan.total();
         if total == 0 {
             return Ok(());
         }
-        let unverified = |why: String| format!("{}: not verified: {why}", self.name);
+        let unverified =
+            |why: String| ReadBack::Unavailable(format!("{}: not verified: {why}", self.name));
+        let wrong = |why: String| ReadBack::Wrong(format!("{}: not verified: {why}", self.name));
         let consumer = self
             .store
             .stream
@@ -499,13 +521,13 @@ impl Upload<'_> {
                 .and_then(|h| h.get(PART_HEADER))
                 .map(|v| v.as_str().to_owned());
             if stored_index.as_deref() != Some(index.to_string().as_str()) {
-                return Err(unverified(format!(
+                return Err(wrong(format!(
                     "part {index} read back as part {stored_index:?}"
                 )));
             }
             let digest: [u8; 32] = Sha256::digest(&message.payload).into();
             if digest != self.plan.parts[index] {
-                return Err(unverified(format!(
+                return Err(wrong(format!(
                     "part {index} read back with another SHA-256"
                 )));
             }
@@ -513,7 +535,7 @@ impl Upload<'_> {
             bytes += message.payload.len() as u64;
             let pending = message.info().map(|i| i.pending).unwrap_or(0);
             if (pending == 0) != (index + 1 == total) {
-                return Err(unverified(format!(
+                return Err(wrong(format!(
                     "after part {index} of {total} the store has {pending} more"
                 )));
             }
@@ -523,7 +545,7 @@ impl Upload<'_> {
             base64::engine::general_purpose::URL_SAFE.encode(whole.finalize())
         );
         if bytes != self.plan.bytes || !same_digest(&digest, &self.plan.digest) {
-            return Err(unverified(format!(
+            return Err(wrong(format!(
                 "read back {bytes} bytes with {digest}, the file has {} bytes with {}",
                 self.plan.bytes, self.plan.digest
             )));
@@ -580,6 +602,13 @@ impl Upload<'_> {
         }
         Ok(())
     }
+}
+
+/// Why the parts did not read back as the file: the store could not be read (try again), or
+/// they are not the file's (send them again).
+enum ReadBack {
+    Unavailable(String),
+    Wrong(String),
 }
 
 /// Why a part was not stored: the file (no point retrying) or the store (resume).
