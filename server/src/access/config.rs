@@ -1,0 +1,388 @@
+//! The access options of the command line ([`AccessArgs`]) and the rules they resolve into
+//! ([`AccessConfig`]): the tokens, the accepted origins and host names, the connection limits,
+//! and the refusal to serve beyond loopback without tokens.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use super::tokens::tokens_from_environment;
+use super::{
+    AccessError, INSTRUCTOR_TOKEN_ENV, OBSERVER_TOKEN_ENV, Origin, Token, Tokens, read_token_file,
+};
+
+/// The limits on connections (proto/WIRE.md, "Limits").
+#[derive(Debug, Clone, Copy)]
+pub struct ConnectionLimits {
+    /// Viewers connected at once, whether authenticated yet or not.
+    pub max_viewers: u32,
+    /// Viewers connected at once from one client address.
+    pub max_per_address: u32,
+    /// Connections waiting to present their token.
+    pub max_pending: u32,
+    /// Incoming messages a connection may send per second, on average...
+    pub messages_per_s: f64,
+    /// ...and at once, after a quiet spell.
+    pub message_burst: f64,
+    /// How long a connection may take to present its token.
+    pub auth_timeout: Duration,
+}
+
+impl Default for ConnectionLimits {
+    fn default() -> Self {
+        Self {
+            max_viewers: 500,
+            max_per_address: 50,
+            max_pending: 64,
+            // A viewer sends a handful of messages per click; a person cannot click 50 times a
+            // second, a script flooding the server can.
+            messages_per_s: 50.0,
+            message_burst: 100.0,
+            auth_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// The access rules a server runs with.
+#[derive(Debug, Clone)]
+pub struct AccessConfig {
+    /// The roles' tokens; `None`: every connection is an instructor (loopback quick start, or
+    /// `--insecure-no-tokens`).
+    pub tokens: Option<Arc<Tokens>>,
+    /// Allow serving beyond loopback without tokens.
+    pub insecure_no_tokens: bool,
+    /// Origins accepted besides the server's own.
+    pub allowed_origins: Vec<Origin>,
+    /// Names the server answers to besides IP-address literals and `localhost`, lower case.
+    pub host_names: Vec<String>,
+    /// The server speaks https and wss (TLS): its own origin's scheme is `https`.
+    pub secure_transport: bool,
+    pub limits: ConnectionLimits,
+}
+
+impl Default for AccessConfig {
+    /// The loopback quick start: no tokens, own origin only, IP literals and `localhost`.
+    fn default() -> Self {
+        Self {
+            tokens: None,
+            insecure_no_tokens: false,
+            allowed_origins: Vec::new(),
+            host_names: Vec::new(),
+            secure_transport: false,
+            limits: ConnectionLimits::default(),
+        }
+    }
+}
+
+impl AccessConfig {
+    /// Refuses to serve `addr` beyond loopback without tokens, unless `--insecure-no-tokens`
+    /// (then warns, loudly).
+    pub fn check_bind(&self, addr: SocketAddr) -> Result<(), AccessError> {
+        if self.tokens.is_some() || addr.ip().is_loopback() {
+            return Ok(());
+        }
+        if !self.insecure_no_tokens {
+            return Err(AccessError::NoTokensBeyondLoopback { addr });
+        }
+        tracing::warn!(
+            %addr,
+            "INSECURE: serving beyond this machine WITHOUT TOKENS (--insecure-no-tokens): anyone \
+             who can reach {addr} can watch the session and control replays"
+        );
+        Ok(())
+    }
+
+    /// The base of the links to hand out for a server at `base_url`: an address bound to every
+    /// interface (`0.0.0.0`, `::`) names no machine a viewer can reach, so the first
+    /// `--host-name` takes its place when there is one.
+    pub fn public_base(&self, base_url: &str, local_addr: std::net::SocketAddr) -> String {
+        match self.host_names.first() {
+            Some(name) if local_addr.ip().is_unspecified() => {
+                let scheme = if self.secure_transport {
+                    "https"
+                } else {
+                    "http"
+                };
+                format!("{scheme}://{name}:{}/", local_addr.port())
+            }
+            _ => base_url.to_owned(),
+        }
+    }
+
+    /// The links to print: the instructor's and the observer's, the token in the fragment (a
+    /// fragment never reaches a server's log or a proxy). `None` without tokens.
+    pub fn links(&self, base_url: &str) -> Option<(String, String)> {
+        let tokens = self.tokens.as_ref()?;
+        let link = |t: &Token| format!("{base_url}#token={}", t.expose_secret());
+        Some((link(tokens.instructor()), link(tokens.observer())))
+    }
+
+    /// Prints on stdout (never in a log: the token is in the link) the links to open for a server
+    /// at `url` bound to `addr`: one per role when there are tokens, `{label}: URL` otherwise;
+    /// `labels` are the instructor's and the observer's.
+    pub fn print_links(&mut self, url: &str, addr: SocketAddr, labels: [&str; 2]) {
+        self.secure_transport = url.starts_with("https:");
+        let base = self.public_base(url, addr);
+        match self.links(&base) {
+            Some((instructor, observer)) => {
+                crate::logging::print_line(format_args!("{}: {instructor}", labels[0]));
+                crate::logging::print_line(format_args!("{}: {observer}", labels[1]));
+            }
+            None => crate::logging::print_line(format_args!("{}: {base}", labels[0])),
+        }
+    }
+}
+
+/// The access options of `softhaptic run` and `softhaptic replay`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct AccessArgs {
+    /// Read the tokens from FILE: lines `instructor = <token>` and `observer = <token>` (each at
+    /// least 32 letters, digits, `-`, `.`, `_` or `~`). Takes precedence over the
+    /// SOFTHAPTIC_INSTRUCTOR_TOKEN and SOFTHAPTIC_OBSERVER_TOKEN variables, which give the
+    /// tokens otherwise.
+    #[arg(long, value_name = "FILE", conflicts_with = "tokens")]
+    pub token_file: Option<PathBuf>,
+    /// Make an instructor token and an observer token at start (128 random bits each) and print
+    /// a link to open for each.
+    #[arg(long)]
+    pub tokens: bool,
+    /// Serve an address beyond loopback without tokens: anyone who reaches it watches the
+    /// session and controls replays. Only for a network where that is wanted.
+    #[arg(long, conflicts_with_all = ["tokens", "token_file"])]
+    pub insecure_no_tokens: bool,
+    /// Also accept WebSocket connections from pages of this origin (scheme://host[:port]);
+    /// repeatable. The server's own origin is always accepted.
+    #[arg(long = "allow-origin", value_name = "ORIGIN")]
+    pub allow_origin: Vec<String>,
+    /// A DNS name this server is reached by (repeatable); requests naming any other host than
+    /// these, an IP address or localhost are refused (421).
+    #[arg(long = "host-name", value_name = "NAME")]
+    pub host_name: Vec<String>,
+    /// Viewers connected at once; more are refused (close code 4429).
+    #[arg(long, default_value_t = 500, value_name = "N")]
+    pub max_viewers: u32,
+    /// Viewers connected at once from one client address; more are refused (4429).
+    #[arg(long, default_value_t = 50, value_name = "N")]
+    pub max_viewers_per_address: u32,
+    /// Connections waiting to present their token; more are refused (4429).
+    #[arg(long, default_value_t = 64, value_name = "N")]
+    pub max_pending: u32,
+}
+
+impl AccessArgs {
+    /// The rules for serving `addr`, with the tokens from the file, the process's environment or
+    /// generated; refused as [`AccessConfig::check_bind`] says.
+    pub fn resolve(&self, addr: SocketAddr) -> Result<AccessConfig, AccessError> {
+        self.resolve_with_env(addr, &|name| std::env::var(name).ok())
+    }
+
+    /// [`AccessArgs::resolve`] with the environment given by `env`.
+    pub fn resolve_with_env(
+        &self,
+        addr: SocketAddr,
+        env: &dyn Fn(&str) -> Option<String>,
+    ) -> Result<AccessConfig, AccessError> {
+        let tokens = match &self.token_file {
+            Some(path) => {
+                if tokens_from_environment(env).ok().flatten().is_some() {
+                    tracing::info!(
+                        "a token file is given: {INSTRUCTOR_TOKEN_ENV} and {OBSERVER_TOKEN_ENV} are ignored"
+                    );
+                }
+                Some(read_token_file(path)?)
+            }
+            None => match tokens_from_environment(env)? {
+                Some(tokens) => Some(tokens),
+                None if self.tokens => Some(Tokens::generate()?),
+                None => None,
+            },
+        };
+        let allowed_origins = self
+            .allow_origin
+            .iter()
+            .map(|value| {
+                Origin::parse(value).map_err(|problem| AccessError::AllowOrigin {
+                    value: value.clone(),
+                    problem,
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        let host_names = self
+            .host_name
+            .iter()
+            .map(|value| {
+                let name = value.trim_end_matches('.').to_ascii_lowercase();
+                let valid = !name.is_empty()
+                    && name
+                        .bytes()
+                        .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'-' | b'_'));
+                if valid {
+                    Ok(name)
+                } else {
+                    Err(AccessError::HostName {
+                        value: value.clone(),
+                        problem: "a host name is letters, digits, `.`, `-` and `_` (no port)",
+                    })
+                }
+            })
+            .collect::<Result<_, _>>()?;
+        let config = AccessConfig {
+            tokens: tokens.map(Arc::new),
+            insecure_no_tokens: self.insecure_no_tokens,
+            allowed_origins,
+            host_names,
+            secure_transport: false,
+            limits: ConnectionLimits {
+                max_viewers: self.max_viewers,
+                max_per_address: self.max_viewers_per_address,
+                max_pending: self.max_pending,
+                ..ConnectionLimits::default()
+            },
+        };
+        config.check_bind(addr)?;
+        match &config.tokens {
+            Some(tokens) => tracing::info!(source = %tokens.source(), "viewers need a token"),
+            None => tracing::info!("no tokens: every viewer is an instructor"),
+        }
+        Ok(config)
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use crate::access::TokenSource;
+    use crate::access::testing::{I, O, tokens};
+    use softhaptic_proto::wire::Role;
+
+    #[test]
+    fn links_name_the_host_name_when_the_server_listens_on_every_interface() {
+        let mut config = AccessConfig {
+            host_names: vec!["lab-pc.example".into()],
+            ..AccessConfig::default()
+        };
+        let any: SocketAddr = ([0, 0, 0, 0], 8443).into();
+        assert_eq!(
+            config.public_base("http://0.0.0.0:8443/", any),
+            "http://lab-pc.example:8443/"
+        );
+        config.secure_transport = true;
+        assert_eq!(
+            config.public_base("https://0.0.0.0:8443/", any),
+            "https://lab-pc.example:8443/"
+        );
+        // A specific address is reachable as printed.
+        let one: SocketAddr = ([192, 0, 2, 10], 8443).into();
+        assert_eq!(
+            config.public_base("https://192.0.2.10:8443/", one),
+            "https://192.0.2.10:8443/"
+        );
+        config.host_names.clear();
+        assert_eq!(
+            config.public_base("http://0.0.0.0:8443/", any),
+            "http://0.0.0.0:8443/"
+        );
+    }
+
+    #[test]
+    fn tokens_come_from_the_file_then_the_environment_then_generation() {
+        let addr: SocketAddr = ([127, 0, 0, 1], 8080).into();
+        let args = AccessArgs {
+            token_file: None,
+            tokens: false,
+            insecure_no_tokens: false,
+            allow_origin: Vec::new(),
+            host_name: Vec::new(),
+            max_viewers: 500,
+            max_viewers_per_address: 50,
+            max_pending: 64,
+        };
+        let no_env = |_: &str| None;
+        assert!(
+            args.resolve_with_env(addr, &no_env)
+                .unwrap()
+                .tokens
+                .is_none()
+        );
+        let env = |name: &str| match name {
+            INSTRUCTOR_TOKEN_ENV => Some(I.to_owned()),
+            OBSERVER_TOKEN_ENV => Some(O.to_owned()),
+            _ => None,
+        };
+        let config = args.resolve_with_env(addr, &env).unwrap();
+        let t = config.tokens.unwrap();
+        assert_eq!(
+            (t.role_of(I), t.source()),
+            (Some(Role::Instructor), &TokenSource::Environment)
+        );
+        let generated = AccessArgs {
+            tokens: true,
+            ..args.clone()
+        };
+        let config = generated.resolve_with_env(addr, &no_env).unwrap();
+        assert_eq!(config.tokens.unwrap().source(), &TokenSource::Generated);
+        // The environment wins over generation: a lab's stable links stay stable.
+        let config = generated.resolve_with_env(addr, &env).unwrap();
+        assert_eq!(config.tokens.unwrap().source(), &TokenSource::Environment);
+
+        let one = |name: &str| (name == OBSERVER_TOKEN_ENV).then(|| O.to_owned());
+        let err = args.resolve_with_env(addr, &one).unwrap_err().to_string();
+        assert!(
+            err.contains("SOFTHAPTIC_OBSERVER_TOKEN is set but SOFTHAPTIC_INSTRUCTOR_TOKEN is not"),
+            "{err}"
+        );
+        let short = |name: &str| match name {
+            INSTRUCTOR_TOKEN_ENV => Some("abc".to_owned()),
+            _ => Some(O.to_owned()),
+        };
+        let err = args.resolve_with_env(addr, &short).unwrap_err().to_string();
+        assert!(
+            err.starts_with(
+                "SOFTHAPTIC_INSTRUCTOR_TOKEN: the instructor token is 3 characters long"
+            ),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn serving_beyond_loopback_needs_tokens_or_the_insecure_option() {
+        let config = AccessConfig::default();
+        for loopback in ["127.0.0.1:8080", "[::1]:8080"] {
+            config.check_bind(loopback.parse().unwrap()).unwrap();
+        }
+        for open in ["0.0.0.0:8080", "[::]:8080", "192.0.2.7:8080"] {
+            let err = config
+                .check_bind(open.parse().unwrap())
+                .unwrap_err()
+                .to_string();
+            for says in [
+                "--tokens",
+                "--token-file",
+                INSTRUCTOR_TOKEN_ENV,
+                OBSERVER_TOKEN_ENV,
+                "--insecure-no-tokens",
+            ] {
+                assert!(err.contains(says), "{err}");
+            }
+        }
+        let insecure = AccessConfig {
+            insecure_no_tokens: true,
+            ..AccessConfig::default()
+        };
+        insecure
+            .check_bind("0.0.0.0:8080".parse().unwrap())
+            .unwrap();
+        let with_tokens = AccessConfig {
+            tokens: Some(Arc::new(tokens())),
+            ..AccessConfig::default()
+        };
+        with_tokens
+            .check_bind("0.0.0.0:8080".parse().unwrap())
+            .unwrap();
+        let (viewer, observer) = with_tokens.links("http://lab:8080/").unwrap();
+        assert_eq!(viewer, format!("http://lab:8080/#token={I}"));
+        assert_eq!(observer, format!("http://lab:8080/#token={O}"));
+    }
+}
