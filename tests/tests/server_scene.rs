@@ -85,6 +85,28 @@ fn shipped_scenes_load() {
 }
 
 #[test]
+fn the_nearly_incompressible_scene_runs_on_limits_measured_at_its_poisson_ratio() {
+    let scene = Scene::load(&repo_scenes().join("incompressible.toml")).unwrap();
+    assert_eq!(scene.material.poisson_ratio(), 0.49);
+    assert_eq!(scene.calibration.material().poisson_ratio(), 0.49);
+    // The neo-Hookean sphere's entry measured at ν = 0.49 (4.02 mm), not the paper's 6 mm nor
+    // the ν = 0.33 entry's.
+    let source = &scene.validity.source;
+    assert!(source.contains("ν = 0.49"), "{source}");
+    assert!(
+        (scene.validity.valid_depth_m - 4.02e-3).abs() < 0.01e-3,
+        "{} m from {source}",
+        scene.validity.valid_depth_m
+    );
+    // Its R_d table is the ν = 0.49 FEM's: at 6 mm the nearly incompressible block's surface
+    // sinks less far out than at ν = 0.33.
+    let paper_nu = Scene::load(&repo_scenes().join("default.toml")).unwrap();
+    assert!(
+        scene.calibration.deformed_radius_m(6e-3) < paper_nu.calibration.deformed_radius_m(6e-3)
+    );
+}
+
+#[test]
 fn invalid_values_name_the_field_and_value() {
     let dir = scratch("values");
     load(&dir, GOOD).expect("the reference text is valid");
