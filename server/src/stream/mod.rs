@@ -1,0 +1,227 @@
+//! The 50 Hz contact stream and the 1 Hz stats, from the haptic loop to every WebSocket viewer.
+//!
+//! One task ([`frame_task`]) reads the loop's latest contact 50 times a second, adds R_d from
+//! the calibration table, encodes the frame once and broadcasts it; one task ([`stats_task`])
+//! does the same for the loop's timing once a second. Each viewer's connection task
+//! ([`serve_viewer`]) forwards what it receives to its socket.
+//!
+//! Why a slow viewer cannot delay anyone: the broadcast channel is bounded and never waits for a
+//! receiver; a receiver that falls [`FRAME_BACKLOG`] frames behind is told how many it lost,
+//! jumps to the newest frame, and its `dropped` count (reported in its next contact frame) grows.
+//! A viewer that stops reading altogether blocks only its own task in a socket send; its losses
+//! are counted when that send completes, and a send that waits longer than the send timeout
+//! closes the connection (`stalled_closes`).
+//! The haptic loop is never touched by any of this: the frame task only reads its wait-free
+//! publication.
+//!
+//! Each connection first gets its role ([`crate::access`]): with tokens, its first message must
+//! be an `auth` with a valid token within the auth timeout, before anything is sent to it; without
+//! tokens it is an instructor at once. A request its role may not make gets a `refused` reply and
+//! the connection stays open; a connection that sends more than its message rate allows is
+//! closed. Both are decided by the connection's own task, so a misbehaving client delays no one.
+//!
+//! # Layout
+//! - this file: the [`StreamHub`] every connection shares (channels, counters, limits, marks)
+//!   and the backlogs.
+//! - `frame.rs`: [`EncodedFrame`], a frame encoded once with each viewer's `dropped` spliced in.
+//! - `tasks.rs`: [`frame_task`] and [`stats_task`] (with the `metrics` and the device's state).
+//! - `viewer.rs`: [`serve_viewer`], one viewer's connection: its role, what it is sent, what it
+//!   may ask, and how it is closed.
+
+mod frame;
+mod tasks;
+mod viewer;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::time::Duration;
+
+use axum::extract::ws::Utf8Bytes;
+use softhaptic_proto::wire::ReplayControl;
+use softhaptic_proto::wire::{Hello, MarkMessage, MarkRequest, Role, ServerMessage};
+use tokio::sync::{broadcast, watch};
+
+use crate::access::Access;
+
+pub use frame::EncodedFrame;
+pub use tasks::{device_status, frame_task, metrics_message, stats_message, stats_task};
+pub use viewer::{
+    REASON_FLOOD, REFUSED_LIVE, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_OBSERVER,
+    ViewerEnd, refuse_connection, serve_viewer,
+};
+
+/// Frames a viewer may fall behind before it skips to the newest (80 ms at 50 Hz): enough to
+/// ride out a scheduling hiccup without loss, short enough that a lagging viewer shows the
+/// present.
+pub const FRAME_BACKLOG: usize = 4;
+/// Stats messages kept for a slow viewer (they are once a second; older ones are worthless).
+pub const STATS_BACKLOG: usize = 2;
+/// Marks a slow viewer may fall behind by before it loses one (they are rare and small).
+pub const MARK_BACKLOG: usize = 64;
+
+/// Limits of one viewer connection.
+#[derive(Debug, Clone, Copy)]
+pub struct ViewerLimits {
+    /// Largest incoming message; a bigger one closes the connection (the viewer sends nothing
+    /// large: this only bounds what a broken or hostile client can make the server buffer).
+    pub max_incoming_bytes: usize,
+    /// A send that does not complete in this time closes the connection: the peer stopped
+    /// reading, and holding its socket open serves nobody.
+    pub send_timeout: Duration,
+}
+
+impl Default for ViewerLimits {
+    fn default() -> Self {
+        Self {
+            max_incoming_bytes: 64 * 1024,
+            send_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Counters shared by the stream tasks and reported in `stats`.
+#[derive(Debug, Default)]
+pub struct StreamCounters {
+    pub viewers: AtomicU32,
+    /// Frames lost by all viewers together.
+    pub dropped_frames: AtomicU64,
+    /// Incoming messages of a type the server does not know (ignored).
+    pub unknown_messages: AtomicU64,
+    /// Connections closed because a message was malformed or too large.
+    pub malformed_closes: AtomicU64,
+    /// Contact frames produced.
+    pub frames_sent: AtomicU64,
+    /// Connections closed because a send did not complete within the send timeout (the viewer
+    /// stopped reading).
+    pub stalled_closes: AtomicU64,
+    /// Connections closed for presenting no token, or a wrong one (4401).
+    pub unauthorized_closes: AtomicU64,
+    /// Connections closed for sending more messages than their rate allows (1008).
+    pub flood_closes: AtomicU64,
+    /// Connections refused by a limit on connections (4429).
+    pub limit_refusals: AtomicU64,
+    /// Requests answered with `refused` (the connection stayed open).
+    pub refused_requests: AtomicU64,
+}
+
+/// What every viewer connection needs.
+pub struct StreamHub {
+    /// `hello` for an instructor and for an observer, encoded once.
+    hello_instructor: Utf8Bytes,
+    hello_observer: Utf8Bytes,
+    pub scene: Utf8Bytes,
+    pub frames: broadcast::Sender<Arc<EncodedFrame>>,
+    pub stats: broadcast::Sender<Utf8Bytes>,
+    pub counters: StreamCounters,
+    pub limits: ViewerLimits,
+    pub shutdown: watch::Receiver<bool>,
+    /// Where viewers' `replay_control` messages go when the source is a recording (see
+    /// `session::replay`); `None` on a live session, where they are unknown messages.
+    pub replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
+    /// Who may connect: tokens, Origin and Host rules, connection limits.
+    pub access: Arc<Access>,
+    /// Instructors' marks as they are made (to every viewer, and to the recorder).
+    pub marks: broadcast::Sender<Utf8Bytes>,
+    /// Every mark so far, encoded, for a viewer that connects later.
+    made_marks: std::sync::Mutex<Vec<Utf8Bytes>>,
+    /// Device time of the latest contact frame: a mark's time.
+    pub latest_time_ns: AtomicU64,
+    /// The frame a replay shows now, sent to a viewer as it connects so that a paused replay
+    /// draws the tool where the recording has it rather than nowhere; `None` on a live session,
+    /// whose next frame is 20 ms away. A lock held only to swap or clone an `Arc`.
+    held_frame: std::sync::Mutex<Option<Arc<EncodedFrame>>>,
+}
+
+impl StreamHub {
+    /// A hub with empty frame and stats channels of the standard backlogs, for a live session
+    /// (`replay_control` `None`) or a replay (the player's control queue). `hello` gives the
+    /// session id and mode; its role is set per connection.
+    pub fn new(
+        hello: &Hello,
+        scene: Utf8Bytes,
+        limits: ViewerLimits,
+        shutdown: watch::Receiver<bool>,
+        replay_control: Option<tokio::sync::mpsc::Sender<ReplayControl>>,
+        access: Arc<Access>,
+    ) -> Result<Self, serde_json::Error> {
+        let hello_for = |role| {
+            ServerMessage::Hello(Hello {
+                role,
+                ..hello.clone()
+            })
+            .encode()
+            .map(Utf8Bytes::from)
+        };
+        Ok(Self {
+            hello_instructor: hello_for(Role::Instructor)?,
+            hello_observer: hello_for(Role::Observer)?,
+            scene,
+            frames: broadcast::channel(FRAME_BACKLOG).0,
+            stats: broadcast::channel(STATS_BACKLOG).0,
+            counters: StreamCounters::default(),
+            limits,
+            shutdown,
+            replay_control,
+            access,
+            marks: broadcast::channel(MARK_BACKLOG).0,
+            made_marks: std::sync::Mutex::new(Vec::new()),
+            latest_time_ns: AtomicU64::new(0),
+            held_frame: std::sync::Mutex::new(None),
+        })
+    }
+
+    /// Every mark so far, encoded.
+    pub fn made_marks(&self) -> Vec<Utf8Bytes> {
+        self.made_marks
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
+    /// Adds a mark: numbered, stamped with the session's device time, kept for later viewers
+    /// and sent to everyone now. `Err` when it cannot be encoded.
+    pub fn add_mark(&self, request: MarkRequest) -> Result<MarkMessage, serde_json::Error> {
+        let mut made = self.made_marks.lock().unwrap_or_else(|p| p.into_inner());
+        let mark = MarkMessage {
+            id: made.len() as u64 + 1,
+            time_ns: self.latest_time_ns.load(Ordering::Relaxed),
+            note: request.note.trim().to_owned(),
+            point_m: request.point_m,
+        };
+        let text = Utf8Bytes::from(ServerMessage::Mark(mark.clone()).encode()?);
+        made.push(text.clone());
+        let _ = self.marks.send(text);
+        Ok(mark)
+    }
+
+    /// Marks a replayed recording holds, shown to its viewers as they connect.
+    pub fn preload_marks(&self, marks: &[MarkMessage]) {
+        let mut made = self.made_marks.lock().unwrap_or_else(|p| p.into_inner());
+        for m in marks {
+            if let Ok(text) = ServerMessage::Mark(m.clone()).encode() {
+                made.push(Utf8Bytes::from(text));
+            }
+        }
+    }
+
+    /// The `hello` of a connection with `role`.
+    pub fn hello(&self, role: Role) -> &Utf8Bytes {
+        match role {
+            Role::Instructor => &self.hello_instructor,
+            Role::Observer => &self.hello_observer,
+        }
+    }
+
+    /// Sets the frame a viewer gets as it connects ([`StreamHub::held_frame`]).
+    pub fn hold_frame(&self, frame: Arc<EncodedFrame>) {
+        *self.held_frame.lock().unwrap_or_else(|p| p.into_inner()) = Some(frame);
+    }
+
+    /// The frame a viewer gets as it connects, if any.
+    pub fn held_frame(&self) -> Option<Arc<EncodedFrame>> {
+        self.held_frame
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+}

@@ -1,0 +1,522 @@
+//! One viewer's connection task: its role first (an `auth` within the auth timeout when the
+//! server has tokens), then `hello`, `scene`, the marks so far and every frame, stats and mark,
+//! while it answers what the viewer sends; every send has a deadline, and every close reads
+//! until the peer's close frame so that the peer learns its close code.
+
+use std::fmt;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, close_code};
+use softhaptic_proto::wire::{
+    Auth, MarkRequest, Refused, ReplayControl, Role, ServerMessage, message_type,
+};
+use tokio::sync::broadcast;
+
+use super::{StreamCounters, StreamHub};
+use crate::access::{
+    CLOSE_UNAUTHORIZED, Connection, LimitRefusal, MessageRate, REASON_BAD_TOKEN, REASON_NO_TOKEN,
+    Tokens,
+};
+
+/// Counts a viewer for as long as its connection task lives.
+struct ViewerGuard<'a>(&'a StreamCounters);
+
+impl<'a> ViewerGuard<'a> {
+    fn new(counters: &'a StreamCounters) -> Self {
+        counters.viewers.fetch_add(1, Ordering::Relaxed);
+        Self(counters)
+    }
+}
+
+impl Drop for ViewerGuard<'_> {
+    fn drop(&mut self) {
+        self.0.viewers.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ViewerEnd {
+    Closed,
+    Malformed,
+    SendFailed,
+    Shutdown,
+    /// No `auth` with a token within the auth timeout, or a first message that was not one
+    /// (4401).
+    NoToken,
+    /// A token that is neither role's (4401).
+    BadToken,
+    /// More messages than the connection's rate allows (1008).
+    Flooded,
+    /// Refused at the upgrade by a limit on connections (4429).
+    Limit(LimitRefusal),
+}
+
+impl fmt::Display for ViewerEnd {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ViewerEnd::Closed => f.write_str("closed by the viewer"),
+            ViewerEnd::Malformed => f.write_str("closed: malformed or oversized message"),
+            ViewerEnd::SendFailed => {
+                f.write_str("closed: the viewer stopped reading or the link failed")
+            }
+            ViewerEnd::Shutdown => f.write_str("closed: server shutting down (1001)"),
+            ViewerEnd::NoToken => write!(f, "refused: {REASON_NO_TOKEN} ({CLOSE_UNAUTHORIZED})"),
+            ViewerEnd::BadToken => write!(f, "refused: {REASON_BAD_TOKEN} ({CLOSE_UNAUTHORIZED})"),
+            ViewerEnd::Flooded => write!(f, "closed: {REASON_FLOOD} (1008)"),
+            ViewerEnd::Limit(refusal) => {
+                write!(
+                    f,
+                    "refused: {} ({})",
+                    refusal.reason(),
+                    crate::access::CLOSE_TOO_MANY
+                )
+            }
+        }
+    }
+}
+
+/// The close reason of a connection that sent more messages than its rate allows.
+pub const REASON_FLOOD: &str = "too many messages";
+/// The `refused` reason of a `replay_control` from an observer.
+pub const REFUSED_OBSERVER: &str =
+    "an observer cannot control the replay: only an instructor's link can";
+/// The `refused` reason of an `add_mark` from an observer.
+pub const REFUSED_MARK_OBSERVER: &str = "only an instructor marks the session";
+/// The `refused` reason of an `add_mark` sent to a replay.
+pub const REFUSED_MARK_REPLAY: &str = "a replay's marks are the recording's: mark a live session";
+/// The `refused` reason of a `replay_control` sent to a live session.
+pub const REFUSED_LIVE: &str = "this is a live session: there is no replay to control";
+
+/// Serves one viewer: its role (see [`crate::stream`]), `hello` and `scene`, then every contact
+/// frame and stats message, until the viewer leaves, misbehaves, stops reading, or the server
+/// shuts down. `connection` learns the role, for the audit line its owner logs.
+pub async fn serve_viewer(
+    mut socket: WebSocket,
+    hub: Arc<StreamHub>,
+    connection: &mut Connection,
+) -> ViewerEnd {
+    let timeout = hub.limits.send_timeout;
+    let mut rate = MessageRate::new(&hub.access.config.limits, Instant::now());
+    let role = match hub.access.tokens() {
+        None => Role::Instructor,
+        Some(tokens) => match authenticate(&mut socket, &hub, tokens, &mut rate).await {
+            Ok(role) => role,
+            Err(end) => return end,
+        },
+    };
+    connection.authenticated(role);
+    let _guard = ViewerGuard::new(&hub.counters);
+    // Subscribe before sending the greeting, so no frame produced meanwhile is missed.
+    let mut frames = hub.frames.subscribe();
+    let mut stats = hub.stats.subscribe();
+    let mut marks = hub.marks.subscribe();
+    let mut shutdown = hub.shutdown.clone();
+
+    for greeting in [hub.hello(role), &hub.scene] {
+        if !send(
+            &mut socket,
+            Message::Text(greeting.clone()),
+            timeout,
+            &hub.counters,
+        )
+        .await
+        {
+            return ViewerEnd::SendFailed;
+        }
+    }
+    // The marks made before this viewer came (a mark made meanwhile is also queued: sent twice,
+    // which its id makes harmless).
+    for mark in hub.made_marks() {
+        if !send(&mut socket, Message::Text(mark), timeout, &hub.counters).await {
+            return ViewerEnd::SendFailed;
+        }
+    }
+    // A replay's current frame, unless a newer one is already queued for this viewer.
+    if frames.is_empty()
+        && let Some(held) = hub.held_frame()
+        && !send(
+            &mut socket,
+            Message::Text(held.text_for(0)),
+            timeout,
+            &hub.counters,
+        )
+        .await
+    {
+        return ViewerEnd::SendFailed;
+    }
+
+    let mut dropped: u64 = 0;
+    loop {
+        if *shutdown.borrow() {
+            close(
+                &mut socket,
+                close_code::AWAY,
+                "server shutting down",
+                timeout,
+            )
+            .await;
+            return ViewerEnd::Shutdown;
+        }
+        tokio::select! {
+            changed = shutdown.changed() => {
+                // An error means the server was dropped without an orderly shutdown: leave too.
+                if changed.is_err() {
+                    close(&mut socket, close_code::AWAY, "server shutting down", timeout).await;
+                    return ViewerEnd::Shutdown;
+                }
+            }
+            incoming = socket.recv() => {
+                if let Some(end) =
+                    handle_incoming(&mut socket, &hub, connection, role, &mut rate, incoming).await
+                {
+                    return end;
+                }
+            }
+            frame = frames.recv() => {
+                let frame = match frame {
+                    Ok(frame) => frame,
+                    Err(broadcast::error::RecvError::Lagged(lost)) => {
+                        // Fell FRAME_BACKLOG behind: skip to the newest frame.
+                        let mut lost = lost;
+                        let mut newest = None;
+                        loop {
+                            match frames.try_recv() {
+                                Ok(f) => {
+                                    if newest.replace(f).is_some() {
+                                        lost += 1;
+                                    }
+                                }
+                                Err(broadcast::error::TryRecvError::Lagged(n)) => lost += n,
+                                Err(_) => break,
+                            }
+                        }
+                        dropped += lost;
+                        hub.counters.dropped_frames.fetch_add(lost, Ordering::Relaxed);
+                        match newest {
+                            Some(f) => f,
+                            None => continue,
+                        }
+                    }
+                    Err(broadcast::error::RecvError::Closed) => return ViewerEnd::Shutdown,
+                };
+                if !send(&mut socket, Message::Text(frame.text_for(dropped)), timeout, &hub.counters).await {
+                    return ViewerEnd::SendFailed;
+                }
+            },
+            text = stats.recv() => {
+                if let Ok(text) = text
+                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
+                {
+                    return ViewerEnd::SendFailed;
+                }
+            },
+            mark = marks.recv() => {
+                if let Ok(text) = mark
+                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
+                {
+                    return ViewerEnd::SendFailed;
+                }
+            },
+        }
+    }
+}
+
+/// Waits for the connection's `auth` (nothing is sent before it): the role of its token, or
+/// the connection closed with 4401 (no valid `auth` first, or none within the auth timeout).
+async fn authenticate(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    tokens: &Tokens,
+    rate: &mut MessageRate,
+) -> Result<Role, ViewerEnd> {
+    let timeout = hub.limits.send_timeout;
+    let deadline = tokio::time::Instant::now() + hub.access.config.limits.auth_timeout;
+    let mut shutdown = hub.shutdown.clone();
+    loop {
+        if *shutdown.borrow() {
+            close(socket, close_code::AWAY, "server shutting down", timeout).await;
+            return Err(ViewerEnd::Shutdown);
+        }
+        let incoming = tokio::select! {
+            _ = shutdown.changed() => continue,
+            incoming = tokio::time::timeout_at(deadline, socket.recv()) => incoming,
+        };
+        let message = match incoming {
+            Err(_) => {
+                hub.counters
+                    .unauthorized_closes
+                    .fetch_add(1, Ordering::Relaxed);
+                close(socket, CLOSE_UNAUTHORIZED, REASON_NO_TOKEN, timeout).await;
+                return Err(ViewerEnd::NoToken);
+            }
+            Ok(None | Some(Ok(Message::Close(_)))) => return Err(ViewerEnd::Closed),
+            Ok(Some(Err(e))) => {
+                tracing::debug!(error = %e, "viewer connection failed before presenting a token");
+                return Err(malformed(socket, hub, close_code::SIZE, INVALID_REFUSED).await);
+            }
+            Ok(Some(Ok(message))) => message,
+        };
+        if !rate.allow(Instant::now()) {
+            return Err(flooded(socket, hub).await);
+        }
+        match message {
+            Message::Ping(_) | Message::Pong(_) => continue,
+            Message::Binary(_) => {
+                return Err(malformed(socket, hub, close_code::UNSUPPORTED, BINARY_REFUSED).await);
+            }
+            Message::Close(_) => return Err(ViewerEnd::Closed),
+            Message::Text(text) => {
+                // Anything but an `auth` with a string token is no token presented.
+                let role = serde_json::from_str::<Auth>(&text)
+                    .ok()
+                    .map(|auth| tokens.role_of(&auth.token));
+                let (reason, end) = match role {
+                    Some(Some(role)) => return Ok(role),
+                    Some(None) => (REASON_BAD_TOKEN, ViewerEnd::BadToken),
+                    None => (REASON_NO_TOKEN, ViewerEnd::NoToken),
+                };
+                hub.counters
+                    .unauthorized_closes
+                    .fetch_add(1, Ordering::Relaxed);
+                close(socket, CLOSE_UNAUTHORIZED, reason, timeout).await;
+                return Err(end);
+            }
+        }
+    }
+}
+
+/// Close reason of a connection that sent a binary message.
+const BINARY_REFUSED: &str = "binary messages are not accepted";
+/// Close reason of a connection whose message broke the WebSocket protocol or its size limit.
+const INVALID_REFUSED: &str = "invalid or oversized message";
+
+/// Closes a connection that sent what the protocol does not accept (a binary message, a message
+/// that breaks WebSocket's rules or the size limit), with `code` and `reason`.
+async fn malformed(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    code: u16,
+    reason: &'static str,
+) -> ViewerEnd {
+    hub.counters
+        .malformed_closes
+        .fetch_add(1, Ordering::Relaxed);
+    close(socket, code, reason, hub.limits.send_timeout).await;
+    ViewerEnd::Malformed
+}
+
+/// Closes a connection that sent more than its rate allows.
+async fn flooded(socket: &mut WebSocket, hub: &StreamHub) -> ViewerEnd {
+    hub.counters.flood_closes.fetch_add(1, Ordering::Relaxed);
+    close(
+        socket,
+        close_code::POLICY,
+        REASON_FLOOD,
+        hub.limits.send_timeout,
+    )
+    .await;
+    ViewerEnd::Flooded
+}
+
+/// Handles one incoming message of a connection that has its `role`; `Some` when the
+/// connection ends.
+async fn handle_incoming(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    connection: &Connection,
+    role: Role,
+    rate: &mut MessageRate,
+    incoming: Option<Result<Message, axum::Error>>,
+) -> Option<ViewerEnd> {
+    let timeout = hub.limits.send_timeout;
+    let message = match incoming {
+        None | Some(Ok(Message::Close(_))) => return Some(ViewerEnd::Closed),
+        Some(Err(e)) => {
+            // Protocol violations and oversized messages end up here.
+            tracing::debug!(error = %e, "viewer connection failed");
+            return Some(malformed(socket, hub, close_code::SIZE, INVALID_REFUSED).await);
+        }
+        Some(Ok(message)) => message,
+    };
+    if !rate.allow(Instant::now()) {
+        return Some(flooded(socket, hub).await);
+    }
+    let text = match message {
+        Message::Text(text) => text,
+        Message::Binary(_) => {
+            return Some(malformed(socket, hub, close_code::UNSUPPORTED, BINARY_REFUSED).await);
+        }
+        // Pings are answered by the WebSocket layer.
+        Message::Ping(_) | Message::Pong(_) | Message::Close(_) => return None,
+    };
+    match message_type(&text) {
+        Ok(kind) if kind == "replay_control" => {
+            let tx = match (&hub.replay_control, role) {
+                (Some(tx), Role::Instructor) => tx,
+                (None, _) => return refuse(socket, hub, connection, &kind, REFUSED_LIVE).await,
+                (Some(_), Role::Observer) => {
+                    return refuse(socket, hub, connection, &kind, REFUSED_OBSERVER).await;
+                }
+            };
+            let control = serde_json::from_str::<ReplayControl>(&text)
+                .map_err(|e| e.to_string())
+                .and_then(|c| c.validate().map(|()| c).map_err(|e| e.to_string()));
+            match control {
+                // A full queue means controls arrive faster than they matter.
+                Ok(c) => {
+                    let _ = tx.try_send(c);
+                }
+                Err(reason) => {
+                    tracing::debug!(reason, "invalid replay_control message");
+                    hub.counters
+                        .malformed_closes
+                        .fetch_add(1, Ordering::Relaxed);
+                    close(
+                        socket,
+                        close_code::INVALID,
+                        "invalid replay_control message",
+                        timeout,
+                    )
+                    .await;
+                    return Some(ViewerEnd::Malformed);
+                }
+            }
+        }
+        Ok(kind) if kind == "add_mark" => {
+            if hub.replay_control.is_some() {
+                return refuse(socket, hub, connection, &kind, REFUSED_MARK_REPLAY).await;
+            }
+            if role == Role::Observer {
+                return refuse(socket, hub, connection, &kind, REFUSED_MARK_OBSERVER).await;
+            }
+            let request = serde_json::from_str::<MarkRequest>(&text).map_err(|e| e.to_string());
+            match request.and_then(|r| r.problem().map_or(Ok(r), Err)) {
+                Ok(r) => match hub.add_mark(r) {
+                    Ok(m) => tracing::info!(id = m.id, time_ns = m.time_ns, "instructor mark"),
+                    Err(e) => tracing::error!(error = %e, "could not encode a mark"),
+                },
+                Err(reason) => return refuse(socket, hub, connection, &kind, &reason).await,
+            }
+        }
+        // The connection has its role already (or the server has no tokens): a later `auth`
+        // changes nothing and is ignored.
+        Ok(kind) if kind == "auth" => {}
+        Ok(kind) => {
+            let n = hub
+                .counters
+                .unknown_messages
+                .fetch_add(1, Ordering::Relaxed);
+            if n == 0 {
+                tracing::warn!(kind, "ignoring a viewer message of unknown type");
+            } else {
+                tracing::debug!(kind, "ignoring a viewer message of unknown type");
+            }
+        }
+        Err(e) => {
+            tracing::debug!(error = %e, "malformed viewer message");
+            hub.counters
+                .malformed_closes
+                .fetch_add(1, Ordering::Relaxed);
+            close(socket, close_code::INVALID, "malformed message", timeout).await;
+            return Some(ViewerEnd::Malformed);
+        }
+    }
+    None
+}
+
+/// Answers a request the connection may not make with `refused`, logs it, and keeps the
+/// connection open (`Some` only when the reply cannot be sent).
+async fn refuse(
+    socket: &mut WebSocket,
+    hub: &StreamHub,
+    connection: &Connection,
+    request: &str,
+    reason: &str,
+) -> Option<ViewerEnd> {
+    hub.counters
+        .refused_requests
+        .fetch_add(1, Ordering::Relaxed);
+    tracing::info!(
+        client = %connection.peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+        role = connection.role.map_or("none", Role::as_str),
+        request,
+        "request refused: {reason}"
+    );
+    let reply = ServerMessage::Refused(Refused {
+        request: request.to_owned(),
+        reason: reason.to_owned(),
+    });
+    match reply.encode() {
+        Ok(text) => {
+            let message = Message::Text(Utf8Bytes::from(text));
+            if !send(socket, message, hub.limits.send_timeout, &hub.counters).await {
+                return Some(ViewerEnd::SendFailed);
+            }
+        }
+        Err(e) => tracing::error!(error = %e, "could not encode a refused message"),
+    }
+    None
+}
+
+/// Closes a connection refused by a limit on connections, with 4429 and the limit's reason.
+pub async fn refuse_connection(mut socket: WebSocket, hub: &StreamHub, refusal: LimitRefusal) {
+    hub.counters.limit_refusals.fetch_add(1, Ordering::Relaxed);
+    close(
+        &mut socket,
+        crate::access::CLOSE_TOO_MANY,
+        refusal.reason(),
+        hub.limits.send_timeout,
+    )
+    .await;
+}
+
+/// Sends with a deadline; false when the connection is unusable. A send that times out is
+/// counted in `stalled_closes`.
+async fn send(
+    socket: &mut WebSocket,
+    message: Message,
+    timeout: Duration,
+    counters: &StreamCounters,
+) -> bool {
+    match tokio::time::timeout(timeout, socket.send(message)).await {
+        Ok(Ok(())) => true,
+        Ok(Err(_)) => false,
+        Err(_) => {
+            counters.stalled_closes.fetch_add(1, Ordering::Relaxed);
+            tracing::debug!("closing a viewer that stopped reading");
+            false
+        }
+    }
+}
+
+/// How long a closing connection's remaining messages are read and discarded, waiting for the
+/// peer's close frame.
+const CLOSE_DRAIN: Duration = Duration::from_secs(1);
+
+/// Sends a close frame, then reads (and discards) what the peer still sends until its own close
+/// frame, for at most [`CLOSE_DRAIN`]. Dropping a socket with unread data makes the kernel
+/// reset the connection, and a reset can reach the peer before it has read our close frame:
+/// a flooding client would then never learn its close code.
+async fn close(socket: &mut WebSocket, code: u16, reason: &'static str, timeout: Duration) {
+    let frame = CloseFrame {
+        code,
+        reason: Utf8Bytes::from_static(reason),
+    };
+    // The peer may already be gone; nothing more to do either way.
+    if !matches!(
+        tokio::time::timeout(timeout, socket.send(Message::Close(Some(frame)))).await,
+        Ok(Ok(()))
+    ) {
+        return;
+    }
+    let _ = tokio::time::timeout(CLOSE_DRAIN, async {
+        while let Some(Ok(message)) = socket.recv().await {
+            if matches!(message, Message::Close(_)) {
+                break;
+            }
+        }
+    })
+    .await;
+}
