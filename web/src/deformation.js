@@ -497,10 +497,11 @@ export class MeshDeformer {
 
     // Per-frame bookkeeping, preallocated: the vertices written this frame, those it moved
     // first and then those it put back to rest (`written`), and the same list of the frame
-    // before in `writtenSpare` (the two swap each frame), whose first `movedBefore` entries are
-    // what that frame moved. A stamp marks the vertices moved this frame, so that one moved in
-    // both frames is written once, not restored and then moved; it is a byte (the frame number
-    // modulo 255, every stamp cleared when it wraps) to keep the memory each vertex costs down.
+    // before (`writtenSpare`; the two swap each frame), whose first entries are the vertices
+    // to restore unless this frame moves them. A stamp marks the vertices moved this frame, so
+    // that one moved in both frames is written once, not restored and then moved; it is a byte
+    // (the frame number counts 1 … 255, and every stamp is cleared when it starts again at 1)
+    // to keep down the memory each vertex costs per frame.
     this.written = new Int32Array(n);
     this.writtenSpare = new Int32Array(n);
     this.movedCount = 0;
