@@ -653,7 +653,8 @@ export class MeshDeformer {
     const ev = this.evaluation;
     // A cell whose bounding sphere lies beyond the reach, radially or along n, holds no vertex
     // that moves: skipped whole (a quarter of the box's cells when the reach circle fits it).
-    const halfDiagonal = 0.5 * Math.sqrt(3) * h;
+    // The sphere is taken 0.1% wider than the cell's, far above the rounding of the test.
+    const halfDiagonal = 0.5 * Math.sqrt(3) * h * 1.001;
     const cellReach = reach + halfDiagonal;
     const cellReach2 = cellReach * cellReach;
     let visited = 0;
@@ -665,7 +666,7 @@ export class MeshDeformer {
         for (let ix = ix0; ix <= ix1; ix++) {
           const wx = origin[0] + (ix + 0.5) * h - cx;
           const cellAxial = wx * nx + wy * ny + wz * nz;
-          if (cellAxial >= cellReach || cellAxial <= -cellReach) continue;
+          if (cellAxial > cellReach || cellAxial < -cellReach) continue;
           const cellR2 = wx * wx + wy * wy + wz * wz - cellAxial * cellAxial;
           if (cellR2 >= cellReach2) continue;
           visited++;
@@ -681,7 +682,7 @@ export class MeshDeformer {
               vy = py - cy,
               vz = pz - cz;
             const axial = vx * nx + vy * ny + vz * nz;
-            if (axial >= reach || axial <= -reach) continue;
+            if (axial > reach || axial < -reach) continue;
             const ex = vx - axial * nx,
               ey = vy - axial * ny,
               ez = vz - axial * nz;
