@@ -1,0 +1,339 @@
+//! The records the MCAP library parses out of the kept part of a file, turned into a
+//! [`Recording`]: each channel classified by topic and schema, each message checked against the
+//! wire protocol, and the recording refused when its writer's format or protocol is newer than
+//! this build's.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use softhaptic_proto::record::{
+    self, BuildRecord, DeviceRecord, RecordingStats, SESSION_FORMAT_VERSION, SceneRecord,
+    schema_name, topic,
+};
+use softhaptic_proto::wire::{PROTOCOL_VERSION, ServerMessage};
+
+use super::walk::{Feed, MAX_RECORD_BYTES, Source, scan};
+use super::{Ending, RecordedMessage, Recording, SessionError};
+
+/// Which record kind a channel id carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Build,
+    Scene,
+    Device,
+    Contact,
+    Stats,
+    LoopStats,
+    Marks,
+    Metrics,
+    Unknown,
+}
+
+impl Recording {
+    pub(super) fn from_source<S: Source + ?Sized>(
+        path: &Path,
+        src: &S,
+    ) -> Result<Recording, SessionError> {
+        let path_buf = path.to_path_buf();
+        let io = |e: std::io::Error| SessionError::Io {
+            path: path.to_path_buf(),
+            reason: e,
+        };
+        let mut start = [0u8; 8];
+        let head = (src.len() as usize).min(start.len());
+        src.read_at(0, &mut start[..head]).map_err(io)?;
+        let bytes = &start[..head];
+        if bytes.len() < mcap::MAGIC.len() || bytes[..mcap::MAGIC.len()] != mcap::MAGIC[..] {
+            let found = bytes
+                .iter()
+                .map(|b| format!("{b:02x}"))
+                .collect::<Vec<_>>()
+                .join(" ");
+            return Err(SessionError::NotMcap {
+                path: path_buf,
+                found: if found.is_empty() {
+                    "none (empty file)".into()
+                } else {
+                    found
+                },
+            });
+        }
+        // Damaged chunks are skipped before the MCAP library sees them (it would trust a damaged
+        // length and allocate what it claims); the library reads the rest, checking every
+        // chunk's checksum again.
+        let scanned = scan(src).map_err(io)?;
+        let options = mcap::sans_io::LinearReaderOptions::default()
+            .with_validate_chunk_crcs(true)
+            .with_record_length_limit(MAX_RECORD_BYTES as usize);
+        let mut reader = mcap::sans_io::MessageReader::new_with_options(options);
+        let mut feed = Feed::new(src, &scanned.keep);
+        let mut read_error = None;
+        let mut next_message = || loop {
+            match reader.next_event()? {
+                Ok(mcap::sans_io::MessageReadEvent::ReadRequest(n)) => {
+                    let buf = reader.insert(n);
+                    match feed.fill(buf) {
+                        Ok(written) => reader.notify_read(written),
+                        Err(e) => {
+                            read_error = Some(e);
+                            return None;
+                        }
+                    }
+                }
+                Ok(mcap::sans_io::MessageReadEvent::Message(m)) => return Some(Ok(m)),
+                Err(e) => return Some(Err(e)),
+            }
+        };
+
+        let mut kinds: BTreeMap<u16, Kind> = BTreeMap::new();
+        let mut build: Option<BuildRecord> = None;
+        let mut scene: Option<SceneRecord> = None;
+        let mut device = Vec::new();
+        let mut contacts = Vec::new();
+        let mut loop_stats = Vec::new();
+        let mut last_stats = None;
+        let mut unknown_messages = 0;
+        let mut marks = Vec::new();
+        let mut metrics = Vec::new();
+        let mut ending = match &scanned.tail {
+            Some(reason) => Ending::Truncated {
+                reason: reason.clone(),
+            },
+            None => Ending::Complete,
+        };
+        let file_len = src.len();
+
+        while let Some(item) = next_message() {
+            let message = match item {
+                Ok(m) => m,
+                Err(e) => {
+                    // The walk passed only records that check out, so this is damage the checks
+                    // cannot see; keep what was read before it.
+                    ending = Ending::Truncated {
+                        reason: e.to_string(),
+                    };
+                    break;
+                }
+            };
+            let channel = &message.channel;
+            let kind = match kinds.get(&channel.id) {
+                Some(k) => *k,
+                None => {
+                    let k = classify(path, channel)?;
+                    kinds.insert(channel.id, k);
+                    k
+                }
+            };
+            let bad = |e: serde_json::Error| SessionError::BadMessage {
+                path: path_buf.clone(),
+                topic: channel.topic.clone(),
+                sequence: message.sequence,
+                log_time_ns: message.log_time,
+                reason: e.to_string(),
+            };
+            match kind {
+                Kind::Build => {
+                    let b: BuildRecord = serde_json::from_slice(&message.data).map_err(bad)?;
+                    check_versions(path, &b)?;
+                    build = Some(b);
+                }
+                Kind::Scene => {
+                    if build.is_none() {
+                        return Err(SessionError::MissingBuild { path: path_buf });
+                    }
+                    scene = Some(serde_json::from_slice(&message.data).map_err(bad)?);
+                }
+                Kind::Device => {
+                    device.push(serde_json::from_slice::<DeviceRecord>(&message.data).map_err(bad)?)
+                }
+                Kind::Contact => {
+                    let json = std::str::from_utf8(&message.data)
+                        .map_err(|e| SessionError::BadMessage {
+                            path: path_buf.clone(),
+                            topic: channel.topic.clone(),
+                            sequence: message.sequence,
+                            log_time_ns: message.log_time,
+                            reason: e.to_string(),
+                        })?
+                        .to_owned();
+                    // The frame must be a contact message of the wire protocol.
+                    match ServerMessage::decode(&json) {
+                        Ok(ServerMessage::Contact(_)) => {}
+                        Ok(other) => {
+                            return Err(SessionError::BadMessage {
+                                path: path_buf.clone(),
+                                topic: channel.topic.clone(),
+                                sequence: message.sequence,
+                                log_time_ns: message.log_time,
+                                reason: format!(
+                                    "a {} message on the contact channel",
+                                    other.type_name()
+                                ),
+                            });
+                        }
+                        Err(e) => {
+                            return Err(SessionError::BadMessage {
+                                path: path_buf.clone(),
+                                topic: channel.topic.clone(),
+                                sequence: message.sequence,
+                                log_time_ns: message.log_time,
+                                reason: e.to_string(),
+                            });
+                        }
+                    }
+                    contacts.push(RecordedMessage {
+                        time_ns: message.log_time,
+                        json,
+                    });
+                }
+                Kind::LoopStats => {
+                    let json = String::from_utf8_lossy(&message.data).into_owned();
+                    match ServerMessage::decode(&json) {
+                        Ok(ServerMessage::Stats(_)) => loop_stats.push(RecordedMessage {
+                            time_ns: message.log_time,
+                            json,
+                        }),
+                        _ => {
+                            return Err(SessionError::BadMessage {
+                                path: path_buf.clone(),
+                                topic: channel.topic.clone(),
+                                sequence: message.sequence,
+                                log_time_ns: message.log_time,
+                                reason: "not a stats message of the wire protocol".into(),
+                            });
+                        }
+                    }
+                }
+                Kind::Stats => {
+                    last_stats = Some(serde_json::from_slice(&message.data).map_err(bad)?);
+                }
+                Kind::Marks => {
+                    let json = String::from_utf8_lossy(&message.data);
+                    match ServerMessage::decode(&json) {
+                        Ok(ServerMessage::Mark(m)) => marks.push(m),
+                        _ => {
+                            return Err(SessionError::BadMessage {
+                                path: path_buf.clone(),
+                                topic: channel.topic.clone(),
+                                sequence: message.sequence,
+                                log_time_ns: message.log_time,
+                                reason: "not a mark message of the wire protocol".into(),
+                            });
+                        }
+                    }
+                }
+                Kind::Metrics => {
+                    let json = String::from_utf8_lossy(&message.data);
+                    match ServerMessage::decode(&json) {
+                        Ok(ServerMessage::Metrics(m)) => metrics.push(m),
+                        // Derived data, computed again from the ticks when needed: one that
+                        // does not read costs nothing else of the file.
+                        _ => unknown_messages += 1,
+                    }
+                }
+                Kind::Unknown => unknown_messages += 1,
+            }
+        }
+
+        if let Some(e) = read_error {
+            return Err(io(e));
+        }
+        let cut_short = |reason: &str| SessionError::TruncatedBeforeStart {
+            path: path_buf.clone(),
+            file_len,
+            reason: reason.to_owned(),
+        };
+        let Some(build) = build else {
+            return Err(match &ending {
+                Ending::Truncated { reason } => cut_short(reason),
+                Ending::Complete => SessionError::MissingBuild { path: path_buf },
+            });
+        };
+        let Some(scene) = scene else {
+            return Err(match &ending {
+                Ending::Truncated { reason } => cut_short(reason),
+                Ending::Complete => SessionError::MissingScene { path: path_buf },
+            });
+        };
+        if ending == Ending::Complete && !last_stats.is_some_and(|s: RecordingStats| s.is_final) {
+            ending = Ending::Truncated {
+                reason: "the file ends without the recorder's final stats record".into(),
+            };
+        }
+        device.sort_by_key(|r: &DeviceRecord| r.tick);
+        Ok(Recording {
+            path: path_buf,
+            file_len,
+            build,
+            scene,
+            device,
+            contacts,
+            loop_stats,
+            last_stats,
+            unknown_messages,
+            ending,
+            lost: scanned.lost,
+            marks,
+            metrics,
+        })
+    }
+}
+
+/// Which record a channel carries; refuses known topics with another schema or encoding.
+fn classify(path: &Path, channel: &mcap::Channel<'_>) -> Result<Kind, SessionError> {
+    let (kind, expected) = match channel.topic.as_str() {
+        topic::BUILD => (Kind::Build, schema_name::BUILD),
+        topic::SCENE => (Kind::Scene, schema_name::SCENE),
+        topic::DEVICE => (Kind::Device, schema_name::DEVICE),
+        topic::CONTACT => (Kind::Contact, schema_name::CONTACT),
+        topic::STATS => (Kind::Stats, schema_name::STATS),
+        topic::LOOP_STATS => (Kind::LoopStats, schema_name::LOOP_STATS),
+        topic::MARKS => (Kind::Marks, schema_name::MARKS),
+        topic::METRICS => (Kind::Metrics, schema_name::METRICS),
+        _ => return Ok(Kind::Unknown),
+    };
+    let found_schema = channel
+        .schema
+        .as_ref()
+        .map(|s| format!("{} ({})", s.name, s.encoding))
+        .unwrap_or_else(|| "no schema".into());
+    let schema_ok = channel
+        .schema
+        .as_ref()
+        .is_some_and(|s| s.name == expected && s.encoding == record::SCHEMA_ENCODING);
+    if !schema_ok || channel.message_encoding != record::MESSAGE_ENCODING {
+        return Err(SessionError::WrongSchema {
+            path: path.to_path_buf(),
+            topic: channel.topic.clone(),
+            expected: format!(
+                "{expected} ({}), messages {}",
+                record::SCHEMA_ENCODING,
+                record::MESSAGE_ENCODING
+            ),
+            found: format!("{found_schema}, messages {}", channel.message_encoding),
+        });
+    }
+    Ok(kind)
+}
+
+fn check_versions(path: &Path, b: &BuildRecord) -> Result<(), SessionError> {
+    if b.session_format_version > SESSION_FORMAT_VERSION {
+        return Err(SessionError::NewerVersion {
+            path: path.to_path_buf(),
+            field: "session_format_version",
+            found: b.session_format_version,
+            supported: SESSION_FORMAT_VERSION,
+            writer: b.writer.clone(),
+        });
+    }
+    if b.protocol_version > PROTOCOL_VERSION {
+        return Err(SessionError::NewerVersion {
+            path: path.to_path_buf(),
+            field: "protocol_version",
+            found: b.protocol_version,
+            supported: PROTOCOL_VERSION,
+            writer: b.writer.clone(),
+        });
+    }
+    Ok(())
+}

@@ -1,0 +1,244 @@
+//! Reading a recorded session back, whole or as much of it as survived.
+//!
+//! [`Recording::open`] first walks the file's records itself: every chunk is checked (its sizes,
+//! its decompression, its checksum, the lengths of the records inside) before the MCAP library
+//! parses it, and a damaged chunk is skipped, not trusted: the walk resumes at the next chunk
+//! that checks out, so one bad sector loses about a second of a session (the writer closes one
+//! chunk per second of device time), never the rest of it. The index and summary after the data
+//! are not needed and not read, so damage there hides nothing. A file cut short by a crash
+//! yields every complete chunk before the cut. [`Recording::recovery`] says what was recovered
+//! and what was lost, as device-time ranges. Files that are not recordings, or not ones this build can read
+//! (wrong magic, a channel with another schema, a newer format or protocol version, a message
+//! that does not parse) are refused with a [`SessionError`] naming the file and the cause.
+//!
+//! # Layout
+//! - this file: [`Recording`] and what it holds, [`Recording::open`], and the account of what
+//!   was recovered ([`Recovery`]).
+//! - `walk.rs`: the walk over the file's records that checks every chunk and skips damage, and
+//!   the bytes it hands the MCAP library.
+//! - `decode.rs`: the records the library parses, turned into a [`Recording`]; the schema and
+//!   version checks.
+
+mod decode;
+mod walk;
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use softhaptic_proto::record::{BuildRecord, DeviceRecord, RecordingStats, SceneRecord};
+
+use super::SessionError;
+use walk::FileSource;
+
+/// One `/contact` or `/loop_stats` message: its device time and the wire text exactly as it was
+/// sent.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordedMessage {
+    pub time_ns: u64,
+    pub json: String,
+}
+
+/// How a file ended.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Ending {
+    /// The writer closed the file: final stats, summary and footer are present.
+    Complete,
+    /// The file stops early (the server was killed, the disk filled): everything before
+    /// `reason` was recovered.
+    Truncated { reason: String },
+}
+
+/// A recording read into memory.
+#[derive(Debug, Clone)]
+pub struct Recording {
+    pub path: PathBuf,
+    /// Size of the file in bytes.
+    pub file_len: u64,
+    pub build: BuildRecord,
+    pub scene: SceneRecord,
+    /// Every `/device` record, in tick order.
+    pub device: Vec<DeviceRecord>,
+    /// Every `/contact` frame, in order.
+    pub contacts: Vec<RecordedMessage>,
+    /// Every `/loop_stats` message, in order.
+    pub loop_stats: Vec<RecordedMessage>,
+    /// The last `/stats` record (the final one in a complete file).
+    pub last_stats: Option<RecordingStats>,
+    /// Messages on topics this build does not know (a newer writer's additions), skipped.
+    pub unknown_messages: u64,
+    pub ending: Ending,
+    /// The damaged stretches of the file that were skipped, in file order.
+    pub lost: Vec<LostSpan>,
+    /// The instructors' marks, in the order made.
+    pub marks: Vec<softhaptic_proto::wire::MarkMessage>,
+    /// The trainee's `metrics` messages as recorded: the 1 Hz ones viewers were sent, then the
+    /// final one over the whole session (absent from a recording cut short, and from recordings
+    /// made before the metrics were kept).
+    pub metrics: Vec<softhaptic_proto::wire::MetricsMessage>,
+}
+
+/// A stretch of a recording that could not be read and was skipped.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LostSpan {
+    /// Where it starts in the file, and how long it is, bytes.
+    pub first_byte: u64,
+    pub bytes: u64,
+    /// The device times its chunk said it held (first and last message), when it said so.
+    pub time_ns: Option<(u64, u64)>,
+    pub reason: String,
+}
+
+impl fmt::Display for LostSpan {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.time_ns {
+            Some((a, b)) => write!(
+                f,
+                "device time {:.3} s to {:.3} s ({})",
+                a as f64 * 1e-9,
+                b as f64 * 1e-9,
+                self.reason
+            ),
+            None => write!(
+                f,
+                "{} bytes at byte {} ({})",
+                self.bytes, self.first_byte, self.reason
+            ),
+        }
+    }
+}
+
+impl Recording {
+    /// Reads `path`. Refuses files it cannot trust; recovers what it can from truncated ones.
+    /// The file is read as a stream, a record at a time: what stays in memory is what was
+    /// decoded, never the file.
+    pub fn open(path: &Path) -> Result<Recording, SessionError> {
+        let io = |e: crate::files::ReadError| SessionError::Io {
+            path: path.to_path_buf(),
+            reason: e.into(),
+        };
+        let (file, len) =
+            crate::files::open(path, crate::files::FileKind::Recording).map_err(io)?;
+        Self::from_source(path, &FileSource { file, len })
+    }
+
+    /// Reads a recording held in memory; `path` names it in messages.
+    pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<Recording, SessionError> {
+        Self::from_source(path, bytes)
+    }
+
+    /// The session's final metrics as the live loop computed them over every tick, when the
+    /// recording holds them (it closed normally, and was made by a build that keeps them).
+    pub fn final_metrics(&self) -> Option<&softhaptic_proto::wire::MetricsMessage> {
+        self.metrics.iter().rev().find(|m| m.is_final)
+    }
+
+    /// File name without directories, for messages and the replay status.
+    pub fn file_name(&self) -> String {
+        self.path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| self.path.display().to_string())
+    }
+
+    /// Device time of the first and last recorded tick.
+    pub fn time_span_ns(&self) -> Option<(u64, u64)> {
+        let first = self.device.first()?.time_ns;
+        let last = self.device.last()?.time_ns;
+        Some((first, last))
+    }
+
+    /// Length of the recording in device time (first to last tick, or contact frame when it has
+    /// no ticks).
+    pub fn duration_ns(&self) -> u64 {
+        let ticks = self.time_span_ns().map(|(a, b)| b - a);
+        let contacts = match (self.contacts.first(), self.contacts.last()) {
+            (Some(a), Some(b)) => Some(b.time_ns.saturating_sub(a.time_ns)),
+            _ => None,
+        };
+        ticks.or(contacts).unwrap_or(0)
+    }
+
+    /// Ticks missing from the device channel: gaps in the tick counter (the ring was full).
+    pub fn missing_ticks(&self) -> u64 {
+        self.device
+            .windows(2)
+            .map(|w| w[1].tick.saturating_sub(w[0].tick + 1))
+            .sum()
+    }
+
+    /// Whether the file was closed by its writer and nothing in it was damaged.
+    pub fn is_complete(&self) -> bool {
+        self.ending == Ending::Complete && self.lost.is_empty()
+    }
+
+    /// What was recovered and what was lost, in a sentence or two.
+    pub fn recovery(&self) -> Recovery<'_> {
+        Recovery(self)
+    }
+}
+
+/// Display of [`Recording::recovery`].
+pub struct Recovery<'a>(&'a Recording);
+
+impl fmt::Display for Recovery<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let r = self.0;
+        let span = match r.time_span_ns() {
+            Some((a, b)) => format!("{:.3} s to {:.3} s", a as f64 * 1e-9, b as f64 * 1e-9),
+            None => "no device time".into(),
+        };
+        let damaged = match r.lost.len() {
+            0 => String::new(),
+            1 => "1 damaged stretch skipped; ".to_owned(),
+            n => format!("{n} damaged stretches skipped; "),
+        };
+        let lost: Vec<String> = r.lost.iter().map(LostSpan::to_string).collect();
+        match &r.ending {
+            Ending::Complete if r.lost.is_empty() => write!(
+                f,
+                "{}: complete; {} ticks ({span}), {} contact frames",
+                r.path.display(),
+                r.device.len(),
+                r.contacts.len()
+            ),
+            Ending::Complete => write!(
+                f,
+                "{}: damaged, closed by its writer; {damaged}recovered {} ticks ({span}) and {} \
+                 contact frames from {} bytes; lost: {}",
+                r.path.display(),
+                r.device.len(),
+                r.contacts.len(),
+                r.file_len,
+                lost.join("; ")
+            ),
+            Ending::Truncated { reason } => {
+                let mut lost = lost;
+                lost.push(format!(
+                    "whatever was recorded after {} (the chunk being written when the file was \
+                     cut: up to about a second)",
+                    r.time_span_ns()
+                        .map(|(_, b)| format!("{:.3} s", b as f64 * 1e-9))
+                        .unwrap_or_else(|| "the scene".into()),
+                ));
+                write!(
+                    f,
+                    "{}: truncated ({reason}); {damaged}recovered {} ticks ({span}) and {} \
+                     contact frames from {} bytes; lost: {}",
+                    r.path.display(),
+                    r.device.len(),
+                    r.contacts.len(),
+                    r.file_len,
+                    lost.join("; ")
+                )?;
+                if let Some(s) = r.last_stats {
+                    write!(
+                        f,
+                        " (the last stats record before the cut counted {} ticks, {} dropped)",
+                        s.ticks_recorded, s.ticks_dropped
+                    )?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
