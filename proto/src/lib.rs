@@ -16,7 +16,8 @@
 //! - [`calibration`]: the δ → R_d calibration table (JSON file format), its piecewise fit and
 //!   the analytical half-space table used when no FEM table exists.
 //! - [`deformation`]: the reference Bézier deformation profile the viewer mirrors (proto/WIRE.md).
-//! - [`wire`]: the WebSocket messages between server and viewer, and their decoding.
+//! - [`wire`]: the WebSocket messages between server and viewer, and their decoding; the render
+//!   mesh's binary layout ([`wire::shm1`]).
 //! - [`record`]: the session-log records (one MCAP channel each, JSON schemas) and the replay
 //!   control messages.
 //!

@@ -29,10 +29,7 @@ use softhaptic_device::device::HapticDevice;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::ToolShape;
-use softhaptic_proto::wire::{
-    DeviceInfo, Hello, Mode, ModelInfo, PROTOCOL_VERSION, RenderMeshInfo, Role, SceneMessage,
-    ServerMessage,
-};
+use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, SceneMessage, ServerMessage};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tower_http::services::{ServeDir, ServeFile};
@@ -229,51 +226,6 @@ impl RunningServer {
     }
 }
 
-/// The contact model's name on the wire.
-fn model_name(tool: &ToolShape) -> &'static str {
-    match tool {
-        ToolShape::Sphere { .. } => "hertz",
-        ToolShape::Cone { .. } => "sneddon_cone",
-    }
-}
-
-/// The `scene` message for a loaded scene.
-pub fn scene_message(scene: &Scene) -> SceneMessage {
-    let limits = scene.device_limits;
-    let device_name = scene
-        .device_label
-        .clone()
-        .unwrap_or_else(|| format!("{} {}", scene.device_kind.name(), limits.name));
-    SceneMessage {
-        protocol_version: PROTOCOL_VERSION,
-        tool: scene.tool,
-        material: scene.material,
-        model: ModelInfo {
-            name: model_name(&scene.tool).into(),
-            valid_depth_m: scene.force.valid_depth_m,
-            valid_inclination_rad: scene.force.valid_inclination_rad,
-        },
-        contact_model: scene.contact_model_info(),
-        calibration: scene.calibration.clone(),
-        render_profile: scene.render_profile,
-        render_meshes: vec![RenderMeshInfo {
-            name: scene.object_name.clone(),
-            url: format!("/meshes/{}.bin", scene.object_name),
-            vertex_count: scene.render_surface.positions_m.len() as u32,
-            object_in_world: scene.object_in_world,
-        }],
-        device: DeviceInfo {
-            name: device_name,
-            force_feedback: scene.device_renders_force,
-            peak_force_n: limits.peak_force_n,
-            continuous_force_n: limits.continuous_force_n,
-            max_stiffness_n_per_m: limits.max_stiffness_n_per_m,
-            damping_n_s_per_m: limits.damping_n_s_per_m,
-            workspace_radius_m: limits.workspace_radius_m,
-        },
-    }
-}
-
 /// A per-run identifier for `hello`: random, from the standard library's hasher seed.
 fn new_session_id() -> String {
     use std::hash::{BuildHasher, Hasher};
@@ -313,7 +265,7 @@ pub async fn start(
         None => crate::devices::open(&mut scene)?,
     };
     scene.device_renders_force = device.renders_force();
-    let message = scene_message(&scene);
+    let message = scene.message();
     let encode = |what: &'static str, m: ServerMessage| {
         m.encode()
             .map_err(|source| ServerError::Encode { what, source })

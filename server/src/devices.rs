@@ -18,7 +18,7 @@ use softhaptic_device::openhaptics::{
     self, Calibration, DeviceDescription, Discovery, OpenHapticsConfig, OpenHapticsDevice,
     OpenHapticsError,
 };
-use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
+use softhaptic_device::sim::{SimParams, SimulatedPhantom};
 use softhaptic_device::spacemouse::script::ReportScript;
 use softhaptic_device::spacemouse::{Connector, SpaceMouseDevice, SpaceMouseError, hid};
 
@@ -37,20 +37,6 @@ pub enum DeviceOpenError {
 
 use crate::scene::{DeviceKind, Scene};
 
-/// The simulated hand's demonstration, repeated forever: approach, press, hold, slide, release
-/// at the scene's press site.
-pub fn hand_script(scene: &Scene) -> HandScript {
-    let pose = scene.object_in_world;
-    let (point, normal) = scene.press_site_in_object;
-    let mut script = HandScript::press(
-        pose.transform_point(point),
-        pose.orientation * normal,
-        scene.press_depth_m,
-    );
-    script.repeat = true;
-    script
-}
-
 /// The OpenHaptics configuration a scene describes.
 pub fn openhaptics_config(scene: &Scene) -> OpenHapticsConfig {
     OpenHapticsConfig {
@@ -67,7 +53,7 @@ pub fn open(scene: &mut Scene) -> Result<Box<dyn HapticDevice>, DeviceOpenError>
         DeviceKind::Simulated => {
             scene.device_label = Some(format!("simulated {}", scene.device_limits.name));
             Ok(Box::new(SimulatedPhantom::with_params(
-                hand_script(scene),
+                scene.hand_script(),
                 SimParams {
                     limits: scene.device_limits,
                     ..SimParams::default()

@@ -8,10 +8,12 @@
 //! - [`scene`]: scene files (TOML), their validation and loading (meshes, calibration table,
 //!   the object's contact model `[object.model]` built for the scene's tool only, and its
 //!   validity limits from the measured limits file or the paper's), the haptic world a scene
-//!   describes, and the built-in default scene (its calibration tables built into the binary).
+//!   describes, the simulated hand's script at its press site, the built-in default scene (its
+//!   calibration tables built into the binary), and the `scene` message a scene is sent as,
+//!   whose `contact_model` names the active model and its limits.
 //! - [`app`]: [`app::start`] builds the haptic world, spawns the loop, binds HTTP and WebSocket
 //!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of
-//!   proto/WIRE.md; the `scene` message, whose `contact_model` names the active model and its limits.
+//!   proto/WIRE.md.
 //! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
 //!   reports) and the `softhaptic devices` listing.
 //! - [`doctor`]: `softhaptic doctor`: the host's readiness for the 1 kHz loop (preemption

@@ -16,7 +16,6 @@ use softhaptic_proto::record::{
 };
 use softhaptic_proto::wire::PROTOCOL_VERSION;
 use softhaptic_proto::{ContactFlags, ContactState, Pose};
-use softhaptic_server::app::scene_message;
 use softhaptic_server::scene::Scene;
 use softhaptic_server::session::SessionError;
 use softhaptic_server::session::reader::{Ending, Recording};
@@ -70,7 +69,7 @@ fn scene_record() -> SceneRecord {
     let text = include_str!("../../scenes/default.toml");
     let scene = Scene::from_toml(text, Path::new("default.toml"), None).unwrap();
     SceneRecord {
-        message: scene_message(&scene),
+        message: scene.message(),
         scene_toml: text.into(),
         scene_file: None,
         period_ns: 1_000_000,
@@ -583,7 +582,7 @@ fn record_press(scene: &Scene, scene_record: &SceneRecord, path: &Path) {
     use softhaptic_device::sim::{SimParams, SimulatedPhantom};
     let mut writer = SessionWriter::create(path, &build(1, 1), scene_record).unwrap();
     let mut world = scene.haptic_world();
-    let mut script = softhaptic_server::devices::hand_script(scene);
+    let mut script = scene.hand_script();
     script.repeat = false;
     let mut sim = SimulatedPhantom::with_params(
         script,
@@ -624,7 +623,7 @@ fn a_recording_keeps_its_meshes_and_checks_without_reading_the_files_its_scene_n
     assert_eq!(meshes.haptic.positions_m.len(), 121);
     assert!(meshes.render.is_none(), "the haptic mesh is drawn");
     let record = SceneRecord {
-        message: scene_message(&scene),
+        message: scene.message(),
         scene_toml: scene_toml.clone(),
         scene_file: Some(scene_path.display().to_string()),
         period_ns: 1_000_000,

@@ -179,7 +179,7 @@ async fn a_press_through_the_stand_in_feels_like_a_press_through_the_simulator()
     let scene = liver_scene();
     // The hand of the simulated device, moved by the forces the stand-in sends its motors: the
     // same hand, the same script, the same loop as a press through the simulator.
-    let script = devices::hand_script(&scene);
+    let script = scene.hand_script();
     let params = SimParams {
         limits: DeviceLimits::PHANTOM_DESKTOP,
         ..SimParams::default()

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use softhaptic_device::device::HapticDevice;
-use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
+use softhaptic_device::sim::{SimParams, SimulatedPhantom};
 use softhaptic_proto::model::{MeasuredLimit, ToolKind};
 use softhaptic_proto::wire::ServerMessage;
 use softhaptic_proto::{ContactFlags, ModelLimitsFile, ModelSpec, ToolShape};
@@ -247,7 +247,7 @@ fn a_scene_with_the_cone_tool_builds_no_sphere_model() {
     assert!(matches!(world.model().tool(), ToolShape::Cone { .. }));
     // The cone scene's model uses the curvature, so its world measures it...
     assert!(world.collider().has_curvature());
-    let message = app::scene_message(&scene);
+    let message = scene.message();
     assert_eq!(message.model.name, "sneddon_cone");
     assert_eq!(
         message.contact_model.label,
@@ -318,13 +318,7 @@ async fn the_scene_message_names_the_active_model() {
 /// Presses the scene's object with the simulated hand (aiming 8 mm deep) tick by tick, as a
 /// scripted recording does; returns (depth, flags) of every tick in contact.
 fn press(scene: &Scene) -> Vec<(f64, ContactFlags)> {
-    let pose = scene.object_in_world;
-    let (point, normal) = scene.press_site_in_object;
-    let mut script = HandScript::press(
-        pose.transform_point(point),
-        pose.orientation * normal,
-        scene.press_depth_m,
-    );
+    let mut script = scene.hand_script();
     script.repeat = false;
     let params = SimParams {
         limits: scene.device_limits,

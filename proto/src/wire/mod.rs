@@ -21,6 +21,7 @@ use crate::model::{ModelSpec, ValidityLimits};
 use crate::tool::ToolShape;
 
 mod replay;
+pub mod shm1;
 mod vectors;
 pub use replay::{
     GapCause, ReplayAction, ReplayControl, ReplayControlError, ReplayGap, ReplayMark, ReplaySpan,
@@ -149,6 +150,25 @@ pub struct ModelInfo {
     pub valid_depth_m: f64,
     /// Tool inclination beyond which the model is known to be inaccurate.
     pub valid_inclination_rad: f64,
+}
+
+impl ModelInfo {
+    /// The model the loop runs for `tool`, with its validity bounds.
+    pub fn new(tool: &ToolShape, valid_depth_m: f64, valid_inclination_rad: f64) -> Self {
+        ModelInfo {
+            name: Self::law_name(tool).into(),
+            valid_depth_m,
+            valid_inclination_rad,
+        }
+    }
+
+    /// The paper's contact law for `tool`, as the wire names it.
+    pub fn law_name(tool: &ToolShape) -> &'static str {
+        match tool {
+            ToolShape::Sphere { .. } => "hertz",
+            ToolShape::Cone { .. } => "sneddon_cone",
+        }
+    }
 }
 
 /// The contact model the loop runs: the paper's law and the corrections the scene turned on,

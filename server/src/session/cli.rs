@@ -17,7 +17,7 @@ use super::script::{ScriptName, record_script};
 use super::tools::{Info, export};
 use super::writer::{Recorder, StreamTap, TICK_RING_CAPACITY, recording_file_name};
 use crate::access::AccessArgs;
-use crate::app::{RunningServer, SERVER_NAME, scene_message};
+use crate::app::{RunningServer, SERVER_NAME};
 use crate::scene::Scene;
 use crate::stream::{EncodedFrame, ViewerLimits};
 
@@ -305,7 +305,7 @@ impl LiveRecording {
             started_unix_ns,
         };
         let scene_record = SceneRecord {
-            message: scene_message(scene),
+            message: scene.message(),
             scene_toml,
             scene_file,
             period_ns: 1_000_000,

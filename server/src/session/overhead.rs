@@ -19,7 +19,7 @@ use softhaptic_proto::wire::PROTOCOL_VERSION;
 use super::check::haptic_world;
 use super::writer::Recorder;
 use super::writer::TICK_RING_CAPACITY;
-use crate::app::{SERVER_NAME, scene_message};
+use crate::app::SERVER_NAME;
 use crate::scene::Scene;
 
 /// One run's figures.
@@ -47,7 +47,7 @@ fn run_once(
     realtime: bool,
     record_to: Option<&Path>,
 ) -> anyhow::Result<(RunFigures, bool)> {
-    let script = crate::devices::hand_script(scene);
+    let script = scene.hand_script();
     let params = SimParams {
         limits: scene.device_limits,
         ..SimParams::default()
@@ -64,7 +64,7 @@ fn run_once(
                 started_unix_ns: super::unix_now_ns(),
             };
             let scene_record = SceneRecord {
-                message: scene_message(scene),
+                message: scene.message(),
                 scene_toml: include_str!("../../../scenes/default.toml").into(),
                 scene_file: None,
                 period_ns: params.period_ns,

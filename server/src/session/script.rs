@@ -14,7 +14,6 @@ use softhaptic_proto::wire::ContactFrame;
 use super::SessionError;
 use super::check::haptic_world;
 use super::writer::SessionWriter;
-use crate::app::scene_message;
 use crate::scene::{Scene, SceneError};
 use crate::stream::EncodedFrame;
 
@@ -83,7 +82,7 @@ pub enum ScriptError {
 /// The hand's script for `name` at the scene's press site.
 fn hand_script(name: ScriptName, scene: &Scene) -> HandScript {
     // The live demonstration's press, once.
-    let mut script = crate::devices::hand_script(scene);
+    let mut script = scene.hand_script();
     script.repeat = false;
     if name != ScriptName::Slide {
         script.slide_distance_m = 0.0;
@@ -130,7 +129,7 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
         started_unix_ns: 0,
     };
     let scene_record = SceneRecord {
-        message: scene_message(&scene),
+        message: scene.message(),
         scene_toml: name.scene_toml().to_owned(),
         scene_file: None,
         period_ns: params.period_ns,

@@ -1,0 +1,469 @@
+//! Scenes: what the server simulates, described in a TOML file.
+//!
+//! A scene names one object (haptic and render meshes, pose, material, contact model), the
+//! tool, the device, the calibration table that gives R_d and the measured limits of the
+//! contact models, the collision mode and the damping. [`SceneFile`] is the file as written;
+//! [`Scene`] is the same content validated and loaded (meshes read, the calibration table read
+//! or built, the object's [`ForceModel`] built for the scene's tool and its validity limits
+//! looked up), ready to build the haptic world. An invalid file is refused before anything
+//! starts, with the file, the field and the reason ([`SceneError`]); syntax and type errors
+//! carry toml's line and column.
+//!
+//! ```toml
+//! [object]
+//! name = "liver"
+//! builtin = "liver"                 # or: haptic_mesh = "x.obj", render_mesh = "x_fine.obj"
+//! position_m = [0.0, 0.0, 0.0]
+//! orientation = [0.0, 0.0, 0.0, 1.0] # quaternion [x, y, z, w]
+//!
+//! [object.model]                    # the object's contact model; absent: the paper's law
+//! exact_sphere = true               # Sneddon's exact sphere (sphere tools only)
+//! curvature = true                  # the object's local curvature, from the haptic mesh
+//! hyperelastic = true               # neo-Hookean stiffening fitted to the project's FEM
+//! inclination = false               # force along the normal of a tilted tool (cone)
+//! thickness = { thickness_m = 0.03, bonded = true } # a layer on a rigid base; omit if none
+//!
+//! [material]
+//! youngs_modulus_pa = 50000.0
+//! poisson_ratio = 0.33
+//!
+//! [tool]
+//! shape = "sphere"
+//! radius_m = 0.01
+//!
+//! [device]
+//! kind = "simulated"               # or "openhaptics": a PHANTOM / Touch through OpenHaptics,
+//!                                  # or "spacemouse": a 3Dconnexion puck (input only, no force)
+//! model = "phantom_desktop"        # phantom_desktop | touch | omni: the preset of limits (a real
+//!                                  # device's own nominal limits apply where tighter)
+//! press_depth_m = 0.008            # how deep the simulated hand aims
+//! name = "Default Device"          # openhaptics: the device configuration's name
+//! world_from_device = { position_m = [0.0, 0.0, 0.0], orientation = [0.0, 0.0, 0.0, 1.0], scale = 1.0 }
+//!                                  # openhaptics: where the device's origin and axes are in the
+//!                                  # world, and world metres per metre of stylus motion
+//! serial = "..."                   # spacemouse: the one to open (default: the first found)
+//! report_script = "puck.hid"       # spacemouse: play a recorded report stream instead of a
+//!                                  # device (relative to this file)
+//!
+//! [device.rate]                    # spacemouse: the puck's deflection as the tool's velocity
+//! dead_band = 0.1                  # fraction of full deflection that commands nothing
+//! gain_m_s = 0.05                  # tool speed at full deflection of one axis
+//! max_speed_m_s = 0.05             # speed limit
+//! smoothing_s = 0.04               # time constant of the velocity's smoothing
+//! workspace_half_extent_m = [0.06, 0.06, 0.06]  # the box the tip stays in, around the press site
+//! home_height_m = 0.03             # the start (and reset) point above the press site
+//! rotation = false                 # whether the puck's twist turns the tool (default: on for
+//!                                  # a cone, off for a sphere, whose force it does not change)
+//! angular_gain_rad_s = 1.0         # turn rate at full twist
+//! reset_button = 0                 # the button that puts the tool back home
+//!
+//! [calibration]
+//! table = "half_space"             # or a path to a calibration JSON, relative to this file;
+//!                                  # with a model thickness, the half-space on that rigid base
+//! limits = "my_limits.json"        # measured limits of the models; when absent, the default
+//!                                  # calibration/model_limits.json, which may be missing
+//!
+//! [haptics]
+//! collision = "continuous"         # or "paper_vertices"
+//! damping_n_s_per_m = 1.0
+//! safe_force_n = 2.0               # the trainee's metrics count the time above this force
+//!
+//! [render]                         # what the viewers draw; never changes the force
+//! profile = "fem"                  # the calibration's FEM surface (needs a table that carries
+//!                                  # it), or "paper": the paper's Bézier. Default: "fem" when
+//!                                  # the table carries a surface, else "paper"
+//! ```
+//!
+//! # Model only what the scene requires
+//! The scene builds one [`ForceModel`], for its tool: a scene with a cone builds no sphere law,
+//! and the mesh's curvature is estimated only when the model uses it (the haptic world asks the
+//! collider for it, [`Scene::haptic_world`]).
+//!
+//! # Validity limits
+//! The flags `beyond_valid_depth` and `beyond_valid_inclination` use the measured limits of the
+//! object's model for the scene's tool kind, from the limits file (`calibration.limits`, written
+//! by `softhaptic-calibrate`), or the paper's (4.3 mm; 22° sphere, 9° cone) when the file has no
+//! entry for the model ([`ValidityLimits`]). A missing file at the default path falls back to
+//! the paper's with a log line; a file named in the scene must exist and be well formed.
+//!
+//! # Files of the built-in scene
+//! The built-in default scene has no directory of its own. The calibration tables it may name
+//! (the ones under the repository's `scenes/calibration/`) are built into the binary, so it
+//! runs from any directory; its limits file is looked up in the `scenes/` directory of the
+//! source tree the binary was built from (the calibration command rewrites it, so it is read
+//! when the scene loads rather than frozen into the binary).
+//!
+//! # Layout
+//! - `file`: the TOML schema, section by section ([`SceneFile`]), and its parsing, which shows
+//!   a refused value on its own line.
+//! - `load`: from a parsed file, or a recording, to a [`Scene`]: the object's pose and meshes,
+//!   the device, the haptics, the contact model and its limits.
+//! - `calibration`: the R_d table (built into the binary, a file, the half-space, or the
+//!   recording's) and the model-limits file.
+//! - `obj`: the OBJ reader.
+//! - `message`: the `scene` message the viewers are sent for a scene ([`Scene::message`]).
+//!
+//! The render mesh's wire encoding ("SHM1") belongs to the wire, beside its specification:
+//! [`softhaptic_proto::wire::shm1`].
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use glam::DVec3;
+use softhaptic_device::collision::{Collider, CollisionMode};
+use softhaptic_device::device::DeviceLimits;
+use softhaptic_device::force::ForceConfig;
+use softhaptic_device::mesh::HapticMesh;
+use softhaptic_device::model::ForceModel;
+use softhaptic_device::sim::HandScript;
+use softhaptic_device::spacemouse::rate::RateConfig;
+use softhaptic_device::world::HapticWorld;
+use softhaptic_proto::deformation::RenderProfile;
+use softhaptic_proto::record::{RecordedMeshes, SceneRecord};
+use softhaptic_proto::wire::{ContactModelInfo, shm1};
+use softhaptic_proto::{CalibrationTable, Material, Pose, ToolShape, ValidityLimits};
+
+use crate::files::{self, FileKind, ReadError};
+
+mod calibration;
+mod file;
+mod load;
+mod message;
+mod obj;
+
+pub use calibration::{DEFAULT_LIMITS_FILE, source_tree_scenes_dir, validate_limits};
+pub use file::{
+    Builtin, CalibrationSection, CollisionModeName, DeviceChoice, DeviceKind, DeviceModel,
+    DeviceSection, HapticsSection, MaterialSection, ObjectSection, RateSection, RenderSection,
+    SceneFile, ToolKind, ToolSection, WorldFromDeviceSection,
+};
+pub use obj::parse_obj;
+
+/// Why a scene could not be loaded. Every variant names the file; field-level errors name the
+/// field and the value.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// The file could not be read. The OS's text is part of this message, not a separate
+    /// cause, so that an error chain prints it once.
+    #[error("{path}: {reason}")]
+    Read { path: PathBuf, reason: ReadError },
+    /// Syntax, an unknown field, a wrong type, or a value refused by its type (material, tool):
+    /// toml's message shows the line, the column and the offending text.
+    #[error("{path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("{path}: {field}: {reason}")]
+    Field {
+        path: PathBuf,
+        field: String,
+        reason: String,
+    },
+    #[error("{path}: {field}: mesh {mesh}: {reason}")]
+    Mesh {
+        path: PathBuf,
+        field: &'static str,
+        mesh: PathBuf,
+        reason: String,
+    },
+    #[error("{path}: calibration.table: {table}: {reason}")]
+    Calibration {
+        path: PathBuf,
+        table: PathBuf,
+        reason: String,
+    },
+    #[error("{path}: calibration.limits: {file}: {reason}")]
+    Limits {
+        path: PathBuf,
+        file: PathBuf,
+        reason: String,
+    },
+}
+
+/// A render surface in the object's frame with unit vertex normals.
+#[derive(Debug, Clone)]
+pub struct RenderSurface {
+    pub positions_m: Vec<DVec3>,
+    pub normals: Vec<DVec3>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl RenderSurface {
+    /// The surface as `GET /meshes/<name>.bin` serves it ([`shm1::encode`]).
+    pub fn to_shm1(&self) -> Vec<u8> {
+        shm1::encode(&self.positions_m, &self.normals, &self.triangles)
+    }
+
+    /// Builds the surface and its area-weighted normals (the haptic mesh's own computation).
+    fn from_mesh(mesh: &HapticMesh) -> Self {
+        RenderSurface {
+            positions_m: mesh.positions_m().to_vec(),
+            normals: mesh.normals().to_vec(),
+            triangles: mesh.triangles().to_vec(),
+        }
+    }
+}
+
+/// A scene validated and loaded, ready to build the haptic world.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// The file it came from (`None` for the built-in default).
+    pub source: Option<PathBuf>,
+    pub object_name: String,
+    pub object_in_world: Pose,
+    pub haptic_mesh: HapticMesh,
+    /// The fine mesh the viewers draw, shared: a clone of the scene (a replay check's, a
+    /// recording's) shares it rather than copying its vertices (163 842 for the liver).
+    pub render_surface: Arc<RenderSurface>,
+    pub material: Material,
+    pub tool: ToolShape,
+    pub device_kind: DeviceKind,
+    /// The preset's limits as loaded; once a real device is open, the tighter of them and the
+    /// device's own (`crate::devices::open`), and in a replay check the limits the recording
+    /// ran with.
+    pub device_limits: DeviceLimits,
+    /// The OpenHaptics device configuration name, or the SpaceMouse's serial (`None`: the
+    /// default device, the first SpaceMouse found).
+    pub device_name: Option<String>,
+    /// Where a real device sits in the world.
+    pub world_from_device: Pose,
+    /// World metres per metre of stylus motion.
+    pub device_scale: f64,
+    /// The opened device as viewers are told it (model, serial); `None` before it is opened.
+    pub device_label: Option<String>,
+    /// Whether the opened device renders force (false for a SpaceMouse).
+    pub device_renders_force: bool,
+    /// A SpaceMouse's rate control, in the world: the box around the press site, the home
+    /// above it.
+    pub spacemouse_rate: RateConfig,
+    /// The SpaceMouse report stream to play instead of a device, resolved against the scene's
+    /// directory (never read for a recording's check or replay).
+    pub spacemouse_script: Option<PathBuf>,
+    /// The object's meshes came from files (and go into the recording, [`Scene::recorded_meshes`]).
+    pub meshes_from_files: bool,
+    pub press_depth_m: f64,
+    /// The force above which the trainee's metrics count time, N.
+    pub safe_force_n: f64,
+    /// Where the simulated hand presses, object frame: a surface point and its outward normal.
+    pub press_site_in_object: (DVec3, DVec3),
+    pub calibration: CalibrationTable,
+    /// The deformation profile the viewers draw (`[render] profile`).
+    pub render_profile: RenderProfile,
+    pub collision: CollisionMode,
+    /// The safety layers, damping, and the validity limits of `validity`.
+    pub force: ForceConfig,
+    /// The object's contact model, built for the scene's tool (and only for it).
+    pub contact_model: ForceModel,
+    /// The limits the validity flags use, and where they come from.
+    pub validity: ValidityLimits,
+}
+
+impl Scene {
+    /// The scene used when no file is given: the procedural liver, a 10 mm sphere, E = 50 kPa,
+    /// ν = 0.33, the best combined contact model for a sphere on a curved organ (exact sphere,
+    /// hyperelastic fit, curvature), the neo-Hookean FEM R_d table of a 10 mm sphere at 50 kPa
+    /// (built into the binary), a simulated PHANTOM Desktop.
+    pub fn builtin_default() -> Result<Scene, SceneError> {
+        let text = include_str!("../../../scenes/default.toml");
+        Self::from_toml(text, Path::new("<built-in scenes/default.toml>"), None)
+    }
+
+    /// Reads and loads a scene file. Relative mesh and table paths are relative to the file.
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let text = files::read_text(path, FileKind::Scene).map_err(|reason| SceneError::Read {
+            path: path.to_owned(),
+            reason,
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        Self::from_toml(&text, path, Some(base))
+    }
+
+    /// Parses, validates and loads scene text; `path` is used in errors, `base` resolves
+    /// relative files (`None`: a built-in scene, whose files resolve as the module docs say).
+    pub fn from_toml(text: &str, path: &Path, base: Option<&Path>) -> Result<Scene, SceneError> {
+        let file = SceneFile::parse(text, path)?;
+        Self::from_file(file, path, base, load::ModelSource::File)
+    }
+
+    /// Loads the scene a recording ran with, from what the recording holds alone: its scene
+    /// text, the contact model and limits and the calibration table of its `scene` message (so a
+    /// replay rebuilds the same model even if the scene's defaults, the limits file or the table
+    /// have changed since), and the meshes it kept. No file is read: a recording's scene cannot
+    /// make a check read a local file, and an edited mesh on disk does not change a check.
+    /// `path` names the recording's scene in errors.
+    pub fn from_recording(record: &SceneRecord, path: &Path) -> Result<Scene, SceneError> {
+        let file = SceneFile::parse(&record.scene_toml, path)?;
+        let mut scene = Self::from_file(file, path, None, load::ModelSource::Recorded(record))?;
+        scene.meshes_from_files = record.meshes.is_some();
+        Ok(scene)
+    }
+
+    /// The object's meshes for the recording, when they came from files (a built-in object's
+    /// are the build's own).
+    pub fn recorded_meshes(&self) -> Option<RecordedMeshes> {
+        if !self.meshes_from_files {
+            return None;
+        }
+        let haptic =
+            load::mesh_record(self.haptic_mesh.positions_m(), self.haptic_mesh.triangles());
+        let render = load::mesh_record(
+            &self.render_surface.positions_m,
+            &self.render_surface.triangles,
+        );
+        Some(RecordedMeshes {
+            render: (render != haptic).then_some(render),
+            haptic,
+        })
+    }
+
+    /// Replaces the scene's device with `--device`'s choice.
+    pub fn choose_device(&mut self, choice: &DeviceChoice) {
+        if choice.kind != self.device_kind || choice.name.is_some() {
+            self.device_name = choice.name.clone();
+        }
+        self.device_kind = choice.kind;
+    }
+
+    /// The haptic world of this scene: its mesh, pose, contact model, force configuration and
+    /// device limits. The world estimates the mesh's curvature only if the model uses it.
+    pub fn haptic_world(&self) -> HapticWorld {
+        let mut world = HapticWorld::with_model(
+            Collider::new(self.haptic_mesh.clone(), self.collision),
+            self.object_in_world,
+            self.contact_model.clone(),
+            self.force,
+            self.device_limits,
+        );
+        world.set_safe_force(self.safe_force_n);
+        world
+    }
+
+    /// The simulated hand's demonstration at the scene's press site: approach, press, hold,
+    /// slide, release, repeated forever (a recording of one press sets `repeat` to false).
+    pub fn hand_script(&self) -> HandScript {
+        let pose = self.object_in_world;
+        let (point, normal) = self.press_site_in_object;
+        let mut script = HandScript::press(
+            pose.transform_point(point),
+            pose.orientation * normal,
+            self.press_depth_m,
+        );
+        script.repeat = true;
+        script
+    }
+
+    /// The active contact model as the `scene` message describes it.
+    pub fn contact_model_info(&self) -> ContactModelInfo {
+        ContactModelInfo::new(&self.tool, self.contact_model.spec(), &self.validity)
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use softhaptic_proto::{ModelLimitsFile, ModelSpec};
+
+    use super::*;
+
+    #[test]
+    fn builtin_default_scene_is_the_liver_with_the_combined_model_and_the_fem_table() {
+        let s = Scene::builtin_default().unwrap();
+        assert_eq!(s.object_name, "liver");
+        assert!(s.render_surface.positions_m.len() >= 100_000);
+        assert_eq!(s.tool, ToolShape::sphere(0.01).unwrap());
+        assert_eq!(s.material, Material::PAPER_SOFT);
+        assert_eq!(s.device_limits, DeviceLimits::PHANTOM_DESKTOP);
+        // The FEM table of the 10 mm sphere at 50 kPa, from inside the binary: the same table
+        // as the file of the source tree.
+        assert_eq!(
+            s.calibration.source(),
+            softhaptic_proto::CalibrationSource::FemNeoHookean
+        );
+        let on_disk: CalibrationTable = serde_json::from_str(
+            &std::fs::read_to_string(
+                source_tree_scenes_dir().join("calibration/sphere10_50kpa.json"),
+            )
+            .unwrap(),
+        )
+        .unwrap();
+        assert_eq!(s.calibration, on_disk);
+        // The best combined model for a sphere on a curved organ, no layer.
+        let spec = *s.contact_model.spec();
+        assert_eq!(
+            spec,
+            ModelSpec {
+                exact_sphere: true,
+                curvature: true,
+                hyperelastic: true,
+                ..ModelSpec::PAPER
+            }
+        );
+        assert_eq!(s.contact_model.tool(), &s.tool);
+        // The limits: measured when the source tree's limits file has them, the paper's
+        // otherwise; the renderer uses the same.
+        let file = std::fs::read_to_string(source_tree_scenes_dir().join(DEFAULT_LIMITS_FILE))
+            .ok()
+            .map(|t| serde_json::from_str::<ModelLimitsFile>(&t).unwrap());
+        assert_eq!(
+            s.validity,
+            ValidityLimits::of(file.as_ref(), &s.tool, &spec)
+        );
+        assert_eq!(s.force.valid_depth_m, s.validity.valid_depth_m);
+        assert_eq!(
+            s.force.valid_inclination_rad,
+            s.validity.valid_inclination_rad
+        );
+        // The world measures the curvature, because the model uses it.
+        assert!(s.haptic_world().collider().has_curvature());
+    }
+
+    #[test]
+    fn a_scene_without_a_model_table_runs_the_papers_law() {
+        let text = include_str!("../../../scenes/default.toml");
+        let start = text.find("[object.model]").unwrap();
+        let end = start + text[start..].find("\n[material]").unwrap();
+        let plain = format!("{}{}", &text[..start], &text[end..]);
+        let s = Scene::from_toml(&plain, Path::new("<test>"), None).unwrap();
+        assert!(s.contact_model.spec().is_paper());
+        assert!(!s.haptic_world().collider().has_curvature());
+        let info = s.contact_model_info();
+        assert_eq!(info.label, "Hertz");
+        assert!(info.corrections.is_empty());
+    }
+
+    #[test]
+    fn the_cone_scene_builds_a_cone_model_only() {
+        let s = Scene::from_toml(
+            include_str!("../../../scenes/cone.toml"),
+            Path::new("<test>"),
+            None,
+        )
+        .unwrap();
+        assert!(matches!(s.contact_model.tool(), ToolShape::Cone { .. }));
+        assert_eq!(
+            *s.contact_model.spec(),
+            ModelSpec {
+                curvature: true,
+                inclination: true,
+                ..ModelSpec::PAPER
+            }
+        );
+        assert_eq!(
+            s.contact_model_info().label,
+            "Sneddon cone + curvature + inclination"
+        );
+    }
+
+    /// The scene record a session of `text` (a built-in-object scene) writes, with the recorded
+    /// model `model`.
+    pub(super) fn recording_of(text: &str, model: ContactModelInfo) -> SceneRecord {
+        let scene = Scene::from_toml(text, Path::new("<test>"), None).unwrap();
+        let mut message = scene.message();
+        message.contact_model = model;
+        SceneRecord {
+            message,
+            scene_toml: text.to_owned(),
+            scene_file: None,
+            period_ns: 1_000_000,
+            meshes: scene.recorded_meshes(),
+        }
+    }
+}
