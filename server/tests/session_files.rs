@@ -2,6 +2,8 @@
 //! truncated files recover every complete chunk, and files that cannot be trusted (wrong magic,
 //! wrong schema, newer versions, invalid messages) are refused with a message naming the file and
 //! the cause, never a panic.
+//!
+//! Long because its 13 tests share the fixtures of a recording (build, scene, ticks, foreign file).
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 

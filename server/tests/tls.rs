@@ -4,6 +4,8 @@
 //! certificate is reused and replaced when it no longer serves, the lab's own PEM files work, a
 //! plain-text or silent client is refused without disturbing the next TLS client, and every bad
 //! option or file gets an error that names it.
+//!
+//! One file because its 14 tests share one router, the clients' TLS setups and a lab CA.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 

@@ -6,6 +6,8 @@
 //! The stand-in is one per process, so the tests take turns ([`LOCK`]) and each starts from
 //! `hdStandinReset`. Nothing asserts a wall-clock rate: the tests count servo ticks and poll
 //! for conditions with generous deadlines.
+//!
+//! Long because the stand-in is one per process: its 22 tests share a lock and the HD bindings.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 

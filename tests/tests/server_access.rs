@@ -4,6 +4,8 @@
 //! limits and the message rate, the security headers. The real binary's refusals (no tokens
 //! beyond loopback, token sources) and the absence of tokens from its logs and recordings are in
 //! `server/tests/access_cli.rs`.
+//!
+//! Long because each of its 11 tests starts a real server; they share its token and viewer helpers.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
