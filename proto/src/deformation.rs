@@ -17,6 +17,9 @@
 //! (calibration report, "The drawn surface against the FEM surface"); this profile follows the
 //! FEM surface at every depth it was calibrated for.
 //!
+//! The viewer draws the `fem` profile on its render mesh from a [`SurfaceTable`], the profile
+//! sampled once per frame, within 1.1 µm of it.
+//!
 //! The viewer (web/src) implements the same functions in JavaScript; the shared vectors in
 //! `proto/vectors/deformation.json` and `proto/vectors/surface_profile.json`, written from this
 //! code, keep the two identical. Every degenerate input (zero depth, R_d inside the contact, a
@@ -762,8 +765,9 @@ pub struct SurfaceProfileVector {
 
 /// The shared vectors of the `fem` profile: a sphere's family (radius ∝ √δ) and a cone's
 /// (radius ∝ δ), each drawn below its first row, on a row, between rows, beyond its last row,
-/// and at no, negative and non-finite depths, at radii across the profile, at its reach, past
-/// it, and negative or non-finite.
+/// and at no, negative and non-finite depths, at radii across the profile, between two samples
+/// of its [`SurfaceTable`], at its reach, past it, and negative or non-finite; each case holds
+/// the profile's depression and its table's.
 pub fn surface_profile_vectors() -> SurfaceProfileVectors {
     const MM: f64 = 1e-3;
     // Rows sampled from the half-space surface on a 50 mm base, cut where it falls below 10 µm.
