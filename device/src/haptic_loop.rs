@@ -12,7 +12,7 @@
 //!
 //! A standby thread on a second CPU wakes a quarter period after each deadline and runs the tick
 //! when the loop thread has not started it (its CPU held by the kernel or by the host). The
-//! tick's state (device, world, timing) is a [`Baton`] that the two pass by compare-and-swap:
+//! tick's state (device, world, timing) is a `Baton` that the two pass by compare-and-swap:
 //! whoever finds it taken leaves the tick to the holder, so neither ever waits.
 //!
 //! # Who owns the clock
@@ -25,8 +25,8 @@
 //! samples and forces with the callback through wait-free cells, was rejected: two 1 kHz clocks
 //! drift against each other, so a force would reach the motors between one and two servo
 //! periods after the reading it answers, and the extra period of delay costs stability margin
-//! on a stiff contact. A device-clocked tick is the same [`TickCore`] tick behind the same
-//! [`Baton`]: statistics (the period from the driver's tick starts), the recording ring, the
+//! on a stiff contact. A device-clocked tick is the same `TickCore` tick behind the same
+//! `Baton`: statistics (the period from the driver's tick starts), the recording ring, the
 //! published contact and the final zero force work unchanged. While the driver's clock is down
 //! (the device is being reconnected) a watchdog thread runs fault ticks at the period, so
 //! viewers, the recording and the fault counters see the gap as it happens.
@@ -251,7 +251,7 @@ fn contact_from_words(w: &[u64; CONTACT_WORDS]) -> ContactState {
     }
 }
 
-/// What the loop threads share with everyone else. Only the holder of the [`Baton`] writes the
+/// What the loop threads share with everyone else. Only the holder of the `Baton` writes the
 /// cells, so each has one writer at a time.
 struct Shared {
     stop: AtomicBool,
@@ -307,7 +307,7 @@ enum TickSource {
     Watchdog,
 }
 
-/// Everything a tick touches: held by one loop thread at a time ([`Baton`]).
+/// Everything a tick touches: held by one loop thread at a time (`Baton`).
 struct TickCore {
     device: Box<dyn HapticDevice>,
     world: HapticWorld,
@@ -363,7 +363,7 @@ impl<T> Baton<T> {
     }
 }
 
-/// Exclusive access to the [`TickCore`]; released when dropped (also while unwinding).
+/// Exclusive access to the `TickCore`; released when dropped (also while unwinding).
 struct BatonGuard<'a, T> {
     baton: &'a Baton<T>,
 }
@@ -422,7 +422,7 @@ impl HapticLoop {
     /// has not started it: a wake-up held back on one CPU (non-preemptible kernel work, a
     /// virtual CPU descheduled by its host, measured by `loop-timing`) then costs a quarter period
     /// instead of a lost tick. The tick state passes between the two without either waiting
-    /// ([`Baton`]).
+    /// (`Baton`).
     ///
     /// Returns once the threads have asked for real-time treatment, so the caller learns what
     /// was granted ([`HapticLoop::realtime`], [`HapticLoop::standby`]) before the first tick; a

@@ -20,12 +20,12 @@
 //! - [`rd`]: δ → R_d tables (§3.3.2).
 //! - [`surface`]: the surface the viewer draws against the FEM's top surface, on the R_d runs.
 //! - [`force`]: force against depth (§4.3), the hyperelastic fit, the speed-accuracy table.
-//! - [`curvature`]: balls against the block (§3.2, eq. 6), with the curvature-corrected models.
-//! - [`inclination`]: tilted tools (§3.2, eq. 7), with the inclination-corrected cone.
+//! - [`curvature`](mod@curvature): balls against the block (§3.2, eq. 6), with the curvature-corrected models.
+//! - [`inclination`](mod@inclination): tilted tools (§3.2, eq. 7), with the inclination-corrected cone.
 //! - [`limits`]: the measured validity limits of every runtime model evaluated.
 //! - [`poisson`]: the hyperelastic factor, the bonded-layer factor and the R_d tables over ν
 //!   from 0.30 to 0.49.
-//! - [`verification`]: Hertz, the half-space profile and the patch tests, before the rest.
+//! - [`verification`](mod@verification): Hertz, the half-space profile and the patch tests, before the rest.
 
 pub mod curvature;
 pub mod force;

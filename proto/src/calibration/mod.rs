@@ -13,8 +13,8 @@
 //! rows are kept so that a reader can see what the fit was made from.
 //!
 //! - this file: the table, its file format and its validation;
-//! - [`fit`]: the paper's piecewise least-squares fit R_d(δ) ([`CalibrationFit`]);
-//! - [`half_space`]: the analytical surface profiles (half-space, and half-space on a rigid
+//! - `fit`: the paper's piecewise least-squares fit R_d(δ) ([`CalibrationFit`]);
+//! - `half_space`: the analytical surface profiles (half-space, and half-space on a rigid
 //!   base) and the tables built from them.
 
 use serde::{Deserialize, Serialize};

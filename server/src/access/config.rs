@@ -151,7 +151,7 @@ pub struct AccessArgs {
     /// session and controls replays. Only for a network where that is wanted.
     #[arg(long, conflicts_with_all = ["tokens", "token_file"])]
     pub insecure_no_tokens: bool,
-    /// Also accept WebSocket connections from pages of this origin (scheme://host[:port]);
+    /// Also accept WebSocket connections from pages of this origin (`scheme://host[:port]`);
     /// repeatable. The server's own origin is always accepted.
     #[arg(long = "allow-origin", value_name = "ORIGIN")]
     pub allow_origin: Vec<String>,

@@ -1,8 +1,8 @@
 //! `softhaptic hub`: the lab's page for instructors, relaying any station from NATS.
 //!
 //! The hub keeps the stations' last heartbeats (a station not heard from for
-//! [`OFFLINE_AFTER`](super::OFFLINE_AFTER) is offline) and, for each station a viewer opens, one
-//! [`Feed`]: the station's session fetched once (its `hello` and `scene`), a
+//! [`super::OFFLINE_AFTER`] is offline) and, for each station a viewer opens, one
+//! `Feed`: the station's session fetched once (its `hello` and `scene`), a
 //! [`StreamHub`] of the hub's own fed by one NATS subscription to the station's frames and
 //! stats. Viewers then connect to that stream hub exactly as they would to the station's, with
 //! the hub's access rules (tokens, Origin, Host, TLS): the same wire, the same roles. A feed
