@@ -230,6 +230,28 @@ fn main() -> Result<()> {
         report::write_json(&path, &merged)?;
         tracing::info!(path = %path.display(), entries = merged.limits.len(), "model limits over ν written");
     }
+    if cli.command == Command::Inclination
+        && let Some(studies) = &results.inclination
+    {
+        // `inclination` alone refreshes the angles of the limits file beside the tables (every
+        // entry's, those measured over ν included), keeping its depth limits, which only `all`
+        // measures.
+        let path = tables_dir.join("model_limits.json");
+        match std::fs::read_to_string(&path) {
+            Ok(text) => {
+                let existing: softhaptic_proto::ModelLimitsFile = serde_json::from_str(&text)
+                    .with_context(|| format!("{} does not parse", path.display()))?;
+                let refreshed = experiments::limits::refresh_inclination_limits(existing, studies);
+                report::write_json(&path, &refreshed)?;
+                tracing::info!(path = %path.display(), entries = refreshed.limits.len(), "inclination limits refreshed");
+            }
+            Err(error) => tracing::warn!(
+                path = %path.display(),
+                %error,
+                "no limits file to refresh the inclination limits of (run `all` to write one)"
+            ),
+        }
+    }
     if results.speed.is_some() || results.curvature.is_some() {
         let limits = experiments::model_limits(
             results.speed.as_ref(),

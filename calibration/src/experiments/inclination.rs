@@ -80,7 +80,8 @@ pub struct InclinationStudy {
 ///
 /// Magnitude: the runtime's factor k(θ) (the equal-area equivalent cone) raised to a power β,
 /// k(θ)^β, fitted by least squares to |F(θ)| / |F(0)| over the resolved depths of the fitting
-/// angles; β = 1 is the factor in use. Direction: the angle between the FEM force and the
+/// angles; β = 1 is the equal-area cone alone, and the runtime uses the β fitted to the
+/// deformed-contact FEM ([`softhaptic_device::model::INCLINED_CONE_EXPONENT`]). Direction: the angle between the FEM force and the
 /// contact normal, φ ≈ γ θ, fitted the same way (the runtime renders along the normal, so γ
 /// measures what it leaves out). The angles alternate between the fit and the check, so every
 /// checked angle lies between two fitted ones and none of them took part in the fit.
@@ -93,8 +94,10 @@ pub struct InclinationRefit {
     /// Per angle of the study, the refitted magnitude's worst error over the resolved depths
     /// against |F(θ)|, percent (signed, of the largest |value|).
     pub refit_magnitude_error_percent: Vec<f64>,
-    /// The same with the factor in use.
+    /// The same with the runtime's factor ([`softhaptic_device::model::inclined_cone_factor`]).
     pub in_use_magnitude_error_percent: Vec<f64>,
+    /// Per angle, the equal-area cone's factor k(θ) the refit raises to β.
+    pub equal_area_factor: Vec<f64>,
     /// Per angle, the direction fit's worst error over the resolved depths, degrees.
     pub direction_fit_error_deg: Vec<f64>,
     /// The angle where the refitted magnitude's error first reaches 7% (or the direction 32°),
@@ -144,7 +147,10 @@ fn refit_inclination(
     let resolved: Vec<usize> = (0..depths_m.len())
         .filter(|&i| depths_m[i] >= resolved_from_m - 1e-12)
         .collect();
-    let k_area = |theta: f64| softhaptic_device::model::inclined_cone_factor(half_angle_rad, theta);
+    let k_area =
+        |theta: f64| softhaptic_device::model::equal_area_cone_factor(half_angle_rad, theta);
+    let k_in_use =
+        |theta: f64| softhaptic_device::model::inclined_cone_factor(half_angle_rad, theta);
     // Even positions (0°, 10°, 20° …) fit, odd ones (5°, 15°, 25° …) check.
     let fit_angles_rad: Vec<f64> = angles_rad.iter().copied().step_by(2).collect();
     let check_angles_rad: Vec<f64> = angles_rad.iter().copied().skip(1).step_by(2).collect();
@@ -178,6 +184,7 @@ fn refit_inclination(
     };
     let mut refit_magnitude_error_percent = Vec::new();
     let mut in_use_magnitude_error_percent = Vec::new();
+    let mut equal_area_factor = Vec::new();
     let mut direction_fit_error_deg = Vec::new();
     let mut worst_refit = Vec::new();
     let mut worst_direction = Vec::new();
@@ -186,7 +193,8 @@ fn refit_inclination(
         let e = worst(k, kf.powf(exponent));
         refit_magnitude_error_percent.push(e);
         worst_refit.push(e.abs());
-        in_use_magnitude_error_percent.push(worst(k, kf));
+        in_use_magnitude_error_percent.push(worst(k, k_in_use(theta)));
+        equal_area_factor.push(kf);
         let de = resolved
             .iter()
             .map(|&i| {
@@ -218,6 +226,7 @@ fn refit_inclination(
         direction_gain,
         refit_magnitude_error_percent,
         in_use_magnitude_error_percent,
+        equal_area_factor,
         direction_fit_error_deg,
         valid_inclination_rad,
     })

@@ -293,6 +293,53 @@ pub fn poisson_limits(
     Ok(limits)
 }
 
+/// The limits file with every entry's inclination limit derived again from `studies`: what the
+/// `inclination` command alone refreshes (the depth limits need `all`). Entries of the paper's
+/// ν take the studies' angle for their tool kind and model; entries measured at another ν keep
+/// taking the paper's-ν angle of the same model, as [`merge_poisson_limits`] gives them. Entries
+/// of a tool kind the studies did not tilt are left as they are.
+pub fn refresh_inclination_limits(
+    mut file: ModelLimitsFile,
+    studies: &[InclinationStudy],
+) -> ModelLimitsFile {
+    for l in file.limits.iter_mut().filter(|l| l.poisson_ratio.is_none()) {
+        let Some(tool) = studies
+            .iter()
+            .map(|s| s.tool)
+            .find(|t| ToolKind::of(t) == l.tool)
+        else {
+            continue;
+        };
+        let (angle, note) = inclination_limit(Some(studies), &tool, &l.model);
+        if angle.is_none() {
+            continue;
+        }
+        l.valid_inclination_rad = angle;
+        let base_len = l
+            .reference
+            .find("; inclination (")
+            .unwrap_or(l.reference.len());
+        l.reference.truncate(base_len);
+        l.reference.push_str(&note);
+    }
+    let at_other_poisson: Vec<MeasuredLimit> = file
+        .limits
+        .iter()
+        .filter(|l| l.poisson_ratio.is_some())
+        .cloned()
+        .map(|mut l| {
+            l.valid_inclination_rad = None;
+            let base_len = l
+                .reference
+                .find("; inclination as measured at ν")
+                .unwrap_or(l.reference.len());
+            l.reference.truncate(base_len);
+            l
+        })
+        .collect();
+    merge_poisson_limits(file, at_other_poisson)
+}
+
 /// `file` with its entries measured over ν replaced by `at_other_poisson` (what `poisson` alone
 /// refreshes). A new entry without an inclination takes the one measured at the paper's ν for
 /// the same model, and says so.

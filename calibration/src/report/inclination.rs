@@ -250,13 +250,16 @@ fn inclination_refit_section(studies: &[InclinationStudy], md: &mut String) {
     let _ = writeln!(
         md,
         "#### The cone's inclination correction refitted to the FEM\n\n\
-         The correction in use, k(θ) = tan α_eff / tan α of the equal-area equivalent cone, \
-         under-predicts the tilted FEM's force. Refit: magnitude k(θ)^β, β by least squares \
+         The equal-area equivalent cone alone, k(θ) = tan α_eff / tan α, under-predicts the \
+         tilted FEM's force; the runtime therefore uses k(θ)^β with β = {} fitted here to the \
+         FEM with contact on the deformed surface (the one the limits file measures; 'in use' \
+         below). Refit: magnitude k(θ)^β, β by least squares \
          on ln(|F(θ)| / |F(0)|) over the resolved depths; direction φ ≈ γ θ, the angle between \
          the FEM force and the contact normal (the runtime renders along the normal). Fitted \
          at {} and checked at {} (out of sample: none of them took part in the fit). Errors: \
          worst over the resolved depths of (model − FEM) / |F(0)|, percent; the direction \
          fit's worst error in degrees.\n",
+        softhaptic_device::model::INCLINED_CONE_EXPONENT,
         degrees_list(&refits[0].1.fit_angles_rad),
         degrees_list(&refits[0].1.check_angles_rad),
     );
@@ -284,8 +287,10 @@ fn inclination_refit_section(studies: &[InclinationStudy], md: &mut String) {
     for (s, r) in &refits {
         let _ = writeln!(
             md,
-            "{}: per angle, magnitude error with k^β / with k (%), direction fit error (°).\n",
-            formulation_name(s.law)
+            "{}: per angle, magnitude error with this FEM's k^β / with the runtime's k^{} (%), \
+             direction fit error (°).\n",
+            formulation_name(s.law),
+            softhaptic_device::model::INCLINED_CONE_EXPONENT
         );
         let _ = writeln!(
             md,
@@ -297,7 +302,7 @@ fn inclination_refit_section(studies: &[InclinationStudy], md: &mut String) {
             } else {
                 "check"
             };
-            let kf = s.correction_factor[k];
+            let kf = r.equal_area_factor[k];
             let _ = writeln!(
                 md,
                 "| {:.0} | {role} | {kf:.3} | {:.3} | {:+.2} | {:+.2} | {:+.2} |",
