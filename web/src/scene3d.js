@@ -6,7 +6,8 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
-import { MeshDeformer, profileSetup } from './deformation.js';
+import { profileSetup } from './deformation.js';
+import { MeshDeformer } from './deformer.js';
 import { TIMING_SAMPLES, dom, rendered, scratch, state, timings, view } from './context.js';
 import { setText } from './panels.js';
 

@@ -30,7 +30,8 @@ const LIVE_SECONDS = Number(process.env.BENCH_LIVE_SECONDS ?? 8);
 
 /** Runs inside the page: times `updates` deformation updates on a grid or the render mesh. */
 async function timeInPage({ kind, side, updates, profile = 'paper', depthM = 0.004, deformedRadiusM = 0.02 }) {
-  const { MeshDeformer, contactRadius, surfaceFamilyFromJson, toolFromJson } = await import('/src/deformation.js');
+  const { contactRadius, surfaceFamilyFromJson, toolFromJson } = await import('/src/deformation.js');
+  const { MeshDeformer } = await import('/src/deformer.js');
   const { flatGrid, parseRenderMesh } = await import('/src/mesh.js');
   const scene = await (await fetch('/api/scene')).json();
   const tool = toolFromJson(scene.tool);

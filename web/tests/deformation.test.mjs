@@ -5,8 +5,8 @@ import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 
+import { MeshDeformer } from '../src/deformer.js';
 import {
-  MeshDeformer,
   contactRadius,
   depression,
   depressionAt,
