@@ -1,5 +1,7 @@
 //! From a contact to the force sent to the device: contact law, damping, then every safety limit.
 //!
+//! Long only because of its tests: the pipeline itself is under 600 lines.
+//!
 //! The pipeline of one tick, in order (each limit that acts sets its [`ContactFlags`] bit):
 //! 1. the scene's contact model F(δ; geometry) ([`ForceModel`]: the paper's law, or the law with
 //!    the corrections the scene turns on, fed the local curvature from the collision and the

@@ -1,6 +1,9 @@
 //! Starting and stopping the whole server: scene → haptic world → loop thread → HTTP and
 //! WebSocket.
 //!
+//! Just over 600 lines: the start and the stop of every part of the server, in the order they
+//! happen.
+//!
 //! [`start`] builds everything from a loaded [`Scene`], binds the address and returns a
 //! [`RunningServer`] that knows its real address (port 0 is allowed) and shuts everything down
 //! in order: stop producing frames, close every viewer, stop the HTTP server, and finally stop

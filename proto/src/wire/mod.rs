@@ -1,5 +1,8 @@
 //! The WebSocket messages between the server and the viewer (proto/WIRE.md).
 //!
+//! Long because every message of the contract is declared here, in the order proto/WIRE.md gives
+//! them; the last 340 lines are its tests.
+//!
 //! These are transport types: they exist to be encoded as JSON text frames, and they are built
 //! from the application types ([`ContactState`], [`CalibrationTable`], [`Material`],
 //! [`ToolShape`]) at the edge, never used inside the haptic loop. Every message is a JSON object

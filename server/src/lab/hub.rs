@@ -1,5 +1,8 @@
 //! `softhaptic hub`: the lab's page for instructors, relaying any station from NATS.
 //!
+//! One file because the station list, the per-station feeds and the routes that serve them share
+//! one lifecycle: a feed lives as long as its station's session and its viewers with it.
+//!
 //! The hub keeps the stations' last heartbeats (a station not heard from for
 //! [`super::OFFLINE_AFTER`] is offline) and, for each station a viewer opens, one
 //! `Feed`: the station's session fetched once (its `hello` and `scene`), a

@@ -1,6 +1,9 @@
 //! One recording into the object store, part by part, so that an upload cut short resumes where
 //! the server says it stopped.
 //!
+//! One file because the parts, the resume and the read-back are one exchange with the store, whose
+//! ordering rule (each part expects its predecessor's sequence) every step relies on.
+//!
 //! The object store keeps an object as chunk messages on `$O.BUCKET.C.ID` and, last, one meta
 //! message on `$O.BUCKET.M.NAME` (size, chunk count, SHA-256, and the `ID`). Its own `put`
 //! draws a fresh random `ID` each time, so chunks a failed put left behind cannot be found again
