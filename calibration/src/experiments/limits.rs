@@ -315,11 +315,7 @@ pub fn refresh_inclination_limits(
             continue;
         }
         l.valid_inclination_rad = angle;
-        let base_len = l
-            .reference
-            .find("; inclination (")
-            .unwrap_or(l.reference.len());
-        l.reference.truncate(base_len);
+        cut_from(&mut l.reference, "; inclination (");
         l.reference.push_str(&note);
     }
     let at_other_poisson: Vec<MeasuredLimit> = file
@@ -329,15 +325,18 @@ pub fn refresh_inclination_limits(
         .cloned()
         .map(|mut l| {
             l.valid_inclination_rad = None;
-            let base_len = l
-                .reference
-                .find("; inclination as measured at ν")
-                .unwrap_or(l.reference.len());
-            l.reference.truncate(base_len);
+            cut_from(&mut l.reference, "; inclination as measured at ν");
             l
         })
         .collect();
     merge_poisson_limits(file, at_other_poisson)
+}
+
+/// `reference` without its part from `marker` on (unchanged when it has none).
+fn cut_from(reference: &mut String, marker: &str) {
+    if let Some(at) = reference.find(marker) {
+        reference.truncate(at);
+    }
 }
 
 /// `file` with its entries measured over ν replaced by `at_other_poisson` (what `poisson` alone
