@@ -10,7 +10,9 @@
 // calibration's FEM surface from the scene's table) at several depths. Then lets the live page
 // run and reports its frame rate, the frames it receives per second, and the median
 // deformation time it measured while drawing. Nothing here is asserted: it is a measurement.
+import { existsSync, readFileSync } from 'node:fs';
 import os from 'node:os';
+import { fileURLToPath } from 'node:url';
 
 import { launchBrowser } from './browser.mjs';
 import { startServer } from './server.mjs';
@@ -26,6 +28,30 @@ const PAPER_TABLE_1 = [
   [10000, 0.856, 0.016],
 ];
 const UPDATES = Number(process.env.BENCH_UPDATES ?? 400);
+
+/**
+ * The drawn surface's error against the FEM surface, from the calibration report's table of the
+ * scene's tool (calibration/report/surface_<tool>.csv, neo-Hookean rows: the FEM the scene's table
+ * comes from): for each depth in millimetres, each profile's worst |drawn − FEM| in millimetres.
+ * Empty when the report has no table for this tool.
+ */
+function surfaceErrorsMm(tool) {
+  const name = tool.shape === 'sphere' ? 'sphere10' : 'cone10_45';
+  const path = fileURLToPath(new URL(`../../calibration/report/surface_${name}.csv`, import.meta.url));
+  if (!existsSync(path)) return new Map();
+  const [header, ...rows] = readFileSync(path, 'utf8').trim().split('\n');
+  const column = Object.fromEntries(header.split(',').map((h, i) => [h, i]));
+  const errors = new Map();
+  for (const row of rows) {
+    const cells = row.split(',');
+    if (cells[column.law] !== 'neo_hookean') continue;
+    errors.set(Number(cells[column.depth_mm]), {
+      paper: Math.abs(Number(cells[column.paper_worst_error_mm])),
+      fem: Math.abs(Number(cells[column.fem_worst_error_mm])),
+    });
+  }
+  return errors;
+}
 const LIVE_SECONDS = Number(process.env.BENCH_LIVE_SECONDS ?? 8);
 
 /** Runs inside the page: times `updates` deformation updates on a grid or the render mesh. */
@@ -135,9 +161,11 @@ try {
   console.log("scene's table; `fem` draws the tabulated FEM surface out to where it settles, the block's");
   console.log('side plus its 10 mm ramp at depth, so it moves more vertices than R_d holds:');
   console.log('');
-  console.log('| profile | δ (mm) | R_d (mm) | moved | median ms | mean ms |');
-  console.log('|---|---:|---:|---:|---:|---:|');
+  console.log('| profile | δ (mm) | R_d (mm) | moved | median ms | mean ms | worst error vs FEM (mm) |');
+  console.log('|---|---:|---:|---:|---:|---:|---:|');
   const table = await page.evaluate(async () => (await (await fetch('/api/scene')).json()).calibration);
+  const errors = surfaceErrorsMm(table.tool);
+  const errorAt = (profile, depthMm) => errors.get(depthMm)?.[profile]?.toFixed(3) ?? '—';
   const fit = table.fit;
   const deformedRadius = (d) =>
     d < fit.breakpoint_m
@@ -156,15 +184,17 @@ try {
         deformedRadiusM,
       });
       if (p === null) {
-        console.log(`| ${profile} | ${depthMm} | — | — | (the scene's table carries no surface) | — |`);
+        console.log(`| ${profile} | ${depthMm} | — | — | (the scene's table carries no surface) | — | — |`);
         continue;
       }
       console.log(
-        `| ${profile} | ${depthMm} | ${(deformedRadiusM * 1000).toFixed(1)} | ${p.moved} | ${p.medianMs.toFixed(3)} | ${p.meanMs.toFixed(3)} |`,
+        `| ${profile} | ${depthMm} | ${(deformedRadiusM * 1000).toFixed(1)} | ${p.moved} | ${p.medianMs.toFixed(3)} | ${p.meanMs.toFixed(3)} | ${errorAt(profile, depthMm)} |`,
       );
     }
   }
   console.log('');
+  console.log("The error column is the calibration report's (calibration/report/surface_<tool>.csv,");
+  console.log('neo-Hookean FEM of the calibration block): the speed and the accuracy of each profile side by side.');
   console.log('The paper reports the computation time per step of its whole simulator on an Intel Core');
   console.log("i7-2600 at 3.4 GHz; these times are the viewer's deformation update alone, in JavaScript,");
   console.log('in Chromium on this host (the median is over batches of 10 updates, performance.now() is');
