@@ -10,13 +10,17 @@
 #![allow(clippy::unwrap_used)]
 
 use glam::DVec3;
-use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceError, DeviceLimits, HapticDevice};
 use softhaptic_device::force::ForceConfig;
 use softhaptic_device::liver;
+use softhaptic_device::model::ForceModel;
 use softhaptic_device::sim::{HandScript, SimFault, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
-use softhaptic_proto::{ContactFlags, Material, Pose, ToolShape};
+use softhaptic_proto::{ContactFlags, Material, ToolShape};
+
+#[path = "common/liver_world.rs"]
+mod liver_world;
+use liver_world::liver_world_with;
 
 const TOOL_RADIUS_M: f64 = 0.01;
 const TARGET_DEPTH_M: f64 = 0.005;
@@ -94,14 +98,7 @@ fn world_with(
 ) -> HapticWorld {
     let mut render = ForceConfig::for_tool(&tool);
     configure(&mut render);
-    HapticWorld::new(
-        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
-        Pose::IDENTITY,
-        tool,
-        material,
-        render,
-        DeviceLimits::PHANTOM_DESKTOP,
-    )
+    liver_world_with(ForceModel::paper(tool, material), render)
 }
 
 /// The hand target depth that balances the hand's grip against the rendered force with the tip

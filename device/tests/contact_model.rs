@@ -6,14 +6,17 @@
 #![allow(clippy::unwrap_used)]
 
 use glam::{DQuat, DVec3};
-use softhaptic_device::collision::{Collider, CollisionMode};
-use softhaptic_device::device::{DeviceLimits, DeviceSample};
+use softhaptic_device::device::DeviceSample;
 use softhaptic_device::force::ForceConfig;
 use softhaptic_device::law;
 use softhaptic_device::liver;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{Material, ModelSpec, Pose, ToolShape};
+
+#[path = "common/liver_world.rs"]
+mod liver_world;
+use liver_world::liver_world_with;
 
 const MS: u64 = 1_000_000;
 
@@ -38,12 +41,9 @@ fn static_world(spec: ModelSpec) -> HapticWorld {
     render.damping_n_s_per_m = 0.0;
     render.passivity = false;
     render.ramp_threshold_n = f64::INFINITY;
-    HapticWorld::with_model(
-        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
-        Pose::IDENTITY,
+    liver_world_with(
         ForceModel::new(sphere(), Material::PAPER_SOFT, spec).unwrap(),
         render,
-        DeviceLimits::PHANTOM_DESKTOP,
     )
 }
 

@@ -14,21 +14,23 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use glam::DVec3;
-use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{
     DeviceError, DeviceLimits, DeviceSample, HapticDevice, ServoClock,
 };
-use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
 use softhaptic_device::liver;
+use softhaptic_device::model::ForceModel;
 use softhaptic_device::rt;
 use softhaptic_device::sim::{HandScript, SimulatedPhantom};
-use softhaptic_device::world::HapticWorld;
-use softhaptic_proto::{Material, Pose, ToolShape};
+use softhaptic_proto::{Material, ToolShape};
 
 #[path = "common/counting_allocator.rs"]
 mod counting_allocator;
 use counting_allocator::ALLOCATIONS;
+
+#[path = "common/liver_world.rs"]
+mod liver_world;
+use liver_world::{liver_world, test_loop};
 
 /// What the test sees of the clock and the device.
 #[derive(Default)]
@@ -160,14 +162,7 @@ fn a_device_clocked_loop_ticks_on_the_driver_s_calls_without_allocating_and_stop
     let mut script = HandScript::press(top.point_m, top.normal, 0.01);
     script.repeat = true;
     let tool = ToolShape::sphere(0.01).unwrap();
-    let world = HapticWorld::new(
-        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
-        Pose::IDENTITY,
-        tool,
-        Material::PAPER_SOFT,
-        ForceConfig::for_tool(&tool),
-        DeviceLimits::PHANTOM_DESKTOP,
-    );
+    let world = liver_world(ForceModel::paper(tool, Material::PAPER_SOFT));
     let probe = Arc::new(Probe::default());
     probe.calling.store(true, Ordering::Release);
     let device = ClockedPhantom {
@@ -182,9 +177,7 @@ fn a_device_clocked_loop_ticks_on_the_driver_s_calls_without_allocating_and_stop
         LoopConfig {
             // Ignored: the driver's clock sets the period.
             period_ns: 7_000_000,
-            realtime: false,
-            tick_sink: Some(producer),
-            standby: true,
+            ..test_loop(Some(producer))
         },
     )
     .unwrap();

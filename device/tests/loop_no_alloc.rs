@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceLimits, HapticDevice};
 use softhaptic_device::force::ForceConfig;
-use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, TickRecord};
+use softhaptic_device::haptic_loop::{HapticLoop, TickRecord};
 use softhaptic_device::liver;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
@@ -22,6 +22,10 @@ use softhaptic_proto::{ContactFlags, Material, ModelSpec, Pose, ToolShape};
 mod counting_allocator;
 use counting_allocator::ALLOCATIONS;
 
+#[path = "common/liver_world.rs"]
+mod liver_world;
+use liver_world::{liver_world, test_loop};
+
 fn setup(material: Material, spec: ModelSpec) -> (SimulatedPhantom, HapticWorld) {
     let top = liver::top_contact();
     let mut script = HandScript::press(top.point_m, top.normal, 0.015);
@@ -30,13 +34,7 @@ fn setup(material: Material, spec: ModelSpec) -> (SimulatedPhantom, HapticWorld)
     script.slide_s = 0.2;
     script.repeat = true;
     let tool = ToolShape::sphere(0.01).unwrap();
-    let world = HapticWorld::with_model(
-        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
-        Pose::IDENTITY,
-        ForceModel::new(tool, material, spec).unwrap(),
-        ForceConfig::for_tool(&tool),
-        DeviceLimits::PHANTOM_DESKTOP,
-    );
+    let world = liver_world(ForceModel::new(tool, material, spec).unwrap());
     (SimulatedPhantom::new(script), world)
 }
 
@@ -115,17 +113,7 @@ fn ticks_do_not_allocate() {
     // The loop thread, with a tick ring: count only between two points of its steady state.
     let (device, world) = setup(Material::PAPER_SOFT, combined);
     let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(16);
-    let haptic = HapticLoop::spawn(
-        Box::new(device),
-        world,
-        LoopConfig {
-            period_ns: 1_000_000,
-            realtime: false,
-            tick_sink: Some(producer),
-            standby: true,
-        },
-    )
-    .unwrap();
+    let haptic = HapticLoop::spawn(Box::new(device), world, test_loop(Some(producer))).unwrap();
     let wait_for_tick = |tick: u64| {
         let give_up = Instant::now() + Duration::from_secs(30);
         while haptic.latest_contact().tick < tick {

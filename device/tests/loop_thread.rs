@@ -9,14 +9,17 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use glam::DVec3;
-use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
-use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
 use softhaptic_device::liver;
+use softhaptic_device::model::ForceModel;
 use softhaptic_device::sim::{HandScript, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
-use softhaptic_proto::{Material, Pose, ToolShape};
+use softhaptic_proto::{Material, ToolShape};
+
+#[path = "common/liver_world.rs"]
+mod liver_world;
+use liver_world::{liver_world, test_loop};
 
 /// The simulated PHANTOM, reporting the magnitude of every force it is commanded.
 struct Watched {
@@ -55,14 +58,7 @@ fn setup() -> (Watched, HapticWorld, Arc<AtomicU64>, Arc<AtomicU64>) {
         commands: Arc::clone(&commands),
     };
     let tool = ToolShape::sphere(0.01).unwrap();
-    let world = HapticWorld::new(
-        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
-        Pose::IDENTITY,
-        tool,
-        Material::PAPER_SOFT,
-        ForceConfig::for_tool(&tool),
-        DeviceLimits::PHANTOM_DESKTOP,
-    );
+    let world = liver_world(ForceModel::paper(tool, Material::PAPER_SOFT));
     (device, world, last_force_bits, commands)
 }
 
@@ -71,17 +67,7 @@ fn loop_runs_publishes_and_stops_with_zero_force() {
     let (device, world, last_force_bits, commands) = setup();
     // A small ring that the test drains only partly: some records arrive, some are dropped.
     let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(64);
-    let haptic = HapticLoop::spawn(
-        Box::new(device),
-        world,
-        LoopConfig {
-            period_ns: 1_000_000,
-            realtime: false,
-            tick_sink: Some(producer),
-            standby: true,
-        },
-    )
-    .unwrap();
+    let haptic = HapticLoop::spawn(Box::new(device), world, test_loop(Some(producer))).unwrap();
     assert!(!haptic.realtime().requested);
 
     // Wait for 150 ms of device time (the hand is pressing by then), however loaded the machine.

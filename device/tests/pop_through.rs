@@ -38,6 +38,10 @@ use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{ContactFlags, ContactState, Material, ModelSpec, Pose, ToolShape};
 
+#[path = "common/liver_world.rs"]
+mod liver_world;
+use liver_world::liver_world;
+
 /// Where the hand's target goes below the surface.
 const PRESS_DEPTH_M: f64 = 0.03;
 
@@ -351,13 +355,7 @@ fn the_reported_one_millimetre_sphere_on_the_default_liver_keeps_its_contact() {
     // render 0 N while the tip went 8 mm deep.
     let top = liver::top_contact();
     let tool = ToolShape::sphere(0.001).unwrap();
-    let mut world = HapticWorld::with_model(
-        Collider::new(liver::haptic_mesh(), CollisionMode::Continuous),
-        Pose::IDENTITY,
-        ForceModel::new(tool, Material::PAPER_SOFT, COMBINED).unwrap(),
-        ForceConfig::for_tool(&tool),
-        DeviceLimits::PHANTOM_DESKTOP,
-    );
+    let mut world = liver_world(ForceModel::new(tool, Material::PAPER_SOFT, COMBINED).unwrap());
     let script = HandScript::press(top.point_m, top.normal, 0.008);
     let mut device = SimulatedPhantom::new(script);
     let (mut in_contact, mut held) = (0, 0);
