@@ -16,6 +16,7 @@ use softhaptic_proto::wire::ServerMessage;
 use softhaptic_proto::{ContactFlags, ModelLimitsFile, ModelSpec, ToolShape};
 use softhaptic_server::app;
 use softhaptic_server::scene::{Scene, SceneError};
+use softhaptic_tests::repo_scenes;
 use softhaptic_tests::{Viewer, start_default, test_options};
 
 const WAIT: Duration = Duration::from_secs(10);
@@ -23,10 +24,6 @@ const WAIT: Duration = Duration::from_secs(10);
 /// A fresh directory for one test's files.
 fn scratch(name: &str) -> PathBuf {
     softhaptic_tests::scratch_dir(&format!("model-{name}"))
-}
-
-fn repo_scenes() -> PathBuf {
-    softhaptic_tests::repo_scenes()
 }
 
 /// A sphere scene with a model table (`{model}` is replaced by its fields).

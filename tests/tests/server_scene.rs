@@ -8,14 +8,11 @@ use std::path::{Path, PathBuf};
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
 use softhaptic_proto::{CalibrationSource, CalibrationTable, Material, ToolShape};
 use softhaptic_server::scene::{Scene, SceneError};
+use softhaptic_tests::repo_scenes;
 
 /// A fresh directory for one test's files.
 fn scratch(name: &str) -> PathBuf {
     softhaptic_tests::scratch_dir(&format!("scene-{name}"))
-}
-
-fn repo_scenes() -> PathBuf {
-    softhaptic_tests::repo_scenes()
 }
 
 const GOOD: &str = r#"
