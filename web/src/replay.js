@@ -212,6 +212,8 @@ export class ReplayTimeline {
     /** Controls sent and statuses received, newest last, the last 50 of each (browser tests). */
     this.sent = [];
     this.statusLog = [];
+    /** Statuses received in all, so that a test can tell which of the log's arrived since. */
+    this.statusesReceived = 0;
     this.lastStatus = null;
 
     playButton.addEventListener('click', () => this.#togglePlay());
@@ -248,6 +250,7 @@ export class ReplayTimeline {
     this.lastStatus = status;
     if (this.statusLog.length >= 50) this.statusLog.shift();
     this.statusLog.push(status);
+    this.statusesReceived += 1;
     // A periodic status may overtake the answer to a seek; only the answer ends the wait.
     if (this.pendingSeekS !== null && Math.abs(status.time_s - this.pendingSeekS) <= seekTolerance(status.speed)) {
       this.pendingSeekS = null;

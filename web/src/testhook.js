@@ -140,6 +140,7 @@ export function installTestHook(ctx) {
       timeText: dom['replay-time'].textContent,
       sent: ctx.timeline.sent.slice(),
       statusLog: ctx.timeline.statusLog.slice(),
+      statusesReceived: ctx.timeline.statusesReceived,
       controllable: ctx.timeline.controllable,
       refusals: ctx.timeline.refusals.slice(),
       refusedShown: !dom['replay-refused'].hidden,

@@ -39,14 +39,17 @@ async function openPage(url) {
   return { page, csp, errors };
 }
 
-/** Waits until `page` has received a status at `timeS` (to the microsecond) after `from` statuses. */
+/**
+ * Waits until `page` has received a status at `timeS` (to the microsecond) after its first `from`
+ * statuses. The log keeps the last 50: those received since are its last (received − from).
+ */
 async function statusAt(page, from, timeS) {
   await page.waitForFunction(
-    ({ from, timeS }) =>
-      window.__softhaptic
-        .replay()
-        .statusLog.slice(from)
-        .some((s) => Math.abs(s.time_s - timeS) < 1e-6),
+    ({ from, timeS }) => {
+      const r = window.__softhaptic.replay();
+      const fresh = r.statusLog.slice(Math.max(0, r.statusLog.length - (r.statusesReceived - from)));
+      return fresh.some((s) => Math.abs(s.time_s - timeS) < 1e-6);
+    },
     { from, timeS },
     WAIT,
   );
@@ -103,7 +106,7 @@ test('the instructor’s play, seek and pause move the observer’s timeline', a
   await observer.waitForFunction(() => window.__softhaptic.replay().lastStatus.paused === true, null, WAIT);
 
   // A click on the scrubber's track at 70 %, away from where the replay stands, seeks there.
-  const logged = (await replay(observer)).statusLog.length;
+  const logged = (await replay(observer)).statusesReceived;
   const sent = (await replay(instructor)).sent.length;
   const box = await instructor.locator('#replay-scrubber').boundingBox();
   await instructor.mouse.click(box.x + box.width * 0.7, box.y + box.height / 2);
