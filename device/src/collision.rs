@@ -116,7 +116,9 @@ pub struct SurfacePoint {
     pub barycentric: DVec3,
 }
 
-/// Collision queries against one haptic mesh.
+/// Collision queries against one haptic mesh. A clone is a second, independent collider over the
+/// same triangles (the build is the expensive part; a clone copies the tree).
+#[derive(Clone)]
 pub struct Collider {
     mesh: HapticMesh,
     mode: CollisionMode,

@@ -325,8 +325,14 @@ impl Scene {
     /// The haptic world of this scene: its mesh, pose, contact model, force configuration and
     /// device limits. The world estimates the mesh's curvature only if the model uses it.
     pub fn haptic_world(&self) -> HapticWorld {
+        self.haptic_world_with(Collider::new(self.haptic_mesh.clone(), self.collision))
+    }
+
+    /// [`Scene::haptic_world`] around a collider already built over this scene's haptic mesh
+    /// with its collision mode (a clone of one built earlier for the same mesh).
+    pub fn haptic_world_with(&self, collider: Collider) -> HapticWorld {
         let mut world = HapticWorld::with_model(
-            Collider::new(self.haptic_mesh.clone(), self.collision),
+            collider,
             self.object_in_world,
             self.contact_model.clone(),
             self.force,

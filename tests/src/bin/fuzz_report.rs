@@ -29,7 +29,9 @@ OPTIONS:
 
 Progress goes to stderr every few seconds; a table goes to stdout at the end: inputs run,
 inputs per second, inputs accepted and refused, distinct refusal messages (digits removed),
-crashes. Exits with status 1 if any input panicked, naming the saved files.
+crashes. Exits with status 1 if any input panicked, naming the saved files. An accepted scene
+builds its collider (BVH, curvature) only when no earlier input gave the same mesh, collision
+mode and curvature request; the count of builds is printed under the table.
 
 A release build has no overflow checks; to count an overflow as the panic it is in a debug
 build, run with CARGO_PROFILE_RELEASE_OVERFLOW_CHECKS=true and
@@ -159,6 +161,13 @@ fn run() -> anyhow::Result<bool> {
         });
     }
     print_table(&rows);
+    if rows.iter().any(|r| r.name == "scene") {
+        println!(
+            "scene: {} colliders built; every other accepted scene reused one built from the same \
+             mesh, collision mode and curvature request",
+            fuzz::scene_collider_builds()
+        );
+    }
     let crashes: Vec<&fuzz::Crash> = rows.iter().flat_map(|r| &r.stats.crashes).collect();
     for crash in &crashes {
         let saved = crash
