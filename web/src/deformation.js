@@ -210,9 +210,13 @@ export function evaluateAt(p, r, out) {
 
 /**
  * The `fem` profile's family from the calibration table's `surface` object (proto
- * `SurfaceFamily`): `{radius_exponent, radius_step_m, rows: [{depth_m, depression_m: [...]}]}`.
- * Returns `{radiusExponent, radiusStepM, depths: Float64Array, rows: Float64Array[]}`, or throws
- * naming the field, with the checks the Rust side makes (a server only sends valid ones).
+ * `SurfaceFamily`): `{radius_exponent, radius_step_m, rows: [{depth_m, depression_m: [...],
+ * radial_displacement_m?: [...]}]}`. Returns `{radiusExponent, radiusStepM, depths:
+ * Float64Array, rows: Float64Array[], radial: Float64Array[], rowLateral: boolean[]}`: `rows[k]`
+ * the depression samples Z_k, `radial[k]` the sideways samples U_k (zeros, of the row's length,
+ * for a row without `radial_displacement_m` or with an empty one), `rowLateral[k]` whether U_k
+ * has a nonzero sample. Throws naming the field, with the checks the Rust side makes (a server
+ * only sends valid ones).
  */
 export function surfaceFamilyFromJson(json) {
   if (json === null || typeof json !== 'object')
@@ -227,6 +231,8 @@ export function surfaceFamilyFromJson(json) {
   }
   if (!Array.isArray(json.rows) || json.rows.length === 0) throw new Error('surface.rows must not be empty');
   const depths = new Float64Array(json.rows.length);
+  const radial = [];
+  const rowLateral = [];
   const rows = json.rows.map((row, i) => {
     const d = row?.depth_m;
     if (!(Number.isFinite(d) && d > 0) || (i > 0 && !(d > depths[i - 1]))) {
@@ -237,15 +243,53 @@ export function surfaceFamilyFromJson(json) {
     if (!Array.isArray(z) || z.length < 2 || z[z.length - 1] !== 0 || !z.every((x) => Number.isFinite(x) && x >= 0)) {
       throw new Error(`surface.rows[${i}].depression_m must be ≥ 2 finite samples ≥ 0 ending at 0`);
     }
+    const u = radialFromJson(row.radial_displacement_m, z.length, step, `surface.rows[${i}].radial_displacement_m`);
+    radial.push(u);
+    rowLateral.push(u.some((x) => x !== 0));
     return Float64Array.from(z);
   });
-  return { radiusExponent: exponent, radiusStepM: step, depths, rows };
+  return { radiusExponent: exponent, radiusStepM: step, depths, rows, radial, rowLateral };
+}
+
+/**
+ * A row's `radial_displacement_m` (WIRE.md, `fem`): absent or empty is no sideways motion
+ * (zeros); otherwise as many finite samples as the row's depression, the first and the last 0,
+ * and the drawn radius j·Δ + U[j] strictly increasing (the surface does not fold over itself).
+ */
+function radialFromJson(u, length, step, field) {
+  // null is refused, as the Rust reader refuses it: only an absent field has a default.
+  if (u === undefined || (Array.isArray(u) && u.length === 0)) return new Float64Array(length);
+  if (!Array.isArray(u) || u.length !== length) {
+    const got = Array.isArray(u) ? u.length : JSON.stringify(u);
+    throw new Error(`${field} must hold as many samples as depression_m (${length}), got ${got}`);
+  }
+  const show = (x) => (typeof x === 'number' ? String(x) : JSON.stringify(x));
+  for (let j = 0; j < length; j++) {
+    if (!Number.isFinite(u[j])) throw new Error(`${field}[${j}] must be finite, got ${show(u[j])}`);
+  }
+  for (const j of [0, length - 1]) {
+    if (u[j] !== 0) {
+      throw new Error(
+        `${field}[${j}] must be 0 (the axis and the unmoved surface beyond the table do not move sideways), got ${u[j]}`,
+      );
+    }
+  }
+  for (let j = 1; j < length; j++) {
+    if (!(j * step + u[j] > (j - 1) * step + u[j - 1])) {
+      throw new Error(
+        `${field}[${j}] = ${u[j]} folds the surface over itself: the displaced radius j·Δ + u[j] must increase with j`,
+      );
+    }
+  }
+  return Float64Array.from(u);
 }
 
 /** One scaled row of a prepared `fem` profile (see `surfaceSetup`). */
 function surfaceTerm(family, index, weight, d, term) {
   const row = family.rows[index];
   term.row = row;
+  term.radial = family.radial[index];
+  term.lateral = family.rowLateral[index];
   term.amplitude = (weight * d) / family.depths[index];
   term.indexPerM = Math.pow(family.depths[index] / d, family.radiusExponent) / family.radiusStepM;
   term.reachM = (row.length - 1) / term.indexPerM;
@@ -255,8 +299,9 @@ function surfaceTerm(family, index, weight, d, term) {
  * The `fem` profile of `tool` (from `toolShape`) pressed `depthM` deep (WIRE.md, steps 1–2):
  * the one or two rows to blend, each with its amplitude (weight·δ/δ_k) and its samples per metre
  * ((δ_k/δ)^p / Δ), the tool's footprint (inside it the drawn surface is never above the tool)
- * and the reach beyond which nothing moves. An invalid tool draws nothing. Writes into `out`,
- * allocating nothing once `out` has been used.
+ * and the reach beyond which nothing moves; `lateral` is whether a row used moves the surface
+ * sideways. An invalid tool draws nothing. Writes into `out`, allocating nothing once `out` has
+ * been used.
  */
 export function surfaceSetup(family, tool, depthM, out = {}) {
   const d = tool.valid ? sanitise(depthM) : 0;
@@ -264,11 +309,13 @@ export function surfaceSetup(family, tool, depthM, out = {}) {
   out.isSphere = tool.shape === 'sphere';
   out.depthM = d;
   out.footprintM = 0;
-  out.t0 ??= { row: null, amplitude: 0, indexPerM: 0, reachM: 0 };
-  out.t1 ??= { row: null, amplitude: 0, indexPerM: 0, reachM: 0 };
+  out.t0 ??= { row: null, radial: null, lateral: false, amplitude: 0, indexPerM: 0, reachM: 0 };
+  out.t1 ??= { row: null, radial: null, lateral: false, amplitude: 0, indexPerM: 0, reachM: 0 };
   out.t0.amplitude = out.t1.amplitude = 0;
   out.t0.reachM = out.t1.reachM = 0;
+  out.t0.lateral = out.t1.lateral = false;
   out.reachM = 0;
+  out.lateral = false;
   if (d === 0) return out;
   const depths = family.depths;
   const last = depths.length - 1;
@@ -291,31 +338,51 @@ export function surfaceSetup(family, tool, depthM, out = {}) {
   surfaceTerm(family, k, 1 - w, d, out.t0);
   if (w > 0) surfaceTerm(family, k + 1, w, d, out.t1);
   out.reachM = Math.max(out.footprintM, out.t0.reachM, out.t1.reachM);
+  out.lateral = (out.t0.amplitude !== 0 && out.t0.lateral) || (out.t1.amplitude !== 0 && out.t1.lateral);
   return out;
 }
 
-/** One row's contribution at radius r ≥ 0: its interpolated sample times its amplitude. */
-function surfaceTermAt(t, r) {
+/**
+ * One row's contribution at radius r ≥ 0: its samples (`t.row` for z, `t.radial` for u)
+ * interpolated at x = r·indexPerM, times its amplitude; 0 from the row's last sample on.
+ */
+function surfaceTermAt(t, samples, r) {
   if (t.amplitude === 0) return 0;
-  const z = t.row;
-  const u = r * t.indexPerM;
-  if (!(u < z.length - 1)) return 0;
-  const j = Math.floor(u);
-  const f = u - j;
-  return t.amplitude * (z[j] + f * (z[j + 1] - z[j]));
+  const x = r * t.indexPerM;
+  if (!(x < samples.length - 1)) return 0;
+  const j = Math.floor(x);
+  const f = x - j;
+  return t.amplitude * (samples[j] + f * (samples[j + 1] - samples[j]));
 }
 
 /**
  * Depression z(r), 0 ≤ z ≤ δ, for a profile prepared by `surfaceSetup` (WIRE.md, step 3): the
- * rows' blend, never above the tool (between the FEM's nodes the rows are straight chords, which
- * the curved tool would otherwise poke through).
+ * rows' blend, never above the tool where the point drawn for r lies, at radius ρ = max(0, r +
+ * u(r)) (between the FEM's nodes the rows are straight chords, which the curved tool would
+ * otherwise poke through).
  */
 export function surfaceDepressionAt(p, rRaw) {
   if (p.depthM === 0) return 0;
   const r = sanitise(rRaw);
-  let z = surfaceTermAt(p.t0, r) + surfaceTermAt(p.t1, r);
-  if (r < p.footprintM) z = Math.max(z, p.depthM - toolHeight(p.tool, r));
+  const t0 = p.t0,
+    t1 = p.t1;
+  let z = surfaceTermAt(t0, t0.row, r) + surfaceTermAt(t1, t1.row, r);
+  const u = surfaceTermAt(t0, t0.radial, r) + surfaceTermAt(t1, t1.radial, r);
+  const rho = Math.max(0, r + u);
+  if (rho < p.footprintM) z = Math.max(z, p.depthM - toolHeight(p.tool, rho));
   return Math.min(Math.max(z, 0), p.depthM);
+}
+
+/**
+ * Sideways displacement u(r) (m, away from the axis; negative: towards it) of the surface point
+ * at undeformed radius r, for a profile prepared by `surfaceSetup` (WIRE.md, step 3): the rows'
+ * blend, not clamped. 0 when nothing is pressed, at and beyond the rows' reach, and for rows
+ * without `radial_displacement_m`.
+ */
+export function surfaceRadialDisplacementAt(p, rRaw) {
+  if (p.depthM === 0) return 0;
+  const r = sanitise(rRaw);
+  return surfaceTermAt(p.t0, p.t0.radial, r) + surfaceTermAt(p.t1, p.t1.radial, r);
 }
 
 const scratchSurface = {};
@@ -325,10 +392,15 @@ export function surfaceDepression(family, tool, depthM, rM) {
   return surfaceDepressionAt(surfaceSetup(family, tool, depthM, scratchSurface), rM);
 }
 
+/** The `fem` profile's sideways displacement (m) at radial distance r for a family, a tool and a depth. */
+export function surfaceRadialDisplacement(family, tool, depthM, rM) {
+  return surfaceRadialDisplacementAt(surfaceSetup(family, tool, depthM, scratchSurface), rM);
+}
+
 /**
  * Intervals of a `fem` profile's radial table (`surfaceTable`, proto's
  * `SURFACE_TABLE_INTERVALS`): the profile sampled at 4097 radii from the axis to its reach.
- * Interpolated linearly it stays within 1.1 µm of the profile for the repository's tables (it
+ * Interpolated linearly it stays within 2 µm of the profile for the repository's tables (it
  * misses the rows' kinks between two samples, so the error falls with the interval), and
  * sampling it once per update costs about what 4 000 vertices cost.
  */
@@ -336,24 +408,33 @@ export const SURFACE_TABLE_INTERVALS = 4096;
 
 /**
  * The `fem` profile prepared by `surfaceSetup`, sampled once per update for the render mesh
- * (proto's `SurfaceTable`): `z[k]` = z(k·reach / N) for k = 0 … N (N = SURFACE_TABLE_INTERVALS;
- * `z[N]` is 0, the profile's value at its reach). Each vertex then costs one lookup instead of
- * a blend of two rows bounded by the tool. Writes into `out` (its array is allocated once). A
- * profile that draws nothing gives a table with `reachM` 0.
+ * (proto's `SurfaceTable`): `z[k]` = z(k·reach / N) and `u[k]` = u(k·reach / N) for k = 0 … N
+ * (N = SURFACE_TABLE_INTERVALS; `z[N]` and `u[N]` are 0, the profile's values at its reach);
+ * `lateral` is false when every `u[k]` is 0 (no row used moves the surface sideways), so that a
+ * reader can skip them. Each vertex then costs one lookup instead of a blend of two rows bounded
+ * by the tool. Writes into `out` (its arrays are allocated once). A profile that draws nothing
+ * gives a table with `reachM` 0.
  */
 export function surfaceTable(p, out = {}) {
   const n = SURFACE_TABLE_INTERVALS;
   if (!(out.z instanceof Float64Array)) out.z = new Float64Array(n + 1);
+  if (!(out.u instanceof Float64Array)) out.u = new Float64Array(n + 1);
   const table = out.z;
+  const tableU = out.u;
   const reach = p.depthM === 0 ? 0 : p.reachM;
   out.reachM = reach;
   out.samplesPerM = reach > 0 ? n / reach : 0;
+  // u stays all 0 from one table to the next while nothing moves sideways: filled only when
+  // the table before it did move something.
+  if (out.lateral !== false) tableU.fill(0);
+  out.lateral = false;
   if (reach === 0) {
     table.fill(0);
     return out;
   }
-  // `surfaceDepressionAt` at r = k·step, with the rows and the tool read into locals once (the
-  // stores into the table would otherwise make the engine load them again for every sample).
+  // `surfaceDepressionAt` and `surfaceRadialDisplacementAt` at r = k·step, with the rows and the
+  // tool read into locals once (the stores into the table would otherwise make the engine load
+  // them again for every sample).
   const step = reach / n;
   const d = p.depthM;
   const footprint = p.footprintM;
@@ -366,24 +447,66 @@ export function surfaceTable(p, out = {}) {
     z1 = a1 === 0 ? z0 : p.t1.row;
   const last0 = z0.length - 1,
     last1 = z1.length - 1;
+  if (!p.lateral) {
+    for (let k = 0; k < n; k++) {
+      const r = k * step;
+      let z = 0;
+      const x0 = r * s0;
+      if (a0 !== 0 && x0 < last0) {
+        const j = Math.floor(x0);
+        z += a0 * (z0[j] + (x0 - j) * (z0[j + 1] - z0[j]));
+      }
+      const x1 = r * s1;
+      if (a1 !== 0 && x1 < last1) {
+        const j = Math.floor(x1);
+        z += a1 * (z1[j] + (x1 - j) * (z1[j + 1] - z1[j]));
+      }
+      if (r < footprint) z = Math.max(z, d - toolHeight(tool, r));
+      table[k] = Math.min(Math.max(z, 0), d);
+    }
+    table[n] = 0;
+    return out;
+  }
+  const u0 = p.t0.radial,
+    u1 = a1 === 0 ? u0 : p.t1.radial;
   for (let k = 0; k < n; k++) {
     const r = k * step;
-    let z = 0;
-    const u0 = r * s0;
-    if (a0 !== 0 && u0 < last0) {
-      const j = Math.floor(u0);
-      z += a0 * (z0[j] + (u0 - j) * (z0[j + 1] - z0[j]));
+    let z = 0,
+      u = 0;
+    const x0 = r * s0;
+    if (a0 !== 0 && x0 < last0) {
+      const j = Math.floor(x0);
+      const f = x0 - j;
+      z += a0 * (z0[j] + f * (z0[j + 1] - z0[j]));
+      u += a0 * (u0[j] + f * (u0[j + 1] - u0[j]));
     }
-    const u1 = r * s1;
-    if (a1 !== 0 && u1 < last1) {
-      const j = Math.floor(u1);
-      z += a1 * (z1[j] + (u1 - j) * (z1[j + 1] - z1[j]));
+    const x1 = r * s1;
+    if (a1 !== 0 && x1 < last1) {
+      const j = Math.floor(x1);
+      const f = x1 - j;
+      z += a1 * (z1[j] + f * (z1[j + 1] - z1[j]));
+      u += a1 * (u1[j] + f * (u1[j + 1] - u1[j]));
     }
-    if (r < footprint) z = Math.max(z, d - toolHeight(tool, r));
+    // The tool bounds the surface where the point drawn for r lies: at radius r + u.
+    const rho = Math.max(0, r + u);
+    if (rho < footprint) z = Math.max(z, d - toolHeight(tool, rho));
     table[k] = Math.min(Math.max(z, 0), d);
+    tableU[k] = u;
   }
   table[n] = 0;
+  tableU[n] = 0;
+  out.lateral = true;
   return out;
+}
+
+/** The drawn value at radial distance r of one of a `surfaceTable`'s sample arrays. */
+function surfaceTableSample(table, samples, rRaw) {
+  const r = sanitise(rRaw);
+  if (!(r < table.reachM)) return 0;
+  const x = r * table.samplesPerM;
+  // x < N in exact arithmetic; the last interval also takes a product that rounds up to N.
+  const j = Math.min(Math.floor(x), SURFACE_TABLE_INTERVALS - 1);
+  return samples[j] + (x - j) * (samples[j + 1] - samples[j]);
 }
 
 /**
@@ -391,11 +514,13 @@ export function surfaceTable(p, out = {}) {
  * 0 at and beyond the reach; r sanitised as everywhere (a NaN radius is the axis).
  */
 export function surfaceTableAt(table, rRaw) {
-  const r = sanitise(rRaw);
-  if (!(r < table.reachM)) return 0;
-  const u = r * table.samplesPerM;
-  // u < N in exact arithmetic; the last interval also takes a product that rounds up to N.
-  const j = Math.min(Math.floor(u), SURFACE_TABLE_INTERVALS - 1);
-  const z = table.z;
-  return z[j] + (u - j) * (z[j + 1] - z[j]);
+  return surfaceTableSample(table, table.z, rRaw);
+}
+
+/**
+ * The drawn sideways displacement at radial distance r from a `surfaceTable` (away from the
+ * axis; negative: towards it): linear between its samples, 0 at and beyond the reach.
+ */
+export function surfaceTableRadialAt(table, rRaw) {
+  return surfaceTableSample(table, table.u, rRaw);
 }

@@ -4,7 +4,9 @@
 // allocates nothing after construction. The `fem` profile reaches far (to where the FEM block's
 // surface settles, tens of millimetres), so a frame may move most of a 100 000-vertex mesh: it
 // is drawn from a radial table of the profile (`surfaceTable`, proto's `SurfaceTable`) sampled
-// once per frame, one lookup per vertex.
+// once per frame, one lookup per vertex. Besides sinking along −n, a vertex of the `fem` profile
+// moves sideways (radially, away from the contact axis or towards it) when the calibration's
+// table carries the FEM surface's radial displacement; a table without it costs nothing more.
 
 import { SURFACE_TABLE_INTERVALS, evaluateAt, profileSetup, surfaceSetup, surfaceTable } from './deformation.js';
 
@@ -143,8 +145,10 @@ export class MeshDeformer {
    * [x,y,z]}` with point and normal already in the mesh's object frame; `tool` from
    * `toolFromJson`; `surface` the `fem` profile's family (`surfaceFamilyFromJson`) to draw it,
    * or null for the paper's Bézier. A vertex v moves by −n·z(r) when r is inside the profile's
-   * reach (R_d_eff for the paper's) and |(v − c)·n| is too (the far side never moves); the
-   * vertices moved by the previous call and not by this one go back to rest.
+   * reach (R_d_eff for the paper's) and |(v − c)·n| is too (the far side never moves), and for
+   * `fem` also by u(r) along its radial direction e/r (e = v − c − ((v − c)·n)·n, |e| = r; not
+   * sideways at r = 0); the vertices moved by the previous call and not by this one go back to
+   * rest.
    *
    * Returns the number of vertices written (moved or restored); their indices are
    * `this.touched[0 .. count]`, for partial normal or buffer updates.
@@ -249,7 +253,10 @@ export class MeshDeformer {
     const reach2 = reach * reach;
     // `fem`: the radial table of this update; `paper`: its exact profile, per vertex.
     const tableZ = this.table.z;
+    const tableU = this.table.u;
     const samplesPerM = this.table.samplesPerM;
+    // Whether this update's table moves anything sideways (its u is all 0 otherwise, unread).
+    const lateral = fem && this.table.lateral;
     const lastInterval = SURFACE_TABLE_INTERVALS - 1;
     const p = this.profile;
     const ev = this.evaluation;
@@ -291,29 +298,45 @@ export class MeshDeformer {
             const r2 = ex * ex + ey * ey + ez * ez;
             if (r2 >= reach2) continue;
             const r = Math.sqrt(r2);
-            // z and the normal's axial and radial components (normal ∝ a·n + b·e_r).
+            // z, the sideways displacement over r (w = u/r, the factor of e) and the normal's
+            // axial and radial components (normal ∝ a·n + b·e_r).
             let z, a, b;
+            let w = 0;
             if (fem) {
-              const u = r * samplesPerM;
-              // u ≥ 0, so truncation is the floor; u < N but for rounding.
-              let k = u | 0;
+              const x = r * samplesPerM;
+              // x ≥ 0, so truncation is the floor; x < N but for rounding.
+              let k = x | 0;
               if (k > lastInterval) k = lastInterval;
+              const f = x - k;
               const z0 = tableZ[k];
               const rise = tableZ[k + 1] - z0;
-              z = z0 + (u - k) * rise;
-              // Perpendicular to the drawn surface: the slope of the table interval r lies in.
+              z = z0 + f * rise;
+              // Perpendicular to the drawn surface in the table interval r lies in: the surface
+              // point is −z·n + (r + u)·e_r, its tangent −z′·n + (1 + u′)·e_r.
               a = 1;
               b = rise * samplesPerM;
+              if (lateral) {
+                const u0 = tableU[k];
+                const riseU = tableU[k + 1] - u0;
+                a = 1 + riseU * samplesPerM;
+                if (r > 0) w = (u0 + f * riseU) / r;
+              }
             } else {
               evaluateAt(p, r, ev);
               z = ev[0];
               a = ev[1];
               b = ev[2];
             }
-            if (!(z > 0)) continue;
-            positionsOut[j] = px - nx * z;
-            positionsOut[j + 1] = py - ny * z;
-            positionsOut[j + 2] = pz - nz * z;
+            if (w === 0) {
+              if (!(z > 0)) continue;
+              positionsOut[j] = px - nx * z;
+              positionsOut[j + 1] = py - ny * z;
+              positionsOut[j + 2] = pz - nz * z;
+            } else {
+              positionsOut[j] = px - nx * z + ex * w;
+              positionsOut[j + 1] = py - ny * z + ey * w;
+              positionsOut[j + 2] = pz - nz * z + ez * w;
+            }
             if (restN !== null) {
               // Analytic normal: the profile's (axial, radial) components applied to the rest
               // normal and the radial direction, so curved objects keep their own shading.

@@ -13,9 +13,11 @@ import {
   profileSetup,
   surfaceDepressionAt,
   surfaceFamilyFromJson,
+  surfaceRadialDisplacementAt,
   surfaceSetup,
   surfaceTable,
   surfaceTableAt,
+  surfaceTableRadialAt,
   toolFromJson,
   toolShape,
 } from '../src/deformation.js';
@@ -346,12 +348,115 @@ const families = surfaceVectors.families.map(surfaceFamilyFromJson);
 
 test('the fem profile and its drawn table equal the Rust reference on every shared vector', () => {
   assert.ok(surfaceVectors.cases.length > 100, 'the vector file holds the cases');
+  // A vector file written before sideways motion has neither a family with it nor the cases'
+  // radial fields, and then every family draws u = 0; once a family has it, every case must
+  // carry both (a missing one compares as NaN and fails).
+  const sideways = families.some((f) => f.rowLateral.some(Boolean));
+  const radial = (x) => (x === undefined ? (sideways ? NaN : 0) : x);
+  let movedSideways = 0;
   for (const [i, c] of surfaceVectors.cases.entries()) {
     const p = surfaceSetup(families[c.family], toolShape(c.tool), num(c.depth_m));
-    const drawn = surfaceTableAt(surfaceTable(p), num(c.r_m));
-    close(drawn, c.table_depression_m, `case ${i} table ${JSON.stringify(c)}`);
+    const table = surfaceTable(p);
+    const r = num(c.r_m);
+    close(surfaceTableAt(table, r), c.table_depression_m, `case ${i} table ${JSON.stringify(c)}`);
     close(p.reachM, c.reach_m, `case ${i} reach`);
-    close(surfaceDepressionAt(p, num(c.r_m)), c.depression_m, `case ${i} ${JSON.stringify(c)}`);
+    close(surfaceDepressionAt(p, r), c.depression_m, `case ${i} ${JSON.stringify(c)}`);
+    const u = surfaceRadialDisplacementAt(p, r);
+    close(u, radial(c.radial_displacement_m), `case ${i} radial ${JSON.stringify(c)}`);
+    close(surfaceTableRadialAt(table, r), radial(c.table_radial_displacement_m), `case ${i} table radial`);
+    if (u !== 0) movedSideways++;
+  }
+  if (sideways) assert.ok(movedSideways > 10, `${movedSideways} cases move sideways`);
+});
+
+/** `json` (a surface family's JSON) with every row moved sideways by `radial(z, j, n)`. */
+function withRadial(json, radial) {
+  const rows = json.rows.map((row) => {
+    const n = row.depression_m.length;
+    return { ...row, radial_displacement_m: row.depression_m.map((z, j) => radial(z, j, n)) };
+  });
+  return { ...json, rows };
+}
+
+/** A family of the shared vectors moved towards the axis by up to a tenth of its depression. */
+function lateralJson(index = 0) {
+  return withRadial(surfaceVectors.families[index], (z, j, n) => (-0.1 * z * j) / (n - 1));
+}
+
+test('a row moves the surface sideways by its radial_displacement_m, scaled like its depression', () => {
+  const MM2 = 2 * MM;
+  // One row 4 mm deep, samples 2 mm apart (the Rust reference's example, fem.rs).
+  const family = surfaceFamilyFromJson({
+    radius_exponent: 0.5,
+    radius_step_m: MM2,
+    rows: [
+      {
+        depth_m: 4 * MM,
+        depression_m: [4 * MM, 3 * MM, 1 * MM, 0],
+        radial_displacement_m: [0, -0.5 * MM, 0.3 * MM, 0],
+      },
+    ],
+  });
+  // A slender cone never bounds the row: the row itself, both ways.
+  const slender = toolFromJson({ shape: 'cone', half_angle_rad: 0.1, radius_m: 10 * MM });
+  const p = surfaceSetup(family, slender, 4 * MM);
+  assert.equal(p.lateral, true);
+  for (const [rMm, zMm, uMm] of [
+    [0, 4, 0],
+    [1, 3.5, -0.25],
+    [3, 2, -0.1],
+    [6, 0, 0],
+    [7, 0, 0],
+  ]) {
+    close(surfaceDepressionAt(p, rMm * MM), zMm * MM, `z(${rMm} mm)`);
+    close(surfaceRadialDisplacementAt(p, rMm * MM), uMm * MM, `u(${rMm} mm)`);
+  }
+  // r is sanitised as everywhere: NaN, negative and infinite radii are the axis.
+  for (const r of [NaN, -1, Infinity]) assert.equal(surfaceRadialDisplacementAt(p, r), 0);
+  // Twice as deep: depression ×2, radius ×√2, sideways motion ×2.
+  close(surfaceRadialDisplacementAt(surfaceSetup(family, slender, 8 * MM), 2 * MM * Math.SQRT2), -1 * MM, 'u at 8 mm');
+  // Nothing pressed, nothing moves.
+  assert.equal(surfaceRadialDisplacementAt(surfaceSetup(family, slender, 0), 1 * MM), 0);
+  // A ball: the point of undeformed radius r is drawn at r + u and held at or below the ball
+  // there, not at r (where the ball is 0.2 mm lower).
+  const ball = surfaceSetup(family, sphere, 4 * MM);
+  const atDrawn = 4 * MM - (10 * MM - Math.sqrt((10 * MM) ** 2 - (1.5 * MM) ** 2));
+  close(surfaceDepressionAt(ball, 2 * MM), Math.max(3 * MM, atDrawn), 'z held under the ball where it is drawn');
+  assert.ok(surfaceDepressionAt(ball, 2 * MM) > 4 * MM - (10 * MM - Math.sqrt((10 * MM) ** 2 - (2 * MM) ** 2)) + 1e-5);
+  // Its table follows both within the table's sampling, and says it moves something sideways.
+  const table = surfaceTable(ball);
+  assert.equal(table.lateral, true);
+  assert.equal(table.u.length, table.z.length);
+  assert.equal(table.u[table.u.length - 1], 0);
+  for (let k = 0; k <= 60; k++) {
+    const r = (6 * MM * k) / 60;
+    assert.ok(Math.abs(surfaceTableAt(table, r) - surfaceDepressionAt(ball, r)) < 2e-6, `table z at ${r}`);
+    assert.ok(
+      Math.abs(surfaceTableRadialAt(table, r) - surfaceRadialDisplacementAt(ball, r)) < 1e-6,
+      `table u at ${r}`,
+    );
+  }
+  // Reused for a family without sideways motion, the same table draws none.
+  surfaceTable(surfaceSetup(families[0], sphere, 3 * MM), table);
+  assert.equal(table.lateral, false);
+  assert.ok(table.u.every((u) => u === 0));
+  // Absent and empty both mean no sideways motion, and draw the same numbers; null is refused
+  // (as by the Rust reader).
+  const plain = surfaceVectors.families[0];
+  const rowsWith = (u) => ({ ...plain, rows: plain.rows.map((row) => ({ ...row, radial_displacement_m: u })) });
+  assert.throws(() => surfaceFamilyFromJson(rowsWith(null)), /rows\[0\]\.radial_displacement_m.*got null/);
+  for (const [v, json] of [plain, rowsWith([]), withRadial(plain, () => 0)].entries()) {
+    const f = surfaceFamilyFromJson(json);
+    const q = surfaceSetup(f, sphere, 3 * MM);
+    assert.equal(q.lateral, false, `variant ${v}`);
+    const t = surfaceTable(q);
+    assert.equal(t.lateral, false);
+    for (let k = 0; k <= 40; k++) {
+      const r = (q.reachM * k) / 40;
+      assert.equal(surfaceRadialDisplacementAt(q, r), 0);
+      assert.equal(surfaceTableRadialAt(t, r), 0);
+      assert.equal(surfaceDepressionAt(q, r), surfaceDepressionAt(surfaceSetup(families[0], sphere, 3 * MM), r));
+    }
   }
 });
 
@@ -364,6 +469,49 @@ test('a malformed surface family is refused naming the field', () => {
   assert.throws(() => surfaceFamilyFromJson(open), /rows\[0\]\.depression_m/);
   const unordered = { ...good, rows: [good.rows[1], good.rows[0]] };
   assert.throws(() => surfaceFamilyFromJson(unordered), /rows\[1\]\.depth_m/);
+});
+
+test('a malformed radial_displacement_m is refused naming the field', () => {
+  const good = surfaceVectors.families[0];
+  const last = good.rows.length - 1;
+  /** `good` with row `last`'s radial_displacement_m replaced by `edit(valid U)`. */
+  const bad = (edit) => {
+    const rows = lateralJson().rows.map((row, k) =>
+      k === last ? { ...row, radial_displacement_m: edit([...row.radial_displacement_m]) } : row,
+    );
+    return { ...good, rows };
+  };
+  const field = new RegExp(`surface\\.rows\\[${last}\\]\\.radial_displacement_m`);
+  // The valid one, unedited, is accepted.
+  assert.ok(surfaceFamilyFromJson(bad((u) => u)).rowLateral.every(Boolean));
+  const refused = (edit, what) =>
+    assert.throws(
+      () => surfaceFamilyFromJson(bad(edit)),
+      (e) => field.test(e.message) && what.test(e.message),
+      `${what}`,
+    );
+  refused((u) => u.slice(1), /as many samples as depression_m/);
+  refused((u) => [...u, 0], /as many samples as depression_m/);
+  refused(() => 'sideways', /as many samples as depression_m/);
+  refused(() => ({ 0: 0 }), /as many samples as depression_m/);
+  refused((u) => ((u[3] = NaN), u), /\[3\] must be finite, got NaN/);
+  refused((u) => ((u[3] = Infinity), u), /\[3\] must be finite/);
+  refused((u) => ((u[2] = null), u), /\[2\] must be finite, got null/);
+  refused((u) => ((u[1] = '0'), u), /\[1\] must be finite/);
+  refused((u) => ((u[0] = 1e-9), u), /\[0\] must be 0/);
+  refused(
+    (u) => ((u[u.length - 1] = -1e-9), u),
+    new RegExp(`\\[${good.rows[last].depression_m.length - 1}\\] must be 0`),
+  );
+  // Folding: sample 5 drawn just inside sample 4, then well inside it.
+  const step = good.radius_step_m;
+  refused((u) => ((u[5] = u[4] - 1.000001 * step), u), /\[5\] = .* folds the surface over itself/);
+  refused((u) => ((u[5] = u[4] - 1.5 * step), u), /\[5\] = .* folds/);
+  // Just short of folding is accepted.
+  assert.ok(surfaceFamilyFromJson(bad((u) => ((u[5] = u[4] - 0.999 * step), u))));
+  // The row named is the one at fault.
+  const first = { ...good, rows: good.rows.map((row, k) => (k === 0 ? { ...row, radial_displacement_m: [0] } : row)) };
+  assert.throws(() => surfaceFamilyFromJson(first), /surface\.rows\[0\]\.radial_displacement_m/);
 });
 
 test('the deformer draws the fem profile: every vertex within its reach, by its table', () => {
@@ -417,12 +565,105 @@ test('the deformer draws the fem profile: every vertex within its reach, by its 
   }
 });
 
+test('the deformer moves vertices sideways by the table and keeps normals perpendicular to the drawn surface', () => {
+  const json = lateralJson(0);
+  // The rule the family must satisfy (and surfaceFamilyFromJson checks): j·Δ + U[j] increasing.
+  for (const row of json.rows) {
+    const u = row.radial_displacement_m;
+    for (let j = 1; j < u.length; j++)
+      assert.ok(j * json.radius_step_m + u[j] > (j - 1) * json.radius_step_m + u[j - 1]);
+  }
+  const family = surfaceFamilyFromJson(json);
+  const grid = flatGrid(100, 0.2);
+  const out = Float32Array.from(grid.positions);
+  const normals = Float32Array.from(grid.normals);
+  const deformer = new MeshDeformer(grid.positions, grid.normals, { cellSizeM: 0.004 });
+  const [cx, cz] = [0.013, -0.021];
+  const contact = pressAt(cx, cz, 3 * MM, 18 * MM);
+  deformer.apply(out, normals, contact, sphere, family);
+  const p = surfaceSetup(family, sphere, contact.depthM);
+  const table = surfaceTable(p);
+  assert.equal(table.lateral, true);
+  // Every vertex: rest − n·z + e_r·u, z and u read from the table (nothing beyond the reach).
+  let moved = 0;
+  let sideways = 0;
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    const ex = grid.positions[3 * i] - cx;
+    const ez = grid.positions[3 * i + 2] - cz;
+    const r = Math.hypot(ex, ez);
+    const z = surfaceTableAt(table, r);
+    const u = surfaceTableRadialAt(table, r);
+    const expected = [
+      grid.positions[3 * i] + (r > 0 ? (ex / r) * u : 0),
+      grid.positions[3 * i + 1] - z,
+      grid.positions[3 * i + 2] + (r > 0 ? (ez / r) * u : 0),
+    ];
+    for (let c = 0; c < 3; c++) {
+      assert.ok(
+        Math.abs(out[3 * i + c] - expected[c]) < 1e-7,
+        `vertex ${i} at r=${r}: ${c} is ${out[3 * i + c]}, expected ${expected[c]}`,
+      );
+    }
+    // The table is the profile within its sampling, sideways too.
+    const exact = r < p.reachM ? surfaceRadialDisplacementAt(p, r) : 0;
+    assert.ok(Math.abs(u - exact) < 1.1e-6, `vertex ${i} at r=${r}: u ${u}, profile ${exact}`);
+    if (z > 0 || u !== 0) moved++;
+    if (Math.abs(u) > 1e-6) sideways++;
+  }
+  assert.equal(deformer.movedCount, moved);
+  assert.ok(sideways > 1000, `${sideways} vertices moved sideways by more than 1 µm`);
+  // Normals: unit, in the plane of n and e_r, and perpendicular to the drawn surface's radial
+  // tangent d/dr [(r + u)·e_r − z·n], by central differences inside the table interval of r.
+  const h = 1e-9;
+  let checked = 0;
+  for (let k = 0; k < deformer.movedCount; k++) {
+    const i = deformer.moved[k];
+    const ex = grid.positions[3 * i] - cx;
+    const ez = grid.positions[3 * i + 2] - cz;
+    const r = Math.hypot(ex, ez);
+    // Only where r ± h lie in r's table interval (whose slopes the normal is made of).
+    const interval = Math.floor(r * table.samplesPerM);
+    const inside = (rr) => Math.floor(rr * table.samplesPerM) === interval;
+    if (r < 1e-6 || !inside(r - h) || !inside(r + h)) continue;
+    const dz = (surfaceTableAt(table, r + h) - surfaceTableAt(table, r - h)) / (2 * h);
+    const du = (surfaceTableRadialAt(table, r + h) - surfaceTableRadialAt(table, r - h)) / (2 * h);
+    // Radial tangent (in e_r, n components) and its unit vector in the grid's frame.
+    const [tr, tn] = [1 + du, -dz];
+    const len = Math.hypot(tr, tn);
+    const tangent = [((tr / len) * ex) / r, tn / len, ((tr / len) * ez) / r];
+    const got = [normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]];
+    const dot = got[0] * tangent[0] + got[1] * tangent[1] + got[2] * tangent[2];
+    assert.ok(Math.abs(dot) < 1e-5, `vertex ${i} at r=${r}: normal ${got} · tangent ${tangent} = ${dot}`);
+    assert.ok(Math.abs(Math.hypot(...got) - 1) < 1e-5, `vertex ${i}: unit normal`);
+    assert.ok(Math.abs(got[0] * ez - got[2] * ex) / r < 1e-6, `vertex ${i}: no azimuthal component`);
+    assert.ok(got[1] > 0, `vertex ${i}: the normal points out of the surface`);
+    checked++;
+  }
+  assert.ok(checked > 1000, `${checked} normals checked`);
+  // The same family without its sideways motion, then the paper's profile: back where they draw
+  // vertices, sideways motion and all (every x and z at rest beyond R_d for the paper's).
+  deformer.apply(out, normals, contact, sphere, families[0]);
+  const plain = surfaceTable(surfaceSetup(families[0], sphere, contact.depthM));
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    assert.equal(out[3 * i], grid.positions[3 * i], `vertex ${i} x`);
+    assert.equal(out[3 * i + 2], grid.positions[3 * i + 2], `vertex ${i} z`);
+    const r = Math.hypot(grid.positions[3 * i] - cx, grid.positions[3 * i + 2] - cz);
+    assert.ok(Math.abs(grid.positions[3 * i + 1] - out[3 * i + 1] - surfaceTableAt(plain, r)) < 1e-7, `vertex ${i} y`);
+  }
+  deformer.apply(out, normals, contact, sphere, family);
+  deformer.apply(out, normals, contact, sphere);
+  for (let i = 0; i < deformer.vertexCount; i++) {
+    assert.equal(out[3 * i], grid.positions[3 * i], `vertex ${i} x`);
+    assert.equal(out[3 * i + 2], grid.positions[3 * i + 2], `vertex ${i} z`);
+  }
+});
+
 test('a press that slides writes every vertex of both dimples once, each where the new press puts it', () => {
   const grid = flatGrid(80, 0.1);
   const out = Float32Array.from(grid.positions);
   const normals = Float32Array.from(grid.normals);
   const deformer = new MeshDeformer(grid.positions, grid.normals);
-  for (const surface of [null, families[0]]) {
+  for (const surface of [null, families[0], surfaceFamilyFromJson(lateralJson(0))]) {
     deformer.apply(out, normals, pressAt(0, 0, 3 * MM, 12 * MM), sphere, surface);
     const before = new Set(deformer.moved.subarray(0, deformer.movedCount));
     const press = pressAt(0.001, 0, 3 * MM, 12 * MM);
@@ -433,12 +674,17 @@ test('a press that slides writes every vertex of both dimples once, each where t
     assert.equal(touched, new Set([...before, ...now]).size, 'the union of both dimples');
     const table = surface ? surfaceTable(surfaceSetup(surface, sphere, press.depthM)) : null;
     for (let i = 0; i < deformer.vertexCount; i++) {
-      const r = Math.hypot(grid.positions[3 * i] - 0.001, grid.positions[3 * i + 2]);
+      const ex = grid.positions[3 * i] - 0.001;
+      const ez = grid.positions[3 * i + 2];
+      const r = Math.hypot(ex, ez);
       const z = surface
         ? surfaceTableAt(table, r)
         : depression(sphere, press.depthM, press.contactRadiusM, press.deformedRadiusM, r);
+      const u = surface && r > 0 ? surfaceTableRadialAt(table, r) : 0;
       const dy = grid.positions[3 * i + 1] - out[3 * i + 1];
       assert.ok(Math.abs(dy - z) < 1e-7, `${surface ? 'fem' : 'paper'} vertex ${i}: moved ${dy}, profile ${z}`);
+      assert.ok(Math.abs(out[3 * i] - grid.positions[3 * i] - (u * ex) / (r || 1)) < 1e-7, `vertex ${i} x`);
+      assert.ok(Math.abs(out[3 * i + 2] - grid.positions[3 * i + 2] - (u * ez) / (r || 1)) < 1e-7, `vertex ${i} z`);
       if (!now.has(i)) assert.equal(normals[3 * i + 1], grid.normals[3 * i + 1], `vertex ${i} normal restored`);
     }
     deformer.apply(out, normals, { inContact: false }, sphere, surface);

@@ -10,6 +10,7 @@ import {
   surfaceSetup,
   surfaceTable,
   surfaceTableAt,
+  surfaceTableRadialAt,
   toolFromJson,
 } from '../src/deformation.js';
 
@@ -39,17 +40,24 @@ export async function freezeOnPress(page, minDepthM, { timeout = 120000 } = {}) 
 
 /**
  * The deformation profile a page draws for contact `c` of `scene` (its `render_profile`):
- * `{name, reachM, at(r)}`, no vertex at or beyond `reachM` from the contact axis moving (R_d,eff
- * for the paper's Bézier, the tabulated surface's reach for `fem`, drawn from its radial table).
+ * `{name, reachM, at(r), sideways(r)}`, the depression and the outward radial displacement at
+ * undeformed radius r, no vertex at or beyond `reachM` from the contact axis moving (R_d,eff
+ * for the paper's Bézier, which moves nothing sideways; the tabulated surface's reach for
+ * `fem`, drawn from its radial table).
  */
 export function drawnProfile(scene, c) {
   if (scene.render_profile === 'fem') {
     const p = surfaceSetup(surfaceFamilyFromJson(scene.calibration.surface), toolFromJson(scene.tool), c.depthM);
     const table = surfaceTable(p);
-    return { name: 'fem', reachM: table.reachM, at: (r) => surfaceTableAt(table, r) };
+    return {
+      name: 'fem',
+      reachM: table.reachM,
+      at: (r) => surfaceTableAt(table, r),
+      sideways: (r) => surfaceTableRadialAt(table, r),
+    };
   }
   const p = profileSetup(toolFromJson(scene.tool), c.depthM, c.contactRadiusM, c.deformedRadiusM);
-  return { name: 'paper', reachM: p.rdEff, at: (r) => depressionAt(p, r) };
+  return { name: 'paper', reachM: p.rdEff, at: (r) => depressionAt(p, r), sideways: () => 0 };
 }
 
 /**
@@ -91,13 +99,23 @@ export async function assertPressBendsMesh(page) {
     const vy = ry - c.point[1];
     const vz = rz - c.point[2];
     const axial = vx * n[0] + vy * n[1] + vz * n[2];
-    const r = Math.hypot(vx - axial * n[0], vy - axial * n[1], vz - axial * n[2]);
-    const expected = Math.abs(axial) < profile.reachM ? profile.at(r) : 0;
-    // The drawn vertex must sit at rest − n·z(r).
-    const err = Math.hypot(x - (rx - n[0] * expected), y - (ry - n[1] * expected), z - (rz - n[2] * expected));
+    const ex = vx - axial * n[0],
+      ey = vy - axial * n[1],
+      ez = vz - axial * n[2];
+    const r = Math.hypot(ex, ey, ez);
+    const moves = Math.abs(axial) < profile.reachM;
+    const expected = moves ? profile.at(r) : 0;
+    // Outward along the radial direction e/r (nowhere on the axis).
+    const out = moves && r > 0 ? profile.sideways(r) / r : 0;
+    // The drawn vertex must sit at rest − n·z(r) + e_r·u(r).
+    const err = Math.hypot(
+      x - (rx - n[0] * expected + ex * out),
+      y - (ry - n[1] * expected + ey * out),
+      z - (rz - n[2] * expected + ez * out),
+    );
     assert.ok(
       err <= TOLERANCE_M,
-      `vertex ${i} at r = ${r} m, axial ${axial} m: off by ${err} m (${profile.name} profile ${expected} m)`,
+      `vertex ${i} at r = ${r} m, axial ${axial} m: off by ${err} m (${profile.name} profile ${expected} m, sideways ${out * r} m)`,
     );
     if (r >= profile.reachM) beyond++;
     else if (expected > 0) inside++;

@@ -137,6 +137,20 @@ impl DrawnSurface {
         .with_fem_from(fem_source(&study.runs))
     }
 
+    /// Outward radial displacement of `profile` at undeformed radius `r_m`: only the `fem`
+    /// profiles move the surface sideways; the others move it along −n alone.
+    pub fn radial_displacement_m(&self, profile: DrawnProfile, r_m: f64) -> f64 {
+        let family = match profile {
+            DrawnProfile::Fem => &self.fem,
+            DrawnProfile::FemHeldOut => &self.fem_held_out,
+            _ => return 0.0,
+        };
+        family.as_ref().map_or(f64::NAN, |f| {
+            f.at_depth(&self.tool, self.depth_m)
+                .radial_displacement_m(r_m)
+        })
+    }
+
     /// Depression of `profile` at radius `r_m` from the contact axis.
     pub fn depression_m(&self, profile: DrawnProfile, r_m: f64) -> f64 {
         match profile {
@@ -207,21 +221,29 @@ fn surface_family_without(
     SurfaceFamily::new(radius_exponent(tool), SURFACE_STEP_M, rows)
 }
 
-/// One row of the `fem` profile: the FEM's depression (linear between its nodes, ≥ 0) every
-/// [`SURFACE_STEP_M`] out to the last node, rounded to 10 nm (the file stays short; the FEM is
-/// not that precise), ended after the last sample at or above [`SURFACE_FLOOR_M`] (or at the
-/// block's side) by a ramp to 0 at [`SURFACE_RAMP_SLOPE`].
+/// One row of the `fem` profile: the FEM's depression (linear between its nodes, ≥ 0) and its
+/// radial displacement (0 on the axis) every [`SURFACE_STEP_M`] out to the last node, rounded
+/// to 10 nm (the file stays short; the FEM is not that precise), ended after the last sample
+/// whose depression is at or above [`SURFACE_FLOOR_M`] (or at the block's side) by a ramp of
+/// both to 0 over the samples that take the depression to 0 at [`SURFACE_RAMP_SLOPE`].
 pub fn surface_row(depth_m: f64, surface: &[SurfacePoint]) -> SurfaceRow {
     let last_m = surface.last().map_or(0.0, |p| p.radius_m);
     let samples = (last_m / SURFACE_STEP_M).floor() as usize;
     let round = |z: f64| (z * 1e8).round() / 1e8;
+    let sample = |k: usize, field: fn(&SurfacePoint) -> f64| {
+        let x = surface_value_at(surface, k as f64 * SURFACE_STEP_M, field);
+        if x.is_finite() { round(x) } else { 0.0 }
+    };
     let mut depression_m: Vec<f64> = (0..=samples)
+        .map(|k| sample(k, |p| p.depression_m).max(0.0))
+        .collect();
+    // The axis does not move sideways (by symmetry; the FEM's axis nodes are held on it).
+    let mut radial_m: Vec<f64> = (0..=samples)
         .map(|k| {
-            let z = surface_value_at(surface, k as f64 * SURFACE_STEP_M, |p| p.depression_m);
-            if z.is_finite() {
-                round(z.max(0.0))
-            } else {
+            if k == 0 {
                 0.0
+            } else {
+                sample(k, |p| p.radial_displacement_m)
             }
         })
         .collect();
@@ -230,19 +252,25 @@ pub fn surface_row(depth_m: f64, surface: &[SurfacePoint]) -> SurfaceRow {
         .rposition(|&z| z >= SURFACE_FLOOR_M)
         .map_or(0, |k| k + 1);
     depression_m.truncate(kept);
-    if let Some(&end_m) = depression_m.last() {
+    radial_m.truncate(kept);
+    if let (Some(&end_m), Some(&end_u_m)) = (depression_m.last(), radial_m.last()) {
         let ramp = (end_m / (SURFACE_RAMP_SLOPE * SURFACE_STEP_M))
             .ceil()
             .max(1.0) as usize;
-        depression_m.extend((1..ramp).map(|k| round(end_m * (1.0 - k as f64 / ramp as f64))));
+        let fade = |k: usize| 1.0 - k as f64 / ramp as f64;
+        depression_m.extend((1..ramp).map(|k| round(end_m * fade(k))));
+        radial_m.extend((1..ramp).map(|k| round(end_u_m * fade(k))));
     }
     depression_m.push(0.0);
+    radial_m.push(0.0);
     if depression_m.len() < 2 {
         depression_m.insert(0, 0.0);
+        radial_m.insert(0, 0.0);
     }
     SurfaceRow {
         depth_m,
         depression_m,
+        radial_displacement_m: radial_m,
     }
 }
 
@@ -288,9 +316,11 @@ pub struct ProfileError {
     /// Undeformed radius of that node.
     pub worst_error_radius_m: f64,
     pub worst_error_region: SurfaceRegion,
-    /// The error of largest magnitude at r ≥ a, signed. Inside the contact every profile follows
-    /// the tool, so there the error is the FEM node's sideways slide under the tool (or the
-    /// mesh's resolution of it), the same for every profile; outside it the profiles differ.
+    /// The error of largest magnitude at r ≥ a, signed. Inside the contact the profiles that
+    /// move the surface along −n alone follow the tool, so there their error is the FEM node's
+    /// sideways slide under the tool (or the mesh's resolution of it), the same for each of
+    /// them; outside it the profiles differ. (The `fem` profiles slide their points as the FEM's
+    /// did.)
     pub worst_error_outside_contact_m: f64,
     /// Root mean square of the error along the line from the axis to the block's side.
     pub rms_error_m: f64,
@@ -298,6 +328,9 @@ pub struct ProfileError {
     pub depression_at_twice_contact_m: f64,
     /// The profile's depression at r = R_d / 2.
     pub depression_at_half_deformed_m: f64,
+    /// How far the profile moves the surface point at undeformed r = a towards the axis (0 for
+    /// the profiles drawn along −n alone).
+    pub inward_motion_at_contact_edge_m: f64,
 }
 
 impl ProfileError {
@@ -410,6 +443,7 @@ pub fn compare_surface(
                 rms_error_m: rms_along(&errors),
                 depression_at_twice_contact_m: drawn.depression_m(kind, 2.0 * a),
                 depression_at_half_deformed_m: drawn.depression_m(kind, 0.5 * deformed_radius_m),
+                inward_motion_at_contact_edge_m: -drawn.radial_displacement_m(kind, a),
             }
         })
         .collect();
@@ -539,6 +573,16 @@ mod tests {
             assert!(w[0] - w[1] <= SURFACE_RAMP_SLOPE * SURFACE_STEP_M * (1.0 + 1e-6));
         }
         assert_eq!(ramp.len(), 11, "{ramp:?}");
+        // The sideways motion beside it: the FEM's on the samples (−0.1 z here), 0 on the axis
+        // (where the FEM's −0.2 mm would tear the surface), faded with the ramp, 0 at the end.
+        let u = &row.radial_displacement_m;
+        assert_eq!(u.len(), row.depression_m.len());
+        assert_eq!(u[0], 0.0);
+        assert!((u[2] + 0.19 * MM).abs() < 1e-12, "{}", u[2]);
+        assert_eq!(*u.last().unwrap(), 0.0);
+        for (w, z) in u[39..].windows(2).zip(ramp) {
+            assert!(w[1] > w[0] && (w[0] + 0.1 * z).abs() < 1e-8);
+        }
         // Still sunk at the block's side (50 mm): a ramp to 0 beyond it.
         let sunk: Vec<SurfacePoint> = (0..=50)
             .map(|k| point(k as f64 * MM, 5.0 * MM / (1.0 + k as f64)))

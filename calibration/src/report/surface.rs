@@ -29,15 +29,17 @@ pub(super) fn surface_section(
          the FEM's profile nodes from the axis to the block's side (negative: drawn too \
          shallow); \"max\" is the one of largest magnitude, with its undeformed radius and \
          region (contact r < a, flank a ≤ r < R_d, tail r ≥ R_d), then the largest at r ≥ a: \
-         inside the contact every profile follows the tool, so an error there is the FEM node's \
-         slide under the tool (compared at its undeformed radius) or the mesh's, the same for \
-         every profile. The RMS is taken along the line. The depressions at 2a and ½R_d are FEM / paper / half-space. \"Inward\" is how \
-         far the FEM surface at undeformed r = a moved towards the axis, which no profile drawn \
-         along −n reproduces. The last two profiles are the viewer's `fem` profile (proto's \
-         `SurfaceFamily`): the neo-Hookean run's surface tabulated every 0.5 mm at each table \
-         depth, as the table carries it and held below the tool (at a table depth it is the FEM \
-         row itself, so against the neo-Hookean FEM only the resampling remains outside the \
-         contact), and with the scored depth's own row \
+         inside the contact the profiles drawn along −n alone follow the tool, so an error there \
+         is the FEM node's slide under the tool (compared at its undeformed radius) or the \
+         mesh's, the same for each of them. The RMS is taken along the line. The depressions at \
+         2a and ½R_d are FEM / paper / half-space. \"Inward\" is how far the FEM surface at \
+         undeformed r = a moved towards the axis, then how far the `fem` profile moves it (no \
+         profile drawn along −n alone does). The last two profiles are the viewer's `fem` \
+         profile (proto's `SurfaceFamily`): the neo-Hookean run's surface, depression and \
+         sideways motion, tabulated every 0.5 mm at each table depth, as the table carries it, \
+         each point held below the tool where it is drawn (at a table depth it is the FEM row \
+         itself, so against the neo-Hookean FEM only the resampling remains), and with the \
+         scored depth's own row \
          left out, so that it is interpolated from the rows beside it (the error of a depth \
          between rows, over twice their spacing; the first and last depths are extrapolated).\n"
     );
@@ -64,7 +66,10 @@ pub(super) fn surface_section(
                     p.title(&s.tool)
                 );
             }
-            let _ = writeln!(md, " at 2a (mm) | at ½R_d (mm) | inward at a (mm) |");
+            let _ = writeln!(
+                md,
+                " at 2a (mm) | at ½R_d (mm) | inward at a, FEM / fem (mm) |"
+            );
             let _ = write!(md, "|---|---|---|");
             for _ in DrawnProfile::ALL {
                 let _ = write!(md, "---|---|---|");
@@ -99,9 +104,12 @@ pub(super) fn surface_section(
                         .map(|e| e.depression_at_half_deformed_m)
                         .unwrap_or(f64::NAN)
                 };
+                let inward = c
+                    .error(DrawnProfile::Fem)
+                    .map_or(f64::NAN, |e| e.inward_motion_at_contact_edge_m);
                 let _ = writeln!(
                     md,
-                    " {:.2} / {:.2} / {:.2} | {:.2} / {:.2} / {:.2} | {:.2} |",
+                    " {:.2} / {:.2} / {:.2} | {:.2} / {:.2} / {:.2} | {:.2} / {:.2} |",
                     c.fem_depression_at_twice_contact_m / MM,
                     twice(DrawnProfile::Paper) / MM,
                     twice(DrawnProfile::HalfSpace) / MM,
@@ -109,6 +117,7 @@ pub(super) fn surface_section(
                     half(DrawnProfile::Paper) / MM,
                     half(DrawnProfile::HalfSpace) / MM,
                     c.fem_inward_motion_at_contact_edge_m / MM,
+                    inward / MM,
                 );
             }
             md.push('\n');
@@ -155,6 +164,7 @@ fn surface_csv(dir: &Path, s: &RdStudy) -> Result<(), ReportError> {
             "rms_error_mm",
             "depression_at_2a_mm",
             "depression_at_half_rd_mm",
+            "drawn_inward_motion_at_a_mm",
         ] {
             header.push(format!("{}_{field}", p.name()));
         }
@@ -183,6 +193,7 @@ fn surface_csv(dir: &Path, s: &RdStudy) -> Result<(), ReportError> {
             cells.push(format!("{:.6e}", e.rms_error_m / MM));
             cells.push(format!("{:.6e}", e.depression_at_twice_contact_m / MM));
             cells.push(format!("{:.6e}", e.depression_at_half_deformed_m / MM));
+            cells.push(format!("{:.6e}", e.inward_motion_at_contact_edge_m / MM));
         }
         text.push_str(&cells.join(","));
         text.push('\n');
@@ -192,9 +203,9 @@ fn surface_csv(dir: &Path, s: &RdStudy) -> Result<(), ReportError> {
     let mut text =
         String::from("law,depth_mm,radius_mm,fem_depression_mm,fem_radial_displacement_mm");
     for p in DrawnProfile::ALL {
-        let _ = write!(text, ",{}_depression_mm", p.name());
+        let _ = write!(text, ",{}_drawn_depression_mm", p.name());
     }
-    text.push('\n');
+    text.push_str(",fem_drawn_radial_displacement_mm\n");
     for c in &s.surface {
         let Some((run, surface)) = run_surface(s, c.law, c.depth_m) else {
             continue;
@@ -213,7 +224,11 @@ fn surface_csv(dir: &Path, s: &RdStudy) -> Result<(), ReportError> {
             for kind in DrawnProfile::ALL {
                 let _ = write!(text, ",{:.6e}", drawn.depression_m(kind, p.radius_m) / MM);
             }
-            text.push('\n');
+            let _ = writeln!(
+                text,
+                ",{:.6e}",
+                drawn.radial_displacement_m(DrawnProfile::Fem, p.radius_m) / MM
+            );
         }
     }
     write(

@@ -368,15 +368,9 @@ mod tests {
     #[test]
     fn a_table_carries_its_surface_and_reads_without_one() {
         use crate::deformation::{SurfaceFamily, SurfaceRow};
-        let family = SurfaceFamily::new(
-            0.5,
-            MM,
-            vec![SurfaceRow {
-                depth_m: MM,
-                depression_m: vec![MM, 0.5 * MM, 0.0],
-            }],
-        )
-        .unwrap();
+        let family =
+            SurfaceFamily::new(0.5, MM, vec![SurfaceRow::new(MM, vec![MM, 0.5 * MM, 0.0])])
+                .unwrap();
         let plain = sphere10();
         assert!(plain.surface().is_none());
         assert!(!serde_json::to_string(&plain).unwrap().contains("surface"));

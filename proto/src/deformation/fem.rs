@@ -42,15 +42,61 @@ pub enum SurfaceFamilyError {
         "rows[{row}].depression_m must end at 0 (the surface beyond the table is unmoved), its last sample is {value}"
     )]
     OpenEnd { row: usize, value: f64 },
+    #[error(
+        "rows[{row}].radial_displacement_m must hold as many samples as depression_m ({expected}), got {len}"
+    )]
+    RadialLength {
+        row: usize,
+        len: usize,
+        expected: usize,
+    },
+    #[error("rows[{row}].radial_displacement_m[{index}] must be finite, got {value}")]
+    RadialSample {
+        row: usize,
+        index: usize,
+        value: f64,
+    },
+    #[error(
+        "rows[{row}].radial_displacement_m[{index}] must be 0 (the axis and the unmoved surface beyond the table do not move sideways), got {value}"
+    )]
+    RadialEnd {
+        row: usize,
+        index: usize,
+        value: f64,
+    },
+    #[error(
+        "rows[{row}].radial_displacement_m[{index}] = {value} folds the surface over itself: the displaced radius j·Δ + u[j] must increase with j"
+    )]
+    RadialFold {
+        row: usize,
+        index: usize,
+        value: f64,
+    },
 }
 
 /// One depth of a [`SurfaceFamily`]: the surface's depression at the radii 0, Δ, 2Δ, … from the
-/// contact axis (Δ the family's `radius_step_m`), the last sample 0.
+/// contact axis (Δ the family's `radius_step_m`), the last sample 0, and how far each of those
+/// surface points moved away from the axis.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SurfaceRow {
     pub depth_m: f64,
     pub depression_m: Vec<f64>,
+    /// Outward radial displacement at the same radii (negative: towards the axis), the first
+    /// and last 0; empty for a row without sideways motion (every table written before it).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub radial_displacement_m: Vec<f64>,
+}
+
+impl SurfaceRow {
+    /// A row without sideways motion.
+    pub fn new(depth_m: f64, depression_m: Vec<f64>) -> Self {
+        SurfaceRow {
+            depth_m,
+            depression_m,
+            radial_displacement_m: Vec::new(),
+        }
+    }
 }
 
 /// The `fem` render profile: the depression of an object's surface against the distance from
@@ -158,6 +204,7 @@ impl SurfaceFamily {
                     value: last,
                 });
             }
+            check_radial(index, row, radius_step_m)?;
         }
         Ok(SurfaceFamily {
             radius_exponent,
@@ -168,6 +215,13 @@ impl SurfaceFamily {
 
     pub fn radius_exponent(&self) -> f64 {
         self.radius_exponent
+    }
+
+    /// True when some row moves the surface sideways.
+    pub fn has_radial_displacement(&self) -> bool {
+        self.rows
+            .iter()
+            .any(|row| row.radial_displacement_m.iter().any(|&u| u != 0.0))
     }
 
     pub fn radius_step_m(&self) -> f64 {
@@ -245,6 +299,53 @@ impl SurfaceFamily {
     }
 }
 
+/// The checks of a row's `radial_displacement_m` (none when it is empty): one sample per
+/// depression sample, finite, 0 at the axis and at the end, and no fold (j·Δ + u[j] increasing).
+fn check_radial(
+    index: usize,
+    row: &SurfaceRow,
+    radius_step_m: f64,
+) -> Result<(), SurfaceFamilyError> {
+    let u = &row.radial_displacement_m;
+    if u.is_empty() {
+        return Ok(());
+    }
+    if u.len() != row.depression_m.len() {
+        return Err(SurfaceFamilyError::RadialLength {
+            row: index,
+            len: u.len(),
+            expected: row.depression_m.len(),
+        });
+    }
+    if let Some((i, &value)) = u.iter().enumerate().find(|(_, x)| !x.is_finite()) {
+        return Err(SurfaceFamilyError::RadialSample {
+            row: index,
+            index: i,
+            value,
+        });
+    }
+    for i in [0, u.len() - 1] {
+        if u[i] != 0.0 {
+            return Err(SurfaceFamilyError::RadialEnd {
+                row: index,
+                index: i,
+                value: u[i],
+            });
+        }
+    }
+    for j in 1..u.len() {
+        let before = (j - 1) as f64 * radius_step_m + u[j - 1];
+        if j as f64 * radius_step_m + u[j] <= before {
+            return Err(SurfaceFamilyError::RadialFold {
+                row: index,
+                index: j,
+                value: u[j],
+            });
+        }
+    }
+    Ok(())
+}
+
 /// One scaled row of a [`SurfaceProfile`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct SurfaceTerm {
@@ -295,45 +396,65 @@ impl SurfaceProfile<'_> {
         self.footprint_m
     }
 
-    /// The depression z(r), 0 ≤ z ≤ δ, at radial distance `r_m` from the contact axis
-    /// (proto/WIRE.md, `fem`, step 3): the rows' blend, never above the tool.
+    /// The depression z(r), 0 ≤ z ≤ δ, at undeformed radial distance `r_m` from the contact
+    /// axis (proto/WIRE.md, `fem`, step 3): the rows' blend, never above the tool where the
+    /// point is drawn (at r + u(r)).
     pub fn depression_m(&self, r_m: f64) -> f64 {
+        self.displacement_m(r_m).0
+    }
+
+    /// The outward radial displacement u(r) of the surface point at undeformed radius `r_m`
+    /// (negative: towards the axis; 0 for a family without sideways motion).
+    pub fn radial_displacement_m(&self, r_m: f64) -> f64 {
+        self.displacement_m(r_m).1
+    }
+
+    /// (z(r), u(r)) of step 3.
+    pub fn displacement_m(&self, r_m: f64) -> (f64, f64) {
         if self.depth_m == 0.0 {
-            return 0.0;
+            return (0.0, 0.0);
         }
         let r = sanitise(r_m);
-        let mut z = 0.0;
+        let (mut z, mut u) = (0.0, 0.0);
         for term in &self.terms {
             if term.amplitude == 0.0 {
                 continue;
             }
-            let samples = &self.family.rows[term.row].depression_m;
-            let u = r * term.index_per_m;
-            // Past the last sample (which is 0) the row is 0. u is finite: r is sanitised and
+            let row = &self.family.rows[term.row];
+            let samples = &row.depression_m;
+            let x = r * term.index_per_m;
+            // Past the last sample (which is 0) the row is 0. x is finite: r is sanitised and
             // the scale is finite for a depth > 0.
-            if u >= (samples.len() - 1) as f64 {
+            if x >= (samples.len() - 1) as f64 {
                 continue;
             }
-            let j = u.floor();
-            let f = u - j;
+            let j = x.floor();
+            let f = x - j;
             let j = j as usize;
             z += term.amplitude * (samples[j] + f * (samples[j + 1] - samples[j]));
+            let radial = &row.radial_displacement_m;
+            if !radial.is_empty() {
+                u += term.amplitude * (radial[j] + f * (radial[j + 1] - radial[j]));
+            }
         }
         // Between the FEM's nodes the rows are straight chords, which under the curved tool
-        // would let the tool poke through the drawn surface; the tool's own surface bounds it.
-        if r < self.footprint_m {
-            z = z.max(self.depth_m - tool_height_m(&self.tool, r));
+        // would let the tool poke through the drawn surface; the tool's own surface bounds it,
+        // where the point is drawn.
+        let drawn_r = (r + u).max(0.0);
+        if drawn_r < self.footprint_m {
+            z = z.max(self.depth_m - tool_height_m(&self.tool, drawn_r));
         }
-        z.clamp(0.0, self.depth_m)
+        (z.clamp(0.0, self.depth_m), u)
     }
 }
 
 /// Intervals of a [`SurfaceTable`]: the `fem` profile is sampled at 4097 radii from the axis to
 /// its reach. Linear interpolation between the samples misses only the rows' kinks between two
-/// samples, by at most a quarter of the sample spacing times the slope's jump: within 1.1 µm of
-/// the profile for the repository's tables (1.04 µm for the sphere's, 0.87 µm for the cone's,
-/// over δ = 0.1 … 10.5 mm), so the drawn surface's error against the FEM surface changes by
-/// no more than that.
+/// samples, by at most a quarter of the sample spacing times the slope's jump: within 2 µm of
+/// the profile for the repository's tables (depression and sideways motion: 1.04 µm and
+/// 0.90 µm for the sphere's, 1.61 µm for the cone's, whose sideways motion turns sharply next
+/// to the apex; over δ = 0.1 … 10.5 mm), so the drawn surface's error against the FEM surface
+/// changes by no more than that.
 pub const SURFACE_TABLE_INTERVALS: usize = 4096;
 
 /// The `fem` profile as the viewer draws it on a render mesh: sampled once per frame at
@@ -348,6 +469,8 @@ pub struct SurfaceTable {
     samples_per_m: f64,
     /// z(k · reach / N) for k = 0 … N; the last is 0, the profile's value at its reach.
     depression_m: Vec<f64>,
+    /// u(k · reach / N) for k = 0 … N, the same way.
+    radial_displacement_m: Vec<f64>,
 }
 
 impl SurfaceProfile<'_> {
@@ -364,17 +487,20 @@ impl SurfaceProfile<'_> {
                 reach_m: 0.0,
                 samples_per_m: 0.0,
                 depression_m: vec![0.0; n + 1],
+                radial_displacement_m: vec![0.0; n + 1],
             };
         }
         let step_m = reach_m / n as f64;
-        let mut depression_m: Vec<f64> = (0..n)
-            .map(|k| self.depression_m(k as f64 * step_m))
-            .collect();
+        let (mut depression_m, mut radial_displacement_m): (Vec<f64>, Vec<f64>) = (0..n)
+            .map(|k| self.displacement_m(k as f64 * step_m))
+            .unzip();
         depression_m.push(0.0);
+        radial_displacement_m.push(0.0);
         SurfaceTable {
             reach_m,
             samples_per_m: n as f64 / reach_m,
             depression_m,
+            radial_displacement_m,
         }
     }
 }
@@ -389,17 +515,30 @@ impl SurfaceTable {
     /// samples, 0 at and beyond the reach; `r_m` sanitised as for the profile (NaN, negative
     /// and infinite radii are the axis).
     pub fn depression_m(&self, r_m: f64) -> f64 {
+        Self::lookup(&self.depression_m, self.reach_m, self.samples_per_m, r_m)
+    }
+
+    /// The drawn outward radial displacement at radial distance `r_m`, read the same way.
+    pub fn radial_displacement_m(&self, r_m: f64) -> f64 {
+        Self::lookup(
+            &self.radial_displacement_m,
+            self.reach_m,
+            self.samples_per_m,
+            r_m,
+        )
+    }
+
+    fn lookup(samples: &[f64], reach_m: f64, samples_per_m: f64, r_m: f64) -> f64 {
         let r = sanitise(r_m);
-        if r >= self.reach_m {
+        if r >= reach_m {
             return 0.0;
         }
-        let u = r * self.samples_per_m;
-        // u < N in exact arithmetic; the last interval also takes a product that rounds up to N.
-        let j = u.floor().min((SURFACE_TABLE_INTERVALS - 1) as f64);
-        let f = u - j;
+        let x = r * samples_per_m;
+        // x < N in exact arithmetic; the last interval also takes a product that rounds up to N.
+        let j = x.floor().min((SURFACE_TABLE_INTERVALS - 1) as f64);
+        let f = x - j;
         let j = j as usize;
-        let z = &self.depression_m;
-        z[j] + f * (z[j + 1] - z[j])
+        samples[j] + f * (samples[j + 1] - samples[j])
     }
 }
 
@@ -426,10 +565,10 @@ mod tests {
                 // g falls from 1 at the axis to 0 at r = 10 mm × √(δ / 1 mm).
                 let r_end = 10.0 * MM * (d / MM).sqrt();
                 let n = (r_end / step).round() as usize;
-                SurfaceRow {
-                    depth_m: d,
-                    depression_m: (0..=n).map(|k| d * (1.0 - k as f64 / n as f64)).collect(),
-                }
+                SurfaceRow::new(
+                    d,
+                    (0..=n).map(|k| d * (1.0 - k as f64 / n as f64)).collect(),
+                )
             })
             .collect();
         SurfaceFamily::new(0.5, step, rows).unwrap()
@@ -506,10 +645,7 @@ mod tests {
         let f = SurfaceFamily::new(
             0.5,
             20.0 * MM,
-            vec![SurfaceRow {
-                depth_m: 4.0 * MM,
-                depression_m: vec![4.0 * MM, 0.0],
-            }],
+            vec![SurfaceRow::new(4.0 * MM, vec![4.0 * MM, 0.0])],
         )
         .unwrap();
         let ball = sphere();
@@ -529,10 +665,7 @@ mod tests {
 
     #[test]
     fn a_surface_family_is_refused_with_the_field_and_value() {
-        let row = |d: f64, z: Vec<f64>| SurfaceRow {
-            depth_m: d,
-            depression_m: z,
-        };
+        let row = |d: f64, z: Vec<f64>| SurfaceRow::new(d, z);
         let ok = || {
             vec![
                 row(MM, vec![MM, 0.0]),
@@ -567,6 +700,96 @@ mod tests {
         assert!(e.contains("must end at 0"), "{e}");
     }
 
+    /// One row 4 mm deep, 2 mm apart, moved sideways by `u`.
+    fn sideways(u: Vec<f64>) -> Result<SurfaceFamily, SurfaceFamilyError> {
+        let mut row = SurfaceRow::new(4.0 * MM, vec![4.0 * MM, 3.0 * MM, 1.0 * MM, 0.0]);
+        row.radial_displacement_m = u;
+        SurfaceFamily::new(0.5, 2.0 * MM, vec![row])
+    }
+
+    #[test]
+    fn sideways_motion_is_refused_with_the_field_and_value() {
+        assert!(sideways(vec![]).is_ok());
+        assert!(sideways(vec![0.0, -0.5 * MM, 0.3 * MM, 0.0]).is_ok());
+        let err = |u: Vec<f64>| sideways(u).unwrap_err().to_string();
+        let e = err(vec![0.0, 0.0]);
+        assert!(
+            e.contains("rows[0].radial_displacement_m") && e.contains("(4), got 2"),
+            "{e}"
+        );
+        let e = err(vec![0.0, f64::NAN, 0.0, 0.0]);
+        assert!(
+            e.contains("radial_displacement_m[1]") && e.contains("NaN"),
+            "{e}"
+        );
+        let e = err(vec![0.1 * MM, 0.0, 0.0, 0.0]);
+        assert!(e.contains("radial_displacement_m[0] must be 0"), "{e}");
+        let e = err(vec![0.0, 0.0, 0.0, 1e-6]);
+        assert!(e.contains("radial_displacement_m[3] must be 0"), "{e}");
+        // Sample 2 drawn at 4 − 2.5 = 1.5 mm, inside sample 1 at 2 mm: folded.
+        let e = err(vec![0.0, 0.0, -2.5 * MM, 0.0]);
+        assert!(
+            e.contains("radial_displacement_m[2]") && e.contains("folds"),
+            "{e}"
+        );
+        // A table without the field reads as no sideways motion and is written back without it.
+        let text = r#"{"radius_exponent": 0.5, "radius_step_m": 0.001, "rows": [{"depth_m": 0.001, "depression_m": [0.001, 0.0]}]}"#;
+        let f: SurfaceFamily = serde_json::from_str(text).unwrap();
+        assert!(!f.has_radial_displacement());
+        assert!(!serde_json::to_string(&f).unwrap().contains("radial"));
+        let e = serde_json::from_str::<SurfaceFamily>(
+            &text.replace("0.0]}", r#"0.0], "radial_displacement_m": [0.0]}"#),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("radial_displacement_m"), "{e}");
+    }
+
+    #[test]
+    fn sideways_motion_is_drawn_from_its_row_and_the_tool_bounds_the_point_where_it_is_drawn() {
+        let f = sideways(vec![0.0, -0.5 * MM, 0.3 * MM, 0.0]).unwrap();
+        // A slender cone never bounds the rows: the row itself, both ways.
+        let p = f.at_depth(&slender(), 4.0 * MM);
+        for (r_mm, z_mm, u_mm) in [(0.0, 4.0, 0.0), (1.0, 3.5, -0.25), (3.0, 2.0, -0.1)] {
+            let (z, u) = p.displacement_m(r_mm * MM);
+            assert!((z - z_mm * MM).abs() < 1e-15, "z({r_mm} mm) = {z}");
+            assert!((u - u_mm * MM).abs() < 1e-15, "u({r_mm} mm) = {u}");
+        }
+        // Twice as deep, the row scales: depression ×2, radius ×√2, sideways motion ×2.
+        let p2 = f.at_depth(&slender(), 8.0 * MM);
+        let r = 2.0 * MM * 2f64.sqrt();
+        assert!((p2.radial_displacement_m(r) + MM).abs() < 1e-15);
+        // A ball: the point of undeformed radius r is drawn at r + u, and held at or below the
+        // ball there; without the sideways motion it would be held below the ball at r.
+        let ball = sphere();
+        let p = f.at_depth(&ball, 4.0 * MM);
+        let r = 2.0 * MM;
+        let (z, u) = p.displacement_m(r);
+        assert_eq!(u, -0.5 * MM);
+        let at_drawn = 4.0 * MM - tool_height_m(&ball, r + u);
+        assert!(
+            (z - at_drawn.max(3.0 * MM)).abs() < 1e-15,
+            "{z} vs {at_drawn}"
+        );
+        assert!(z > 4.0 * MM - tool_height_m(&ball, r) + 1e-5);
+        // The drawn table follows both to within its sampling.
+        let table = p.table();
+        for k in 0..=60 {
+            let r = 6.0 * MM * k as f64 / 60.0;
+            let (z, u) = p.displacement_m(r);
+            assert!((table.depression_m(r) - z).abs() < 2e-6, "z at {r}");
+            assert!(
+                (table.radial_displacement_m(r) - u).abs() < 1e-6,
+                "u at {r}"
+            );
+        }
+        // A family without sideways motion draws none.
+        let plain = similar_family();
+        let p = plain.at_depth(&ball, 3.0 * MM);
+        assert_eq!(p.radial_displacement_m(MM), 0.0);
+        assert_eq!(p.table().radial_displacement_m(MM), 0.0);
+    }
+
     #[test]
     fn a_straight_profile_is_drawn_exactly_by_its_table() {
         // The rows of `similar_family` are straight ramps, which the table's chords reproduce.
@@ -597,10 +820,10 @@ mod tests {
     }
 
     #[test]
-    fn the_drawn_table_is_within_a_micrometre_of_the_fem_profile_of_the_repositorys_tables() {
+    fn the_drawn_table_is_within_two_micrometres_of_the_fem_profile_of_the_repositorys_tables() {
         // Between its samples the table misses the rows' kinks, so its error is largest at a
         // kink: every row sample's radius at the drawn depth is checked, with a uniform sweep.
-        // Measured: 1.04 µm (sphere), 0.87 µm (cone); the bound is what
+        // Measured: 1.04 µm (sphere), 1.61 µm (cone); the bound is what
         // SURFACE_TABLE_INTERVALS promises, and what the drawn surface's error against the FEM
         // may grow by.
         for (name, text, measured_um) in [
@@ -612,11 +835,12 @@ mod tests {
             (
                 "cone",
                 include_str!("../../../scenes/calibration/cone10_45_50kpa.json"),
-                0.87,
+                1.61,
             ),
         ] {
             let (tool, family) = repository_family(text);
             let mut worst: f64 = 0.0;
+            let mut worst_radial: f64 = 0.0;
             for step in 2..=210 {
                 let d = step as f64 * 0.05 * MM;
                 let p = family.at_depth(&tool, d);
@@ -629,13 +853,17 @@ mod tests {
                 }
                 for r in radii {
                     worst = worst.max((table.depression_m(r) - p.depression_m(r)).abs());
+                    worst_radial = worst_radial
+                        .max((table.radial_displacement_m(r) - p.radial_displacement_m(r)).abs());
                 }
             }
             println!(
-                "{name}: the table within {:.3} µm of the profile",
-                worst / 1e-6
+                "{name}: the table within {:.3} µm of the profile's depression, {:.3} µm of its sideways motion",
+                worst / 1e-6,
+                worst_radial / 1e-6
             );
-            assert!(worst <= 1.1e-6, "{name}: {worst} m");
+            assert!(worst <= 2e-6, "{name}: {worst} m");
+            assert!(worst_radial <= 2e-6, "{name}: {worst_radial} m sideways");
             assert!(
                 worst > 0.5 * measured_um * 1e-6,
                 "{name}: the sweep meets the kinks"
@@ -648,7 +876,7 @@ mod tests {
         fn fem_profile_is_bounded_and_continuous(d_mm in 0.0f64..9.9, r_mm in 0.0f64..60.0) {
             // Up to the tools' radius and height (10 mm): deeper, a buried tool's rim is a wall.
             let v = surface_profile_vectors();
-            for (f, tool) in v.families.iter().zip([sphere(), cone()]) {
+            for (f, tool) in v.families.iter().zip([sphere(), cone(), sphere()]) {
                 let z = |d: f64, r: f64| f.at_depth(&tool, d).depression_m(r);
                 let (d, r) = (d_mm * MM, r_mm * MM);
                 let here = z(d, r);

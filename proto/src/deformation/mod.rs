@@ -18,7 +18,7 @@
 //! FEM surface at every depth it was calibrated for.
 //!
 //! The viewer draws the `fem` profile on its render mesh from a [`SurfaceTable`], the profile
-//! sampled once per frame, within 1.1 µm of it.
+//! sampled once per frame, within 2 µm of it.
 //!
 //! The viewer (web/src) implements the same functions in JavaScript; the shared vectors in
 //! `proto/vectors/deformation.json` and `proto/vectors/surface_profile.json`, written from this

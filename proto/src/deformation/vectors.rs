@@ -159,13 +159,16 @@ pub struct SurfaceProfileVector {
     #[serde(with = "number_or_name")]
     pub r_m: f64,
     pub depression_m: f64,
+    /// The profile's outward radial displacement there (0 for a family without it).
+    pub radial_displacement_m: f64,
     pub reach_m: f64,
     /// What the viewer draws there: the profile's [`SurfaceTable`](super::SurfaceTable) at `r_m`.
     pub table_depression_m: f64,
+    pub table_radial_displacement_m: f64,
 }
 
-/// The shared vectors of the `fem` profile: a sphere's family (radius ∝ √δ) and a cone's
-/// (radius ∝ δ), each drawn below its first row, on a row, between rows, beyond its last row,
+/// The shared vectors of the `fem` profile: a sphere's family (radius ∝ √δ), a cone's
+/// (radius ∝ δ) and the sphere's again with sideways motion, each drawn below its first row, on a row, between rows, beyond its last row,
 /// and at no, negative and non-finite depths, at radii across the profile, between two samples
 /// of its [`SurfaceTable`](super::SurfaceTable), at its reach, past it, and negative or non-finite; each case holds
 /// the profile's depression and its table's.
@@ -189,10 +192,7 @@ pub fn surface_profile_vectors() -> SurfaceProfileVectors {
                     .take_while(|&z| z >= 0.01 * MM)
                     .collect();
                 depression_m.push(0.0);
-                SurfaceRow {
-                    depth_m: d,
-                    depression_m,
-                }
+                SurfaceRow::new(d, depression_m)
             })
             .collect();
         SurfaceFamily::new(exponent, step_m, rows)
@@ -204,10 +204,28 @@ pub fn surface_profile_vectors() -> SurfaceProfileVectors {
         half_angle_rad: std::f64::consts::FRAC_PI_4,
         radius_m: 10.0 * MM,
     };
-    let tools = [sphere, cone];
+    // The sphere's rows moved towards the axis most midway along each row, by up to 30% of
+    // the depression there: 0 at the axis and at the end, and never folding.
+    let with_sideways = |f: SurfaceFamily| {
+        let rows = f
+            .rows()
+            .iter()
+            .map(|row| {
+                let n = row.depression_m.len() - 1;
+                let mut row = row.clone();
+                row.radial_displacement_m = (row.depression_m.iter().enumerate())
+                    .map(|(j, z)| -0.3 * z * (4 * j * (n - j)) as f64 / (n * n) as f64)
+                    .collect();
+                row
+            })
+            .collect();
+        SurfaceFamily::new(f.radius_exponent(), f.radius_step_m(), rows)
+    };
+    let tools = [sphere, cone, sphere];
     let families: Vec<SurfaceFamily> = [
         family(sphere, 0.5, 0.5 * MM, &[1.0, 2.0, 4.0, 8.0]),
         family(cone, 1.0, 0.25 * MM, &[1.0, 3.0]),
+        family(sphere, 0.5, 0.5 * MM, &[1.0, 2.0, 4.0, 8.0]).and_then(with_sideways),
     ]
     .into_iter()
     .filter_map(Result::ok)
@@ -250,8 +268,10 @@ pub fn surface_profile_vectors() -> SurfaceProfileVectors {
                     depth_m,
                     r_m,
                     depression_m: p.depression_m(r_m),
+                    radial_displacement_m: p.radial_displacement_m(r_m),
                     reach_m: reach,
                     table_depression_m: table.depression_m(r_m),
+                    table_radial_displacement_m: table.radial_displacement_m(r_m),
                 });
             }
         }
@@ -294,7 +314,13 @@ mod tests {
     #[test]
     fn surface_vectors_round_trip_and_match_the_code() {
         let v = surface_profile_vectors();
-        assert_eq!(v.families.len(), 2);
+        assert_eq!(v.families.len(), 3);
+        assert!(v.families[2].has_radial_displacement());
+        assert!(
+            v.cases
+                .iter()
+                .any(|c| c.family == 2 && c.radial_displacement_m < -0.1e-3)
+        );
         assert!(v.cases.len() > 100);
         assert!(v.cases.iter().any(|c| c.depth_m.is_nan()));
         assert!(
@@ -310,6 +336,11 @@ mod tests {
             assert_eq!(p.depression_m(c.r_m), c.depression_m);
             assert_eq!(p.reach_m(), c.reach_m);
             assert_eq!(p.table().depression_m(c.r_m), c.table_depression_m);
+            assert_eq!(p.radial_displacement_m(c.r_m), c.radial_displacement_m);
+            assert_eq!(
+                p.table().radial_displacement_m(c.r_m),
+                c.table_radial_displacement_m
+            );
         }
     }
 }
