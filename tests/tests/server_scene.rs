@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
+use softhaptic_proto::deformation::RenderProfile;
 use softhaptic_proto::{CalibrationSource, CalibrationTable, Material, ToolShape};
 use softhaptic_server::scene::{Scene, SceneError};
 use softhaptic_tests::repo_scenes;
@@ -101,6 +102,18 @@ fn the_nearly_incompressible_scene_runs_on_limits_measured_at_its_poisson_ratio(
     assert!(
         scene.calibration.deformed_radius_m(6e-3) < paper_nu.calibration.deformed_radius_m(6e-3)
     );
+    // The viewers draw that FEM's own surface, tabulated at ν = 0.49, like the default scene
+    // draws the ν = 0.33 one: less sunk at 20 mm from the axis at 6 mm.
+    assert_eq!(scene.render_profile, RenderProfile::Fem);
+    let sphere = scene.tool;
+    let sunk = |s: &Scene| {
+        s.calibration
+            .surface()
+            .expect("the table carries its FEM surface")
+            .at_depth(&sphere, 6e-3)
+            .depression_m(20e-3)
+    };
+    assert!(sunk(&scene) > 0.0 && sunk(&scene) < sunk(&paper_nu));
 }
 
 #[test]

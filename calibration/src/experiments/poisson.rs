@@ -401,4 +401,14 @@ fn rd_table_of(
         run: file.to_owned(),
         source,
     })
+    // The surface the viewer's `fem` profile draws, from the same run as the rows (as
+    // rd-table's tables carry it), so that a scene of this ν can draw it.
+    .and_then(|table| {
+        let surface =
+            super::surface::surface_family(tool, run).map_err(|e| ExperimentError::Data {
+                study: format!("poisson {file}"),
+                reason: format!("tabulated surface refused: {e}"),
+            })?;
+        Ok(table.with_surface(surface))
+    })
 }

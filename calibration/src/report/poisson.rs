@@ -117,7 +117,8 @@ pub(super) fn poisson_section(
         md,
         "\nR_d (mm) of the neo-Hookean FEM on the 100 × 100 × 50 mm block at each ν, 10 mm tools; \
          the tables of each ν but the paper's are written as `<tool>_50kpa_nu<100ν>.json` \
-         beside the scenes' tables (the displacement field does not depend on E).\n"
+         beside the scenes' tables (the displacement field does not depend on E), each with the \
+         run's own top surface tabulated for the viewer's `fem` profile.\n"
     );
     let _ = write!(md, "| δ (mm) |");
     for tool in ["sphere", "cone"] {
