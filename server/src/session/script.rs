@@ -6,16 +6,17 @@
 use std::path::Path;
 
 use softhaptic_device::device::{DeviceError, HapticDevice};
+use softhaptic_device::metrics::{MetricsAccumulator, TickInput};
 use softhaptic_device::replay::device_record;
 use softhaptic_device::sim::{HandScript, SimFault, SimParams, SimulatedPhantom};
 use softhaptic_proto::record::{BuildRecord, RecordingStats, SceneRecord};
-use softhaptic_proto::wire::ContactFrame;
+use softhaptic_proto::wire::{ContactFrame, ServerMessage};
 
 use super::SessionError;
 use super::check::haptic_world;
 use super::writer::SessionWriter;
 use crate::scene::{Scene, SceneError};
-use crate::stream::EncodedFrame;
+use crate::stream::{EncodedFrame, metrics_message};
 
 /// The built-in scene files the scripts use (the repository's `scenes/`).
 const DEFAULT_SCENE_TOML: &str = include_str!("../../../scenes/default.toml");
@@ -23,6 +24,8 @@ const CONE_SCENE_TOML: &str = include_str!("../../../scenes/cone.toml");
 
 /// Haptic ticks per contact frame: 1 kHz loop, 50 Hz frames.
 const TICKS_PER_FRAME: u64 = 20;
+/// Ticks between two `metrics` messages: once a second, as a live session streams them.
+const TICKS_PER_METRICS: u64 = 1000;
 
 /// The scripted sessions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -141,12 +144,21 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
     let duration_ns = ((script.duration_s() + 0.5) * 1e9) as u64;
     let ticks = duration_ns / params.period_ns.max(1);
     let mut seq = 0;
+    // The trainee's metrics from every tick, recorded once a second and at the end as a live
+    // session records them, so that `info`, `export` and `check` read them from this file too.
+    let mut metrics = MetricsAccumulator::new(scene.safe_force_n);
     for k in 0..ticks {
         let read = device.read();
         let state = world.step(read);
         // The simulated device accepts every command; a refusal would only mean zero force.
         let _ = device.command_force(state.force_n);
-        writer.write_device(&device_record(&read, &state))?;
+        let record = device_record(&read, &state);
+        metrics.update(&TickInput::from_record(&record));
+        writer.write_device(&record)?;
+        if (k + 1).is_multiple_of(TICKS_PER_METRICS) {
+            let message = ServerMessage::Metrics(metrics_message(&metrics.metrics(), false));
+            writer.write_metrics(&message.encode()?)?;
+        }
         if k.is_multiple_of(TICKS_PER_FRAME) {
             let deformed_radius_m = if state.in_contact {
                 scene.calibration.deformed_radius_m(state.depth_m)
@@ -159,5 +171,41 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
             seq += 1;
         }
     }
+    let message = ServerMessage::Metrics(metrics_message(&metrics.metrics(), true));
+    writer.write_metrics(&message.encode()?)?;
     Ok(writer.finish()?)
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use crate::session::reader::Recording;
+    use crate::session::tools::Info;
+
+    #[test]
+    fn a_scripted_recording_holds_the_trainees_metrics_once_a_second_and_at_the_end() {
+        let dir = std::env::temp_dir().join(format!("softhaptic-script-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("cone-press.mcap");
+        let _ = std::fs::remove_file(&path);
+        record_script(ScriptName::ConePress, &path).unwrap();
+        let r = Recording::open(&path).unwrap();
+        let seconds = r.device.len() as u64 / TICKS_PER_METRICS;
+        assert!(seconds >= 2, "{} ticks", r.device.len());
+        // One a second, then the final one.
+        assert_eq!(r.metrics.len() as u64, seconds + 1);
+        assert!(r.metrics[..r.metrics.len() - 1].iter().all(|m| !m.is_final));
+        let info = Info::of(&r);
+        let (recorded, same) = info.recorded_metrics.clone().unwrap();
+        assert!(
+            recorded.is_final && same,
+            "{recorded:?} vs {:?}",
+            info.metrics
+        );
+        assert_eq!(recorded.ticks, r.device.len() as u64);
+        // The press is in it: contact time and a peak force above zero.
+        assert!(recorded.time_in_contact_s > 0.5 && recorded.peak_force_n > 0.1);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
