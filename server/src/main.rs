@@ -206,6 +206,18 @@ fn log_archive(report: &softhaptic_server::lab::archive::ArchiveReport) {
             "recordings already in the lab's archive"
         );
     }
+    for (id, parts) in &report.orphans_removed {
+        tracing::info!(
+            chunk_id = %id,
+            parts,
+            "removed the parts of an upload that can never finish (no archived object uses them)"
+        );
+    }
+    if let Some(why) = &report.sweep_failed {
+        tracing::warn!(
+            "the archive's unused parts were not swept ({why}): tried again at the next start"
+        );
+    }
 }
 
 fn hub(args: HubArgs) -> anyhow::Result<()> {
@@ -383,8 +395,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                 };
                 match tokio::time::timeout(std::time::Duration::from_secs(60), upload).await {
                     Ok(Ok(_)) => tracing::info!(file = %path.display(), "recording archived in the lab (verified)"),
-                    Ok(Err(e)) => tracing::warn!("recording not archived ({e}): it is kept, and archived at the next start"),
-                    Err(_) => tracing::warn!("recording not archived within 60 s: it is kept, and archived at the next start"),
+                    Ok(Err(e)) => tracing::warn!("recording not archived ({e}): it is kept, and tried again at the next start"),
+                    Err(_) => tracing::warn!("recording not archived within 60 s: it is kept, and tried again at the next start"),
                 }
             }
         }

@@ -302,3 +302,82 @@ async fn a_nats_restart_during_an_upload_is_resumed_in_the_same_call_without_res
     assert_eq!(listed[0].digest, archive::digest_of(&path).unwrap());
     assert!(path.is_file(), "the local file is kept");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_parts_of_an_upload_that_can_never_finish_are_swept_once_old_and_nothing_else_is() {
+    let server = NatsServer::start("archive-orphans");
+    let dir = scratch_dir("lab-archive-orphans");
+    let client =
+        softhaptic_server::lab::connect(&nats(server.url()), "orphan test".into(), "station")
+            .await
+            .unwrap();
+    let store = archive::store(&client).await.unwrap();
+    let small = UploadOptions {
+        part_bytes: PART_BYTES,
+        ..UploadOptions::default()
+    };
+    // One recording archived whole.
+    let (kept, kept_parts) = recording(&dir, "slide.mcap");
+    assert_eq!(
+        archive::upload_with(&store, "desk-a", &kept, &small).await,
+        Ok(true)
+    );
+    // Another cut short after some parts, then changed on disk before any pass resumed it: its
+    // parts are under an id no upload of the file as it is now will ever use.
+    let (cut, cut_parts) = recording(&dir, "cut.mcap");
+    let (tx, mut rx) = mpsc::channel(1);
+    let upload = {
+        let (store, cut) = (store.clone(), cut.clone());
+        let options = UploadOptions {
+            progress: Some(tx),
+            ..small.clone()
+        };
+        tokio::spawn(async move { archive::upload_with(&store, "desk-a", &cut, &options).await })
+    };
+    hold_after_some_parts(&mut rx, cut_parts).await;
+    upload.abort();
+    let _ = upload.await;
+    drop(rx);
+    let mut bytes = std::fs::read(&cut).unwrap();
+    bytes.push(0);
+    std::fs::write(&cut, &bytes).unwrap();
+
+    let before = archive::stored_parts(&store).await.unwrap();
+    assert_eq!(before.len(), 2, "{before:?}");
+    assert!(before.iter().any(|(_, n)| *n == kept_parts), "{before:?}");
+    let orphan = before
+        .iter()
+        .find(|(_, n)| *n != kept_parts)
+        .cloned()
+        .unwrap();
+    assert!(orphan.1 >= PAUSE_AFTER, "{orphan:?}");
+
+    // Young parts are kept: the upload could still be going.
+    assert_eq!(
+        archive::sweep_orphan_parts(&store, Duration::from_secs(3600)).await,
+        Ok(vec![])
+    );
+    assert_eq!(archive::stored_parts(&store).await.unwrap(), before);
+    // Once old enough, the unused ones go, and only they.
+    let removed = archive::sweep_orphan_parts(&store, Duration::ZERO)
+        .await
+        .unwrap();
+    assert_eq!(removed, vec![orphan]);
+    let after = archive::stored_parts(&store).await.unwrap();
+    assert_eq!(after.len(), 1);
+    assert_eq!(after[0].1, kept_parts);
+    // The archived recording reads back whole.
+    let fetched = archive::fetch(&client, "desk-a", "slide.mcap")
+        .await
+        .unwrap();
+    assert!(fetched == std::fs::read(&kept).unwrap());
+    // And the changed file archives from its first part under its own id.
+    assert_eq!(
+        archive::upload_with(&store, "desk-a", &cut, &small).await,
+        Ok(true)
+    );
+    assert_eq!(
+        archive::sweep_orphan_parts(&store, Duration::ZERO).await,
+        Ok(vec![])
+    );
+}

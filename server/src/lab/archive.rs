@@ -10,14 +10,21 @@
 //! object's meta written: only then do hubs list it, and they read it with the object store's
 //! ordinary reader, the same for objects older stations wrote with a plain `put`.
 //!
-//! Nothing is ever deleted here: the local file stays where it is (a lab that wants its disks
-//! back removes archived files after checking with `/api/archive`).
+//! No recording is ever deleted here: the local file stays where it is (a lab that wants its
+//! disks back removes archived files after checking with `/api/archive`), and so does every
+//! archived object. What is deleted is parts no object will ever use: an upload that can never
+//! finish (its file was removed, or changed, before a pass resumed it) leaves its parts under a
+//! chunk id no meta names, and every pass with recordings to archive removes such parts once
+//! the last of them is [`ORPHAN_PARTS_AGE`] old ([`sweep_orphan_parts`]), long after any upload
+//! still going would have stored its next part.
 
 pub mod upload;
 
 pub use upload::{UploadEvent, UploadOptions, upload_with};
 
+use std::collections::HashSet;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use async_nats::jetstream::object_store::{self, ObjectStore};
 use async_nats::jetstream::{self, stream::Stream};
@@ -37,7 +44,17 @@ pub struct ArchiveReport {
     pub already: Vec<String>,
     /// Not uploaded (or not verified), with why; they stay for the next pass.
     pub failed: Vec<(String, String)>,
+    /// Parts of uploads that can never finish, removed: (chunk id, parts).
+    pub orphans_removed: Vec<(String, usize)>,
+    /// Why the sweep for such parts did not run to the end (it runs again at the next pass).
+    pub sweep_failed: Option<String>,
 }
+
+/// How old the last part of an upload no object uses must be before [`sweep_orphan_parts`]
+/// removes its parts: a day, so that an upload that is still going (its next part comes within
+/// seconds) or a station that was off overnight (it resumes at its next start, and a removed
+/// upload only starts again from its first part) is never cut short.
+pub const ORPHAN_PARTS_AGE: Duration = Duration::from_secs(24 * 3600);
 
 /// An archived recording as a hub lists it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -164,7 +181,85 @@ pub async fn upload_finished(
             Err(e) => report.failed.push((shown, e)),
         }
     }
+    match sweep_orphan_parts(&store, ORPHAN_PARTS_AGE).await {
+        Ok(removed) => report.orphans_removed = removed,
+        Err(e) => report.sweep_failed = Some(e),
+    }
     report
+}
+
+/// Removes the parts stored under every chunk id that no object's meta names, when the last of
+/// them is at least `older_than` old; returns the ids removed with their part counts. Objects,
+/// and parts an object uses, are never touched; nor is an upload whose last part is younger.
+pub async fn sweep_orphan_parts(
+    store: &Store,
+    older_than: Duration,
+) -> Result<Vec<(String, usize)>, String> {
+    use futures_util::StreamExt;
+    // Every id an object uses, read before the chunk subjects: an upload that writes its meta
+    // in between has just stored its last part, too young to be removed.
+    let mut used = HashSet::new();
+    let mut objects = store
+        .objects
+        .list()
+        .await
+        .map_err(|e| format!("listing the archived objects: {e}"))?;
+    while let Some(info) = objects.next().await {
+        used.insert(
+            info.map_err(|e| format!("listing the archived objects: {e}"))?
+                .nuid,
+        );
+    }
+    let now = time::OffsetDateTime::now_utc();
+    let mut removed = Vec::new();
+    for (id, parts) in stored_parts(store).await? {
+        if used.contains(&id) {
+            continue;
+        }
+        let subject = upload::chunk_subject(&id);
+        let last = store
+            .stream
+            .get_last_raw_message_by_subject(&subject)
+            .await
+            .map_err(|e| format!("reading the last part of {id}: {e}"))?;
+        // A clock behind the server's makes the age negative: too young, kept.
+        let age = now - last.time;
+        if age < time::Duration::try_from(older_than).unwrap_or(time::Duration::MAX) {
+            continue;
+        }
+        store
+            .stream
+            .purge()
+            .filter(&subject)
+            .await
+            .map_err(|e| format!("removing the parts of {id}: {e}"))?;
+        removed.push((id, parts));
+    }
+    Ok(removed)
+}
+
+/// Every chunk id the store holds parts under, with how many, by id: archived objects' and
+/// unfinished uploads' alike.
+pub async fn stored_parts(store: &Store) -> Result<Vec<(String, usize)>, String> {
+    use futures_util::TryStreamExt;
+    let prefix = upload::chunk_subject("");
+    let mut listing = store
+        .stream
+        .info_with_subjects(format!("{prefix}>"))
+        .await
+        .map_err(|e| format!("listing the stored parts: {e}"))?;
+    let mut out = Vec::new();
+    while let Some((subject, parts)) = listing
+        .try_next()
+        .await
+        .map_err(|e| format!("listing the stored parts: {e}"))?
+    {
+        if let Some(id) = subject.strip_prefix(&prefix) {
+            out.push((id.to_owned(), parts));
+        }
+    }
+    out.sort();
+    Ok(out)
 }
 
 fn recordings(dir: &Path, skip: Option<&Path>) -> Result<Vec<PathBuf>, String> {

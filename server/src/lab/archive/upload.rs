@@ -178,7 +178,7 @@ pub fn chunk_id(name: &str, digest: &str, part_bytes: usize) -> String {
     hex(&h.finalize()[..16])
 }
 
-fn chunk_subject(id: &str) -> String {
+pub(super) fn chunk_subject(id: &str) -> String {
     format!("$O.{BUCKET}.C.{id}")
 }
 
