@@ -158,8 +158,9 @@ try {
   console.log(`| ${r.vertices} (render mesh) | ${r.moved} | ${r.medianMs.toFixed(3)} | ${r.meanMs.toFixed(3)} | — |`);
   console.log('');
   console.log('Each profile on the 100 000-vertex grid (100 mm square, press at its centre), R_d from the');
-  console.log("scene's table; `fem` draws the tabulated FEM surface out to where it settles, the block's");
-  console.log('side plus its 10 mm ramp at depth, so it moves more vertices than R_d holds:');
+  console.log("scene's table; `fem` draws the tabulated FEM surface (each point sunk and slid sideways as");
+  console.log("the FEM's moved) out to where it settles, the block's side plus its 10 mm ramp at depth, so");
+  console.log('it moves more vertices than R_d holds:');
   console.log('');
   console.log('| profile | δ (mm) | R_d (mm) | moved | median ms | mean ms | worst error vs FEM (mm) |');
   console.log('|---|---:|---:|---:|---:|---:|---:|');
