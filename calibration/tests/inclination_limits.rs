@@ -5,7 +5,7 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
-use std::process::Command;
+mod common;
 
 use softhaptic_proto::ModelLimitsFile;
 use softhaptic_proto::model::ToolKind;
@@ -41,17 +41,7 @@ fn the_inclination_command_refreshes_the_angles_of_the_limits_file_only() {
     )
     .unwrap();
 
-    let status = Command::new(env!("CARGO_BIN_EXE_softhaptic-calibrate"))
-        .args(["--quick", "--out"])
-        .arg(&out)
-        .arg("inclination")
-        .env("RUST_LOG", "warn")
-        .status()
-        .unwrap();
-    assert!(
-        status.success(),
-        "softhaptic-calibrate exited with {status}"
-    );
+    common::run_quick(&out, "inclination");
 
     let after: ModelLimitsFile =
         serde_json::from_str(&std::fs::read_to_string(tables.join("model_limits.json")).unwrap())

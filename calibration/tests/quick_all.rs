@@ -7,7 +7,7 @@
 
 use std::collections::HashSet;
 use std::path::Path;
-use std::process::Command;
+mod common;
 
 use softhaptic_calibration::experiments::force::HyperelasticConstants;
 use softhaptic_proto::model::ToolKind;
@@ -20,17 +20,7 @@ use softhaptic_proto::{CalibrationTable, ModelLimitsFile, ModelSpec, ToolShape, 
 const FACTOR_TOLERANCE: f64 = 0.02;
 
 fn run_quick_all(out: &Path) {
-    let status = Command::new(env!("CARGO_BIN_EXE_softhaptic-calibrate"))
-        .args(["--quick", "--out"])
-        .arg(out)
-        .arg("all")
-        .env("RUST_LOG", "warn")
-        .status()
-        .unwrap();
-    assert!(
-        status.success(),
-        "softhaptic-calibrate exited with {status}"
-    );
+    common::run_quick(out, "all");
 }
 
 #[test]
