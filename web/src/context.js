@@ -22,6 +22,11 @@ export const view = {
    * plane through the contact along its normal, facing the camera, when on.
    */
   sectionPlanes: [],
+  /**
+   * The radial table the meshes' vertex shaders bend them with (`shaderdeform.js`), when there
+   * is WebGL; null without it.
+   */
+  deformationTable: null,
   sectionPlane: null,
   /** The tool's materials: see-through while in contact, so the dent under it shows. */
   toolMaterials: [],
@@ -56,6 +61,11 @@ export const state = {
   /** Where the section passes: the last contact point and its normal. */
   sectionPoint: [0, 0, 0],
   sectionNormal: [0, 1, 0],
+  /**
+   * Where the meshes are bent: `gpu`, by their vertex shaders (the default with WebGL), or
+   * `cpu`, by `MeshDeformer` into the vertex buffers (without WebGL, or with `?deform=cpu`).
+   */
+  deformation: 'cpu',
   /** Whether the render mesh is coloured by how far each vertex moved (the depression map). */
   depressionMap: false,
   /** The depression at which the map reaches its full colour: 5 mm. */
@@ -95,4 +105,8 @@ export const scratch = {
   q: new THREE.Quaternion(),
   up: new THREE.Vector3(0, 1, 0),
   profile: {},
+  /** The `fem` profile prepared for the GPU path's table. */
+  surfaceProfile: {},
+  /** The radial table of this frame's profile, for the GPU path. */
+  table: {},
 };

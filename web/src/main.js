@@ -40,11 +40,13 @@ import {
   buildMesh,
   buildTool,
   deformMeshes,
+  drawnMesh,
   frameCamera,
   initThree,
   placeSection,
   placeToolAndMarkers,
   resizeView,
+  setDeformation,
   setDepressionMap,
   setSection,
 } from './scene3d.js';
@@ -106,6 +108,8 @@ function init() {
     fps,
     median,
     setDepressionMap,
+    setDeformation,
+    drawnMesh,
     setSection,
     sectionPlane: () => view.sectionPlane,
   });

@@ -245,8 +245,10 @@ export function updatePanels({ connection, timeline }) {
   const gl = view.renderer === null ? ' (no WebGL)' : view.software ? ' (software GL)' : '';
   setText(dom['w-fps'], `${fps().toFixed(0)} fps${gl}`);
   const med = median(timings);
-  setText(dom['w-deform'], Number.isNaN(med) ? '—' : `${med.toFixed(2)} ms`);
-  setText(dom['w-moved'], String(timings.moved));
+  const where = state.deformation === 'gpu' ? ' (GPU)' : ' (CPU)';
+  setText(dom['w-deform'], Number.isNaN(med) ? '—' : `${med.toFixed(2)} ms${where}`);
+  // The vertex shader does not count what it moves.
+  setText(dom['w-moved'], timings.moved === null ? 'in the shader' : String(timings.moved));
 }
 
 /** The names of the flags set in `bits`. */

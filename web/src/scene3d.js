@@ -1,13 +1,16 @@
 // The 3-D view: the three.js scene (lights, grid, the deformed-region ring, the force arrow),
 // the tool and the render meshes of a scene, and what each animation frame does to them: bend
 // the meshes with the scene's deformation profile, place the tool, the ring, the arrow and the
-// section plane, colour the depression map. Without WebGL the meshes are still bent (the panels
-// and the tests read them); nothing is drawn.
+// section plane, colour the depression map. With WebGL the meshes' vertex shaders bend them
+// (`shaderdeform.js`: one radial table per frame, whatever the mesh's size); without it, or with
+// `?deform=cpu` in the address, `MeshDeformer` bends the vertex buffers, and the panels and the
+// tests read them even when nothing is drawn.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
-import { profileSetup } from './deformation.js';
+import { profileSetup, profileTable, surfaceSetup, surfaceTable } from './deformation.js';
 import { MeshDeformer } from './deformer.js';
+import { DeformationTable } from './shaderdeform.js';
 import { TIMING_SAMPLES, dom, rendered, scratch, state, timings, view } from './context.js';
 import { setText } from './panels.js';
 
@@ -81,6 +84,8 @@ export function initThree() {
     // The section view clips the object's material only.
     renderer.localClippingEnabled = true;
     view.renderer = renderer;
+    view.deformationTable = new DeformationTable();
+    state.deformation = new URLSearchParams(window.location.search).get('deform') === 'cpu' ? 'cpu' : 'gpu';
     view.controls = new OrbitControls(view.camera, renderer.domElement);
     view.controls.target.set(0, 0, 0);
     view.controls.enableDamping = true;
@@ -169,18 +174,18 @@ export function buildMesh(desc, data) {
   geometry.computeBoundingSphere();
   // The dimple stays inside the rest bounds grown by the deepest press; skip per-frame bounds.
   geometry.boundingSphere.radius *= 1.2;
-  const mesh = new THREE.Mesh(
-    geometry,
-    new THREE.MeshStandardMaterial({
-      color: 0xd98c8c,
-      roughness: 0.55,
-      metalness: 0.0,
-      vertexColors: true,
-      // Seen from inside too, where the section view cuts it open.
-      side: THREE.DoubleSide,
-      clippingPlanes: view.sectionPlanes,
-    }),
-  );
+  const material = new THREE.MeshStandardMaterial({
+    color: 0xd98c8c,
+    roughness: 0.55,
+    metalness: 0.0,
+    vertexColors: true,
+    // Seen from inside too, where the section view cuts it open.
+    side: THREE.DoubleSide,
+    clippingPlanes: view.sectionPlanes,
+  });
+  // Every mesh's shader can bend it, so that the page can change paths while it runs.
+  const uniforms = view.deformationTable ? view.deformationTable.install(material, DEPRESSION_COLOR) : null;
+  const mesh = new THREE.Mesh(geometry, material);
   const [px, py, pz] = desc.object_in_world.position_m;
   const [qx, qy, qz, qw] = desc.object_in_world.orientation;
   mesh.position.set(px, py, pz);
@@ -197,6 +202,11 @@ export function buildMesh(desc, data) {
     rest: data.positions,
     restNormals: data.normals,
     deformer: new MeshDeformer(data.positions, data.normals),
+    uniforms,
+    /** The contact of the last frame in the object frame, for `drawnMesh`. */
+    contact: { ...scratch.contact, point: new Float64Array(3), normal: new Float64Array(3), version: 0 },
+    /** `drawnMesh`'s evaluation of what the shader draws (allocated when first asked). */
+    reference: null,
     geometry,
     mesh,
     range: { start: 0, count: 0 },
@@ -230,6 +240,9 @@ export function deformMeshes() {
   c.contactRadiusM = rendered.contactRadiusM;
   c.deformedRadiusM = rendered.deformedRadiusM;
   const t0 = performance.now();
+  const gpu = state.deformation === 'gpu';
+  // Out of contact the shaders draw the rest shape (`place` sets their reach to 0).
+  if (gpu && c.inContact) view.deformationTable.update(profileTableOf(c));
   let moved = 0;
   let touchedAny = false;
   for (let k = 0; k < state.meshes.length; k++) {
@@ -247,6 +260,12 @@ export function deformMeshes() {
       c.normal[0] = scratch.n.x;
       c.normal[1] = scratch.n.y;
       c.normal[2] = scratch.n.z;
+    }
+    if (gpu) {
+      copyContact(c, m.contact);
+      const scaleM = state.depressionMap ? state.depressionScaleM : 0;
+      view.deformationTable.place(m.uniforms, c.inContact, c.point, c.normal, scaleM);
+      continue;
     }
     const touched = m.deformer.apply(m.positions, m.normals, c, state.tool, state.surface);
     moved += m.deformer.movedCount;
@@ -278,7 +297,84 @@ export function deformMeshes() {
     timings.head = (timings.head + 1) % TIMING_SAMPLES;
     if (timings.count < TIMING_SAMPLES) timings.count++;
   }
-  timings.moved = moved;
+  // The shader does not say how many vertices it moved.
+  timings.moved = gpu ? null : moved;
+}
+
+/** This frame's radial table for the vertex shaders: the scene's profile for contact `c`. */
+function profileTableOf(c) {
+  if (state.surface !== null) {
+    return surfaceTable(surfaceSetup(state.surface, state.tool, c.depthM, scratch.surfaceProfile), scratch.table);
+  }
+  const p = profileSetup(state.tool, c.depthM, c.contactRadiusM, c.deformedRadiusM, scratch.profile);
+  return profileTable(p, scratch.table);
+}
+
+function copyContact(from, to) {
+  to.inContact = from.inContact;
+  to.depthM = from.depthM;
+  to.contactRadiusM = from.contactRadiusM;
+  to.deformedRadiusM = from.deformedRadiusM;
+  to.point.set(from.point);
+  to.normal.set(from.normal);
+  to.version++;
+}
+
+/**
+ * Changes where the meshes are bent (`gpu` or `cpu`, see `state.deformation`) and bends them
+ * there at once. Without WebGL only `cpu` is possible.
+ */
+export function setDeformation(mode) {
+  if (mode !== 'gpu' && mode !== 'cpu')
+    throw new Error(`deformation must be "gpu" or "cpu", got ${JSON.stringify(mode)}`);
+  if (mode === 'gpu' && !view.deformationTable)
+    throw new Error('the GPU path needs WebGL, which this page does not have');
+  if (mode === state.deformation) return;
+  state.deformation = mode;
+  for (const m of state.meshes) {
+    if (mode === 'gpu') {
+      // The vertex buffers go back to rest, all of them uploaded once.
+      m.deformer.apply(m.positions, m.normals, { inContact: false }, state.tool, state.surface);
+      m.colors.fill(1);
+      for (const attr of [m.positionAttr, m.normalAttr, m.colorAttr]) {
+        attr.updateRanges.length = 0;
+        attr.needsUpdate = true;
+      }
+    } else if (m.uniforms) {
+      m.uniforms.shReach.value = 0;
+      m.uniforms.shDepressionScale.value = 0;
+    }
+  }
+  deformMeshes();
+}
+
+/**
+ * What a mesh is drawn with this frame: `{positions, colors, deformer}`, its vertex positions
+ * (object frame), the depression map's colours and the `MeshDeformer` that moved them. On the
+ * CPU path these are the vertex buffers; on the GPU path they are evaluated here, with the
+ * reference `MeshDeformer` and the last frame's contact, as the shader draws them (for the test
+ * hooks and the panels; the frames never call this).
+ */
+export function drawnMesh(m) {
+  if (state.deformation === 'cpu') return { positions: m.positions, colors: m.colors, deformer: m.deformer };
+  m.reference ??= {
+    positions: Float32Array.from(m.rest),
+    colors: new Float32Array(m.rest.length).fill(1),
+    deformer: new MeshDeformer(m.rest, null),
+    version: -1,
+  };
+  const ref = m.reference;
+  // Once per frame: a test reads many vertices of one frame.
+  if (ref.version !== m.contact.version) {
+    ref.deformer.apply(ref.positions, null, m.contact, state.tool, state.surface);
+    ref.version = m.contact.version;
+  }
+  ref.colors.fill(1);
+  if (state.depressionMap) {
+    const { moved, movedCount } = ref.deformer;
+    paintColors(ref.positions, m.rest, ref.colors, moved, movedCount);
+  }
+  return ref;
 }
 
 /**
@@ -286,20 +382,25 @@ export function deformMeshes() {
  * (none) to the map's colour at the scale's full depth.
  */
 function paintDepression(m, list, count) {
-  const scaleM = state.depressionScaleM;
-  for (let j = 0; j < count; j++) {
-    const i = list[j];
-    const dx = m.positions[3 * i] - m.rest[3 * i];
-    const dy = m.positions[3 * i + 1] - m.rest[3 * i + 1];
-    const dz = m.positions[3 * i + 2] - m.rest[3 * i + 2];
-    const t = Math.min(Math.hypot(dx, dy, dz) / scaleM, 1);
-    m.colors[3 * i] = 1 - t * (1 - DEPRESSION_COLOR[0]);
-    m.colors[3 * i + 1] = 1 - t * (1 - DEPRESSION_COLOR[1]);
-    m.colors[3 * i + 2] = 1 - t * (1 - DEPRESSION_COLOR[2]);
-  }
+  paintColors(m.positions, m.rest, m.colors, list, count);
   m.colorAttr.updateRanges.length = 0;
   m.colorAttr.updateRanges.push(m.range);
   m.colorAttr.needsUpdate = true;
+}
+
+/** The depression map's colours of vertices `list[0 .. count]` (the shader's tint, on the CPU). */
+function paintColors(positions, rest, colors, list, count) {
+  const scaleM = state.depressionScaleM;
+  for (let j = 0; j < count; j++) {
+    const i = list[j];
+    const dx = positions[3 * i] - rest[3 * i];
+    const dy = positions[3 * i + 1] - rest[3 * i + 1];
+    const dz = positions[3 * i + 2] - rest[3 * i + 2];
+    const t = Math.min(Math.hypot(dx, dy, dz) / scaleM, 1);
+    colors[3 * i] = 1 - t * (1 - DEPRESSION_COLOR[0]);
+    colors[3 * i + 1] = 1 - t * (1 - DEPRESSION_COLOR[1]);
+    colors[3 * i + 2] = 1 - t * (1 - DEPRESSION_COLOR[2]);
+  }
 }
 
 /** A small marker at a mark's point on the object, when it has one. */
@@ -355,6 +456,11 @@ export function setDepressionMap(on) {
   dom['map-toggle'].checked = state.depressionMap;
   dom['map-scale'].hidden = !state.depressionMap;
   setText(dom['map-scale'], `white 0 … blue ${(state.depressionScaleM * 1e3).toFixed(0)} mm`);
+  if (state.deformation === 'gpu') {
+    // The shaders tint from the next draw on.
+    for (const m of state.meshes) m.uniforms.shDepressionScale.value = state.depressionMap ? state.depressionScaleM : 0;
+    return;
+  }
   if (state.depressionMap) return;
   for (const m of state.meshes) {
     m.colors.fill(1);

@@ -69,15 +69,24 @@ export function installTestHook(ctx) {
       flags: ctx.flagNames(rendered.flags),
     }),
     vertexCount: (mesh = 0) => state.meshes[mesh]?.deformer.vertexCount ?? 0,
+    /**
+     * Where the meshes are bent, `gpu` or `cpu`; with an argument, bends them there from now on.
+     * The hooks below report what is drawn either way (`drawnMesh`).
+     */
+    deformation: (mode) => {
+      if (mode !== undefined) ctx.setDeformation(mode);
+      return state.deformation;
+    },
     /** Rest and current position of vertex i in the world frame, and how far it moved (m). */
     vertex: (i, mesh = 0) => {
       const m = state.meshes[mesh];
+      const drawn = ctx.drawnMesh(m);
       const rest = new THREE.Vector3()
         .fromArray(m.rest, 3 * i)
         .applyQuaternion(m.mesh.quaternion)
         .add(m.objectPosition);
       const now = new THREE.Vector3()
-        .fromArray(m.positions, 3 * i)
+        .fromArray(drawn.positions, 3 * i)
         .applyQuaternion(m.mesh.quaternion)
         .add(m.objectPosition);
       return { rest: rest.toArray(), now: now.toArray(), displacementM: rest.distanceTo(now) };
@@ -97,9 +106,9 @@ export function installTestHook(ctx) {
     },
     /** Vertices currently displaced from rest (index, world rest position, displacement). */
     movedVertices: (mesh = 0) => {
-      const m = state.meshes[mesh];
+      const { deformer } = ctx.drawnMesh(state.meshes[mesh]);
       const out = [];
-      for (let k = 0; k < m.deformer.movedCount; k++) out.push(m.deformer.moved[k]);
+      for (let k = 0; k < deformer.movedCount; k++) out.push(deformer.moved[k]);
       return out;
     },
     /** The deformation profile evaluated for the rendered contact at radial distance r. */
@@ -199,7 +208,9 @@ export function installTestHook(ctx) {
     /** A render vertex's colour multiplier (RGB; white when the map is off or it did not move). */
     vertexColor: (i, mesh = 0) => {
       const m = state.meshes[mesh];
-      return m ? [m.colors[3 * i], m.colors[3 * i + 1], m.colors[3 * i + 2]] : null;
+      if (!m) return null;
+      const { colors } = ctx.drawnMesh(m);
+      return [colors[3 * i], colors[3 * i + 1], colors[3 * i + 2]];
     },
     /** Turns the section view on or off, and where its plane is (normal, constant) when on. */
     section: (on) => {
@@ -209,8 +220,14 @@ export function installTestHook(ctx) {
     },
     /** The tool's opacity now (1 free, less in contact). */
     toolOpacity: () => view.toolMaterials[0]?.opacity ?? null,
+    /** Shows or hides the tool (a screenshot of the surface alone). */
+    toolVisible: (on) => {
+      if (view.toolGroup) view.toolGroup.visible = Boolean(on);
+    },
     /** A world point's position on the page, CSS pixels from the canvas' top left. */
     toScreen: (point) => {
+      // The camera may have moved since the last draw (`focusCamera`), which updates its matrices.
+      view.camera.updateMatrixWorld();
       const v = new THREE.Vector3(point[0], point[1], point[2]).project(view.camera);
       const el = view.renderer?.domElement;
       if (!el) return null;

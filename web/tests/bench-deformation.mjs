@@ -7,7 +7,8 @@
 // mesh, times MeshDeformer.apply (restore the previous dimple, move the new one, analytic
 // normals) over a press that slides a little each update, and prints the median. Then, on
 // 100 000 vertices, each deformation profile (`paper`, the paper's Bézier, and `fem`, the
-// calibration's FEM surface from the scene's table) at several depths. Then lets the live page
+// calibration's FEM surface from the scene's table) at several depths, on the CPU path and on
+// the vertex shader's (the CPU's part of an update, and the draw bent and at rest). Then lets the live page
 // run and reports its frame rate, the frames it receives per second, and the median
 // deformation time it measured while drawing. Nothing here is asserted: it is a measurement.
 import { existsSync, readFileSync } from 'node:fs';
@@ -53,6 +54,7 @@ function surfaceErrorsMm(tool) {
   return errors;
 }
 const LIVE_SECONDS = Number(process.env.BENCH_LIVE_SECONDS ?? 8);
+const DRAWS = Number(process.env.BENCH_DRAWS ?? 15);
 
 /** Runs inside the page: times `updates` deformation updates on a grid or the render mesh. */
 async function timeInPage({ kind, side, updates, profile = 'paper', depthM = 0.004, deformedRadiusM = 0.02 }) {
@@ -119,6 +121,89 @@ async function timeInPage({ kind, side, updates, profile = 'paper', depthM = 0.0
   const sorted = Float64Array.from(means).sort();
   const meanMs = means.reduce((a, b) => a + b, 0) / batches;
   return { vertices: deformer.vertexCount, medianMs: sorted[batches >> 1], meanMs, moved };
+}
+
+/**
+ * Runs inside the page: the GPU path (`shaderdeform.js`) on the 100 000-vertex grid. Times the
+ * CPU's part of an update (the profile's radial table, its copy into the texture, the uniforms)
+ * like `timeInPage`, then the draw of the grid in a WebGL canvas of its own, bent by the shader
+ * and at rest (reach 0), each draw waited for with a one-pixel read, median over `draws`.
+ */
+async function timeGpuInPage({ profile, depthM, deformedRadiusM, updates, draws }) {
+  const THREE = await import('three');
+  const { contactRadius, profileSetup, profileTable, surfaceFamilyFromJson, surfaceSetup, surfaceTable, toolFromJson } =
+    await import('/src/deformation.js');
+  const { DeformationTable } = await import('/src/shaderdeform.js');
+  const { flatGrid } = await import('/src/mesh.js');
+  const scene = await (await fetch('/api/scene')).json();
+  const tool = toolFromJson(scene.tool);
+  if (profile === 'fem' && !scene.calibration.surface) return null;
+  const surface = profile === 'fem' ? surfaceFamilyFromJson(scene.calibration.surface) : null;
+  const grid = flatGrid(317, 0.1);
+  const geometry = new THREE.BufferGeometry();
+  geometry.setAttribute('position', new THREE.BufferAttribute(grid.positions, 3));
+  geometry.setAttribute('normal', new THREE.BufferAttribute(grid.normals, 3));
+  geometry.setIndex(new THREE.BufferAttribute(grid.indices, 1));
+  const material = new THREE.MeshStandardMaterial({ color: 0xd98c8c, roughness: 0.55 });
+  const table = new DeformationTable();
+  const uniforms = table.install(material, [0.25, 0.45, 1.0]);
+  const view = new THREE.Scene();
+  view.add(new THREE.HemisphereLight(0xdde6ff, 0x2a2018, 1.2));
+  view.add(new THREE.Mesh(geometry, material));
+  const camera = new THREE.PerspectiveCamera(40, 320 / 200, 0.001, 10);
+  camera.position.set(0.08, 0.09, 0.12);
+  camera.lookAt(0, 0, 0);
+  const canvas = document.createElement('canvas');
+  // Small, so that the frame's cost is mostly the vertices' and not the pixels'.
+  canvas.width = 320;
+  canvas.height = 200;
+  const renderer = new THREE.WebGLRenderer({ canvas, antialias: false });
+  const prepared = {};
+  const radial = {};
+  const point = [0, 0, 0];
+  const normal = [0, 1, 0];
+  let k = 0;
+  const update = () => {
+    point[0] = 0.001 * Math.sin(k * 0.3);
+    point[2] = 0.001 * Math.cos(k * 0.3);
+    k++;
+    if (surface) surfaceTable(surfaceSetup(surface, tool, depthM, prepared), radial);
+    else profileTable(profileSetup(tool, depthM, contactRadius(tool, depthM), deformedRadiusM, prepared), radial);
+    table.update(radial);
+    table.place(uniforms, true, point, normal, 0);
+  };
+  for (let w = 0; w < 50; w++) update();
+  const batch = 10;
+  const batches = Math.max(1, Math.floor(updates / batch));
+  const means = [];
+  for (let b = 0; b < batches; b++) {
+    const t0 = performance.now();
+    for (let j = 0; j < batch; j++) update();
+    means.push((performance.now() - t0) / batch);
+  }
+  means.sort((a, b) => a - b);
+  const gl = renderer.getContext();
+  const pixel = new Uint8Array(4);
+  const drawMs = (bent) => {
+    const times = [];
+    for (let f = 0; f < draws + 2; f++) {
+      if (bent) update();
+      else table.place(uniforms, false, point, normal, 0);
+      const t0 = performance.now();
+      renderer.render(view, camera);
+      gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, pixel);
+      if (f >= 2) times.push(performance.now() - t0); // the first draws compile the shader
+    }
+    times.sort((a, b) => a - b);
+    return times[times.length >> 1];
+  };
+  const bentMs = drawMs(true);
+  const restMs = drawMs(false);
+  renderer.dispose();
+  geometry.dispose();
+  material.dispose();
+  table.texture.dispose();
+  return { updateMs: means[means.length >> 1], bentMs, restMs, reachMm: table.reachM * 1000 };
 }
 
 const server = await startServer({
@@ -190,6 +275,30 @@ try {
       }
       console.log(
         `| ${profile} | ${depthMm} | ${(deformedRadiusM * 1000).toFixed(1)} | ${p.moved} | ${p.medianMs.toFixed(3)} | ${p.meanMs.toFixed(3)} | ${errorAt(profile, depthMm)} |`,
+      );
+    }
+  }
+  console.log('');
+  console.log("The viewer's default path, the vertex shader (`shaderdeform.js`), on the same grid: the CPU");
+  console.log('computes one radial table per update, whatever the mesh; the GPU bends every vertex each');
+  console.log('draw. Draw times are whole frames of a 320 × 200 canvas on this WebGL implementation, bent');
+  console.log('and at rest (their difference is what the bending costs the GPU):');
+  console.log('');
+  console.log('| profile | δ (mm) | reach (mm) | CPU per update median ms | draw bent ms | draw at rest ms |');
+  console.log('|---|---:|---:|---:|---:|---:|');
+  for (const profile of ['paper', 'fem']) {
+    for (const depthMm of [1, 4, 8, 10]) {
+      const depthM = depthMm / 1000;
+      const g = await page.evaluate(timeGpuInPage, {
+        profile,
+        depthM,
+        deformedRadiusM: Math.max(0, deformedRadius(depthM)),
+        updates: UPDATES,
+        draws: DRAWS,
+      });
+      if (g === null) continue;
+      console.log(
+        `| ${profile} | ${depthMm} | ${g.reachMm.toFixed(1)} | ${g.updateMs.toFixed(3)} | ${g.bentMs.toFixed(1)} | ${g.restMs.toFixed(1)} |`,
       );
     }
   }

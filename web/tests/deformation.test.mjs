@@ -11,6 +11,7 @@ import {
   depression,
   depressionAt,
   profileSetup,
+  profileTable,
   surfaceDepressionAt,
   surfaceFamilyFromJson,
   surfaceRadialDisplacementAt,
@@ -226,6 +227,34 @@ test('applyDeformation moves exactly the vertices within R_d, by the profile', (
     const len = Math.hypot(normals[3 * i], normals[3 * i + 1], normals[3 * i + 2]);
     assert.ok(Math.abs(len - 1) < 1e-5);
   }
+});
+
+test("the paper profile's table, which the vertex shader draws, follows the exact profile", () => {
+  for (const [tool, name] of [
+    [sphere, 'sphere'],
+    [cone, 'cone'],
+  ]) {
+    for (const depthMm of [0.5, 1, 3, 6, 9]) {
+      const d = depthMm * MM;
+      const p = profileSetup(tool, d, contactRadius(tool, d), 2.5 * d + 2 * MM, {});
+      const table = profileTable(p, {});
+      assert.equal(table.reachM, p.rdEff, `${name} ${depthMm} mm: the table reaches R_d,eff`);
+      assert.ok(
+        table.u.every((u) => u === 0),
+        'the Bézier moves nothing sideways',
+      );
+      let worst = 0;
+      for (let k = 0; k <= 20000; k++) {
+        const r = (k / 20000) * 1.02 * p.rdEff;
+        worst = Math.max(worst, Math.abs(surfaceTableAt(table, r) - depressionAt(p, r)));
+      }
+      assert.ok(worst < 0.5e-6, `${name} ${depthMm} mm: worst ${worst} m from the exact profile`);
+    }
+  }
+  // Nothing pressed: a table of zero reach, which draws the rest shape.
+  const none = profileTable(profileSetup(sphere, 0, 0, 0, {}), {});
+  assert.equal(none.reachM, 0);
+  assert.equal(surfaceTableAt(none, 0), 0);
 });
 
 test('the previous dimple is restored when the contact moves or ends', () => {

@@ -105,6 +105,80 @@ test('from the default camera the dent shows through the see-through tool', asyn
   assert.ok(meanDiff > 6, `mean colour difference ${meanDiff.toFixed(2)} in the contact region`);
 });
 
+test("the vertex shader draws the dent the CPU path draws, and the page's default is the shader", async (t) => {
+  const webgl = await page.evaluate(() => window.__softhaptic.webgl());
+  if (!webgl) return;
+  assert.equal(await page.evaluate(() => window.__softhaptic.deformation()), 'gpu');
+  const REGION_PX = 160;
+  await freezeOnPress(page, 2e-3);
+  // Close to the press and low down, the tool hidden: the pixels are the surface's alone.
+  const c = await page.evaluate(() => window.__softhaptic.contact());
+  const at = await page.evaluate((p) => {
+    const h = window.__softhaptic;
+    h.focusCamera(p, 0.06, 0.35);
+    h.toolVisible(false);
+    return h.toScreen(p);
+  }, c.point);
+  const drawn = await page.evaluate(
+    ({ at, size }) => {
+      const h = window.__softhaptic;
+      const gpu = h.regionPixels(at.x, at.y, size);
+      h.depressionMap(true);
+      const gpuMap = h.regionPixels(at.x, at.y, size);
+      h.deformation('cpu');
+      const cpuMap = h.regionPixels(at.x, at.y, size);
+      h.depressionMap(false);
+      const cpu = h.regionPixels(at.x, at.y, size);
+      h.deformation('gpu');
+      return { gpu, cpu, gpuMap, cpuMap };
+    },
+    { at, size: REGION_PX },
+  );
+  // The same view with nothing pressed.
+  await page.evaluate(() => window.__softhaptic.pause(false));
+  await page.waitForFunction(
+    () => {
+      const h = window.__softhaptic;
+      const c = h.contact();
+      const free = c.valid && !c.stale && !c.inContact;
+      if (free) h.pause(true);
+      return free;
+    },
+    null,
+    { timeout: 120000, polling: 'raf' },
+  );
+  const rest = await page.evaluate(({ at, size }) => window.__softhaptic.regionPixels(at.x, at.y, size), {
+    at,
+    size: REGION_PX,
+  });
+  await page.evaluate(() => {
+    window.__softhaptic.toolVisible(true);
+    window.__softhaptic.pause(false);
+  });
+  const meanDiff = (a, b) => {
+    let sum = 0;
+    for (let i = 0; i < a.length; i += 4) for (let k = 0; k < 3; k++) sum += Math.abs(a[i + k] - b[i + k]);
+    return sum / ((a.length / 4) * 3);
+  };
+  const dent = meanDiff(drawn.cpu, rest);
+  const paths = meanDiff(drawn.gpu, drawn.cpu);
+  const map = meanDiff(drawn.cpuMap, drawn.cpu);
+  const mapPaths = meanDiff(drawn.gpuMap, drawn.cpuMap);
+  t.diagnostic(
+    `dent ${dent.toFixed(2)}, GPU − CPU ${paths.toFixed(2)}; depression map ${map.toFixed(2)}, GPU − CPU ${mapPaths.toFixed(2)} (mean per channel, 0–255)`,
+  );
+  assert.ok(map > 3, `the CPU path's depression map changes the region by ${map.toFixed(2)} per channel`);
+  assert.ok(
+    mapPaths < 0.1 * map,
+    `the maps differ by ${mapPaths.toFixed(2)} per channel, the map by ${map.toFixed(2)}`,
+  );
+  assert.ok(dent > 3, `the CPU path's dent changes the region by ${dent.toFixed(2)} per channel`);
+  assert.ok(
+    paths < 0.1 * dent,
+    `GPU and CPU differ by ${paths.toFixed(2)} per channel, the dent by ${dent.toFixed(2)}`,
+  );
+});
+
 test('a press bends the render mesh exactly as the profile says, and only within its reach', async () => {
   // The default scene holds its press about 3 mm deep; 2 mm catches the hold, not the approach.
   await freezeOnPress(page, 2e-3);
