@@ -589,20 +589,39 @@ pub fn default_web_dir() -> PathBuf {
         .unwrap_or(source_tree)
 }
 
-/// Resolves with the signal's name when the process is asked to stop: Ctrl-C (SIGINT), SIGTERM
-/// (a service manager, `kill`), SIGHUP (the terminal or the SSH session closed) or SIGQUIT
-/// (Ctrl-\). Each ends the session the same way: zero force, viewers closed, the recording
-/// closed; none may leave the file unclosed.
-pub async fn shutdown_signal() -> std::io::Result<&'static str> {
-    use tokio::signal::unix::{SignalKind, signal};
-    let mut interrupt = signal(SignalKind::interrupt())?;
-    let mut terminate = signal(SignalKind::terminate())?;
-    let mut hangup = signal(SignalKind::hangup())?;
-    let mut quit = signal(SignalKind::quit())?;
-    Ok(tokio::select! {
-        _ = interrupt.recv() => "SIGINT",
-        _ = terminate.recv() => "SIGTERM",
-        _ = hangup.recv() => "SIGHUP",
-        _ = quit.recv() => "SIGQUIT",
-    })
+/// The signals that ask the process to stop: Ctrl-C (SIGINT), SIGTERM (a service manager,
+/// `kill`), SIGHUP (the terminal or the SSH session closed) and SIGQUIT (Ctrl-\). Each ends the
+/// session the same way: zero force, viewers closed, the recording closed; none may leave the
+/// file unclosed. They are caught from the moment [`StopSignals::listen`] returns, so it is
+/// called before anything a stop must close is started: a signal that comes earlier still has
+/// its default action and ends the process while nothing is open.
+pub struct StopSignals {
+    interrupt: tokio::signal::unix::Signal,
+    terminate: tokio::signal::unix::Signal,
+    hangup: tokio::signal::unix::Signal,
+    quit: tokio::signal::unix::Signal,
+}
+
+impl StopSignals {
+    /// Starts catching the stop signals. Must run inside a tokio runtime (an async block, or
+    /// after `Runtime::enter`).
+    pub fn listen() -> std::io::Result<Self> {
+        use tokio::signal::unix::{SignalKind, signal};
+        Ok(Self {
+            interrupt: signal(SignalKind::interrupt())?,
+            terminate: signal(SignalKind::terminate())?,
+            hangup: signal(SignalKind::hangup())?,
+            quit: signal(SignalKind::quit())?,
+        })
+    }
+
+    /// Resolves with the name of the first stop signal caught since `listen`.
+    pub async fn recv(&mut self) -> &'static str {
+        tokio::select! {
+            _ = self.interrupt.recv() => "SIGINT",
+            _ = self.terminate.recv() => "SIGTERM",
+            _ = self.hangup.recv() => "SIGHUP",
+            _ = self.quit.recv() => "SIGQUIT",
+        }
+    }
 }

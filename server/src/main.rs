@@ -229,6 +229,8 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
     let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
+        let mut stop =
+            app::StopSignals::listen().context("could not listen for the stop signals")?;
         let hub = softhaptic_server::lab::hub::start(softhaptic_server::lab::hub::HubOptions {
             nats: softhaptic_server::lab::NatsOptions {
                 url: args.nats.clone(),
@@ -247,9 +249,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
             hub.local_addr(),
             ["hub viewer", "hub observer"],
         );
-        let signal = app::shutdown_signal()
-            .await
-            .context("could not listen for the stop signals")?;
+        let signal = stop.recv().await;
         tracing::info!(signal, "shutting down");
         hub.shutdown().await;
         Ok(())
@@ -273,6 +273,13 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(choice) = &args.device {
         scene.choose_device(choice);
     }
+    let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
+    // Caught before the device is opened and the recording starts, so that no stop can leave
+    // either open.
+    let mut stop = {
+        let _context = runtime.enter();
+        app::StopSignals::listen().context("could not listen for the stop signals")?
+    };
     // Opened before the recording starts, so that the recording and the viewers are told the
     // limits the device really runs with; a device that cannot be opened stops here.
     let device = devices::open(&mut scene)?;
@@ -290,7 +297,6 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     let mut recording =
         session::cli::LiveRecording::start(&args.record, &scene, args.scene.as_deref())?;
-    let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
         let mut options = ServerOptions::new(args.addr, web_dir);
         options.realtime = !args.no_realtime;
@@ -367,9 +373,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         );
         // For a supervisor: up, and where (the links, with their tokens, are on stdout only).
         tracing::info!(addr = %server.local_addr(), "serving viewers");
-        let signal = app::shutdown_signal()
-            .await
-            .context("could not listen for the stop signals")?;
+        let signal = stop.recv().await;
         tracing::info!(signal, "shutting down");
         let (stats, metrics) = server.shutdown_with_metrics().await;
         tracing::info!(

@@ -91,3 +91,49 @@ fn a_server_that_cannot_start_leaves_no_recording_and_says_what_to_do() {
     assert!(left.is_empty(), "a recording was left: {left:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_stop_during_the_start_still_ends_cleanly_with_a_complete_recording() {
+    // The signal arrives while the server is still starting (the scene is loaded; the device,
+    // the recording and the listener come next): it is caught, and the start runs on into an
+    // orderly stop instead of dying with the recording open.
+    let dir = std::env::temp_dir().join(format!("softhaptic-early-stop-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_softhaptic"))
+        .args(["--addr", "127.0.0.1:0", "--no-realtime", "--record-dir"])
+        .arg(&dir)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let mut lines = BufReader::new(stderr).lines();
+    let mut log = String::new();
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        log.push_str(&line);
+        log.push('\n');
+        if line.contains("scene loaded") {
+            break;
+        }
+    }
+    assert!(log.contains("scene loaded"), "the server never loaded its scene:\n{log}");
+    let sent = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    for line in lines {
+        log.push_str(&line.unwrap());
+        log.push('\n');
+    }
+    let status = child.wait().unwrap();
+    assert!(status.success(), "{status}:\n{log}");
+    assert!(log.contains("signal=\"SIGTERM\"") || log.contains("SIGTERM"), "{log}");
+    for entry in std::fs::read_dir(&dir).unwrap().flatten() {
+        let r = Recording::open(&entry.path()).unwrap();
+        assert!(r.is_complete(), "{}: {}", entry.path().display(), r.recovery());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -198,6 +198,8 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             let runtime =
                 tokio::runtime::Runtime::new().context("could not start the async runtime")?;
             runtime.block_on(async move {
+                let mut stop = crate::app::StopSignals::listen()
+                    .context("could not listen for the stop signals")?;
                 let replay = replay::start(recording, options).await?;
                 // The token is in the fragment, which no request carries; stdout only.
                 let mut access = access;
@@ -206,9 +208,7 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
                     replay.local_addr(),
                     ["replay", "observer"],
                 );
-                crate::app::shutdown_signal()
-                    .await
-                    .context("could not listen for the stop signals")?;
+                stop.recv().await;
                 replay.shutdown().await;
                 Ok(())
             })
