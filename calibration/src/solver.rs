@@ -17,12 +17,19 @@
 //! step is kept active for the rest of the step; the number of such nodes is reported.
 //!
 //! # Newton iterations
-//! Each iteration evaluates the internal forces, updates the active set, assembles the tangent
-//! in the node frames with constrained rows and columns eliminated (the pattern never changes),
-//! factorises it (sparse Cholesky) and solves. A backtracking line search on the free residual
-//! keeps neo-Hookean iterates admissible (J > 0). Converged when the free residual, the worst
-//! penetration and the tensile reactions are all within tolerance.
+//! Each iteration evaluates the internal forces, updates the active set and solves for the
+//! increment. The neo-Hookean law assembles the tangent in the node frames with constrained rows
+//! and columns eliminated (the pattern never changes), factorises it (sparse Cholesky) and
+//! solves. The linear laws' stiffness does not change, so it is factorised once per model,
+//! without contact, and each iteration solves the contact as a small dense system on the
+//! contacted nodes' columns of its inverse (`ContactModel::constant_stiffness_increment`): the
+//! same increment to rounding, for two triangular solves instead of a factorisation. A
+//! backtracking line search on the free residual keeps neo-Hookean iterates admissible (J > 0).
+//! Converged when the free residual, the worst penetration and the tensile reactions are all
+//! within tolerance.
 
+use faer::Mat;
+use faer::linalg::solvers::Solve;
 use serde::Serialize;
 
 use crate::element::{
@@ -30,7 +37,7 @@ use crate::element::{
 };
 use crate::indenter::{Gap, Indenter};
 use crate::mesh::TetMesh;
-use crate::sparse::{LinearError, StiffnessPattern};
+use crate::sparse::{Factor, LinearError, StiffnessPattern};
 
 /// Tolerances and limits of the nonlinear solver.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -108,6 +115,78 @@ struct NodeFrame {
 
 const IDENTITY: [[f64; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
+/// A linear law's stiffness with the mesh's supports only (no contact), factorised once, and its
+/// inverse between the unknowns of every node the contact has touched so far
+/// (see [`ContactModel::constant_stiffness_increment`]).
+struct ConstantStiffness {
+    factor: Factor,
+    /// Mean diagonal of the free unknowns: the contact multipliers' unit.
+    scale: f64,
+    /// Per node: its place in `nodes`, once it has one.
+    slot: Vec<Option<usize>>,
+    /// The nodes whose columns of K⁻¹ are known, in the order they came.
+    nodes: Vec<usize>,
+    /// (K⁻¹) between the unknowns of `nodes`, 3·len × 3·len, column-major.
+    compliance: Vec<f64>,
+}
+
+impl ConstantStiffness {
+    /// Entry of K⁻¹ between component `a` of node `i` and component `b` of node `j`, NaN unless
+    /// both nodes were passed to [`ConstantStiffness::ensure`] (the caller's finiteness check
+    /// then fails the solve).
+    fn compliance(&self, i: usize, a: usize, j: usize, b: usize) -> f64 {
+        let dim = 3 * self.nodes.len();
+        let (Some(si), Some(sj)) = (self.slot[i], self.slot[j]) else {
+            return f64::NAN;
+        };
+        self.compliance[3 * si + a + dim * (3 * sj + b)]
+    }
+
+    /// Computes the columns of K⁻¹ of the nodes not seen before, all in one solve, and extends
+    /// the compliance between known nodes with them.
+    fn ensure(&mut self, nodes: &[usize]) {
+        let new: Vec<usize> = nodes
+            .iter()
+            .copied()
+            .filter(|&i| self.slot[i].is_none())
+            .collect();
+        if new.is_empty() {
+            return;
+        }
+        let n = self.slot.len();
+        let mut columns = Mat::<f64>::zeros(3 * n, 3 * new.len());
+        for (j, &i) in new.iter().enumerate() {
+            for k in 0..3 {
+                columns[(3 * i + k, 3 * j + k)] = 1.0;
+            }
+        }
+        self.factor.solve_columns_in_place(columns.as_mut());
+        let old = 3 * self.nodes.len();
+        for &i in &new {
+            self.slot[i] = Some(self.nodes.len());
+            self.nodes.push(i);
+        }
+        let dim = 3 * self.nodes.len();
+        let mut compliance = vec![0.0; dim * dim];
+        for col in 0..old {
+            compliance[dim * col..dim * col + old]
+                .copy_from_slice(&self.compliance[old * col..old * (col + 1)]);
+        }
+        for c in 0..dim - old {
+            for (s, &i) in self.nodes.iter().enumerate() {
+                for k in 0..3 {
+                    let v = columns[(3 * i + k, c)];
+                    compliance[3 * s + k + dim * (old + c)] = v;
+                    if 3 * s + k < old {
+                        compliance[old + c + dim * (3 * s + k)] = v;
+                    }
+                }
+            }
+        }
+        self.compliance = compliance;
+    }
+}
+
 /// An elastic body meshed for contact, with its current displacement.
 pub struct ContactModel {
     mesh: TetMesh,
@@ -121,6 +200,10 @@ pub struct ContactModel {
     toggles: Vec<u8>,
     options: SolverOptions,
     values: Vec<f64>,
+    /// The last factor of a tangent, whose buffers the next factorisation reuses.
+    factor: Option<Factor>,
+    /// The linear laws' stiffness without contact, factorised once (built by the first solve).
+    constant: Option<ConstantStiffness>,
     steps_done: usize,
 }
 
@@ -153,6 +236,8 @@ impl ContactModel {
             pattern,
             options,
             values,
+            factor: None,
+            constant: None,
             steps_done: 0,
         })
     }
@@ -395,26 +480,7 @@ impl ContactModel {
                 changed,
                 "newton iteration"
             );
-            self.assemble(&frames, &curvature_terms, &mut rhs);
-            let factor = self.pattern.factorise(&self.values)?;
-            factor.solve_in_place(&mut rhs);
-            let du: Vec<[f64; 3]> = (0..n)
-                .map(|i| {
-                    let fr = &frames[i];
-                    let w = [rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2]];
-                    if fr.rotated {
-                        let mut v = [0.0; 3];
-                        for c in 0..3 {
-                            for j in 0..3 {
-                                v[j] += fr.basis[c][j] * w[c];
-                            }
-                        }
-                        v
-                    } else {
-                        w
-                    }
-                })
-                .collect();
+            let du = self.increment(&frames, &curvature_terms, &f_int, &mut rhs)?;
             // Line search: the linear law takes the full step. The neo-Hookean one backtracks
             // only while elements invert or the free residual explodes: a milder criterion would
             // also scale down the prescribed contact increments and stall the gap closure.
@@ -501,8 +567,7 @@ impl ContactModel {
                 break;
             }
             self.assemble(&frames, &[], &mut rhs);
-            let factor = self.pattern.factorise(&self.values)?;
-            factor.solve_in_place(&mut rhs);
+            self.factorise_and_solve(&mut rhs)?;
             for i in 0..n {
                 for k in 0..3 {
                     self.u[i][k] += rhs[3 * i + k];
@@ -517,6 +582,251 @@ impl ContactModel {
             tolerance_n: last.1,
             penetration_m: 0.0,
             tensile_n: 0.0,
+        })
+    }
+
+    /// The Newton increment (FEM frame) for the node frames and indenter curvature of this
+    /// iteration: for the linear laws through their constant stiffness
+    /// ([`ContactModel::constant_stiffness_increment`]), otherwise by factorising the tangent.
+    /// `rhs` is work space.
+    fn increment(
+        &mut self,
+        frames: &[NodeFrame],
+        curvature_terms: &[(usize, [[f64; 3]; 3])],
+        f_int: &[[f64; 3]],
+        rhs: &mut [f64],
+    ) -> Result<Vec<[f64; 3]>, LinearError> {
+        if self.law.kind.small_strain() {
+            self.constant_stiffness_increment(frames, curvature_terms, f_int)
+        } else {
+            self.direct_increment(frames, curvature_terms, rhs)
+        }
+    }
+
+    /// The increment from the tangent assembled in the node frames, constrained unknowns
+    /// eliminated, factorised and solved.
+    fn direct_increment(
+        &mut self,
+        frames: &[NodeFrame],
+        curvature_terms: &[(usize, [[f64; 3]; 3])],
+        rhs: &mut [f64],
+    ) -> Result<Vec<[f64; 3]>, LinearError> {
+        self.assemble(frames, curvature_terms, rhs);
+        self.factorise_and_solve(rhs)?;
+        Ok(frames
+            .iter()
+            .enumerate()
+            .map(|(i, fr)| {
+                let w = [rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2]];
+                if fr.rotated {
+                    let mut v = [0.0; 3];
+                    for c in 0..3 {
+                        for j in 0..3 {
+                            v[j] += fr.basis[c][j] * w[c];
+                        }
+                    }
+                    v
+                } else {
+                    w
+                }
+            })
+            .collect())
+    }
+
+    /// Factorises the assembled matrix into the buffers of the last factor and solves in place.
+    fn factorise_and_solve(&mut self, rhs: &mut [f64]) -> Result<(), LinearError> {
+        let factor = match self.factor.take() {
+            Some(mut factor) => {
+                self.pattern.refactorise(&mut factor, &self.values)?;
+                factor
+            }
+            None => self.pattern.factorise(&self.values)?,
+        };
+        factor.solve_in_place(rhs);
+        self.factor = Some(factor);
+        Ok(())
+    }
+
+    /// The increment of a linear law, from its stiffness K without contact, factorised once per
+    /// model, and the contact as a small dense system.
+    ///
+    /// A linear law's element matrices do not depend on the displacement, so from one Newton
+    /// iteration to the next the tangent changes only at the nodes whose frame is rotated
+    /// (contact) or carry the indenter's curvature. Factorising it anew every iteration, as the
+    /// neo-Hookean law needs, spends most of a run recomputing a factor that did not change
+    /// away from the contact. Instead, with E the unit vectors of those nodes' unknowns, the
+    /// curvature H = E H_c Eᵀ, the contact constraints B_c Eᵀ Δu = g and their multipliers λ,
+    /// the same increment solves (K + E H_c Eᵀ) Δu = r + E B_cᵀ λ: with y = Eᵀ Δu and
+    /// Z = Eᵀ K⁻¹ E (kept by [`ConstantStiffness`], three columns per node, computed once),
+    /// (I + Z H_c) y − Z B_cᵀ λ = Eᵀ K⁻¹ r and B_c y = g, then
+    /// Δu = K⁻¹ (r + E (B_cᵀ λ − H_c y)). Two solves with the kept factor and a dense system
+    /// of a few hundred unknowns replace a factorisation; the result is the direct one to
+    /// rounding (a unit test compares them).
+    fn constant_stiffness_increment(
+        &mut self,
+        frames: &[NodeFrame],
+        curvature_terms: &[(usize, [[f64; 3]; 3])],
+        f_int: &[[f64; 3]],
+    ) -> Result<Vec<[f64; 3]>, LinearError> {
+        let n = self.mesh.node_count();
+        let mut constant = match self.constant.take() {
+            Some(constant) => constant,
+            None => self.constant_stiffness()?,
+        };
+        // The free residual: the supports' unknowns stay at zero.
+        let mut r = vec![0.0; 3 * n];
+        for (i, f) in f_int.iter().enumerate() {
+            for k in 0..3 {
+                if self.mesh.fixed[i] & (1 << k) == 0 {
+                    r[3 * i + k] = -f[k];
+                }
+            }
+        }
+        // The nodes the contact touches, each with its constraints and curvature (FEM frame).
+        let mut coupled: Vec<usize> = Vec::new();
+        let mut constraints: Vec<(usize, [f64; 3], f64)> = Vec::new();
+        let mut curvature: Vec<[[f64; 3]; 3]> = Vec::new();
+        let mut local = vec![usize::MAX; n];
+        for (i, fr) in frames.iter().enumerate() {
+            if !fr.rotated {
+                continue;
+            }
+            local[i] = coupled.len();
+            coupled.push(i);
+            curvature.push([[0.0; 3]; 3]);
+            for c in 0..3 {
+                let support = (0..3)
+                    .any(|k| self.mesh.fixed[i] & (1 << k) != 0 && fr.basis[c] == IDENTITY[k]);
+                if fr.constrained[c] && !support {
+                    constraints.push((local[i], fr.basis[c], fr.prescribed[c]));
+                }
+            }
+        }
+        for (i, block) in curvature_terms {
+            let fr = &frames[*i];
+            if local[*i] == usize::MAX {
+                local[*i] = coupled.len();
+                coupled.push(*i);
+                curvature.push([[0.0; 3]; 3]);
+            }
+            // As the assembly adds it: the lower triangle of the block in the node's free axes,
+            // mirrored, rotated back to the FEM frame.
+            let h = &mut curvature[local[*i]];
+            for r_ax in 0..3 {
+                for c_ax in 0..3 {
+                    if fr.constrained[r_ax] || fr.constrained[c_ax] {
+                        continue;
+                    }
+                    let (hi, lo) = (r_ax.max(c_ax), r_ax.min(c_ax));
+                    let mut v = 0.0;
+                    for a in 0..3 {
+                        for b in 0..3 {
+                            v += fr.basis[hi][a] * block[a][b] * fr.basis[lo][b];
+                        }
+                    }
+                    for a in 0..3 {
+                        for b in 0..3 {
+                            h[a][b] += fr.basis[r_ax][a] * v * fr.basis[c_ax][b];
+                        }
+                    }
+                }
+            }
+        }
+        constant.ensure(&coupled);
+        let mut x0 = r.clone();
+        constant.factor.solve_in_place(&mut x0);
+        let m = 3 * coupled.len();
+        let size = m + constraints.len();
+        let z =
+            |a: usize, b: usize| constant.compliance(coupled[a / 3], a % 3, coupled[b / 3], b % 3);
+        // Rows 0..m: (I + Z H_c) y − Z B_cᵀ λ = Eᵀ K⁻¹ r; rows m..: B_c y = g. The multipliers
+        // are scaled by the mean stiffness so that every column is a displacement.
+        let mut a = Mat::<f64>::zeros(size, size);
+        let mut b = Mat::<f64>::zeros(size, 1);
+        for row in 0..m {
+            a[(row, row)] += 1.0;
+            for col in 0..m {
+                let node = col / 3;
+                let mut v = 0.0;
+                for t in 0..3 {
+                    v += z(row, 3 * node + t) * curvature[node][t][col % 3];
+                }
+                a[(row, col)] += v;
+            }
+            b[(row, 0)] = x0[3 * coupled[row / 3] + row % 3];
+        }
+        for (l, &(node, dir, g)) in constraints.iter().enumerate() {
+            for row in 0..m {
+                let mut v = 0.0;
+                for t in 0..3 {
+                    v += z(row, 3 * node + t) * dir[t];
+                }
+                a[(row, m + l)] = -constant.scale * v;
+            }
+            for t in 0..3 {
+                a[(m + l, 3 * node + t)] = dir[t];
+            }
+            b[(m + l, 0)] = g;
+        }
+        let solution = a.partial_piv_lu().solve(&b);
+        let mut w = r;
+        for (j, &i) in coupled.iter().enumerate() {
+            let y = [
+                solution[(3 * j, 0)],
+                solution[(3 * j + 1, 0)],
+                solution[(3 * j + 2, 0)],
+            ];
+            for k in 0..3 {
+                w[3 * i + k] -= dot(curvature[j][k], y);
+            }
+        }
+        for (l, &(node, dir, _)) in constraints.iter().enumerate() {
+            let lambda = constant.scale * solution[(m + l, 0)];
+            for k in 0..3 {
+                w[3 * coupled[node] + k] += dir[k] * lambda;
+            }
+        }
+        let finite = w.iter().all(|v| v.is_finite());
+        if finite {
+            constant.factor.solve_in_place(&mut w);
+        }
+        self.constant = Some(constant);
+        if !finite {
+            return Err(LinearError::NotPositiveDefinite(
+                "the contact system is singular".into(),
+            ));
+        }
+        Ok((0..n)
+            .map(|i| [w[3 * i], w[3 * i + 1], w[3 * i + 2]])
+            .collect())
+    }
+
+    /// Assembles and factorises the stiffness with the mesh's supports only.
+    fn constant_stiffness(&mut self) -> Result<ConstantStiffness, LinearError> {
+        let n = self.mesh.node_count();
+        let frames: Vec<NodeFrame> = (0..n).map(|i| self.frame(i, None)).collect();
+        let mut rhs = vec![0.0; 3 * n];
+        self.assemble(&frames, &[], &mut rhs);
+        let factor = self.pattern.factorise(&self.values)?;
+        let (mut sum, mut count) = (0.0, 0usize);
+        for (i, fr) in frames.iter().enumerate() {
+            for c in 0..3 {
+                if !fr.constrained[c] {
+                    sum += self.pattern.diagonal(&self.values, 3 * i + c);
+                    count += 1;
+                }
+            }
+        }
+        Ok(ConstantStiffness {
+            factor,
+            scale: if count > 0 && sum > 0.0 {
+                sum / count as f64
+            } else {
+                1.0
+            },
+            slot: vec![None; n],
+            nodes: Vec::new(),
+            compliance: Vec::new(),
         })
     }
 
@@ -835,5 +1145,96 @@ pub fn deformed_radius_m(profile: &[(f64, f64)], threshold_m: f64) -> f64 {
             let (r0, d0) = profile[last];
             r0 + (r1 - r0) * (d0 - threshold_m) / (d0 - d1)
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use softhaptic_proto::Material;
+
+    use super::*;
+    use crate::mesh::{self, BlockSpec, Symmetry};
+
+    /// The linear laws' increment through the constant stiffness and the contact's dense system
+    /// is the one of the tangent factorised directly, with the same frames, contact constraints
+    /// and curvature, on a displaced state; and stays so when the contact grows (new columns of
+    /// K⁻¹ beside the kept ones) and shrinks.
+    #[test]
+    fn constant_stiffness_increment_is_the_direct_one() {
+        let spec = BlockSpec::graded([0.03, 0.03, 0.02], 0.004, 0.003, 2, Symmetry::Quarter);
+        let mesh = mesh::block(&spec).unwrap();
+        let n = mesh.node_count();
+        let mut near: Vec<usize> = mesh
+            .contact_candidates
+            .iter()
+            .map(|&c| c as usize)
+            .collect();
+        near.sort_by(|&a, &b| {
+            let r = |i: usize| mesh.nodes_m[i][0].hypot(mesh.nodes_m[i][1]);
+            r(a).total_cmp(&r(b))
+        });
+        for kind in [
+            LawKind::LinearDeformedContact,
+            LawKind::LinearSmallDeformation,
+        ] {
+            let law = Constitutive::new(kind, &Material::PAPER_SOFT);
+            let mut model = ContactModel::new(mesh.clone(), law, SolverOptions::default()).unwrap();
+            for (i, u) in model.u.iter_mut().enumerate() {
+                let wave = (i as f64 * 0.37).sin();
+                for (k, v) in u.iter_mut().enumerate() {
+                    if mesh.fixed[i] & (1 << k) == 0 {
+                        *v = 1e-4 * wave * [0.3, -0.5, 1.0][k];
+                    }
+                }
+            }
+            let mut f_int = vec![[0.0; 3]; n];
+            model.internal_forces(&model.u, &mut f_int).unwrap();
+            for contact in [6, 20, 12] {
+                let mut frames: Vec<NodeFrame> = (0..n).map(|i| model.frame(i, None)).collect();
+                let mut curvature_terms = Vec::new();
+                for (k, &i) in near.iter().take(contact).enumerate() {
+                    let x = mesh.nodes_m[i];
+                    let normal = normalise([0.4 * x[0] / 0.004, 0.4 * x[1] / 0.004, -1.0]);
+                    frames[i] = model.frame(i, Some((-1e-4 * (1.0 + k as f64), normal)));
+                    if k % 2 == 0 {
+                        // −p dn/dx of a sphere of radius 4 mm under a reaction of 0.05 N.
+                        let block: [[f64; 3]; 3] = std::array::from_fn(|r| {
+                            std::array::from_fn(|c| {
+                                let delta = if r == c { 1.0 } else { 0.0 };
+                                -0.05 * (delta - normal[r] * normal[c]) / 0.004
+                            })
+                        });
+                        curvature_terms.push((i, block));
+                    }
+                }
+                let mut rhs = vec![0.0; 3 * n];
+                let direct = model
+                    .direct_increment(&frames, &curvature_terms, &mut rhs)
+                    .unwrap();
+                let constant = model
+                    .constant_stiffness_increment(&frames, &curvature_terms, &f_int)
+                    .unwrap();
+                let scale = direct.iter().flatten().fold(0.0_f64, |m, v| m.max(v.abs()));
+                let worst = direct
+                    .iter()
+                    .flatten()
+                    .zip(constant.iter().flatten())
+                    .fold(0.0_f64, |m, (a, b)| m.max((a - b).abs()));
+                assert!(
+                    scale > 1e-6,
+                    "{kind:?}: no increment to compare ({scale:e} m)"
+                );
+                assert!(
+                    worst <= 1e-9 * scale,
+                    "{kind:?}, {contact} nodes in contact: increments differ by {worst:e} m (scale {scale:e} m)"
+                );
+            }
+        }
+    }
+
+    fn normalise(v: [f64; 3]) -> [f64; 3] {
+        let l = dot(v, v).sqrt();
+        [v[0] / l, v[1] / l, v[2] / l]
     }
 }

@@ -6,14 +6,19 @@
 //! are zeroed with a unit-scaled diagonal. That is what lets the contact active set change every
 //! Newton iteration at the cost of a numeric factorisation only.
 //!
-//! That numeric factorisation is most of a run's time (dense supernodal kernels), and its cost is
-//! set by the fill-reducing ordering: on the structured meshes of the experiments a geometric
-//! nested dissection ([`nested_dissection_order`]) leaves about 30% less fill than minimum degree
-//! and halves the factorisation time (22 491 unknowns: 0.42 s against 0.90 s on the 2-core
-//! calibration machine). Reusing the last factor as a conjugate-gradient preconditioner was
-//! measured too and lost: a new contact ring changes tens of rows at once, so the iterations
-//! needed cost more than the factorisation they save.
+//! That numeric factorisation is most of a neo-Hookean run's time (dense supernodal kernels; the
+//! linear laws factorise once per run, see `solver::ContactModel::constant_stiffness_increment`),
+//! and its cost is set by the fill-reducing ordering: on the structured meshes of the experiments
+//! a geometric nested dissection ([`nested_dissection_order`]) leaves about 30% less fill than
+//! minimum degree and halves the factorisation time (22 491 unknowns: 0.42 s against 0.90 s on
+//! the 2-core calibration machine). A refactorisation reuses the buffers of the previous factor
+//! ([`StiffnessPattern::refactorise`]). Reusing the last factor as a conjugate-gradient
+//! preconditioner was measured too and lost: a new contact ring changes tens of rows at once, so
+//! a factor one Newton iteration old needed 17 conjugate-gradient iterations to a relative
+//! residual of 1e-10 and older ones 30 to 110, at 30 ms each against 0.27 s for the
+//! factorisation (22 491 unknowns).
 
+use std::cell::RefCell;
 use std::sync::Arc;
 
 use faer::dyn_stack::{MemBuffer, MemStack};
@@ -283,6 +288,27 @@ impl StiffnessPattern {
 
     /// Factorises the matrix with these values.
     pub fn factorise(&self, values: &[f64]) -> Result<Factor, LinearError> {
+        let mut factor = Factor {
+            symbolic: Arc::clone(&self.symbolic),
+            l_values: vec![0.0; self.symbolic.len_val()],
+            factor_scratch: MemBuffer::new(
+                self.symbolic
+                    .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+            ),
+            solve_scratch: RefCell::new(MemBuffer::new(
+                self.symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+            )),
+        };
+        self.refactorise(&mut factor, values)?;
+        Ok(factor)
+    }
+
+    /// Factorises the matrix with these values into the buffers of an earlier factor of this
+    /// pattern. A factor of the larger meshes is hundreds of megabytes: allocated afresh, every
+    /// page of it is faulted in and zeroed again (the §4.3 neo-Hookean sphere run, 22 491
+    /// unknowns: 19.1 s with a fresh factor per Newton iteration, 14.9 s reusing one).
+    pub fn refactorise(&self, factor: &mut Factor, values: &[f64]) -> Result<(), LinearError> {
+        debug_assert!(Arc::ptr_eq(&factor.symbolic, &self.symbolic));
         let sym = SymbolicSparseColMatRef::new_checked(
             self.n,
             self.n,
@@ -291,29 +317,18 @@ impl StiffnessPattern {
             &self.row_idx,
         );
         let mat = SparseColMatRef::new(sym, values);
-        let mut l_values = vec![0.0; self.symbolic.len_val()];
-        let mut scratch = MemBuffer::new(
-            self.symbolic
-                .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
-        );
         self.symbolic
             .factorize_numeric_llt(
-                &mut l_values,
+                &mut factor.l_values,
                 mat,
                 Side::Lower,
                 LltRegularization::default(),
                 Par::Seq,
-                MemStack::new(&mut scratch),
+                MemStack::new(&mut factor.factor_scratch),
                 Default::default(),
             )
             .map_err(|e| LinearError::NotPositiveDefinite(format!("{e:?}")))?;
-        let solve_scratch =
-            MemBuffer::new(self.symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-        Ok(Factor {
-            symbolic: Arc::clone(&self.symbolic),
-            l_values,
-            solve_scratch: std::cell::RefCell::new(solve_scratch),
-        })
+        Ok(())
     }
 
     /// y = K x using the stored lower triangle (symmetric product).
@@ -336,8 +351,10 @@ impl StiffnessPattern {
 pub struct Factor {
     symbolic: Arc<SymbolicCholesky<usize>>,
     l_values: Vec<f64>,
+    /// Work space of the numeric factorisation, allocated once per factor.
+    factor_scratch: MemBuffer,
     /// Work space of the triangular solves, allocated once per factor.
-    solve_scratch: std::cell::RefCell<MemBuffer>,
+    solve_scratch: RefCell<MemBuffer>,
 }
 
 impl Factor {
@@ -349,6 +366,21 @@ impl Factor {
         LltRef::new(&self.symbolic, &self.l_values).solve_in_place_with_conj(
             Conj::No,
             m,
+            Par::Seq,
+            MemStack::new(&mut scratch),
+        );
+    }
+
+    /// Solves K X = B in place for several right-hand sides at once (one pass over the factor
+    /// for all of them, where column by column would read it once per column).
+    pub fn solve_columns_in_place(&self, rhs: MatMut<'_, f64>) {
+        let mut scratch = MemBuffer::new(
+            self.symbolic
+                .solve_in_place_scratch::<f64>(rhs.ncols(), Par::Seq),
+        );
+        LltRef::new(&self.symbolic, &self.l_values).solve_in_place_with_conj(
+            Conj::No,
+            rhs,
             Par::Seq,
             MemStack::new(&mut scratch),
         );

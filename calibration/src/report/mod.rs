@@ -300,12 +300,17 @@ fn runs_section(fem: &RunTimings, results: &Results, md: &mut String) {
     let _ = writeln!(md, "## Where the time goes\n");
     let _ = writeln!(
         md,
-        "{} FEM runs on {} threads: {:.1} s wall, {:.1} s of run time. Profiling (perf) puts \
-         most of a run in the numeric Cholesky factorisation of each Newton iteration (dense \
-         supernodal kernels); the fill-reducing ordering is a geometric nested dissection of \
-         the structured grid (`sparse::nested_dissection_order`), which halves the \
-         factorisation against minimum degree. Runs shared between studies are solved once; \
-         independent runs go to the cores longest first.\n",
+        "{} FEM runs on {} threads: {:.1} s wall, {:.1} s of run time. The linear laws' \
+         stiffness does not change during a run, so it is factorised once, without contact, and \
+         each Newton iteration solves the contact as a small dense system on the contacted \
+         nodes' columns of its inverse (`solver::ContactModel::constant_stiffness_increment`): \
+         the same increments to rounding, two triangular solves instead of a factorisation. The \
+         neo-Hookean tangent is factorised in every Newton iteration, which profiling (perf) \
+         puts at most of such a run (dense supernodal kernels); the fill-reducing ordering is a \
+         geometric nested dissection of the structured grid \
+         (`sparse::nested_dissection_order`), which halves the factorisation against minimum \
+         degree. Runs shared between studies are solved once; independent runs go to the cores \
+         longest first.\n",
         fem.runs, fem.threads, fem.wall_seconds, fem.run_seconds
     );
     let mut runs: Vec<&crate::experiments::IndentationRun> = Vec::new();
