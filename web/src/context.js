@@ -27,6 +27,8 @@ export const view = {
    * is WebGL; null without it.
    */
   deformationTable: null,
+  /** The compiler's log when a WebGL implementation refused the bending shader, until handled. */
+  shaderFailure: null,
   sectionPlane: null,
   /** The tool's materials: see-through while in contact, so the dent under it shows. */
   toolMaterials: [],

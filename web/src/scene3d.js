@@ -86,6 +86,17 @@ export function initThree() {
     view.renderer = renderer;
     view.deformationTable = new DeformationTable();
     state.deformation = new URLSearchParams(window.location.search).get('deform') === 'cpu' ? 'cpu' : 'gpu';
+    // A WebGL implementation that refuses the bending shader must not leave the object undrawn:
+    // the next frame goes back to the CPU path (`fallBackToCpu`).
+    renderer.debug.onShaderError = (gl, program, vertexShader, fragmentShader) => {
+      const log = [program, vertexShader, fragmentShader]
+        .map((o, i) => (i === 0 ? gl.getProgramInfoLog(o) : gl.getShaderInfoLog(o)) ?? '')
+        .map((l) => l.trim())
+        .filter((l) => l !== '')
+        .join('\n');
+      console.error(`softhaptic: a shader did not compile:\n${log}`);
+      if ((gl.getShaderSource(vertexShader) ?? '').includes('shTable')) view.shaderFailure = log || 'no log';
+    };
     view.controls = new OrbitControls(view.camera, renderer.domElement);
     view.controls.target.set(0, 0, 0);
     view.controls.enableDamping = true;
@@ -174,15 +185,7 @@ export function buildMesh(desc, data) {
   geometry.computeBoundingSphere();
   // The dimple stays inside the rest bounds grown by the deepest press; skip per-frame bounds.
   geometry.boundingSphere.radius *= 1.2;
-  const material = new THREE.MeshStandardMaterial({
-    color: 0xd98c8c,
-    roughness: 0.55,
-    metalness: 0.0,
-    vertexColors: true,
-    // Seen from inside too, where the section view cuts it open.
-    side: THREE.DoubleSide,
-    clippingPlanes: view.sectionPlanes,
-  });
+  const material = meshMaterial();
   // Every mesh's shader can bend it, so that the page can change paths while it runs.
   const uniforms = view.deformationTable ? view.deformationTable.install(material, DEPRESSION_COLOR) : null;
   const mesh = new THREE.Mesh(geometry, material);
@@ -215,6 +218,19 @@ export function buildMesh(desc, data) {
   };
 }
 
+/** The render meshes' material (the GPU path adds its bending to it). */
+function meshMaterial() {
+  return new THREE.MeshStandardMaterial({
+    color: 0xd98c8c,
+    roughness: 0.55,
+    metalness: 0.0,
+    vertexColors: true,
+    // Seen from inside too, where the section view cuts it open.
+    side: THREE.DoubleSide,
+    clippingPlanes: view.sectionPlanes,
+  });
+}
+
 /** Points the camera at the loaded meshes. */
 export function frameCamera() {
   const box = new THREE.Box3();
@@ -233,6 +249,7 @@ export function frameCamera() {
 }
 
 export function deformMeshes() {
+  if (view.shaderFailure !== null) fallBackToCpu();
   if (!state.tool || state.meshes.length === 0) return;
   const c = scratch.contact;
   c.inContact = rendered.valid && rendered.inContact;
@@ -346,6 +363,25 @@ export function setDeformation(mode) {
     }
   }
   deformMeshes();
+}
+
+/**
+ * After the bending shader failed to compile (`initThree`): every mesh gets a plain material
+ * and the CPU path, for the rest of the page's life.
+ */
+function fallBackToCpu() {
+  console.warn(
+    `softhaptic: the GPU path's shader did not compile; bending the meshes on the CPU (${view.shaderFailure})`,
+  );
+  view.shaderFailure = null;
+  setDeformation('cpu');
+  view.deformationTable = null;
+  for (const m of state.meshes) {
+    const failed = m.mesh.material;
+    m.mesh.material = meshMaterial();
+    failed.dispose();
+    m.uniforms = null;
+  }
 }
 
 /**

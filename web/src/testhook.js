@@ -77,6 +77,22 @@ export function installTestHook(ctx) {
       if (mode !== undefined) ctx.setDeformation(mode);
       return state.deformation;
     },
+    /**
+     * Makes the meshes' bending shader fail to compile from the next draw, as a WebGL
+     * implementation that refuses it would (the page must go back to the CPU path).
+     */
+    breakDeformationShader: () => {
+      for (const m of state.meshes) {
+        const material = m.mesh.material;
+        const install = material.onBeforeCompile;
+        material.onBeforeCompile = (shader) => {
+          install(shader);
+          shader.vertexShader = shader.vertexShader.replace('void main() {', 'void main() {\n  not glsl;');
+        };
+        material.customProgramCacheKey = () => 'softhaptic-deformation-refused';
+        material.needsUpdate = true;
+      }
+    },
     /** Rest and current position of vertex i in the world frame, and how far it moved (m). */
     vertex: (i, mesh = 0) => {
       const m = state.meshes[mesh];

@@ -273,6 +273,36 @@ test('the viewer counted no malformed or unknown message and raised no page erro
   assert.deepEqual(pageErrors, []);
 });
 
+test('a WebGL implementation that refuses the bending shader leaves the page bending on the CPU', async () => {
+  const p = await browser.newPage({ viewport: { width: 800, height: 600 } });
+  const errors = [];
+  p.on('pageerror', (e) => errors.push(e.message));
+  const logged = [];
+  p.on('console', (m) => logged.push(m.text()));
+  try {
+    await p.goto(server.url);
+    await p.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
+    if (!(await p.evaluate(() => window.__softhaptic.webgl()))) return;
+    assert.equal(await p.evaluate(() => window.__softhaptic.deformation()), 'gpu');
+    await p.evaluate(() => window.__softhaptic.breakDeformationShader());
+    await p.waitForFunction(() => window.__softhaptic.deformation() === 'cpu', null, {
+      timeout: 120000,
+      polling: 'raf',
+    });
+    // The press still bends the mesh, now in its vertex buffers.
+    await freezeOnPress(p, 2e-3);
+    const moved = await p.evaluate(() => window.__softhaptic.movedVertices().length);
+    assert.ok(moved > 20, `${moved} vertices moved on the CPU path`);
+    assert.ok(
+      logged.some((l) => l.includes('did not compile')),
+      `the failure is logged: ${logged.join(' | ')}`,
+    );
+    assert.deepEqual(errors, []);
+  } finally {
+    await p.close();
+  }
+});
+
 test('without WebGL the page says so and still connects, plots and deforms', async () => {
   const noGl = await launchBrowser({ extraArgs: ['--disable-webgl', '--disable-3d-apis'] });
   try {
