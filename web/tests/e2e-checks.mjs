@@ -38,6 +38,22 @@ export async function freezeOnPress(page, minDepthM, { timeout = 120000 } = {}) 
   );
 }
 
+/** Like `freezeOnPress`, for a frame where the tool is off the surface. */
+export async function freezeOffSurface(page, { timeout = 120000 } = {}) {
+  await page.evaluate(() => window.__softhaptic.pause(false));
+  await page.waitForFunction(
+    () => {
+      const h = window.__softhaptic;
+      const c = h.contact();
+      const free = c.valid && !c.stale && !c.inContact;
+      if (free) h.pause(true);
+      return free;
+    },
+    null,
+    { timeout, polling: 'raf' },
+  );
+}
+
 /**
  * The deformation profile a page draws for contact `c` of `scene` (its `render_profile`):
  * `{name, reachM, at(r), sideways(r)}`, the depression and the outward radial displacement at

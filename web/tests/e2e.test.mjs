@@ -16,7 +16,7 @@ import { mkdirSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 
 import { launchBrowser } from './browser.mjs';
-import { assertPressBendsMesh, freezeOnPress } from './e2e-checks.mjs';
+import { assertPressBendsMesh, freezeOffSurface, freezeOnPress } from './e2e-checks.mjs';
 import { startServer } from './server.mjs';
 
 const RESULTS = fileURLToPath(new URL('../test-results/', import.meta.url));
@@ -76,18 +76,7 @@ test('from the default camera the dent shows through the see-through tool', asyn
   }, REGION_PX);
   assert.ok(pressed.opacity < 0.5, `tool opacity in contact ${pressed.opacity}`);
   // The same place on the screen with the tool off the surface (and opaque again).
-  await page.evaluate(() => window.__softhaptic.pause(false));
-  await page.waitForFunction(
-    () => {
-      const h = window.__softhaptic;
-      const c = h.contact();
-      const free = c.valid && !c.stale && !c.inContact;
-      if (free) h.pause(true);
-      return free;
-    },
-    null,
-    { timeout: 120000, polling: 'raf' },
-  );
+  await freezeOffSurface(page);
   const free = await page.evaluate(
     ({ at, size }) => {
       const h = window.__softhaptic;
@@ -135,18 +124,7 @@ test("the vertex shader draws the dent the CPU path draws, and the page's defaul
     { at, size: REGION_PX },
   );
   // The same view with nothing pressed.
-  await page.evaluate(() => window.__softhaptic.pause(false));
-  await page.waitForFunction(
-    () => {
-      const h = window.__softhaptic;
-      const c = h.contact();
-      const free = c.valid && !c.stale && !c.inContact;
-      if (free) h.pause(true);
-      return free;
-    },
-    null,
-    { timeout: 120000, polling: 'raf' },
-  );
+  await freezeOffSurface(page);
   const rest = await page.evaluate(({ at, size }) => window.__softhaptic.regionPixels(at.x, at.y, size), {
     at,
     size: REGION_PX,
