@@ -27,7 +27,8 @@ pub enum ModelError {
 }
 
 /// A layer of finite thickness resting on a rigid base (Dimitriadis et al. 2002 for a sphere,
-/// Garcia & Garcia 2018 for a cone).
+/// Garcia & Garcia 2018 for a cone; bonded, times a residual fitted to the project's FEM at the
+/// material's ν).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LayerSpec {

@@ -87,12 +87,12 @@ fn the_nearly_incompressible_scene_runs_on_limits_measured_at_its_poisson_ratio(
     let scene = Scene::load(&repo_scenes().join("incompressible.toml")).unwrap();
     assert_eq!(scene.material.poisson_ratio(), 0.49);
     assert_eq!(scene.calibration.material().poisson_ratio(), 0.49);
-    // The neo-Hookean sphere's entry measured at ν = 0.49 (4.02 mm), not the paper's 6 mm nor
+    // The neo-Hookean sphere's entry measured at ν = 0.49 (4.29 mm), not the paper's 6 mm nor
     // the ν = 0.33 entry's.
     let source = &scene.validity.source;
     assert!(source.contains("ν = 0.49"), "{source}");
     assert!(
-        (scene.validity.valid_depth_m - 4.02e-3).abs() < 0.01e-3,
+        (scene.validity.valid_depth_m - 4.29e-3).abs() < 0.01e-3,
         "{} m from {source}",
         scene.validity.valid_depth_m
     );

@@ -178,8 +178,9 @@ pub struct ForceDepthStudy {
 
 /// The small-deformation FEM on the paper's 100 × 100 × 30 mm block held against Sneddon's
 /// half-space (exact sphere, or cone): a layer bonded to a rigid base must be stiffer than the
-/// half-space, by the factor of Dimitriadis et al. (sphere) or Garcia & Garcia (cone) that the
-/// runtime's bonded-layer correction applies.
+/// half-space, by the factor of Dimitriadis et al. (sphere) or Garcia & Garcia (cone) times the
+/// FEM residual (`softhaptic_device::model::layer_fit`) that the runtime's bonded-layer
+/// correction applies.
 #[derive(Debug, Clone, Serialize)]
 pub struct LayerCheck {
     pub depths_m: Vec<f64>,
@@ -346,10 +347,16 @@ pub struct HyperelasticFit {
 
 /// c1, c2 minimising Σ (F_nH − F_b (1 + c1 x + c2 x²))².
 pub(crate) fn fit_quadratic_ratio(x: &[f64], nh: &[f64], base: &[f64]) -> [f64; 2] {
-    // Normal equations of y = c1 u + c2 v with u = F_b x, v = F_b x², y = F_nH − F_b.
+    let terms: Vec<[f64; 2]> = x.iter().map(|&x| [x, x * x]).collect();
+    fit_two_term_ratio(&terms, nh, base)
+}
+
+/// [k1, k2] minimising Σ (F − F_b (1 + k1 t1 + k2 t2))² over the samples' terms [t1, t2].
+pub(crate) fn fit_two_term_ratio(terms: &[[f64; 2]], target: &[f64], base: &[f64]) -> [f64; 2] {
+    // Normal equations of y = k1 u + k2 v with u = F_b t1, v = F_b t2, y = F − F_b.
     let (mut uu, mut uv, mut vv, mut uy, mut vy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for ((&x, &f), &b) in x.iter().zip(nh).zip(base) {
-        let (u, v, y) = (b * x, b * x * x, f - b);
+    for ((&[t1, t2], &f), &b) in terms.iter().zip(target).zip(base) {
+        let (u, v, y) = (b * t1, b * t2, f - b);
         uu += u * u;
         uv += u * v;
         vv += v * v;

@@ -9,26 +9,29 @@
 //! - the hyperelastic factor is refitted against the closed form of the same ν (exact sphere,
 //!   or cone, on the bonded layer, whose factor depends on ν), in sample on the 30 mm block and
 //!   scored out of sample on the 50 mm block with the 10 mm tools;
-//! - the small-deformation FEM on the 30 mm block measures the bonded-layer factor at that ν
-//!   against the correction's (Dimitriadis' depends on ν; Garcia & Garcia's cone factor was
-//!   derived at ν = 0.5 and does not);
+//! - the small-deformation FEM on bonded layers 12, 20 and 30 mm thick measures the bonded-layer
+//!   factor at that ν, and the residual the runtime multiplies the published series by
+//!   (`softhaptic_device::model::layer_fit`; Dimitriadis' sphere depends on ν, Garcia &
+//!   Garcia's cone was derived at ν = 0.5 and does not) is refitted to it, then scored out of
+//!   sample on a 15 mm layer;
 //! - the 50 mm block's neo-Hookean runs give the R_d table of that ν.
 
 use serde::Serialize;
-use softhaptic_device::model::LocalGeometry;
-use softhaptic_proto::{CalibrationTable, Material, ModelSpec, ToolShape};
+use softhaptic_device::model::{LayerLaw, LocalGeometry, layer_factor, layer_fit};
+use softhaptic_proto::{CalibrationTable, LayerSpec, Material, ModelSpec, ToolShape};
 
 use super::force::{
-    FORCE_LAYER_M, HyperelasticConstants, fit_constant_ratio, fit_quadratic_ratio, force_depths,
-    force_resolutions, force_run, force_tools,
+    FORCE_LAYER_M, HyperelasticConstants, fit_constant_ratio, fit_quadratic_ratio,
+    fit_two_term_ratio, force_depths, force_resolutions, force_run, force_tools,
 };
 use super::rd::{rd_run, rd_setup};
 use super::verification::{material_with_poisson, poisson_tag, sneddon_force_n};
 use super::{
-    ExperimentError, MATERIAL, MM, Mode, RD_BLOCK_M, RD_BREAKPOINT_M, RD_THRESHOLD_M, RunCache,
-    RunSpec, paper_tools_10mm, tool_description,
+    ExperimentError, FORCE_BLOCK_M, MATERIAL, MM, Mode, RD_BLOCK_M, RD_BREAKPOINT_M,
+    RD_THRESHOLD_M, RunCache, RunSpec, block_body, paper_tools_10mm, spec, tool_description,
 };
 use crate::element::LawKind;
+use crate::mesh::Symmetry;
 use crate::models::{ErrorCurve, RuntimeModel, layer};
 
 /// The Poisson's ratios of the sweep; the paper's 0.33 is added from the other studies' runs.
@@ -62,6 +65,49 @@ fn layer_run(
     )
 }
 
+/// Thicknesses of the bonded layers the layer residual is fitted on: the §4.3 block's 30 mm and
+/// two thinner ones, so that χ reaches the series' 0.5 at δ = 6 mm.
+pub const LAYER_FIT_THICKNESSES_M: [f64; 3] = [0.012, 0.020, FORCE_LAYER_M];
+/// The layer held out of the fit to score it.
+pub const LAYER_HELD_OUT_M: f64 = 0.015;
+/// The fit and its scores start at this depth: at 1 mm the cone's contact spans less than a
+/// cell of the finest mesh.
+pub const LAYER_FIT_FROM_M: f64 = 2.0 * MM;
+
+/// The small-deformation run of a §4.3 tool on a 100 × 100 mm block `thickness_m` thick, on the
+/// finest mesh, at `material` (the 30 mm one is the §4.3 run itself).
+fn thickness_run(
+    mode: Mode,
+    name: &str,
+    tool: &ToolShape,
+    thickness_m: f64,
+    material: &Material,
+) -> RunSpec {
+    let law = LawKind::LinearSmallDeformation;
+    if (thickness_m - FORCE_LAYER_M).abs() < 1e-12 {
+        return layer_run(mode, name, tool, law, material);
+    }
+    let res = force_resolutions(mode)[2];
+    let ds = force_depths(mode);
+    let max_depth_m = ds.last().copied().unwrap_or(0.006);
+    let size_m = [FORCE_BLOCK_M[0], FORCE_BLOCK_M[1], thickness_m];
+    let body = block_body(size_m, tool, max_depth_m, 0.0, res, Symmetry::Quarter);
+    let label = format!(
+        "block 100×100×{:.0} {name} {} {}",
+        thickness_m / MM,
+        law.name(),
+        res.name
+    );
+    with_material(spec(label, body, tool, law, res, &ds, 0.0), material)
+}
+
+/// The layers of the residual's fit, then the held-out one.
+fn layer_thicknesses_m() -> impl Iterator<Item = f64> {
+    LAYER_FIT_THICKNESSES_M
+        .into_iter()
+        .chain(std::iter::once(LAYER_HELD_OUT_M))
+}
+
 /// The R_d study's neo-Hookean run of `tool` at `material`.
 fn block_run(mode: Mode, name: &str, tool: &ToolShape, material: &Material) -> RunSpec {
     with_material(rd_run(mode, name, tool, LawKind::NeoHookean), material)
@@ -75,8 +121,9 @@ pub fn poisson_runs(mode: Mode) -> Vec<RunSpec> {
             continue;
         };
         for (name, tool) in force_tools() {
-            for law in [LawKind::NeoHookean, LawKind::LinearSmallDeformation] {
-                out.push(layer_run(mode, name, &tool, law, &material));
+            out.push(layer_run(mode, name, &tool, LawKind::NeoHookean, &material));
+            for thickness_m in layer_thicknesses_m() {
+                out.push(thickness_run(mode, name, &tool, thickness_m, &material));
             }
         }
         for (name, tool) in paper_tools_10mm() {
@@ -86,26 +133,52 @@ pub fn poisson_runs(mode: Mode) -> Vec<RunSpec> {
     out
 }
 
-/// The bonded-layer factor measured by the small-deformation FEM at one ν.
+/// One depth of one layer: the bonded-layer factor the small-deformation FEM measures, and the
+/// laws' predictions of it.
 #[derive(Debug, Clone, Serialize)]
-pub struct LayerFactor {
-    pub tool_name: String,
-    pub depths_m: Vec<f64>,
-    /// FEM / Sneddon's half-space.
-    pub measured: Vec<f64>,
-    /// The runtime's bonded-layer factor.
-    pub predicted: Vec<f64>,
+pub struct LayerSample {
+    pub thickness_m: f64,
+    pub depth_m: f64,
+    /// χ of the series: √(Rδ)/h for a sphere, δ tan α / h for a cone.
+    pub chi: f64,
+    /// FEM / Sneddon's half-space of the same ν.
+    pub measured: f64,
+    /// The published series.
+    pub published: f64,
+    /// The published series times the residual refitted here.
+    pub refit: f64,
+    /// What the runtime uses at this ν (its table of residuals, interpolated in ν).
+    pub runtime: f64,
 }
 
-impl LayerFactor {
-    /// Largest |measured / predicted − 1| over the depths from `from_m`, percent.
-    pub fn worst_error_percent(&self, from_m: f64) -> f64 {
-        self.depths_m
-            .iter()
-            .zip(self.measured.iter().zip(&self.predicted))
-            .filter(|(d, _)| **d >= from_m - 1e-12)
-            .map(|(_, (m, p))| 100.0 * (m / p - 1.0).abs())
-            .fold(0.0, f64::max)
+/// The bonded-layer factor of one tool at one ν: the FEM's, the residual refitted to it, and the
+/// errors of each law.
+#[derive(Debug, Clone, Serialize)]
+pub struct LayerFit {
+    pub tool_name: String,
+    /// [k1, k2] of the residual 1 + k1 χ + k2 χ s (s = δ/R for a sphere, χ for a cone), fitted
+    /// on [`LAYER_FIT_THICKNESSES_M`].
+    pub fit: [f64; 2],
+    /// The runtime's [k1, k2] at this ν.
+    pub runtime: [f64; 2],
+    /// Every layer and depth from [`LAYER_FIT_FROM_M`], the held-out layer last.
+    pub samples: Vec<LayerSample>,
+}
+
+impl LayerFit {
+    /// Largest |measured / predicted − 1|, percent, of the published series, the refit and the
+    /// runtime, over the fitted layers (`held_out` false) or the held-out one.
+    pub fn worst_percent(&self, held_out: bool) -> [f64; 3] {
+        let mut worst = [0.0_f64; 3];
+        for s in &self.samples {
+            if ((s.thickness_m - LAYER_HELD_OUT_M).abs() < 1e-12) != held_out {
+                continue;
+            }
+            for (w, p) in worst.iter_mut().zip([s.published, s.refit, s.runtime]) {
+                *w = w.max(100.0 * (s.measured / p - 1.0).abs());
+            }
+        }
+        worst
     }
 }
 
@@ -142,8 +215,8 @@ pub struct PoissonPoint {
     pub out_of_sample_unfitted_percent: [f64; 2],
     /// The neo-Hookean stiffening at δ = R of the 6 mm sphere: F_nH / closed form.
     pub sphere_ratio_at_radius: f64,
-    /// The bonded-layer factor measured by the small-deformation FEM: sphere, cone.
-    pub layer: Vec<LayerFactor>,
+    /// The bonded-layer factor measured by the small-deformation FEM and refitted: sphere, cone.
+    pub layer: Vec<LayerFit>,
     /// R_d at the table depths, per tool of radius 10 mm (sphere, cone), metres.
     pub rd_m: Vec<Vec<f64>>,
     /// The scene tables of this ν (50 kPa; the displacement field does not depend on E).
@@ -305,24 +378,9 @@ pub fn poisson_study(mode: Mode, cache: &RunCache) -> Result<PoissonStudy, Exper
             }
         }
         // The bonded-layer factor, small-deformation FEM against Sneddon's half-space.
-        let mut layer_factors = Vec::new();
+        let mut layer_fits = Vec::new();
         for (name, tool) in force_tools() {
-            let fem_n = fem(name, &tool, LawKind::LinearSmallDeformation)?;
-            let layer_n = closed(&tool, FORCE_LAYER_M, &ds)?;
-            let half_space: Vec<f64> = ds
-                .iter()
-                .map(|&d| sneddon_force_n(&tool, &material, d))
-                .collect();
-            layer_factors.push(LayerFactor {
-                tool_name: name.to_owned(),
-                depths_m: ds.clone(),
-                measured: fem_n.iter().zip(&half_space).map(|(f, h)| f / h).collect(),
-                predicted: layer_n
-                    .iter()
-                    .zip(&half_space)
-                    .map(|(f, h)| f / h)
-                    .collect(),
-            });
+            layer_fits.push(layer_fit_of(mode, cache, name, &tool, &material)?);
         }
         points.push(PoissonPoint {
             poisson_ratio: nu,
@@ -341,7 +399,7 @@ pub fn poisson_study(mode: Mode, cache: &RunCache) -> Result<PoissonStudy, Exper
             out_of_sample_percent,
             out_of_sample_unfitted_percent,
             sphere_ratio_at_radius,
-            layer: layer_factors,
+            layer: layer_fits,
             rd_m,
             tables,
         });
@@ -349,6 +407,85 @@ pub fn poisson_study(mode: Mode, cache: &RunCache) -> Result<PoissonStudy, Exper
     Ok(PoissonStudy {
         rd_depths_m: rd_depths,
         points,
+    })
+}
+
+/// χ of the layer series for `tool` at `depth_m` on a layer `thickness_m` thick.
+fn layer_chi(tool: &ToolShape, depth_m: f64, thickness_m: f64) -> f64 {
+    match *tool {
+        ToolShape::Sphere { radius_m } => (radius_m * depth_m).sqrt() / thickness_m,
+        ToolShape::Cone { half_angle_rad, .. } => depth_m * half_angle_rad.tan() / thickness_m,
+    }
+}
+
+/// The bonded-layer factor of `tool` at `material` on every layer of the study, and the
+/// residual on the published series fitted to it.
+fn layer_fit_of(
+    mode: Mode,
+    cache: &RunCache,
+    name: &str,
+    tool: &ToolShape,
+    material: &Material,
+) -> Result<LayerFit, ExperimentError> {
+    let nu = material.poisson_ratio();
+    let runtime_residual = layer_fit::at(nu);
+    let runtime = match tool {
+        ToolShape::Sphere { .. } => runtime_residual.sphere_bonded,
+        ToolShape::Cone { .. } => runtime_residual.cone,
+    };
+    let mut samples = Vec::new();
+    for thickness_m in layer_thicknesses_m() {
+        let run = cache.get(
+            "poisson",
+            &thickness_run(mode, name, tool, thickness_m, material),
+        )?;
+        let layer = LayerSpec {
+            thickness_m,
+            bonded: true,
+        };
+        for (&depth_m, &fem_n) in run.depths_m.iter().zip(&run.normal_forces_n()) {
+            if depth_m < LAYER_FIT_FROM_M - 1e-12 {
+                continue;
+            }
+            let law = |law| layer_factor(tool, nu, layer, depth_m, law);
+            samples.push(LayerSample {
+                thickness_m,
+                depth_m,
+                chi: layer_chi(tool, depth_m, thickness_m),
+                measured: fem_n / sneddon_force_n(tool, material, depth_m),
+                published: law(LayerLaw::Published),
+                refit: f64::NAN,
+                runtime: law(LayerLaw::Runtime),
+            });
+        }
+    }
+    let fitted: Vec<&LayerSample> = samples
+        .iter()
+        .filter(|s| (s.thickness_m - LAYER_HELD_OUT_M).abs() >= 1e-12)
+        .collect();
+    // The residual's terms [χ, χ s]: s = δ/R (held at 1 past R) for a sphere, χ for a cone, as
+    // `softhaptic_device::model::layer_fit` evaluates them.
+    let terms = |s: &LayerSample| -> [f64; 2] {
+        let second = match *tool {
+            ToolShape::Sphere { radius_m } => (s.depth_m / radius_m).min(1.0),
+            ToolShape::Cone { .. } => s.chi,
+        };
+        [s.chi, s.chi * second]
+    };
+    let fitted_terms: Vec<[f64; 2]> = fitted.iter().map(|s| terms(s)).collect();
+    let measured: Vec<f64> = fitted.iter().map(|s| s.measured).collect();
+    let published: Vec<f64> = fitted.iter().map(|s| s.published).collect();
+    // Least squares on the factor: measured ≈ published · (1 + k1 t1 + k2 t2).
+    let fit = fit_two_term_ratio(&fitted_terms, &measured, &published);
+    for s in &mut samples {
+        let [t1, t2] = terms(s);
+        s.refit = s.published * (1.0 + fit[0] * t1 + fit[1] * t2);
+    }
+    Ok(LayerFit {
+        tool_name: name.to_owned(),
+        fit,
+        runtime,
+        samples,
     })
 }
 

@@ -162,18 +162,21 @@ fn layer_check_table(
     let (half_space, factor) = match tool {
         softhaptic_proto::ToolShape::Sphere { .. } => (
             "Sneddon's exact sphere",
-            "Dimitriadis et al.'s bonded-layer factor",
+            "Dimitriadis et al.'s bonded-layer factor times the residual fitted to the FEM",
         ),
         softhaptic_proto::ToolShape::Cone { .. } => (
             "Sneddon's cone",
-            "Garcia & Garcia's bonded-layer factor (derived at ν = 0.5)",
+            "Garcia & Garcia's bonded-layer factor (derived at ν = 0.5) times the residual \
+             fitted to the FEM",
         ),
     };
     let _ = writeln!(
         md,
         "#### {tool_name}: the bonded layer\n\nThe small-deformation FEM on the 30 mm block (bottom \
          bonded to a rigid base) against {half_space} on the half-space: a bonded layer is stiffer \
-         than the half-space, by {factor} that the runtime's bonded-layer correction applies.\n"
+         than the half-space, by {factor} that the runtime's bonded-layer correction applies \
+         (the residual is fitted on this block and two thinner ones: 'Nearly incompressible \
+         tissue').\n"
     );
     let _ = writeln!(
         md,

@@ -1,8 +1,8 @@
 //! Output: calibration tables (JSON), CSV series, SVG plots and the markdown report that puts
 //! each figure beside the paper's.
 //!
-//! [`write_report`] here assembles `report.md` from one section per experiment, each in the file
-//! named like the experiment's own under `experiments/` (`rd`, `surface`, `force`, `curvature`,
+//! [`write_report`] here assembles `report.md` (`<command>.md` for one study) from one section
+//! per experiment, each in the file named like the experiment's own under `experiments/` (`rd`, `surface`, `force`, `curvature`,
 //! `inclination`, `hyperelastic`, `speed`, `limits`, `verification`, `poisson`). A section writes
 //! its figures through `figure`: the numbers as a CSV (`figure::Columns`) and the chart drawn
 //! from them as an SVG (`line_plot`, `scatter_plot`), so a reader can re-plot any figure.
@@ -121,7 +121,9 @@ pub struct Results {
     pub command: String,
 }
 
-/// Writes CSV, SVG, JSON and `report.md` under `dir`; returns the report path.
+/// Writes CSV, SVG, JSON and the report under `dir`: `report.md` for `all`, `<command>.md` for a
+/// single study, so that a study run on its own beside the committed report does not replace
+/// the whole report with its one section. Returns the report path.
 pub fn write_report(dir: &Path, mode: Mode, results: &Results) -> Result<PathBuf, ReportError> {
     let mut md = String::new();
     let _ = writeln!(md, "# Calibration report\n");
@@ -189,9 +191,18 @@ pub fn write_report(dir: &Path, mode: Mode, results: &Results) -> Result<PathBuf
     if let Some(fem) = &results.fem {
         runs_section(fem, results, &mut md);
     }
-    let path = dir.join("report.md");
+    let path = dir.join(report_file_name(&results.command));
     write(&path, &md)?;
     Ok(path)
+}
+
+/// `report.md` for `all` (or an unnamed command), `<command>.md` for one study.
+fn report_file_name(command: &str) -> String {
+    if command.is_empty() || command == "all" {
+        "report.md".to_owned()
+    } else {
+        format!("{command}.md")
+    }
 }
 
 /// Writes the R_d tables of every ν of the sweep but the paper's into `dir` as `<name>.json`.
@@ -271,8 +282,8 @@ fn corrections_intro(md: &mut String) {
         md,
         "The runtime (`softhaptic_device::model::ForceModel`) multiplies the paper's law by the \
          corrections a scene turns on (physics.md): the exact sphere (Sneddon), a layer of finite \
-         thickness on a rigid base (Dimitriadis; Garcia & Garcia for the cone), the object's \
-         curvature (Johnson), the tool's inclination, and a hyperelastic factor fitted here. \
+         thickness on a rigid base (Dimitriadis; Garcia & Garcia for the cone; bonded, times a \
+         residual fitted here to the small-deformation FEM over ν), the object's curvature (Johnson), the tool's inclination, and a hyperelastic factor fitted here. \
          Every model below is that very `ForceModel`, built from its `ModelSpec` and evaluated \
          as the 1 kHz loop evaluates it; the reference is the neo-Hookean FEM unless stated.\n"
     );
@@ -348,4 +359,41 @@ fn runs_section(fem: &RunTimings, results: &Results, md: &mut String) {
         );
     }
     md.push('\n');
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_single_study_writes_its_own_report_beside_the_whole_one() {
+        let dir = std::env::temp_dir().join(format!("softhaptic-report-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("report.md"), "the whole report").unwrap();
+        let poisson = Results {
+            command: "poisson".to_owned(),
+            ..Results::default()
+        };
+        let path = write_report(&dir, Mode::Quick, &poisson).unwrap();
+        assert_eq!(path, dir.join("poisson.md"));
+        assert!(
+            std::fs::read_to_string(&path)
+                .unwrap()
+                .contains("softhaptic-calibrate --quick poisson")
+        );
+        assert_eq!(
+            std::fs::read_to_string(dir.join("report.md")).unwrap(),
+            "the whole report"
+        );
+        let all = Results {
+            command: "all".to_owned(),
+            ..Results::default()
+        };
+        assert_eq!(
+            write_report(&dir, Mode::Quick, &all).unwrap(),
+            dir.join("report.md")
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
