@@ -317,6 +317,7 @@ pub async fn start(
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     // The page's own origin is https when the server serves TLS.
     options.access.secure_transport = options.tls.is_some();
+    let caps = crate::tls::ConnectionCaps::for_limits(&options.access.limits);
     let access = Arc::new(Access::new(options.access, &options.web_dir));
     let hub = Arc::new(
         StreamHub::new(
@@ -382,7 +383,7 @@ pub async fn start(
     };
     let app = router(&options.web_dir, state);
     let tls = options.tls.is_some();
-    let http = serve_http(listener, app, options.tls, shutdown_rx);
+    let http = serve_http_capped(listener, app, options.tls, caps, shutdown_rx);
 
     Ok(RunningServer {
         local_addr,
@@ -424,7 +425,20 @@ pub(crate) fn serve_http(
     tls: Option<Arc<rustls::ServerConfig>>,
     shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
-    crate::tls::serve(listener, app, tls, shutdown)
+    let caps = crate::tls::ConnectionCaps::for_limits(&crate::access::ConnectionLimits::default());
+    serve_http_capped(listener, app, tls, caps, shutdown)
+}
+
+/// [`serve_http`] holding at most `caps` connections open (sized by [`crate::tls::ConnectionCaps::for_limits`]
+/// from the server's connection limits).
+pub(crate) fn serve_http_capped(
+    listener: tokio::net::TcpListener,
+    app: Router,
+    tls: Option<Arc<rustls::ServerConfig>>,
+    caps: crate::tls::ConnectionCaps,
+    shutdown: watch::Receiver<bool>,
+) -> JoinHandle<()> {
+    crate::tls::serve(listener, app, tls, caps, shutdown)
 }
 
 /// The routes of proto/WIRE.md over an existing stream hub, for another source of frames than the

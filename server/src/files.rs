@@ -23,6 +23,8 @@ pub enum FileKind {
     Recording,
     /// A token file or NATS credentials: a few lines (a `.creds` file is about 1 kB).
     Secrets,
+    /// A TLS certificate chain or private key (PEM): a few kB, a long chain a few tens.
+    Pem,
 }
 
 impl FileKind {
@@ -34,6 +36,7 @@ impl FileKind {
             FileKind::Table => 16 << 20,
             FileKind::Recording => 4 << 30,
             FileKind::Secrets => 64 << 10,
+            FileKind::Pem => 1 << 20,
         }
     }
 
@@ -44,6 +47,7 @@ impl FileKind {
             FileKind::Table => "a calibration or limits file",
             FileKind::Recording => "a recording",
             FileKind::Secrets => "a token or credentials file",
+            FileKind::Pem => "a PEM certificate or key file",
         }
     }
 }

@@ -40,6 +40,24 @@ pub fn print_line(line: std::fmt::Arguments<'_>) {
         .and_then(|()| out.flush());
 }
 
+/// An error and its causes on one line, `outer: cause: cause`, for the person who ran the
+/// command. A cause whose text the line already ends with is not repeated: many of the project's
+/// errors put their source's text in their own message (so that a log line read alone says
+/// why) and also name it as the source, which `{:#}` would print twice.
+pub fn error_text(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = error.to_string();
+    let mut cause = error.source();
+    while let Some(e) = cause {
+        let next = e.to_string();
+        if !next.is_empty() && !text.ends_with(&next) {
+            text.push_str(": ");
+            text.push_str(&next);
+        }
+        cause = e.source();
+    }
+    text
+}
+
 /// Installs the process's log. Call once, first.
 pub fn init() {
     let env = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
@@ -57,6 +75,26 @@ pub fn init() {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_cause_already_in_the_message_is_not_printed_twice() {
+        let fifo = std::io::Error::other("is a FIFO, not a regular file");
+        let doubled = anyhow::Error::from(fifo)
+            .context("could not read the token file /tmp/t: is a FIFO, not a regular file");
+        assert_eq!(
+            error_text(doubled.as_ref()),
+            "could not read the token file /tmp/t: is a FIFO, not a regular file"
+        );
+        // A cause the message does not carry is still given, every level of it.
+        let refused = std::io::Error::other("connection refused");
+        let chain = anyhow::Error::from(refused)
+            .context("NATS at 127.0.0.1:4222")
+            .context("could not start the station");
+        assert_eq!(
+            error_text(chain.as_ref()),
+            "could not start the station: NATS at 127.0.0.1:4222: connection refused"
+        );
+    }
 
     #[test]
     fn payload_traces_of_the_websocket_and_nats_libraries_are_never_written() {

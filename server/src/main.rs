@@ -153,8 +153,12 @@ fn main() -> std::process::ExitCode {
     match try_main() {
         Ok(code) => code,
         Err(e) => {
-            // The whole chain, one cause per line; no backtrace: these are user-facing errors.
-            eprintln!("error: {e:#}");
+            // The whole chain on one line, each cause once; no backtrace: these are
+            // user-facing errors.
+            eprintln!(
+                "error: {}",
+                softhaptic_server::logging::error_text(e.as_ref())
+            );
             std::process::ExitCode::FAILURE
         }
     }

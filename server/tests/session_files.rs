@@ -3,7 +3,7 @@
 //! wrong schema, newer versions, invalid messages) are refused with a message naming the file and
 //! the cause, never a panic.
 //!
-//! Long because its 13 tests share the fixtures of a recording (build, scene, ticks, foreign file).
+//! Long because its 14 tests share the fixtures of a recording (build, scene, ticks, foreign file).
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -686,4 +686,40 @@ fn a_recording_keeps_its_meshes_and_checks_without_reading_the_files_its_scene_n
     .unwrap_err()
     .to_string();
     assert!(e.contains("does not match its hash"), "{e}");
+}
+
+#[test]
+fn a_live_recording_keeps_the_scene_text_that_was_loaded_not_the_file_as_it_is_later() {
+    use softhaptic_server::session::cli::{LiveRecording, RecordArgs};
+    let dir = TempDir::new("scene-text");
+    let loaded = include_str!("../../scenes/default.toml")
+        .replace("calibration/sphere10_50kpa.json", "half_space");
+    let scene_path = dir.join("scene.toml");
+    std::fs::write(&scene_path, &loaded).unwrap();
+    let scene = Scene::load(&scene_path).unwrap();
+    // Edited after the scene was loaded and before the recording starts: the session runs the
+    // scene as loaded, so the recording must hold that text for a check to rebuild it.
+    std::fs::write(&scene_path, loaded.replace("0.33", "0.45")).unwrap();
+    let args = RecordArgs {
+        no_record: false,
+        record_dir: dir.join("sessions"),
+    };
+    let recording = LiveRecording::start(&args, &scene, Some(&scene_path))
+        .unwrap()
+        .expect("recording");
+    let (path, _) = recording
+        .finish(&softhaptic_device::metrics::TraineeMetrics::default())
+        .unwrap();
+    let r = Recording::open(&path).unwrap();
+    assert_eq!(r.scene.scene_toml, loaded);
+    assert_eq!(
+        r.scene.scene_file.as_deref(),
+        Some(
+            std::path::absolute(&scene_path)
+                .unwrap()
+                .display()
+                .to_string()
+                .as_str()
+        )
+    );
 }

@@ -88,7 +88,10 @@ impl Server {
         let listener = TcpListener::bind((LOOPBACK, 0)).await.unwrap();
         let addr = listener.local_addr().unwrap();
         let (shutdown, shutdown_rx) = watch::channel(false);
-        let task = tls::serve(listener, router(), config, shutdown_rx);
+        let caps = tls::ConnectionCaps::for_limits(
+            &softhaptic_server::access::ConnectionLimits::default(),
+        );
+        let task = tls::serve(listener, router(), config, caps, shutdown_rx);
         Server {
             addr,
             shutdown,

@@ -61,6 +61,17 @@ pub struct AccessConfig {
     pub limits: ConnectionLimits,
 }
 
+/// A name only this machine resolves to itself: `localhost` (and its subdomains) or a loopback
+/// address.
+fn is_local_name(host: &str) -> bool {
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host == "localhost"
+        || host.ends_with(".localhost")
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
 impl Default for AccessConfig {
     /// The loopback quick start: no tokens, own origin only, IP literals and `localhost`.
     fn default() -> Self {
@@ -89,6 +100,41 @@ impl AccessConfig {
             %addr,
             "INSECURE: serving beyond this machine WITHOUT TOKENS (--insecure-no-tokens): anyone \
              who can reach {addr} can watch the session and control replays"
+        );
+        Ok(())
+    }
+
+    /// Refuses, without tokens, the `--allow-origin` and `--host-name` values that name other
+    /// machines, unless `--insecure-no-tokens` (then warns). A server bound to loopback that is
+    /// told a public name or origin is reached through a reverse proxy: every viewer arrives
+    /// from 127.0.0.1, and without tokens each would be an instructor.
+    pub fn check_remote_names(&self) -> Result<(), AccessError> {
+        if self.tokens.is_some() {
+            return Ok(());
+        }
+        let names: Vec<String> = self
+            .allowed_origins
+            .iter()
+            .filter(|o| !is_local_name(o.host()))
+            .map(|o| format!("--allow-origin {o}"))
+            .chain(
+                self.host_names
+                    .iter()
+                    .filter(|n| !is_local_name(n))
+                    .map(|n| format!("--host-name {n}")),
+            )
+            .collect();
+        if names.is_empty() {
+            return Ok(());
+        }
+        let names = names.join(", ");
+        if !self.insecure_no_tokens {
+            return Err(AccessError::NoTokensForRemoteNames { names });
+        }
+        tracing::warn!(
+            %names,
+            "INSECURE: reachable from other machines WITHOUT TOKENS (--insecure-no-tokens): \
+             anyone who reaches it can watch the session and control replays"
         );
         Ok(())
     }
@@ -147,8 +193,10 @@ pub struct AccessArgs {
     /// a link to open for each.
     #[arg(long)]
     pub tokens: bool,
-    /// Serve an address beyond loopback without tokens: anyone who reaches it watches the
-    /// session and controls replays. Only for a network where that is wanted.
+    /// Serve an address beyond loopback, or answer to other machines' names and origins
+    /// (`--host-name`, `--allow-origin` behind a reverse proxy), without tokens: anyone who
+    /// reaches it watches the session and controls replays. Only for a network where that is
+    /// wanted.
     #[arg(long, conflicts_with_all = ["tokens", "token_file"])]
     pub insecure_no_tokens: bool,
     /// Also accept WebSocket connections from pages of this origin (`scheme://host[:port]`);
@@ -241,6 +289,7 @@ impl AccessArgs {
             },
         };
         config.check_bind(addr)?;
+        config.check_remote_names()?;
         match &config.tokens {
             Some(tokens) => tracing::info!(source = %tokens.source(), "viewers need a token"),
             None => tracing::info!("no tokens: every viewer is an instructor"),
@@ -384,5 +433,58 @@ mod tests {
         let (viewer, observer) = with_tokens.links("http://lab:8080/").unwrap();
         assert_eq!(viewer, format!("http://lab:8080/#token={I}"));
         assert_eq!(observer, format!("http://lab:8080/#token={O}"));
+    }
+
+    #[test]
+    fn public_names_on_loopback_behind_a_proxy_need_tokens_or_the_insecure_option() {
+        let loopback: SocketAddr = "127.0.0.1:8080".parse().unwrap();
+        let args = |origins: &[&str], hosts: &[&str]| AccessArgs {
+            token_file: None,
+            tokens: false,
+            insecure_no_tokens: false,
+            allow_origin: origins.iter().map(|s| s.to_string()).collect(),
+            host_name: hosts.iter().map(|s| s.to_string()).collect(),
+            max_viewers: 500,
+            max_viewers_per_address: 50,
+            max_pending: 64,
+        };
+        let none = |_: &str| None;
+        // Names only this machine has are the quick start's.
+        args(
+            &["http://localhost:5173"],
+            &["localhost", "viewer.localhost"],
+        )
+        .resolve_with_env(loopback, &none)
+        .unwrap();
+        // The README's proxy setup without tokens: refused, naming what made it remote.
+        let err = args(&["https://lab-pc.example"], &["lab-pc.example"])
+            .resolve_with_env(loopback, &none)
+            .unwrap_err()
+            .to_string();
+        for says in [
+            "--allow-origin https://lab-pc.example:443",
+            "--host-name lab-pc.example",
+            "--tokens",
+            "--insecure-no-tokens",
+        ] {
+            assert!(err.contains(says), "{err}");
+        }
+        // With tokens, or when the lab says so loudly, it starts.
+        let with_tokens = AccessArgs {
+            tokens: true,
+            ..args(&["https://lab-pc.example"], &["lab-pc.example"])
+        };
+        assert!(
+            with_tokens
+                .resolve_with_env(loopback, &none)
+                .unwrap()
+                .tokens
+                .is_some()
+        );
+        let insecure = AccessArgs {
+            insecure_no_tokens: true,
+            ..args(&[], &["lab-pc.example"])
+        };
+        insecure.resolve_with_env(loopback, &none).unwrap();
     }
 }

@@ -117,6 +117,14 @@ pub enum AccessError {
          --insecure-no-tokens starts anyway"
     )]
     NoTokensBeyondLoopback { addr: SocketAddr },
+    #[error(
+        "refusing to serve {names} without tokens: those names are how other machines reach \
+         this server (through a reverse proxy), and without tokens anyone who reaches it could \
+         watch the session and control replays. Give --tokens, --token-file FILE, or set \
+         {INSTRUCTOR_TOKEN_ENV} and {OBSERVER_TOKEN_ENV}; on a network where everyone may watch \
+         and control the session, --insecure-no-tokens starts anyway"
+    )]
+    NoTokensForRemoteNames { names: String },
     #[error("--allow-origin {value:?}: {problem}")]
     AllowOrigin {
         value: String,

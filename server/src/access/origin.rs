@@ -25,6 +25,11 @@ impl fmt::Display for Origin {
 }
 
 impl Origin {
+    /// The origin's host, lower case (an IPv6 literal in brackets).
+    pub fn host(&self) -> &str {
+        &self.host
+    }
+
     /// Parses an `Origin` header or an `--allow-origin` value (one trailing `/` is tolerated in
     /// the latter's spelling).
     pub fn parse(text: &str) -> Result<Origin, &'static str> {

@@ -416,6 +416,7 @@ impl Scene {
             force,
             contact_model,
             validity,
+            source_toml: String::new(),
         })
     }
 }

@@ -254,6 +254,9 @@ pub struct Scene {
     pub contact_model: ForceModel,
     /// The limits the validity flags use, and where they come from.
     pub validity: ValidityLimits,
+    /// The scene text this scene was built from, as read: what a recording keeps, so that a
+    /// check rebuilds the scene that ran, not the file as it is later.
+    pub source_toml: String,
 }
 
 impl Scene {
@@ -280,7 +283,9 @@ impl Scene {
     /// relative files (`None`: a built-in scene, whose files resolve as the module docs say).
     pub fn from_toml(text: &str, path: &Path, base: Option<&Path>) -> Result<Scene, SceneError> {
         let file = SceneFile::parse(text, path)?;
-        Self::from_file(file, path, base, load::ModelSource::File)
+        let mut scene = Self::from_file(file, path, base, load::ModelSource::File)?;
+        scene.source_toml = text.to_owned();
+        Ok(scene)
     }
 
     /// Loads the scene a recording ran with, from what the recording holds alone: its scene
@@ -293,6 +298,7 @@ impl Scene {
         let file = SceneFile::parse(&record.scene_toml, path)?;
         let mut scene = Self::from_file(file, path, None, load::ModelSource::Recorded(record))?;
         scene.meshes_from_files = record.meshes.is_some();
+        scene.source_toml = record.scene_toml.clone();
         Ok(scene)
     }
 

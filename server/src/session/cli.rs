@@ -286,11 +286,9 @@ impl LiveRecording {
         let dir = &args.record_dir;
         std::fs::create_dir_all(dir)
             .with_context(|| format!("could not create the record directory {}", dir.display()))?;
-        let scene_toml = match scene_file {
-            Some(p) => std::fs::read_to_string(p)
-                .with_context(|| format!("could not read {} to record it", p.display()))?,
-            None => include_str!("../../../scenes/default.toml").to_owned(),
-        };
+        // The text the scene was built from, not the file read again: it may have changed, or
+        // be a FIFO, since.
+        let scene_toml = scene.source_toml.clone();
         let scene_file = scene_file
             .map(|p| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf()))
             .map(|p| p.display().to_string());

@@ -10,8 +10,10 @@
 //!
 //! Why a client that does not speak TLS cannot hold the port: every connection is handled by its
 //! own task, and that task gives the client [`HANDSHAKE_TIMEOUT`] to send its first byte and as
-//! long again to finish the handshake, then [`FIRST_REQUEST_TIMEOUT`] to send a request, so a
-//! slow or silent client holds one socket for a bounded time and never the accept loop. A client
+//! long again to finish the handshake, then [`FIRST_REQUEST_TIMEOUT`] to send a request and
+//! [`HEADER_READ_TIMEOUT`] for each request's headers (plain http alike), so a slow or silent
+//! client holds one socket for a bounded time and never the accept loop; and the sockets held
+//! open are capped per client address and in all ([`ConnectionCaps`]). A client
 //! whose first byte is not a TLS handshake record (a browser or a `ws://` viewer pointed at the
 //! port) gets a plain-text `400` saying to use https and is closed; a failed handshake is closed
 //! too. Either way it is one log line, and the other connections never notice.
@@ -43,7 +45,7 @@ use rustls::ServerConfig;
 
 pub use certificate::{default_data_dir, fingerprint_sha256};
 use certificate::{given_certificate, self_signed, self_signed_names};
-pub use serve::serve;
+pub use serve::{ConnectionCaps, serve};
 
 /// The file in the data directory that keeps the self-signed certificate (PEM).
 pub const SELF_SIGNED_CERT_FILE: &str = "self-signed-cert.pem";
@@ -58,6 +60,10 @@ pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// How long a connection that finished its handshake may take to send its first request.
 /// Browsers open connections ahead of use, so this is longer than the handshake's.
 pub const FIRST_REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long a request's headers may take to arrive, counted from when the connection is ready for
+/// them: a client that sends them a byte at a time, or holds a keep-alive connection idle, is
+/// closed after this. Browsers reopen idle connections as they need them.
+pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(30);
 /// A kept self-signed certificate with less than this left is replaced at start, so that it does
 /// not expire in the middle of a course, between two starts.
 pub const SELF_SIGNED_RENEW_BEFORE: Duration = Duration::from_secs(30 * 24 * 3600);

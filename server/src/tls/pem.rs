@@ -56,10 +56,13 @@ pub(super) fn read_private_key(path: &Path) -> Result<PrivateKeyDer<'static>, Tl
 
 /// The bytes of a file that must be PEM.
 fn read_pem_file(path: &Path) -> Result<Vec<u8>, TlsError> {
-    let text = std::fs::read(path).map_err(|source| TlsError::Read {
-        path: path.to_owned(),
-        source,
-    })?;
+    // Through the project's reader: a FIFO would block the start and /dev/zero grow it without
+    // end.
+    let text =
+        crate::files::read(path, crate::files::FileKind::Pem).map_err(|e| TlsError::Read {
+            path: path.to_owned(),
+            source: e.into(),
+        })?;
     if !text.windows(10).any(|w| w == b"-----BEGIN") {
         return Err(TlsError::NotPem {
             path: path.to_owned(),
@@ -142,5 +145,28 @@ mod tests {
             -----BEGIN CERTIFICATE-----\nAAAA\n-----END CERTIFICATE-----\n";
         assert_eq!(pem_labels(text), "PRIVATE KEY, CERTIFICATE");
         assert_eq!(pem_labels(b"hello"), "none");
+    }
+
+    #[test]
+    fn a_certificate_or_key_path_that_is_not_a_regular_file_is_refused_at_once() {
+        // /dev/zero would grow the process without end, a FIFO block the start.
+        let zero = read_certificates(Path::new("/dev/zero"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            zero.contains("/dev/zero") && zero.contains("character device"),
+            "{zero}"
+        );
+        let dir = std::env::temp_dir().join(format!("softhaptic-pem-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("key.fifo");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let e = read_private_key(&fifo).unwrap_err().to_string();
+        assert!(e.contains("is a FIFO, not a regular file"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -1,24 +1,28 @@
 //! Serving a router on the viewer's port, plainly or over TLS; on the TLS port, a client's first
 //! byte decides: a TLS handshake goes on to rustls, anything else gets a plain-text `400` saying
-//! to use https, and either has a bounded time to speak.
+//! to use https. Either way a connection has a bounded time to speak, and the connections held
+//! open are capped per client address and in all.
 
+use std::collections::HashMap;
 use std::future::Future;
 use std::io;
-use std::net::SocketAddr;
+use std::net::{IpAddr, SocketAddr};
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use axum::Router;
-use axum_server::accept::Accept;
+use axum_server::accept::{Accept, DefaultAcceptor};
 use axum_server::tls_rustls::{RustlsAcceptor, RustlsConfig};
 use rustls::ServerConfig;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
-use super::{FIRST_REQUEST_TIMEOUT, HANDSHAKE_TIMEOUT};
+use super::{FIRST_REQUEST_TIMEOUT, HANDSHAKE_TIMEOUT, HEADER_READ_TIMEOUT};
+use crate::access::ConnectionLimits;
 
 /// The first byte of every TLS connection: the record type of a handshake (RFC 8446 §5.1).
 const TLS_HANDSHAKE_RECORD: u8 = 0x16;
@@ -28,43 +32,82 @@ const TLS_HANDSHAKE_RECORD: u8 = 0x16;
 const PLAIN_TEXT_REFUSAL: &str =
     "This softhaptic server speaks TLS only: open it with https:// (and its stream with wss://).\n";
 
+/// Caps on the TCP connections a server holds open at once, counted from accept to close (a
+/// WebSocket's connection included), so that clients that connect and never speak cannot take
+/// every socket the process may open: per client address, and in all. Loopback is not capped
+/// per address: a reverse proxy's connections all come from it.
+/// With them, how long a connection may take to send its first request and each request's
+/// headers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConnectionCaps {
+    pub per_address: usize,
+    pub total: usize,
+    pub first_request_timeout: Duration,
+    pub header_read_timeout: Duration,
+}
+
+impl ConnectionCaps {
+    /// Room for the viewers `limits` admits, each with the few connections a browser opens for
+    /// the page beside its WebSocket; [`FIRST_REQUEST_TIMEOUT`] and [`HEADER_READ_TIMEOUT`].
+    pub fn for_limits(limits: &ConnectionLimits) -> ConnectionCaps {
+        ConnectionCaps {
+            per_address: 2 * limits.max_per_address as usize + 16,
+            total: 2 * (limits.max_viewers as usize + limits.max_pending as usize) + 64,
+            first_request_timeout: FIRST_REQUEST_TIMEOUT,
+            header_read_timeout: HEADER_READ_TIMEOUT,
+        }
+    }
+}
+
 /// Serves `app` on `listener` until `shutdown` turns true (or its sender is dropped), then stops
-/// accepting and lets open requests finish. Without `tls` it is plain http and ws, as
-/// `axum::serve` serves; with it, https and wss on the same port (HTTP/1.1 and HTTP/2, WebSocket upgrades
-/// over HTTP/1.1), a plain-text client refused as [`crate::tls`] says.
+/// accepting and lets open requests finish. Without `tls` it is plain http and ws; with it,
+/// https and wss on the same port (HTTP/1.1 and HTTP/2, WebSocket upgrades over HTTP/1.1), a
+/// plain-text client refused as [`crate::tls`] says. Either way a connection has `caps`' time
+/// to send its first request and each request's headers (an idle keep-alive connection is
+/// closed after as long), and no more connections than `caps` are held open.
 ///
 /// Requests carry [`axum::extract::ConnectInfo<SocketAddr>`] either way.
 pub fn serve(
     listener: TcpListener,
     app: Router,
     tls: Option<Arc<ServerConfig>>,
+    caps: ConnectionCaps,
     mut shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
     let service = app.into_make_service_with_connect_info::<SocketAddr>();
-    let Some(config) = tls else {
-        return tokio::spawn(async move {
-            let served = axum::serve(listener, service)
-                .with_graceful_shutdown(async move {
-                    let _ = shutdown.wait_for(|stop| *stop).await;
-                })
-                .await;
-            if let Err(e) = served {
-                tracing::error!(error = %e, "HTTP server failed");
-            }
-        });
-    };
     let handle = axum_server::Handle::new();
-    let acceptor = RustlsAcceptor::new(RustlsConfig::from_config(config))
-        .handshake_timeout(HANDSHAKE_TIMEOUT)
-        .acceptor(RefusePlainText);
-    let server = axum_server::Server::from_listener(listener)
-        .acceptor(acceptor)
-        .handle(handle.clone())
-        .first_request_timeout(FIRST_REQUEST_TIMEOUT)
-        .accept_error_handler(log_refused_connection);
+    let guard = ConnectionGuard::new(caps);
+    let served: Pin<Box<dyn Future<Output = io::Result<()>> + Send>> = match tls {
+        None => {
+            let mut server = axum_server::Server::from_listener(listener)
+                .acceptor(guard.wrap(DefaultAcceptor::new()))
+                .handle(handle.clone())
+                .first_request_timeout(caps.first_request_timeout)
+                .accept_error_handler(log_refused_connection);
+            server
+                .http_builder()
+                .http1()
+                .header_read_timeout(caps.header_read_timeout);
+            Box::pin(server.serve(service))
+        }
+        Some(config) => {
+            let acceptor = RustlsAcceptor::new(RustlsConfig::from_config(config))
+                .handshake_timeout(HANDSHAKE_TIMEOUT)
+                .acceptor(guard.wrap(RefusePlainText));
+            let mut server = axum_server::Server::from_listener(listener)
+                .acceptor(acceptor)
+                .handle(handle.clone())
+                .first_request_timeout(caps.first_request_timeout)
+                .accept_error_handler(log_refused_connection);
+            server
+                .http_builder()
+                .http1()
+                .header_read_timeout(caps.header_read_timeout);
+            Box::pin(server.serve(service))
+        }
+    };
     tokio::spawn(async move {
-        let served = server.serve(service);
-        tokio::pin!(served);
+        let mut served = served;
         let stop = async move {
             let _ = shutdown.wait_for(|stop| *stop).await;
         };
@@ -79,9 +122,180 @@ pub fn serve(
             }
         };
         if let Err(e) = served {
-            tracing::error!(error = %e, "HTTPS server failed");
+            tracing::error!(error = %e, "HTTP server failed");
         }
     })
+}
+
+/// Counts the open connections per client address and in all, refusing one over
+/// [`ConnectionCaps`] at accept (it is closed at once).
+#[derive(Debug, Clone)]
+struct ConnectionGuard {
+    caps: ConnectionCaps,
+    open: Arc<Mutex<OpenConnections>>,
+}
+
+#[derive(Debug, Default)]
+struct OpenConnections {
+    total: usize,
+    per_address: HashMap<IpAddr, usize>,
+}
+
+/// The error a connection over the caps ends with, told apart in the log.
+#[derive(Debug, thiserror::Error)]
+#[error("too many open connections ({what}): refused at accept")]
+struct TooManyConnections {
+    what: &'static str,
+}
+
+impl ConnectionGuard {
+    fn new(caps: ConnectionCaps) -> Self {
+        ConnectionGuard {
+            caps,
+            open: Arc::new(Mutex::new(OpenConnections::default())),
+        }
+    }
+
+    fn wrap<A>(&self, inner: A) -> Guarded<A> {
+        Guarded {
+            guard: self.clone(),
+            inner,
+        }
+    }
+
+    /// A slot for a connection from `ip`, or why there is none.
+    fn admit(&self, ip: IpAddr) -> Result<Slot, TooManyConnections> {
+        let mut open = self.open.lock().unwrap_or_else(PoisonError::into_inner);
+        if open.total >= self.caps.total {
+            return Err(TooManyConnections { what: "in all" });
+        }
+        let ip = ip.to_canonical();
+        let capped = !ip.is_loopback();
+        let from_ip = open.per_address.get(&ip).copied().unwrap_or(0);
+        if capped && from_ip >= self.caps.per_address {
+            return Err(TooManyConnections {
+                what: "from this address",
+            });
+        }
+        open.total += 1;
+        open.per_address.insert(ip, from_ip + 1);
+        Ok(Slot {
+            guard: self.clone(),
+            ip,
+        })
+    }
+}
+
+/// One admitted connection's place in the count, given back when the connection closes.
+#[derive(Debug)]
+struct Slot {
+    guard: ConnectionGuard,
+    ip: IpAddr,
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        let mut open = self
+            .guard
+            .open
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        open.total = open.total.saturating_sub(1);
+        if let Some(n) = open.per_address.get_mut(&self.ip) {
+            *n = n.saturating_sub(1);
+            if *n == 0 {
+                open.per_address.remove(&self.ip);
+            }
+        }
+    }
+}
+
+/// An acceptor in front of `inner` that admits a connection only within the caps and keeps its
+/// slot for as long as the connection lives.
+#[derive(Debug, Clone)]
+struct Guarded<A> {
+    guard: ConnectionGuard,
+    inner: A,
+}
+
+impl<A, S> Accept<TcpStream, S> for Guarded<A>
+where
+    A: Accept<TcpStream, S> + Clone + Send + Sync + 'static,
+    A::Future: Send,
+    A::Stream: Send,
+    A::Service: Send,
+    S: Send + 'static,
+{
+    type Stream = SlotStream<A::Stream>;
+    type Service = A::Service;
+    type Future = Pin<Box<dyn Future<Output = io::Result<(Self::Stream, A::Service)>> + Send>>;
+
+    fn accept(&self, stream: TcpStream, service: S) -> Self::Future {
+        let admitted = stream
+            .peer_addr()
+            .map_err(|e| io::Error::new(e.kind(), e))
+            .and_then(|peer| self.guard.admit(peer.ip()).map_err(io::Error::other));
+        let inner = self.inner.clone();
+        Box::pin(async move {
+            // Over the caps, the stream is dropped here: closed before anything is read.
+            let slot = admitted?;
+            let (stream, service) = inner.accept(stream, service).await?;
+            Ok((
+                SlotStream {
+                    stream,
+                    _slot: slot,
+                },
+                service,
+            ))
+        })
+    }
+}
+
+/// A connection's stream with its slot in the count.
+#[derive(Debug)]
+struct SlotStream<T> {
+    stream: T,
+    _slot: Slot,
+}
+
+impl<T: AsyncRead + Unpin> AsyncRead for SlotStream<T> {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_read(cx, buf)
+    }
+}
+
+impl<T: AsyncWrite + Unpin> AsyncWrite for SlotStream<T> {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.stream).poll_write(cx, buf)
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        Pin::new(&mut self.stream).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.stream.is_write_vectored()
+    }
 }
 
 /// The inner acceptor of the TLS acceptor: lets a connection through to the TLS handshake only
@@ -149,8 +363,8 @@ async fn refuse_plain_text(mut stream: TcpStream) {
     .await;
 }
 
-/// One log line per connection that did not become a TLS connection; never an error, because a
-/// client (or a port scanner) causes it, not the server.
+/// One log line per connection refused at accept or that did not become a TLS connection; never
+/// an error, because a client (or a port scanner) causes it, not the server.
 fn log_refused_connection(client: Option<&SocketAddr>, error: &io::Error) {
     let Some(client) = client else {
         // The listener itself failed (out of file descriptors, say); axum-server backs off and
@@ -159,7 +373,10 @@ fn log_refused_connection(client: Option<&SocketAddr>, error: &io::Error) {
         return;
     };
     let inner = error.get_ref();
-    if inner.is_some_and(|e| e.is::<PlainTextRefused>()) {
+    if let Some(e) = inner.and_then(|e| e.downcast_ref::<TooManyConnections>()) {
+        // Debug only: a flood of them is what the cap is for, and must not flood the log too.
+        tracing::debug!(%client, error = %e, "connection refused");
+    } else if inner.is_some_and(|e| e.is::<PlainTextRefused>()) {
         tracing::info!(
             %client,
             "refused a plain-text request on the TLS port: told the client to use https:// and wss://"
@@ -176,5 +393,154 @@ fn log_refused_connection(client: Option<&SocketAddr>, error: &io::Error) {
         );
     } else {
         tracing::debug!(%client, error = %error, "TLS handshake failed");
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use std::time::Instant;
+
+    /// Serves a one-route app plainly on a loopback port with `caps`.
+    async fn serve_ok(caps: ConnectionCaps) -> (SocketAddr, watch::Sender<bool>, JoinHandle<()>) {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let app = Router::new().route("/", axum::routing::get(|| async { "ok" }));
+        let (stop, stopped) = watch::channel(false);
+        let task = serve(listener, app, None, caps, stopped);
+        (addr, stop, task)
+    }
+
+    /// Reads until the server closes the connection (true) or `deadline` passes (false).
+    async fn closed_by_server(stream: &mut TcpStream, deadline: Duration) -> bool {
+        let until = Instant::now() + deadline;
+        let mut buffer = [0_u8; 1024];
+        loop {
+            let left = until.saturating_duration_since(Instant::now());
+            match tokio::time::timeout(left, stream.read(&mut buffer)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => return true,
+                Ok(Ok(_)) => {}
+                Err(_) => return false,
+            }
+        }
+    }
+
+    fn small(total: usize) -> ConnectionCaps {
+        ConnectionCaps {
+            per_address: 1,
+            total,
+            first_request_timeout: Duration::from_millis(300),
+            header_read_timeout: Duration::from_millis(300),
+        }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn silent_slow_and_idle_connections_are_closed_by_the_server() {
+        let (addr, stop, task) = serve_ok(small(64)).await;
+        // Silent from the start.
+        let mut silent = TcpStream::connect(addr).await.unwrap();
+        // Half a request's headers, then nothing.
+        let mut slow = TcpStream::connect(addr).await.unwrap();
+        slow.write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+            .await
+            .unwrap();
+        // A whole request, answered, then the keep-alive connection left idle.
+        let mut idle = TcpStream::connect(addr).await.unwrap();
+        idle.write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            .await
+            .unwrap();
+        let mut answer = [0_u8; 256];
+        let n = idle.read(&mut answer).await.unwrap();
+        assert!(
+            answer[..n].starts_with(b"HTTP/1.1 200"),
+            "{:?}",
+            &answer[..n]
+        );
+        // A generous deadline against the 0.3 s the server allows: this is not a timing test.
+        for (what, stream) in [
+            ("silent", &mut silent),
+            ("slow", &mut slow),
+            ("idle", &mut idle),
+        ] {
+            assert!(
+                closed_by_server(stream, Duration::from_secs(20)).await,
+                "the {what} connection is still open"
+            );
+        }
+        stop.send(true).unwrap();
+        task.await.unwrap();
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn connections_over_the_cap_are_closed_at_once_and_admitted_again_when_others_close() {
+        let caps = ConnectionCaps {
+            first_request_timeout: Duration::from_secs(600),
+            header_read_timeout: Duration::from_secs(600),
+            ..small(4)
+        };
+        let (addr, stop, task) = serve_ok(caps).await;
+        let mut held = Vec::new();
+        for _ in 0..4 {
+            held.push(TcpStream::connect(addr).await.unwrap());
+        }
+        // The fifth is closed without an answer (the server may still be accepting the first
+        // four: retried until it is refused, within a generous deadline).
+        let until = Instant::now() + Duration::from_secs(20);
+        loop {
+            let mut extra = TcpStream::connect(addr).await.unwrap();
+            let _ = extra
+                .write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+                .await;
+            let mut answer = [0_u8; 64];
+            match tokio::time::timeout(Duration::from_secs(2), extra.read(&mut answer)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => break,
+                _ => assert!(Instant::now() < until, "the fifth connection was served"),
+            }
+        }
+        // Loopback is not capped per address (the cap of one would have refused the second).
+        held.clear();
+        let until = Instant::now() + Duration::from_secs(20);
+        loop {
+            let mut again = TcpStream::connect(addr).await.unwrap();
+            again
+                .write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
+                .await
+                .unwrap();
+            let mut answer = Vec::new();
+            let _ =
+                tokio::time::timeout(Duration::from_secs(2), again.read_to_end(&mut answer)).await;
+            if answer.starts_with(b"HTTP/1.1 200") {
+                break;
+            }
+            assert!(
+                Instant::now() < until,
+                "no connection admitted after the others closed"
+            );
+        }
+        stop.send(true).unwrap();
+        task.await.unwrap();
+    }
+
+    #[test]
+    fn the_per_address_cap_counts_each_client_and_spares_loopback() {
+        let guard = ConnectionGuard::new(ConnectionCaps {
+            per_address: 2,
+            total: 5,
+            ..small(5)
+        });
+        let lab: IpAddr = "192.0.2.7".parse().unwrap();
+        let other: IpAddr = "192.0.2.8".parse().unwrap();
+        let a = guard.admit(lab).unwrap();
+        let _b = guard.admit(lab).unwrap();
+        assert!(guard.admit(lab).is_err(), "a third from one address");
+        // The IPv4-mapped spelling of the same address is the same client.
+        assert!(guard.admit("::ffff:192.0.2.7".parse().unwrap()).is_err());
+        let _c = guard.admit(other).unwrap();
+        let _d = guard.admit(IpAddr::from([127, 0, 0, 1])).unwrap();
+        let _e = guard.admit(IpAddr::from([127, 0, 0, 1])).unwrap();
+        assert!(guard.admit(other).is_err(), "over the total");
+        drop(a);
+        guard.admit(lab).unwrap();
     }
 }
