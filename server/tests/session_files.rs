@@ -487,6 +487,25 @@ fn a_damaged_chunk_loses_its_own_second_and_every_later_chunk_is_read() {
             && text.contains(&format!("recovered {} ticks", r.device.len())),
         "{text}"
     );
+    // With a later chunk damaged instead, checking stops at the gap and blames the damage, not
+    // the recorder.
+    let (_, body2, end2) = found[2];
+    let mut later = bytes.clone();
+    later[(body2 + end2) / 2] ^= 0x10;
+    let report = softhaptic_server::session::check::check(
+        &Recording::from_bytes(&path, &later).unwrap(),
+        softhaptic_server::session::check::CheckOverrides::default(),
+    )
+    .unwrap();
+    assert!(
+        matches!(report.stopped_at_gap, Some((_, _, true))),
+        "{report}"
+    );
+    let said = report.to_string();
+    assert!(
+        said.contains("damaged part of the file") && !said.contains("dropped by the recorder"),
+        "{said}"
+    );
     // A flipped length: the walk cannot step over the chunk, and finds the next one by itself.
     let mut bad_length = bytes.clone();
     bad_length[start + 6] ^= 0x01;

@@ -83,7 +83,11 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     // `info` and `export` give the same.
     assert_eq!(Info::of(&r).metrics, recorded);
     let out = dir.join("export");
-    let (_, _, json) = export(&r, &out).unwrap();
+    let (_, _, json) = export(&r, &out, false).unwrap();
+    // A second export into the same directory keeps the first, unless told to replace it.
+    let e = export(&r, &out, false).unwrap_err().to_string();
+    assert!(e.contains("device.csv") && e.contains("--replace"), "{e}");
+    export(&r, &out, true).unwrap();
     let exported: softhaptic_proto::wire::MetricsMessage =
         serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
     assert_eq!(exported, metrics_message(&recorded, true));

@@ -70,9 +70,11 @@ pub struct CheckReport {
     pub first_difference: Option<ForceDifference>,
     /// Ticks whose force differs, in all.
     pub differing_ticks: u64,
-    /// Where the recording has a gap (ticks the recorder dropped): the check stops there,
-    /// because the world's state past a missing reading cannot be reproduced.
-    pub stopped_at_gap: Option<(u64, u64)>,
+    /// Where the recording has a gap (ticks the recorder dropped, or a damaged part of the file
+    /// the reader skipped): the last tick before it, the first after, and whether the gap lies
+    /// in a damaged part. The check stops there, because the world's state past a missing
+    /// reading cannot be reproduced.
+    pub stopped_at_gap: Option<(u64, u64, bool)>,
     /// Every replayed force, in tick order (for determinism tests).
     pub replayed_n: Vec<[f64; 3]>,
     /// The trainee's metrics of the replayed ticks, computed by the replaying world as the live
@@ -143,10 +145,15 @@ impl fmt::Display for CheckReport {
                 json(&d.replayed)
             )?;
         }
-        if let Some((after, next)) = self.stopped_at_gap {
+        if let Some((after, next, damaged)) = self.stopped_at_gap {
+            let cause = if damaged {
+                "the ticks between were in a damaged part of the file"
+            } else {
+                "ticks dropped by the recorder"
+            };
             write!(
                 f,
-                "\n{path}: stopped after tick {after}: the next recorded tick is {next} (ticks dropped by the recorder), so the rest cannot be checked"
+                "\n{path}: stopped after tick {after}: the next recorded tick is {next} ({cause}), so the rest cannot be checked"
             )?;
         }
         Ok(())
@@ -212,8 +219,16 @@ pub fn check(recording: &Recording, overrides: CheckOverrides) -> Result<CheckRe
         .position(|w| w[1].tick != w[0].tick + 1)
         .map(|i| i + 1)
         .unwrap_or(records.len());
-    let stopped_at_gap = (contiguous < records.len())
-        .then(|| (records[contiguous - 1].tick, records[contiguous].tick));
+    let stopped_at_gap = (contiguous < records.len()).then(|| {
+        let (before, after) = (&records[contiguous - 1], &records[contiguous]);
+        // A span the reader skipped as damaged that lies between the two ticks (or, without its
+        // times, anywhere: the reader could not tell when it was).
+        let damaged = recording.lost.iter().any(|span| match span.time_ns {
+            Some((from, to)) => from <= after.time_ns && to >= before.time_ns,
+            None => true,
+        });
+        (before.tick, after.tick, damaged)
+    });
     let records = &records[..contiguous];
 
     let mut world = haptic_world(&scene);

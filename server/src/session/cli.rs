@@ -52,6 +52,10 @@ pub enum SessionCommand {
         /// Output directory (created).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
+        /// Write over device.csv, contact.csv and metrics.json already in the directory
+        /// (without it they are kept and the export refused).
+        #[arg(long)]
+        replace: bool,
     },
     /// Replay the recorded device readings through this build's haptic world and check that
     /// every force is identical bit for bit; exits non-zero naming the first differing tick.
@@ -138,12 +142,12 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             let recording = Recording::open(&file)?;
             print_report(format_args!("{}\n", Info::of(&recording)))
         }
-        SessionCommand::Export { file, out } => {
+        SessionCommand::Export { file, out, replace } => {
             let recording = Recording::open(&file)?;
             if !recording.is_complete() {
                 eprintln!("{}", recording.recovery());
             }
-            let (device, contact, metrics) = export(&recording, &out)?;
+            let (device, contact, metrics) = export(&recording, &out, replace)?;
             println!("wrote {}", device.display());
             println!("wrote {}", contact.display());
             println!("wrote {}", metrics.display());

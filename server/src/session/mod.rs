@@ -46,6 +46,8 @@ pub enum SessionError {
     /// A recording is never written over by accident.
     #[error("{path} exists already and is kept (record-script --replace writes over a recording)")]
     Exists { path: PathBuf },
+    #[error("{path} exists already and is kept (export --replace writes over it)")]
+    ExportExists { path: PathBuf },
     #[error("{path}: MCAP error: {source}")]
     Mcap {
         path: PathBuf,

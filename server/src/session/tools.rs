@@ -373,7 +373,11 @@ impl fmt::Display for Info {
 
 /// Writes `device.csv`, `contact.csv` and `metrics.json` (the trainee's metrics as the `metrics`
 /// message carries them) into `out_dir` (created); returns their paths.
-pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf, PathBuf), SessionError> {
+pub fn export(
+    r: &Recording,
+    out_dir: &Path,
+    replace: bool,
+) -> Result<(PathBuf, PathBuf, PathBuf), SessionError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |reason| SessionError::Io { path, reason }
@@ -381,6 +385,16 @@ pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf, PathBu
     std::fs::create_dir_all(out_dir).map_err(io(out_dir))?;
     let device_path = out_dir.join("device.csv");
     let contact_path = out_dir.join("contact.csv");
+    let metrics_path = out_dir.join("metrics.json");
+    // Checked before anything is written: an earlier export (another session's, say) is kept
+    // whole unless it is to be replaced.
+    if !replace {
+        for path in [&device_path, &contact_path, &metrics_path] {
+            if std::fs::symlink_metadata(path).is_ok() {
+                return Err(SessionError::ExportExists { path: path.clone() });
+            }
+        }
+    }
 
     let mut out = String::with_capacity(r.device.len() * 200);
     out.push_str(
@@ -461,7 +475,6 @@ pub fn export(r: &Recording, out_dir: &Path) -> Result<(PathBuf, PathBuf, PathBu
         let _ = writeln!(out, ",{}", f.dropped);
     }
     write_file(&contact_path, out.as_bytes())?;
-    let metrics_path = out_dir.join("metrics.json");
     let metrics = crate::stream::metrics_message(&recording_metrics(r), true);
     let json = serde_json::to_string_pretty(&metrics).map_err(|e| SessionError::Io {
         path: metrics_path.clone(),
