@@ -603,8 +603,6 @@ mod tests {
         assert!(serde_json::from_value::<DeviceRecord>(short).is_err());
     }
 
-    /// Each schema parses, and every field a serialised record has is a property its schema
-    /// declares, and every required property is present: the schemas cannot drift from the types.
     #[test]
     fn the_device_schema_names_every_contact_flag_with_its_bit() {
         // The schema is written by hand for MCAP viewers; the flags it lists must follow the
@@ -628,6 +626,95 @@ mod tests {
         );
     }
 
+    /// Whether `value` is of a JSON-schema `type`; an integer is a number too.
+    fn is_of_type(value: &Value, ty: &str) -> bool {
+        match ty {
+            "null" => value.is_null(),
+            "boolean" => value.is_boolean(),
+            "integer" => value.is_i64() || value.is_u64(),
+            "number" => value.is_number(),
+            "string" => value.is_string(),
+            "array" => value.is_array(),
+            "object" => value.is_object(),
+            _ => false,
+        }
+    }
+
+    /// Checks `value` against `schema` at every depth: its type, `enum`, `const`, item counts,
+    /// every key of an object declared among its `properties` (when the schema lists them) and
+    /// every required one present, each property and item against its own schema. `at` names
+    /// the place in failures.
+    fn assert_conforms(schema: &Value, value: &Value, at: &str) {
+        if let Some(ty) = schema.get("type") {
+            let types: Vec<&str> = match ty {
+                Value::String(t) => vec![t.as_str()],
+                Value::Array(ts) => ts.iter().filter_map(Value::as_str).collect(),
+                _ => panic!("{at}: type {ty}"),
+            };
+            assert!(
+                types.iter().any(|t| is_of_type(value, t)),
+                "{at}: {value} is not of type {ty}"
+            );
+        }
+        if let Some(values) = schema.get("enum").and_then(Value::as_array) {
+            assert!(values.contains(value), "{at}: {value} not in {values:?}");
+        }
+        if let Some(c) = schema.get("const") {
+            assert_eq!(c, value, "{at}");
+        }
+        match value {
+            Value::Object(object) => {
+                if let Some(props) = schema.get("properties").and_then(Value::as_object) {
+                    for (key, v) in object {
+                        let sub = props
+                            .get(key)
+                            .unwrap_or_else(|| panic!("{at}.{key} is not in the schema"));
+                        assert_conforms(sub, v, &format!("{at}.{key}"));
+                    }
+                }
+                for req in schema
+                    .get("required")
+                    .and_then(Value::as_array)
+                    .into_iter()
+                    .flatten()
+                {
+                    let req = req.as_str().unwrap();
+                    assert!(object.contains_key(req), "{at}.{req} is not serialised");
+                }
+            }
+            Value::Array(items) => {
+                let count = items.len() as u64;
+                if let Some(min) = schema.get("minItems").and_then(Value::as_u64) {
+                    assert!(count >= min, "{at}: {count} items, fewer than {min}");
+                }
+                if let Some(max) = schema.get("maxItems").and_then(Value::as_u64) {
+                    assert!(count <= max, "{at}: {count} items, more than {max}");
+                }
+                if let Some(item) = schema.get("items") {
+                    for (i, v) in items.iter().enumerate() {
+                        assert_conforms(item, v, &format!("{at}[{i}]"));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+
+    #[test]
+    fn the_schema_check_finds_a_nested_field_the_schema_does_not_declare() {
+        let schema: Value = serde_json::from_str(schema::DEVICE).unwrap();
+        let mut value = serde_json::to_value(sample_device_record()).unwrap();
+        value["sample"]["tip_acceleration"] = serde_json::json!([0.0, 0.0, 0.0]);
+        let caught = std::panic::catch_unwind(|| assert_conforms(&schema, &value, "device"));
+        assert!(caught.is_err(), "an undeclared nested field passed");
+        let mut kind = serde_json::to_value(sample_device_record()).unwrap();
+        kind["device_error"] = serde_json::json!({"kind": "unplugged"});
+        assert!(std::panic::catch_unwind(|| assert_conforms(&schema, &kind, "device")).is_err());
+    }
+
+    /// Each schema parses, and every serialised record conforms to it at every depth (every field
+    /// declared, every required one present, types, enums and item counts): the hand-written
+    /// schemas cannot drift from the types.
     #[test]
     fn schemas_match_the_serialised_records() {
         let scene_message = crate::wire::message_vectors()
@@ -643,14 +730,34 @@ mod tests {
                 _ => None,
             })
             .unwrap();
-        let scene = serde_json::to_value(SceneRecord {
-            message: scene_message,
-            scene_toml: "[object]\nname = \"liver\"\n".into(),
-            scene_file: None,
-            period_ns: 1_000_000,
-            meshes: None,
+        let mesh = MeshRecord {
+            positions_m: vec![[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.0, 0.01]],
+            triangles: vec![[0, 1, 2]],
+            sha256: "00".repeat(32),
+        };
+        let scenes: Vec<Value> = [
+            None,
+            Some(RecordedMeshes {
+                haptic: mesh.clone(),
+                render: None,
+            }),
+            Some(RecordedMeshes {
+                haptic: mesh.clone(),
+                render: Some(mesh),
+            }),
+        ]
+        .into_iter()
+        .map(|meshes| {
+            serde_json::to_value(SceneRecord {
+                message: scene_message.clone(),
+                scene_toml: "[object]\nname = \"liver\"\n".into(),
+                scene_file: Some("/lab/scenes/liver.toml".into()),
+                period_ns: 1_000_000,
+                meshes,
+            })
+            .unwrap()
         })
-        .unwrap();
+        .collect();
         let build = BuildRecord {
             session_format_version: SESSION_FORMAT_VERSION,
             protocol_version: 1,
@@ -660,33 +767,28 @@ mod tests {
             started_unix_ns: 1,
         };
         let mut faulty = sample_device_record();
+        faulty.sample = None;
+        faulty.device_fault = true;
         faulty.device_error = Some(DeviceErrorRecord::Driver { code: -3 });
-        let cases: Vec<(&str, Value)> = vec![
+        faulty.command_error = Some(DeviceErrorRecord::Disconnected);
+        faulty.lost_before = 2;
+        let mut cases: Vec<(&str, Value)> = vec![
+            (
+                schema::DEVICE,
+                serde_json::to_value(sample_device_record()).unwrap(),
+            ),
             (schema::DEVICE, serde_json::to_value(faulty).unwrap()),
-            (schema::SCENE, scene),
             (schema::BUILD, serde_json::to_value(build).unwrap()),
             (
                 schema::STATS,
                 serde_json::to_value(RecordingStats::default()).unwrap(),
             ),
         ];
+        cases.extend(scenes.into_iter().map(|scene| (schema::SCENE, scene)));
         for (schema, value) in cases {
             let schema: Value = serde_json::from_str(schema).unwrap();
-            let props = schema["properties"].as_object().unwrap();
-            let obj = value.as_object().unwrap();
-            for key in obj.keys() {
-                assert!(
-                    props.contains_key(key),
-                    "{key} missing from {}",
-                    schema["title"]
-                );
-            }
-            for req in schema["required"].as_array().unwrap() {
-                assert!(
-                    obj.contains_key(req.as_str().unwrap()),
-                    "{req} not serialised"
-                );
-            }
+            let title = schema["title"].as_str().unwrap().to_owned();
+            assert_conforms(&schema, &value, &title);
         }
         // The wire messages recorded verbatim, against their schemas.
         for v in crate::wire::message_vectors().unwrap() {
@@ -701,21 +803,8 @@ mod tests {
                 _ => continue,
             };
             let schema: Value = serde_json::from_str(schema).unwrap();
-            let props = schema["properties"].as_object().unwrap();
-            let obj = json.as_object().unwrap();
-            for key in obj.keys() {
-                assert!(
-                    props.contains_key(key),
-                    "{key} missing from {}",
-                    schema["title"]
-                );
-            }
-            for req in schema["required"].as_array().unwrap() {
-                assert!(
-                    obj.contains_key(req.as_str().unwrap()),
-                    "{req} not in {json}"
-                );
-            }
+            let title = schema["title"].as_str().unwrap().to_owned();
+            assert_conforms(&schema, &json, &title);
             assert_eq!(schema["properties"]["type"]["const"], json["type"]);
         }
         // No schema uses references or alternatives.
