@@ -90,11 +90,8 @@ impl AccessConfig {
     /// Refuses to serve `addr` beyond loopback without tokens, unless `--insecure-no-tokens`
     /// (then warns, loudly).
     pub fn check_bind(&self, addr: SocketAddr) -> Result<(), AccessError> {
-        if self.tokens.is_some() || addr.ip().is_loopback() {
+        if !self.bind_needs_insecure(addr)? {
             return Ok(());
-        }
-        if !self.insecure_no_tokens {
-            return Err(AccessError::NoTokensBeyondLoopback { addr });
         }
         tracing::warn!(
             %addr,
@@ -102,6 +99,19 @@ impl AccessConfig {
              who can reach {addr} can watch the session and control replays"
         );
         Ok(())
+    }
+
+    /// [`AccessConfig::check_bind`] without its warning: whether serving `addr` is allowed only
+    /// by `--insecure-no-tokens`. The command line checks this when it resolves the options, and
+    /// the server warns when it starts: once.
+    fn bind_needs_insecure(&self, addr: SocketAddr) -> Result<bool, AccessError> {
+        if self.tokens.is_some() || addr.ip().is_loopback() {
+            return Ok(false);
+        }
+        if !self.insecure_no_tokens {
+            return Err(AccessError::NoTokensBeyondLoopback { addr });
+        }
+        Ok(true)
     }
 
     /// Refuses, without tokens, the `--allow-origin` and `--host-name` values that name other
@@ -288,7 +298,9 @@ impl AccessArgs {
                 ..ConnectionLimits::default()
             },
         };
-        config.check_bind(addr)?;
+        // Refused here, before anything starts; the warning of an insecure start is the
+        // server's, when it starts.
+        config.bind_needs_insecure(addr)?;
         config.check_remote_names()?;
         match &config.tokens {
             Some(tokens) => tracing::info!(source = %tokens.source(), "viewers need a token"),
