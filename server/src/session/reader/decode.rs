@@ -243,6 +243,16 @@ impl Recording {
             file_len,
             reason: reason.to_owned(),
         };
+        if (build.is_none() || scene.is_none())
+            && let Some(first) = scanned.lost.first()
+        {
+            return Err(damaged_before_start(
+                path,
+                first,
+                scanned.definitions_from_summary,
+                &device,
+            ));
+        }
         let Some(build) = build else {
             return Err(match &ending {
                 Ending::Truncated { reason } => cut_short(reason),
@@ -276,6 +286,46 @@ impl Recording {
             marks,
             metrics,
         })
+    }
+}
+
+/// The refusal of a recording whose build and scene records were in a damaged part of the file
+/// (`first`, the first part skipped): the writer keeps them only in the first chunk, and a
+/// recording cannot be replayed, checked or even described without them, however much of the
+/// rest is intact (`device`: the ticks read from it).
+fn damaged_before_start(
+    path: &Path,
+    first: &super::LostSpan,
+    definitions_from_summary: bool,
+    device: &[DeviceRecord],
+) -> SessionError {
+    let intact = match (
+        device.iter().map(|d| d.time_ns).min(),
+        device.iter().map(|d| d.time_ns).max(),
+    ) {
+        (Some(a), Some(b)) => format!(
+            "; the {} ticks after it ({:.3} s to {:.3} s{}) are intact, but cannot be used without \
+             the build and scene records, which the writer keeps only in the first chunk",
+            device.len(),
+            a as f64 * 1e-9,
+            b as f64 * 1e-9,
+            if definitions_from_summary {
+                ", read with the channels of the file's summary"
+            } else {
+                ""
+            }
+        ),
+        _ => String::new(),
+    };
+    SessionError::Io {
+        path: path.to_path_buf(),
+        reason: std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "the part of the file holding its build and scene records is damaged: lost {first}\
+                 {intact}: nothing to recover"
+            ),
+        ),
     }
 }
 

@@ -2,14 +2,17 @@
 //!
 //! [`Recording::open`] first walks the file's records itself: every chunk is checked (its sizes,
 //! its decompression, its checksum, the lengths of the records inside) before the MCAP library
-//! parses it, and a damaged chunk is skipped, not trusted: the walk resumes at the next chunk
-//! that checks out, so one bad sector loses about a second of a session (the writer closes one
-//! chunk per second of device time), never the rest of it. The index and summary after the data
-//! are not needed and not read, so damage there hides nothing. A file cut short by a crash
-//! yields every complete chunk before the cut. [`Recording::recovery`] says what was recovered
-//! and what was lost, as device-time ranges. Files that are not recordings, or not ones this build can read
-//! (wrong magic, a channel with another schema, a newer format or protocol version, a message
-//! that does not parse) are refused with a [`SessionError`] naming the file and the cause.
+//! parses it, and a damaged chunk is skipped, not trusted: the walk resumes at the next chunk that
+//! checks out, so one bad sector loses about a second of a session (the writer closes one chunk per
+//! second of device time), never the rest of it. Every other record's fields must end where its
+//! length says, and a length that led the walk into damage is not trusted: the search for the next
+//! good chunk starts where that record did. The index and summary after the data are not needed,
+//! and read only for the channels when the first chunk (which defines them) is lost, so damage
+//! there hides nothing. A file cut short by a crash yields every complete chunk before the cut.
+//! [`Recording::recovery`] says what was recovered and what was lost, as device-time ranges. Files
+//! that are not recordings, or not ones this build can read (wrong magic, a channel with another
+//! schema, a newer format or protocol version, a message that does not parse) are refused with a
+//! [`SessionError`] naming the file and the cause.
 //!
 //! # Layout
 //! - this file: [`Recording`] and what it holds, [`Recording::open`], and the account of what
@@ -83,7 +86,9 @@ pub struct LostSpan {
     /// Where it starts in the file, and how long it is, bytes.
     pub first_byte: u64,
     pub bytes: u64,
-    /// The device times its chunk said it held (first and last message), when it said so.
+    /// The device time it covers: from the last message of the chunk kept before it (or the
+    /// first its own chunk header claims, when that lies later) to the first message of the
+    /// chunk kept after it (or the last its own header claims, when none is), where known.
     pub time_ns: Option<(u64, u64)>,
     pub reason: String,
 }
@@ -91,6 +96,16 @@ pub struct LostSpan {
 impl fmt::Display for LostSpan {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.time_ns {
+            // One instant (between kept chunks that meet, or a chunk of one instant's records,
+            // such as the build and scene): its bytes say more than its time.
+            Some((a, b)) if a == b => write!(
+                f,
+                "{} bytes at byte {} around device time {:.3} s ({})",
+                self.bytes,
+                self.first_byte,
+                a as f64 * 1e-9,
+                self.reason
+            ),
             Some((a, b)) => write!(
                 f,
                 "device time {:.3} s to {:.3} s ({})",
