@@ -383,7 +383,7 @@ pub async fn start(
     };
     let app = router(&options.web_dir, state);
     let tls = options.tls.is_some();
-    let http = serve_http_capped(listener, app, options.tls, caps, shutdown_rx);
+    let http = serve_http(listener, app, options.tls, caps, shutdown_rx);
 
     Ok(RunningServer {
         local_addr,
@@ -416,22 +416,11 @@ fn bind(
 }
 
 /// Serves `app` on `listener` until `shutdown` turns true, then lets open requests finish; the
-/// live server and the replay server both run their HTTP side this way, over TLS when `tls` is
-/// given ([`crate::tls::serve`]). Each request carries its client's address
-/// (`ConnectInfo<SocketAddr>`): the per-address limit and the audit and refusal log lines use it.
+/// live server, the replay server and the hub all run their HTTP side this way, over TLS when
+/// `tls` is given, holding at most `caps` connections open ([`crate::tls::serve`]). Each request
+/// carries its client's address (`ConnectInfo<SocketAddr>`): the per-address limit and the audit
+/// and refusal log lines use it.
 pub(crate) fn serve_http(
-    listener: tokio::net::TcpListener,
-    app: Router,
-    tls: Option<Arc<rustls::ServerConfig>>,
-    shutdown: watch::Receiver<bool>,
-) -> JoinHandle<()> {
-    let caps = crate::tls::ConnectionCaps::for_limits(&crate::access::ConnectionLimits::default());
-    serve_http_capped(listener, app, tls, caps, shutdown)
-}
-
-/// [`serve_http`] holding at most `caps` connections open (sized by [`crate::tls::ConnectionCaps::for_limits`]
-/// from the server's connection limits).
-pub(crate) fn serve_http_capped(
     listener: tokio::net::TcpListener,
     app: Router,
     tls: Option<Arc<rustls::ServerConfig>>,

@@ -10,7 +10,17 @@
 //! stats. Viewers then connect to that stream hub exactly as they would to the station's, with
 //! the hub's access rules (tokens, Origin, Host, TLS): the same wire, the same roles. A feed
 //! lives as long as its station's session; a station that restarts (a new session id) gets a
-//! new feed, and the old one's viewers are closed, so they reconnect to the new session.
+//! new feed, and the old one's viewers are closed, so they reconnect to the new session. An
+//! archived recording's replay (`&archive=FILE`) is fetched for its first viewer and dropped when
+//! its last viewer leaves.
+//!
+//! What a client without a valid token learns: nothing. `/ws` checks the `Origin` (and the guard
+//! every request passes, the `Host`) before anything else, and looks the station or the
+//! recording up only once the viewer has its role, so a page of another site or a client
+//! without a token makes the hub relay or fetch nothing and is refused alike whether what it
+//! names exists or not. A station or a recording that is not there is one answer (404 over
+//! HTTP, close 4404 over WebSocket), and no refusal carries the hub's internal errors (NATS's,
+//! the recording reader's): those are logged.
 //!
 //! Routes: the viewer's files; `/api/stations` (the station list), `/api/scene?station=NAME`,
 //! `/stations/NAME/meshes/FILE` (the station's render meshes, fetched over NATS once) and
@@ -39,9 +49,9 @@ use super::{
     LabError, MeshRequest, NatsOptions, OFFLINE_AFTER, STATUS_SUBJECTS, StationSession,
     StationState, StationStatus, Subjects,
 };
-use crate::access::{self, Access, AccessConfig};
+use crate::access::{self, Access, AccessConfig, Connection};
 use crate::app::SERVER_NAME;
-use crate::stream::{EncodedFrame, StreamHub, ViewerLimits};
+use crate::stream::{EncodedFrame, StreamCounters, StreamHub, ViewerEnd, ViewerLimits};
 
 /// How to run a hub.
 pub struct HubOptions {
@@ -92,6 +102,32 @@ impl RunningHub {
     /// The stations as the hub lists them now.
     pub fn stations(&self) -> Vec<StationListing> {
         self.lab.listing()
+    }
+
+    /// The stations the hub relays now (a station is relayed from its first authenticated
+    /// viewer, or its first request with a token, on).
+    pub fn relayed_stations(&self) -> Vec<String> {
+        let mut names: Vec<String> = lock(&self.lab.stations)
+            .iter()
+            .filter(|(_, e)| e.feed.is_some())
+            .map(|(name, _)| name.clone())
+            .collect();
+        names.sort();
+        names
+    }
+
+    /// The archived recordings being replayed now (`STATION/FILE`): one is fetched for its
+    /// first viewer and dropped when its last viewer leaves.
+    pub fn replayed_recordings(&self) -> Vec<String> {
+        let mut keys: Vec<String> = lock(&self.lab.archives).keys().cloned().collect();
+        keys.sort();
+        keys
+    }
+
+    /// What happened to the connections that had no stream yet: refused for their token, by a
+    /// limit, or for a message (the counters of each stream count the rest).
+    pub fn gate_counters(&self) -> &StreamCounters {
+        &self.lab.gate
     }
 
     /// Closes every viewer and stops.
@@ -161,6 +197,31 @@ struct ArchiveFeed {
     meshes: HashMap<String, Bytes>,
     stop: watch::Sender<bool>,
     player: JoinHandle<()>,
+    /// The WebSocket viewers using it (changed with the archives' lock held).
+    viewers: std::sync::atomic::AtomicUsize,
+}
+
+/// A WebSocket viewer's use of an archived recording's replay: the replay is dropped (its
+/// recording's memory given back) when the last one ends.
+struct ArchiveViewer {
+    lab: Arc<Lab>,
+    key: String,
+    feed: Arc<ArchiveFeed>,
+}
+
+impl Drop for ArchiveViewer {
+    fn drop(&mut self) {
+        use std::sync::atomic::Ordering;
+        let mut archives = lock(&self.lab.archives);
+        if self.feed.viewers.fetch_sub(1, Ordering::Relaxed) == 1
+            && archives
+                .get(&self.key)
+                .is_some_and(|f| Arc::ptr_eq(f, &self.feed))
+        {
+            archives.remove(&self.key);
+            tracing::info!(recording = %self.key, "its last viewer left: the replay is dropped");
+        }
+    }
 }
 
 impl Drop for ArchiveFeed {
@@ -175,15 +236,49 @@ struct Lab {
     client: async_nats::Client,
     stations: Mutex<HashMap<String, Entry>>,
     /// Archived recordings being replayed, by `STATION/FILE`.
-    archives: tokio::sync::Mutex<HashMap<String, Arc<ArchiveFeed>>>,
+    archives: Mutex<HashMap<String, Arc<ArchiveFeed>>>,
     /// Held while a feed is made, so two first viewers make one.
     making: tokio::sync::Mutex<()>,
+    /// Held while an archived recording is fetched, so two first viewers fetch it once.
+    fetching: tokio::sync::Mutex<()>,
     access: Arc<Access>,
     limits: ViewerLimits,
+    /// The hub's shutdown, for the connections that have no stream yet.
+    shutdown: watch::Receiver<bool>,
+    /// The refusals of connections that have no stream yet.
+    gate: StreamCounters,
 }
 
-/// An HTTP refusal: its status and why.
+/// A refusal: its status and why, in detail. The detail is for the hub's log only (it can hold
+/// NATS's and the recording reader's errors): a client gets [`public_reason`].
 type Refusal = (StatusCode, String);
+
+/// What a client is told of a refusal: one answer for every station or recording that is not
+/// there (whatever the reason, so none tells what exists), none of the hub's internal errors.
+fn public_reason(status: StatusCode) -> &'static str {
+    match status {
+        StatusCode::NOT_FOUND => NOT_FOUND,
+        StatusCode::SERVICE_UNAVAILABLE => "the station is offline",
+        StatusCode::BAD_GATEWAY => "the station or the archive did not answer",
+        StatusCode::UNPROCESSABLE_ENTITY => "the recording could not be replayed",
+        _ => "internal error",
+    }
+}
+
+/// The answer to every station, recording or mesh that is not there.
+const NOT_FOUND: &str = "no such station or recording";
+/// Close code of a hub viewer's connection whose station or recording is not there (4000–4999
+/// are the application's; 4404 echoes HTTP's 404).
+pub const CLOSE_NOT_FOUND: u16 = 4404;
+/// Close code of a hub viewer's connection whose station is offline or did not answer (1013:
+/// try again later).
+const CLOSE_TRY_LATER: u16 = 1013;
+
+/// The HTTP answer to a refusal; its detail is logged.
+fn refused(what: &str, (status, detail): Refusal) -> Response {
+    tracing::info!(%what, %status, "refused: {detail}");
+    access::json_error(status, public_reason(status))
+}
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|p| p.into_inner())
@@ -232,8 +327,9 @@ impl Lab {
         for e in lock(&self.stations).values_mut() {
             e.feed = None;
         }
-        if let Ok(mut archives) = self.archives.try_lock() {
-            archives.clear();
+        // A replay's viewers hold it too (to drop it after the last): stop it for them.
+        for feed in lock(&self.archives).drain().map(|(_, feed)| feed) {
+            let _ = feed.stop.send(true);
         }
     }
 
@@ -247,8 +343,11 @@ impl Lab {
             ));
         }
         let key = super::archive::object_name(station, file);
-        let mut archives = self.archives.lock().await;
-        if let Some(feed) = archives.get(&key) {
+        if let Some(feed) = lock(&self.archives).get(&key) {
+            return Ok(Arc::clone(feed));
+        }
+        let _fetching = self.fetching.lock().await;
+        if let Some(feed) = lock(&self.archives).get(&key) {
             return Ok(Arc::clone(feed));
         }
         let bytes = super::archive::fetch(&self.client, station, file)
@@ -282,9 +381,42 @@ impl Lab {
             meshes: feed.meshes,
             stop,
             player: feed.player,
+            viewers: std::sync::atomic::AtomicUsize::new(0),
         });
-        archives.insert(key, Arc::clone(&archive));
+        lock(&self.archives).insert(key, Arc::clone(&archive));
         Ok(archive)
+    }
+
+    /// The stream a viewer names (a station's, or its archived recording's replay), looked up
+    /// (and made) for a viewer that has its role; with the viewer's use of a replay, held for as
+    /// long as the viewer is served.
+    async fn viewer_stream(
+        self: &Arc<Self>,
+        station: &str,
+        archive: Option<&str>,
+    ) -> Result<(Arc<StreamHub>, Option<ArchiveViewer>), Refusal> {
+        let Some(file) = archive else {
+            return Ok((Arc::clone(&self.feed(station).await?.hub), None));
+        };
+        loop {
+            let feed = self.archive_feed(station, file).await?;
+            let key = super::archive::object_name(station, file);
+            let archives = lock(&self.archives);
+            // Dropped meanwhile by its last viewer's leaving: fetch it again.
+            if !archives.get(&key).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
+                continue;
+            }
+            feed.viewers
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            drop(archives);
+            let hub = Arc::clone(&feed.hub);
+            let viewer = ArchiveViewer {
+                lab: Arc::clone(self),
+                key,
+                feed,
+            };
+            return Ok((hub, Some(viewer)));
+        }
     }
 
     /// The station's feed, made on first use (or again for a new session of the station).
@@ -576,7 +708,7 @@ async fn api_archive(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>)
             Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
             Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
         },
-        Err(e) => (StatusCode::BAD_GATEWAY, e).into_response(),
+        Err(e) => refused("the archive's list", (StatusCode::BAD_GATEWAY, e)),
     }
 }
 
@@ -586,7 +718,13 @@ async fn archived_file(
     UrlPath((station, file)): UrlPath<(String, String)>,
 ) -> Response {
     if super::check_station_name(&station).is_err() || !file.ends_with(".mcap") {
-        return (StatusCode::NOT_FOUND, "no such archived recording").into_response();
+        return refused(
+            "an archived file",
+            (
+                StatusCode::NOT_FOUND,
+                format!("{station:?}/{file:?}: not a recording's name"),
+            ),
+        );
     }
     match super::archive::fetch(&lab.client, &station, &file).await {
         Ok(bytes) => (
@@ -600,7 +738,10 @@ async fn archived_file(
             bytes,
         )
             .into_response(),
-        Err(e) => (StatusCode::NOT_FOUND, e).into_response(),
+        Err(e) => refused(
+            "an archived file",
+            (StatusCode::NOT_FOUND, format!("{station}/{file}: {e}")),
+        ),
     }
 }
 
@@ -611,7 +752,7 @@ async fn archived_mesh(
 ) -> Response {
     let feed = match lab.archive_feed(&station, &file).await {
         Ok(f) => f,
-        Err(e) => return e.into_response(),
+        Err(e) => return refused("an archived recording's mesh", e),
     };
     match mesh.strip_suffix(".bin").and_then(|m| feed.meshes.get(m)) {
         Some(bytes) => (
@@ -619,7 +760,10 @@ async fn archived_mesh(
             bytes.clone(),
         )
             .into_response(),
-        None => (StatusCode::NOT_FOUND, format!("no render mesh {mesh:?}")).into_response(),
+        None => refused(
+            "an archived recording's mesh",
+            (StatusCode::NOT_FOUND, format!("no render mesh {mesh:?}")),
+        ),
     }
 }
 
@@ -634,7 +778,7 @@ async fn api_scene(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -
                 feed.scene_json.clone(),
             )
                 .into_response(),
-            Err(e) => e.into_response(),
+            Err(e) => refused("a scene", e),
         };
     }
     match lab.feed(&name).await {
@@ -643,7 +787,7 @@ async fn api_scene(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -
             feed.scene_json.clone(),
         )
             .into_response(),
-        Err(e) => e.into_response(),
+        Err(e) => refused("a scene", e),
     }
 }
 
@@ -652,18 +796,27 @@ async fn mesh(
     UrlPath((station, file)): UrlPath<(String, String)>,
 ) -> Response {
     let Some(mesh_name) = file.strip_suffix(".bin") else {
-        return (StatusCode::NOT_FOUND, format!("no render mesh {file:?}")).into_response();
+        return refused(
+            "a mesh",
+            (StatusCode::NOT_FOUND, format!("no render mesh {file:?}")),
+        );
     };
     let feed = match lab.feed(&station).await {
         Ok(f) => f,
-        Err(e) => return e.into_response(),
+        Err(e) => return refused("a mesh", e),
     };
     match lab.mesh(&station, &feed, mesh_name).await {
         Ok(bytes) => ([(header::CONTENT_TYPE, "application/octet-stream")], bytes).into_response(),
-        Err(e) => e.into_response(),
+        Err(e) => refused("a mesh", e),
     }
 }
 
+/// `/ws?station=NAME[&archive=FILE]`. The Origin is checked first (the Host was, by the guard
+/// every request passes), and a page of another site gets its 403 before anything is looked up;
+/// then the connection is upgraded and, once the viewer has its role (its token, when the hub has
+/// tokens), the station or the recording is looked up: a client without a valid token learns
+/// nothing of what exists and makes the hub fetch nothing. One that is not there is closed with
+/// [`CLOSE_NOT_FOUND`], whatever the reason.
 async fn ws(
     State(lab): State<Arc<Lab>>,
     Query(q): Query<StationQuery>,
@@ -671,20 +824,81 @@ async fn ws(
     headers: HeaderMap,
     upgrade: WebSocketUpgrade,
 ) -> Response {
-    let Some(name) = q.station else {
+    let peer = connect_info.map(|info| info.0.0);
+    let client = peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string());
+    let origin = match lab.access.check_origin(&headers) {
+        Ok(origin) => origin,
+        Err(reason) => {
+            tracing::warn!(%client, "WebSocket upgrade refused (403): {reason}");
+            return access::json_error(StatusCode::FORBIDDEN, "origin not allowed");
+        }
+    };
+    let Some(station) = q.station else {
         return no_station();
     };
-    let peer = connect_info.map(|info| info.0.0);
-    if let Some(file) = q.archive {
-        return match lab.archive_feed(&name, &file).await {
-            Ok(feed) => crate::app::upgrade_viewer(Arc::clone(&feed.hub), peer, &headers, upgrade),
-            Err(e) => e.into_response(),
-        };
-    }
-    match lab.feed(&name).await {
-        Ok(feed) => crate::app::upgrade_viewer(Arc::clone(&feed.hub), peer, &headers, upgrade),
-        Err(e) => e.into_response(),
-    }
+    let archive = q.archive;
+    let admission = lab.access.admit(peer.map(|p| p.ip()));
+    let limits = lab.limits;
+    upgrade
+        .max_message_size(limits.max_incoming_bytes)
+        .max_frame_size(limits.max_incoming_bytes)
+        // Bounds what one stalled viewer can make the hub buffer: a frame or two.
+        .write_buffer_size(0)
+        .max_write_buffer_size(1 << 20)
+        .on_upgrade(move |socket| async move {
+            let admission = match admission {
+                Ok(admission) => admission,
+                Err(refusal) => {
+                    lab.access
+                        .refuse_viewer(socket, refusal, limits, &lab.gate)
+                        .await;
+                    Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                    return;
+                }
+            };
+            let mut connection = Connection::new(peer, origin, Some(admission));
+            // The viewer's use of a replay, given back when it ends.
+            let mut replay_use = None;
+            let used = &mut replay_use;
+            let (hub_lab, client) = (&lab, &client);
+            let (station, archive) = (station.as_str(), archive.as_deref());
+            let find = move || async move {
+                match hub_lab.viewer_stream(station, archive).await {
+                    // Made after the hub's feeds were closed: nobody would close it.
+                    Ok(_) if *hub_lab.shutdown.borrow() => {
+                        Err((axum::extract::ws::close_code::AWAY, "server shutting down"))
+                    }
+                    Ok((hub, archive_use)) => {
+                        *used = archive_use;
+                        Ok(hub)
+                    }
+                    Err((status, detail)) => {
+                        tracing::info!(%client, %status, "viewer refused: {detail}");
+                        let reason = public_reason(status);
+                        Err(match status {
+                            StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
+                            StatusCode::SERVICE_UNAVAILABLE | StatusCode::BAD_GATEWAY => {
+                                (CLOSE_TRY_LATER, reason)
+                            }
+                            _ => (axum::extract::ws::close_code::ERROR, reason),
+                        })
+                    }
+                }
+            };
+            let end = lab
+                .access
+                .serve_viewer_found_after_auth(
+                    socket,
+                    limits,
+                    &lab.shutdown,
+                    &lab.gate,
+                    &mut connection,
+                    find,
+                )
+                .await;
+            drop(replay_use);
+            connection.finish(&end);
+        })
 }
 
 /// Connects to NATS, follows the stations and serves the page.
@@ -700,14 +914,19 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
             reason: e.to_string(),
         })?;
     access_config.secure_transport = options.tls.is_some();
+    let caps = crate::tls::ConnectionCaps::for_limits(&access_config.limits);
     let access = Arc::new(Access::new(access_config, &options.web_dir));
+    let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let lab = Arc::new(Lab {
         client,
         stations: Mutex::new(HashMap::new()),
-        archives: tokio::sync::Mutex::new(HashMap::new()),
+        archives: Mutex::new(HashMap::new()),
         making: tokio::sync::Mutex::new(()),
+        fetching: tokio::sync::Mutex::new(()),
         access: Arc::clone(&access),
         limits: options.viewer_limits,
+        shutdown: shutdown_rx.clone(),
+        gate: StreamCounters::default(),
     });
     let tasks = vec![tokio::spawn(follow_stations(Arc::clone(&lab), status))];
 
@@ -745,9 +964,8 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         addr: options.addr,
         source,
     })?;
-    let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let tls = options.tls.is_some();
-    let http = crate::app::serve_http(listener, app, options.tls, shutdown_rx);
+    let http = crate::app::serve_http(listener, app, options.tls, caps, shutdown_rx);
     Ok(RunningHub {
         local_addr,
         shutdown_tx,

@@ -39,7 +39,7 @@ use tokio::time::Instant;
 use super::check::recorded_scene;
 use super::reader::{RecordedMessage, Recording};
 use crate::access::{Access, AccessConfig, AccessError};
-use crate::app::{SERVER_NAME, serve_http_capped, viewer_router};
+use crate::app::{SERVER_NAME, serve_http, viewer_router};
 use crate::stream::{EncodedFrame, FRAME_BACKLOG, StreamHub, ViewerLimits};
 
 /// How often the player sends a `replay` status while playing.
@@ -185,7 +185,7 @@ pub async fn start(
         Arc::clone(&hub),
     );
     let tls = options.tls.is_some();
-    let http = serve_http_capped(listener, app, options.tls, caps, shutdown_rx);
+    let http = serve_http(listener, app, options.tls, caps, shutdown_rx);
     Ok(RunningReplay {
         local_addr,
         shutdown_tx,

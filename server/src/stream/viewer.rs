@@ -12,12 +12,12 @@ use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, close_code};
 use softhaptic_proto::wire::{
     Auth, MarkRequest, Refused, ReplayControl, Role, ServerMessage, message_type,
 };
-use tokio::sync::broadcast;
+use tokio::sync::{broadcast, watch};
 
-use super::{StreamCounters, StreamHub};
+use super::{StreamCounters, StreamHub, ViewerLimits};
 use crate::access::{
-    CLOSE_UNAUTHORIZED, Connection, LimitRefusal, MessageRate, REASON_BAD_TOKEN, REASON_NO_TOKEN,
-    Tokens,
+    Access, CLOSE_UNAUTHORIZED, Connection, LimitRefusal, MessageRate, REASON_BAD_TOKEN,
+    REASON_NO_TOKEN, Tokens,
 };
 
 /// Counts a viewer for as long as its connection task lives.
@@ -39,6 +39,12 @@ impl Drop for ViewerGuard<'_> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ViewerEnd {
     Closed,
+    /// The connection ended without WebSocket's closing handshake: a reset, an end of the
+    /// stream without a close frame, or another failure of the link (a tab killed, a laptop
+    /// closed, a network gone). Nothing is sent back: nobody is there to read it.
+    Lost,
+    /// A message that broke WebSocket's rules or the size limit, a binary message, or a text
+    /// message that is not one of the wire's.
     Malformed,
     SendFailed,
     Shutdown,
@@ -51,12 +57,19 @@ pub enum ViewerEnd {
     Flooded,
     /// Refused at the upgrade by a limit on connections (4429).
     Limit(LimitRefusal),
+    /// Authenticated, but the stream it named cannot be served (a lab hub's station or
+    /// recording that is not there): closed with this code and reason.
+    Unavailable {
+        code: u16,
+        reason: &'static str,
+    },
 }
 
 impl fmt::Display for ViewerEnd {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             ViewerEnd::Closed => f.write_str("closed by the viewer"),
+            ViewerEnd::Lost => f.write_str("connection lost (no close frame)"),
             ViewerEnd::Malformed => f.write_str("closed: malformed or oversized message"),
             ViewerEnd::SendFailed => {
                 f.write_str("closed: the viewer stopped reading or the link failed")
@@ -65,6 +78,7 @@ impl fmt::Display for ViewerEnd {
             ViewerEnd::NoToken => write!(f, "refused: {REASON_NO_TOKEN} ({CLOSE_UNAUTHORIZED})"),
             ViewerEnd::BadToken => write!(f, "refused: {REASON_BAD_TOKEN} ({CLOSE_UNAUTHORIZED})"),
             ViewerEnd::Flooded => write!(f, "closed: {REASON_FLOOD} (1008)"),
+            ViewerEnd::Unavailable { code, reason } => write!(f, "refused: {reason} ({code})"),
             ViewerEnd::Limit(refusal) => {
                 write!(
                     f,
@@ -97,15 +111,118 @@ pub async fn serve_viewer(
     hub: Arc<StreamHub>,
     connection: &mut Connection,
 ) -> ViewerEnd {
-    let timeout = hub.limits.send_timeout;
     let mut rate = MessageRate::new(&hub.access.config.limits, Instant::now());
-    let role = match hub.access.tokens() {
-        None => Role::Instructor,
-        Some(tokens) => match authenticate(&mut socket, &hub, tokens, &mut rate).await {
+    let role = match role_of(&mut socket, &hub.gate(), &mut rate).await {
+        Ok(role) => role,
+        Err(end) => return end,
+    };
+    serve_role(socket, hub, connection, role, rate).await
+}
+
+/// What a connection needs before it has a stream: the access rules, its limits, the server's
+/// shutdown, and the counters its refusals go to.
+struct Gate<'a> {
+    access: &'a Access,
+    limits: ViewerLimits,
+    shutdown: &'a watch::Receiver<bool>,
+    counters: &'a StreamCounters,
+}
+
+impl StreamHub {
+    fn gate(&self) -> Gate<'_> {
+        Gate {
+            access: &self.access,
+            limits: self.limits,
+            shutdown: &self.shutdown,
+            counters: &self.counters,
+        }
+    }
+}
+
+impl Access {
+    /// Serves a viewer whose stream is found only once the viewer has its role: the lab hub's,
+    /// which looks up the station or the recording a viewer names for a viewer with a valid
+    /// token only (a client without one learns nothing of what exists, and makes the hub fetch
+    /// nothing). With tokens the `auth` comes first, as for [`serve_viewer`], and its refusals
+    /// count in `counters`; then `find` gives the stream, or the close code and reason of a
+    /// stream that cannot be served (closed with them), and the viewer is served as
+    /// [`serve_viewer`] serves one.
+    pub async fn serve_viewer_found_after_auth<F, Fut>(
+        &self,
+        mut socket: WebSocket,
+        limits: ViewerLimits,
+        shutdown: &watch::Receiver<bool>,
+        counters: &StreamCounters,
+        connection: &mut Connection,
+        find: F,
+    ) -> ViewerEnd
+    where
+        F: FnOnce() -> Fut,
+        Fut: Future<Output = Result<Arc<StreamHub>, (u16, &'static str)>>,
+    {
+        let gate = Gate {
+            access: self,
+            limits,
+            shutdown,
+            counters,
+        };
+        let mut rate = MessageRate::new(&self.config.limits, Instant::now());
+        let role = match role_of(&mut socket, &gate, &mut rate).await {
             Ok(role) => role,
             Err(end) => return end,
-        },
-    };
+        };
+        match find().await {
+            Ok(hub) => serve_role(socket, hub, connection, role, rate).await,
+            Err((code, reason)) => {
+                connection.authenticated(role);
+                close(&mut socket, code, reason, limits.send_timeout).await;
+                ViewerEnd::Unavailable { code, reason }
+            }
+        }
+    }
+
+    /// Closes a connection refused by a limit on connections before it has a stream, with 4429
+    /// and the limit's reason, counted in `counters`.
+    pub async fn refuse_viewer(
+        &self,
+        mut socket: WebSocket,
+        refusal: LimitRefusal,
+        limits: ViewerLimits,
+        counters: &StreamCounters,
+    ) {
+        counters.limit_refusals.fetch_add(1, Ordering::Relaxed);
+        close(
+            &mut socket,
+            crate::access::CLOSE_TOO_MANY,
+            refusal.reason(),
+            limits.send_timeout,
+        )
+        .await;
+    }
+}
+
+/// The connection's role: an instructor without tokens, else the role of the token its `auth`
+/// presents.
+async fn role_of(
+    socket: &mut WebSocket,
+    gate: &Gate<'_>,
+    rate: &mut MessageRate,
+) -> Result<Role, ViewerEnd> {
+    match gate.access.tokens() {
+        None => Ok(Role::Instructor),
+        Some(tokens) => authenticate(socket, gate, tokens, rate).await,
+    }
+}
+
+/// Serves a connection that has its `role`: `hello`, `scene`, then the stream.
+async fn serve_role(
+    mut socket: WebSocket,
+    hub: Arc<StreamHub>,
+    connection: &mut Connection,
+    role: Role,
+    mut rate: MessageRate,
+) -> ViewerEnd {
+    let timeout = hub.limits.send_timeout;
     connection.authenticated(role);
     let _guard = ViewerGuard::new(&hub.counters);
     // Subscribe before sending the greeting, so no frame produced meanwhile is missed.
@@ -227,13 +344,13 @@ pub async fn serve_viewer(
 /// the connection closed with 4401 (no valid `auth` first, or none within the auth timeout).
 async fn authenticate(
     socket: &mut WebSocket,
-    hub: &StreamHub,
+    gate: &Gate<'_>,
     tokens: &Tokens,
     rate: &mut MessageRate,
 ) -> Result<Role, ViewerEnd> {
-    let timeout = hub.limits.send_timeout;
-    let deadline = tokio::time::Instant::now() + hub.access.config.limits.auth_timeout;
-    let mut shutdown = hub.shutdown.clone();
+    let timeout = gate.limits.send_timeout;
+    let deadline = tokio::time::Instant::now() + gate.access.config.limits.auth_timeout;
+    let mut shutdown = gate.shutdown.clone();
     loop {
         if *shutdown.borrow() {
             close(socket, close_code::AWAY, "server shutting down", timeout).await;
@@ -245,7 +362,7 @@ async fn authenticate(
         };
         let message = match incoming {
             Err(_) => {
-                hub.counters
+                gate.counters
                     .unauthorized_closes
                     .fetch_add(1, Ordering::Relaxed);
                 close(socket, CLOSE_UNAUTHORIZED, REASON_NO_TOKEN, timeout).await;
@@ -254,17 +371,17 @@ async fn authenticate(
             Ok(None | Some(Ok(Message::Close(_)))) => return Err(ViewerEnd::Closed),
             Ok(Some(Err(e))) => {
                 tracing::debug!(error = %e, "viewer connection failed before presenting a token");
-                return Err(malformed(socket, hub, close_code::SIZE, INVALID_REFUSED).await);
+                return Err(receive_failed(socket, gate, &e).await);
             }
             Ok(Some(Ok(message))) => message,
         };
         if !rate.allow(Instant::now()) {
-            return Err(flooded(socket, hub).await);
+            return Err(flooded(socket, gate).await);
         }
         match message {
             Message::Ping(_) | Message::Pong(_) => continue,
             Message::Binary(_) => {
-                return Err(malformed(socket, hub, close_code::UNSUPPORTED, BINARY_REFUSED).await);
+                return Err(malformed(socket, gate, close_code::UNSUPPORTED, BINARY_REFUSED).await);
             }
             Message::Close(_) => return Err(ViewerEnd::Closed),
             Message::Text(text) => {
@@ -277,7 +394,7 @@ async fn authenticate(
                     Some(None) => (REASON_BAD_TOKEN, ViewerEnd::BadToken),
                     None => (REASON_NO_TOKEN, ViewerEnd::NoToken),
                 };
-                hub.counters
+                gate.counters
                     .unauthorized_closes
                     .fetch_add(1, Ordering::Relaxed);
                 close(socket, CLOSE_UNAUTHORIZED, reason, timeout).await;
@@ -296,25 +413,62 @@ const INVALID_REFUSED: &str = "invalid or oversized message";
 /// that breaks WebSocket's rules or the size limit), with `code` and `reason`.
 async fn malformed(
     socket: &mut WebSocket,
-    hub: &StreamHub,
+    gate: &Gate<'_>,
     code: u16,
     reason: &'static str,
 ) -> ViewerEnd {
-    hub.counters
+    gate.counters
         .malformed_closes
         .fetch_add(1, Ordering::Relaxed);
-    close(socket, code, reason, hub.limits.send_timeout).await;
+    close(socket, code, reason, gate.limits.send_timeout).await;
     ViewerEnd::Malformed
 }
 
+/// Ends a connection whose receive failed: a link that went away is [`ViewerEnd::Lost`] (and
+/// nothing is sent to it); a protocol violation or an oversized message is closed as malformed
+/// (1009).
+async fn receive_failed(socket: &mut WebSocket, gate: &Gate<'_>, error: &axum::Error) -> ViewerEnd {
+    if is_connection_lost(error) {
+        return ViewerEnd::Lost;
+    }
+    malformed(socket, gate, close_code::SIZE, INVALID_REFUSED).await
+}
+
+/// Whether a receive error is the link going away (a reset, an end of the stream without a close
+/// frame, any I/O error) rather than the peer breaking WebSocket's rules or the size limit.
+///
+/// The error inside is tungstenite's, which this crate does not depend on by name (axum wraps
+/// it): its variants without a source are told apart by their `Debug` form, which the unit test
+/// below pins to the tungstenite this is built with.
+fn is_connection_lost(error: &axum::Error) -> bool {
+    use std::error::Error as _;
+    let Some(inner) = error.source() else {
+        return false;
+    };
+    if matches!(
+        format!("{inner:?}").as_str(),
+        "ConnectionClosed" | "AlreadyClosed" | "Protocol(ResetWithoutClosingHandshake)"
+    ) {
+        return true;
+    }
+    let mut cause = Some(inner);
+    while let Some(e) = cause {
+        if e.is::<std::io::Error>() {
+            return true;
+        }
+        cause = e.source();
+    }
+    false
+}
+
 /// Closes a connection that sent more than its rate allows.
-async fn flooded(socket: &mut WebSocket, hub: &StreamHub) -> ViewerEnd {
-    hub.counters.flood_closes.fetch_add(1, Ordering::Relaxed);
+async fn flooded(socket: &mut WebSocket, gate: &Gate<'_>) -> ViewerEnd {
+    gate.counters.flood_closes.fetch_add(1, Ordering::Relaxed);
     close(
         socket,
         close_code::POLICY,
         REASON_FLOOD,
-        hub.limits.send_timeout,
+        gate.limits.send_timeout,
     )
     .await;
     ViewerEnd::Flooded
@@ -334,19 +488,20 @@ async fn handle_incoming(
     let message = match incoming {
         None | Some(Ok(Message::Close(_))) => return Some(ViewerEnd::Closed),
         Some(Err(e)) => {
-            // Protocol violations and oversized messages end up here.
             tracing::debug!(error = %e, "viewer connection failed");
-            return Some(malformed(socket, hub, close_code::SIZE, INVALID_REFUSED).await);
+            return Some(receive_failed(socket, &hub.gate(), &e).await);
         }
         Some(Ok(message)) => message,
     };
     if !rate.allow(Instant::now()) {
-        return Some(flooded(socket, hub).await);
+        return Some(flooded(socket, &hub.gate()).await);
     }
     let text = match message {
         Message::Text(text) => text,
         Message::Binary(_) => {
-            return Some(malformed(socket, hub, close_code::UNSUPPORTED, BINARY_REFUSED).await);
+            return Some(
+                malformed(socket, &hub.gate(), close_code::UNSUPPORTED, BINARY_REFUSED).await,
+            );
         }
         // Pings are answered by the WebSocket layer.
         Message::Ping(_) | Message::Pong(_) | Message::Close(_) => return None,
@@ -461,15 +616,10 @@ async fn refuse(
 }
 
 /// Closes a connection refused by a limit on connections, with 4429 and the limit's reason.
-pub async fn refuse_connection(mut socket: WebSocket, hub: &StreamHub, refusal: LimitRefusal) {
-    hub.counters.limit_refusals.fetch_add(1, Ordering::Relaxed);
-    close(
-        &mut socket,
-        crate::access::CLOSE_TOO_MANY,
-        refusal.reason(),
-        hub.limits.send_timeout,
-    )
-    .await;
+pub async fn refuse_connection(socket: WebSocket, hub: &StreamHub, refusal: LimitRefusal) {
+    hub.access
+        .refuse_viewer(socket, refusal, hub.limits, &hub.counters)
+        .await;
 }
 
 /// Sends with a deadline; false when the connection is unusable. A send that times out is
@@ -519,4 +669,40 @@ async fn close(socket: &mut WebSocket, code: u16, reason: &'static str, timeout:
         }
     })
     .await;
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::is_connection_lost;
+    use tungstenite::error::{CapacityError, Error, ProtocolError};
+
+    fn lost(e: Error) -> bool {
+        is_connection_lost(&axum::Error::new(e))
+    }
+
+    #[test]
+    fn a_link_that_went_away_is_lost_and_a_broken_rule_is_not() {
+        assert!(lost(Error::Protocol(
+            ProtocolError::ResetWithoutClosingHandshake
+        )));
+        assert!(lost(Error::ConnectionClosed));
+        assert!(lost(Error::AlreadyClosed));
+        for kind in [
+            std::io::ErrorKind::ConnectionReset,
+            std::io::ErrorKind::BrokenPipe,
+            std::io::ErrorKind::UnexpectedEof,
+        ] {
+            assert!(lost(Error::Io(std::io::Error::from(kind))), "{kind:?}");
+        }
+        assert!(!lost(Error::Capacity(CapacityError::MessageTooLong {
+            size: 1 << 20,
+            max_size: 1 << 16,
+        })));
+        assert!(!lost(Error::Protocol(
+            ProtocolError::UnmaskedFrameFromClient
+        )));
+        assert!(!lost(Error::Protocol(ProtocolError::InvalidOpcode(3))));
+        assert!(!lost(Error::Utf8("not UTF-8".into())));
+    }
 }
