@@ -41,7 +41,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use futures_util::StreamExt;
 use serde::{Deserialize, Serialize};
-use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role};
+use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
@@ -583,23 +583,47 @@ impl Lab {
     }
 }
 
-/// A scene with its meshes' URLs under `prefix` on this hub.
-fn rewrite_mesh_urls(scene: &str, prefix: &str) -> Result<String, serde_json::Error> {
-    let mut value: serde_json::Value = serde_json::from_str(scene)?;
+/// A station's scene with its meshes' URLs under `prefix` on this hub. What comes from NATS is
+/// outside input: it must decode as a `scene` message of the wire (proto/WIRE.md) before it is
+/// touched or passed on to a viewer.
+fn rewrite_mesh_urls(scene: &str, prefix: &str) -> Result<String, String> {
+    match ServerMessage::decode(scene) {
+        Ok(ServerMessage::Scene(_)) => {}
+        Ok(other) => return Err(format!("a {} message, not a scene", other.type_name())),
+        Err(e) => return Err(e.to_string()),
+    }
+    let mut value: serde_json::Value = serde_json::from_str(scene).map_err(|e| e.to_string())?;
     if let Some(meshes) = value
         .get_mut("render_meshes")
         .and_then(|m| m.as_array_mut())
     {
         for m in meshes {
-            let name = m
+            let Some(mesh) = m.as_object_mut() else {
+                return Err("a render mesh that is not an object".to_owned());
+            };
+            let name = mesh
                 .get("name")
                 .and_then(|n| n.as_str())
                 .unwrap_or_default()
                 .to_owned();
-            m["url"] = serde_json::Value::String(format!("{prefix}/{name}.bin"));
+            mesh.insert(
+                "url".to_owned(),
+                serde_json::Value::String(format!("{prefix}/{name}.bin")),
+            );
         }
     }
-    serde_json::to_string(&value)
+    serde_json::to_string(&value).map_err(|e| e.to_string())
+}
+
+/// Whether a message from a station's stats subject may go to viewers: the 1 Hz messages a
+/// station sends there (`stats`, `metrics`), decoded as the wire's; anything else, however it
+/// got onto the subject, would make every viewer drop its connection as malformed.
+fn relayable_stats(text: &str) -> Result<(), String> {
+    match ServerMessage::decode(text) {
+        Ok(ServerMessage::Stats(_) | ServerMessage::Metrics(_)) => Ok(()),
+        Ok(other) => Err(format!("a {} message", other.type_name())),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 /// The station's frames and stats from NATS into the feed's stream hub.
@@ -631,8 +655,19 @@ async fn relay(
             }
             m = stats.next() => {
                 let Some(m) = m else { break };
-                if let Ok(text) = String::from_utf8(m.payload.to_vec()) {
-                    let _ = hub.stats.send(Utf8Bytes::from(text));
+                let checked = String::from_utf8(m.payload.to_vec())
+                    .map_err(|e| e.to_string())
+                    .and_then(|text| relayable_stats(&text).map(|()| text));
+                match checked {
+                    Ok(text) => {
+                        let _ = hub.stats.send(Utf8Bytes::from(text));
+                    }
+                    Err(e) => {
+                        refused += 1;
+                        if refused == 1 || refused.is_power_of_two() {
+                            tracing::warn!(station = %name, "a stats message that is not one ({refused} so far): {e}");
+                        }
+                    }
                 }
             }
         }
@@ -641,7 +676,13 @@ async fn relay(
 
 /// The stations' heartbeats into the list.
 async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
+    let mut turned_away = 0u64;
     while let Some(m) = status.next().await {
+        // A station's heartbeat is a few hundred bytes; what is far larger is not one, and would
+        // be kept and served by every hub.
+        if m.payload.len() > MAX_HEARTBEAT_BYTES {
+            continue;
+        }
         let Ok(s) = serde_json::from_slice::<StationStatus>(&m.payload) else {
             continue;
         };
@@ -660,6 +701,15 @@ async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
                 e.seen_unix_ms = super::unix_ms();
             }
             None => {
+                if stations.len() >= MAX_STATIONS && !forget_longest_silent(&mut stations) {
+                    // Every name held is watched or still heard from: a flood of names (or a lab
+                    // larger than any served here) does not grow the hub without bound.
+                    turned_away += 1;
+                    if turned_away == 1 || turned_away.is_power_of_two() {
+                        tracing::warn!(station = %name, "the station list is full ({MAX_STATIONS}); a new station is not listed ({turned_away} so far)");
+                    }
+                    continue;
+                }
                 tracing::info!(station = %name, "a station appeared");
                 stations.insert(
                     name,
@@ -672,6 +722,29 @@ async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
                 );
             }
         }
+    }
+}
+
+/// The stations a hub lists at most (a lab has tens).
+const MAX_STATIONS: usize = 512;
+/// The largest heartbeat taken as one, bytes.
+const MAX_HEARTBEAT_BYTES: usize = 4096;
+
+/// Makes room in a full station list: forgets the station heard from longest ago that no viewer
+/// of this hub watches. False when every station is watched.
+fn forget_longest_silent(stations: &mut HashMap<String, Entry>) -> bool {
+    let oldest = stations
+        .iter()
+        .filter(|(_, e)| e.feed.is_none())
+        .min_by_key(|(_, e)| e.seen)
+        .map(|(name, _)| name.clone());
+    match oldest {
+        Some(name) => {
+            stations.remove(&name);
+            tracing::info!(station = %name, "forgot a silent station to make room in the list");
+            true
+        }
+        None => false,
     }
 }
 
@@ -974,4 +1047,90 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         lab,
         tls,
     })
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use softhaptic_proto::wire::{MessageVector, message_vectors};
+
+    /// The shared test vector of a message of `kind`, as text.
+    fn vector(kind: &str) -> String {
+        message_vectors()
+            .unwrap()
+            .into_iter()
+            .find_map(|v| match v {
+                MessageVector::Valid { json, .. } if json["type"] == kind => Some(json.to_string()),
+                _ => None,
+            })
+            .unwrap()
+    }
+
+    #[test]
+    fn a_station_scene_that_is_not_a_scene_is_refused_not_a_panic() {
+        let scene = vector("scene");
+        let rewritten = rewrite_mesh_urls(&scene, "/stations/desk-1/meshes").unwrap();
+        assert!(matches!(
+            ServerMessage::decode(&rewritten),
+            Ok(ServerMessage::Scene(_))
+        ));
+        // What a rogue publisher on NATS sent: a render mesh that is a number panicked the hub.
+        for bad in [
+            r#"{"render_meshes":[1]}"#.to_owned(),
+            scene.replacen(r#""render_meshes":["#, r#""render_meshes":[1,"#, 1),
+            vector("stats"),
+            "not json".to_owned(),
+        ] {
+            assert!(rewrite_mesh_urls(&bad, "/x").is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_full_station_list_forgets_the_longest_silent_unwatched_station() {
+        let entry = |name: &str, seen: Instant| Entry {
+            status: StationStatus {
+                name: name.to_owned(),
+                session_id: "s".to_owned(),
+                scene: "liver".to_owned(),
+                state: super::super::StationState::Idle,
+                since_unix_ms: 0,
+                viewers: 0,
+                unpublished_frames: 0,
+            },
+            seen,
+            seen_unix_ms: 0,
+            feed: None,
+        };
+        let now = Instant::now();
+        let mut stations = HashMap::new();
+        stations.insert("recent".to_owned(), entry("recent", now));
+        stations.insert(
+            "silent".to_owned(),
+            entry("silent", now - Duration::from_secs(600)),
+        );
+        stations.insert(
+            "older".to_owned(),
+            entry("older", now - Duration::from_secs(60)),
+        );
+        assert!(forget_longest_silent(&mut stations));
+        assert!(!stations.contains_key("silent"));
+        assert_eq!(stations.len(), 2);
+        assert!(forget_longest_silent(&mut stations));
+        assert!(!stations.contains_key("older"));
+    }
+
+    #[test]
+    fn only_stats_and_metrics_are_relayed_from_a_stations_stats_subject() {
+        relayable_stats(&vector("stats")).unwrap();
+        relayable_stats(&vector("metrics")).unwrap();
+        for bad in [
+            "<script>not json".to_owned(),
+            vector("hello"),
+            vector("contact"),
+            r#"{"type":"stats"}"#.to_owned(),
+        ] {
+            assert!(relayable_stats(&bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -138,6 +138,30 @@ pub struct NatsOptions {
     pub credentials: Option<PathBuf>,
 }
 
+/// A `--nats` URL (or a comma-separated list of them), refused when it carries credentials
+/// (`nats://user:password@host`, `nats://token@host`): in a URL they would show in the process
+/// list, in shell history and in every log line and error that names the server, so they go in
+/// the file given with `--nats-credentials`.
+pub fn parse_nats_url(text: &str) -> Result<String, String> {
+    for url in text.split(',') {
+        let url = url.trim();
+        if url.is_empty() {
+            return Err("an empty URL".to_owned());
+        }
+        let authority = url.split_once("://").map_or(url, |(_, rest)| rest);
+        let authority = authority.split(['/', '?', '#']).next().unwrap_or_default();
+        if authority.contains('@') {
+            return Err(
+                "the URL carries credentials (user:password@ or token@); give the bare URL and \
+                 put the credentials in a file named with --nats-credentials FILE (TOML: \
+                 user = \"…\" and password = \"…\", or token = \"…\")"
+                    .to_owned(),
+            );
+        }
+    }
+    Ok(text.to_owned())
+}
+
 /// Why NATS could not be used.
 #[derive(Debug, thiserror::Error)]
 pub enum LabError {
@@ -314,6 +338,27 @@ pub(crate) fn unix_ms() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_nats_url_with_credentials_is_refused_without_repeating_them() {
+        for good in [
+            "nats://lab-server:4222",
+            "nats://10.0.0.5:4222,nats://10.0.0.6:4222",
+            "tls://lab.example:4222/path?x=a@b",
+            "lab-server:4222",
+        ] {
+            assert_eq!(parse_nats_url(good).unwrap(), good);
+        }
+        for bad in [
+            "nats://desk:S3cretPassw0rd@127.0.0.1:4222",
+            "nats://s3cr3t-token@lab:4222",
+            "nats://a:4222, nats://desk:S3cretPassw0rd@b:4222",
+        ] {
+            let e = parse_nats_url(bad).unwrap_err();
+            assert!(e.contains("--nats-credentials"), "{e}");
+            assert!(!e.contains("S3cret") && !e.contains("s3cr3t"), "{e}");
+        }
+    }
 
     #[test]
     fn station_names_are_subject_tokens() {
