@@ -142,12 +142,13 @@ async fn publish_frames(
         if !connected {
             if is_frame {
                 published.unpublished_frames.fetch_add(1, Ordering::Relaxed);
-                let (since, lost) = outage.get_or_insert((Instant::now(), 0));
+                let (_, lost) = outage.get_or_insert((Instant::now(), 0));
                 *lost += 1;
                 if *lost == 1 {
+                    // The log line carries the wall-clock time; the Instant kept is for the
+                    // outage's length only.
                     tracing::warn!(
-                        "NATS connection lost at {:?}: frames are not published until it is back (this station's own viewers are not affected)",
-                        since
+                        "NATS connection lost: frames are not published until it is back (this station's own viewers are not affected)"
                     );
                 }
             }
