@@ -265,6 +265,10 @@ struct Shared {
     next_tick: AtomicU64,
     /// The device's error on the last tick ([`DeviceError::to_word`]; 0 when it had none).
     device_error: AtomicU64,
+    /// The most severe device error of any tick since the last [`Shared::take_device_error`]
+    /// ([`latched_error_word`]; 0: none): a fault of a tick or two between two polls of the
+    /// status still reaches the log and the viewers.
+    worst_device_error: AtomicU64,
     /// CLOCK_MONOTONIC time of the last call from the driver's servo clock (device-clocked
     /// loops only): the watchdog's evidence that the driver is running.
     last_servo_call_ns: AtomicU64,
@@ -280,9 +284,47 @@ impl Shared {
             late: SeqCell::new(LateLog::default().to_words()),
             next_tick: AtomicU64::new(0),
             device_error: AtomicU64::new(0),
+            worst_device_error: AtomicU64::new(0),
             last_servo_call_ns: AtomicU64::new(0),
         }
     }
+}
+
+impl Shared {
+    /// Books a tick's device error into the latch: one atomic maximum, wait-free.
+    fn latch_device_error(&self, error: DeviceError) {
+        self.worst_device_error
+            .fetch_max(latched_error_word(error), Ordering::AcqRel);
+    }
+
+    /// The most severe device error since the last call, and clears it (`None`: every tick since
+    /// then ran without one).
+    fn take_device_error(&self) -> Option<DeviceError> {
+        let word = self.worst_device_error.swap(0, Ordering::AcqRel);
+        DeviceError::from_word(word & !(0xff << SEVERITY_SHIFT))
+    }
+}
+
+/// Where a latched error word keeps its severity: above every bit of [`DeviceError::to_word`].
+const SEVERITY_SHIFT: u32 = 56;
+
+/// How severe a device error is for the operator: a lost or silent device first, then a force
+/// the driver stopped, a force sent late, the driver's other errors, and last a device waiting
+/// for its calibration (which renders no force, but is not a fault of the moment).
+fn severity(error: DeviceError) -> u64 {
+    match error {
+        DeviceError::Disconnected => 6,
+        DeviceError::Timeout => 5,
+        DeviceError::ForceDisabled => 4,
+        DeviceError::Overrun => 3,
+        DeviceError::Driver(_) => 2,
+        DeviceError::NeedsCalibration => 1,
+    }
+}
+
+/// An error as a word whose order is its severity's, for the latch's atomic maximum.
+fn latched_error_word(error: DeviceError) -> u64 {
+    severity(error) << SEVERITY_SHIFT | error.to_word()
 }
 
 /// Which of the two loop threads a thread is.
@@ -324,6 +366,9 @@ struct TickCore {
     servo_run_start_ns: u64,
     servo_run_ticks: u64,
     servo_run_lost: u64,
+    /// CLOCK_MONOTONIC time of the last tick of a device-clocked loop, servo or watchdog (the
+    /// servo tick's start, the watchdog's wake-up): the periods since it with no tick are lost.
+    last_device_tick_ns: Option<u64>,
     /// Ticks lost right before the tick being run, for its record.
     lost_before: u64,
 }
@@ -635,6 +680,14 @@ impl HapticLoop {
         DeviceError::from_word(self.shared.device_error.load(Ordering::Acquire))
     }
 
+    /// The most severe device error of any tick since the last call (`None`: every tick since
+    /// then ran without one), and clears it: a fault of a single tick between two calls is still
+    /// seen. Wait-free. For one poller (the status line's); a second would take errors from the
+    /// first.
+    pub fn take_device_error(&self) -> Option<DeviceError> {
+        self.shared.take_device_error()
+    }
+
     /// What the operating system granted the loop thread.
     pub fn realtime(&self) -> RealtimeStatus {
         self.realtime
@@ -817,6 +870,7 @@ impl TickCore {
             servo_run_start_ns: 0,
             servo_run_ticks: 0,
             servo_run_lost: 0,
+            last_device_tick_ns: None,
             lost_before: 0,
         }
     }
@@ -858,19 +912,28 @@ impl TickCore {
     /// Books a servo tick of the driver's clock that began at `tick_start_ns`: the period comes
     /// from the device's clock, and the periods of its grid that passed without a tick count as
     /// lost (a late tick followed by an early one lost nothing).
+    ///
+    /// The first tick of a run (the driver's clock started again after a reconnection, or after
+    /// the watchdog covered a silence) is preceded by the periods since the loop's last tick,
+    /// servo or watchdog, that no tick served.
     fn book_servo_tick(&mut self, tick_start_ns: u64, shared: &Shared, period_ns: u64) {
-        let timing = &mut self.timing;
-        if self.last_servo_start_ns.is_none() {
+        let restart_lost = if self.last_servo_start_ns.is_none() {
             self.servo_run_start_ns = tick_start_ns;
             self.servo_run_ticks = 0;
             self.servo_run_lost = 0;
-        }
+            self.periods_without_a_tick(tick_start_ns, period_ns)
+        } else {
+            0
+        };
+        self.last_device_tick_ns = Some(tick_start_ns);
+        let timing = &mut self.timing;
+        timing.overruns += restart_lost;
         self.servo_run_ticks += 1;
         // Whole periods since the run began: a tick late by less than a period still serves its
         // own slot (the next tick, back on the grid, shows nothing was skipped).
         let periods = tick_start_ns.saturating_sub(self.servo_run_start_ns) / period_ns;
         let lost = (periods + 1).saturating_sub(self.servo_run_ticks);
-        self.lost_before = lost.saturating_sub(self.servo_run_lost);
+        self.lost_before = lost.saturating_sub(self.servo_run_lost) + restart_lost;
         if lost > self.servo_run_lost {
             timing.overruns += lost - self.servo_run_lost;
             self.servo_run_lost = lost;
@@ -889,6 +952,15 @@ impl TickCore {
         self.last_servo_start_ns = Some(tick_start_ns);
     }
 
+    /// Whole periods of a device-clocked loop between its last tick (servo or watchdog) and a tick
+    /// at `now_ns` that no tick served: none before the first tick, none for a tick one period
+    /// (or up to just under two) after the last.
+    fn periods_without_a_tick(&self, now_ns: u64, period_ns: u64) -> u64 {
+        self.last_device_tick_ns.map_or(0, |last| {
+            (now_ns.saturating_sub(last) / period_ns).saturating_sub(1)
+        })
+    }
+
     /// Runs the next tick for `source`, whose thread woke (or was called) at `woke_ns`.
     fn run_tick(&mut self, source: TickSource, woke_ns: u64, shared: &Shared, period_ns: u64) {
         match source {
@@ -896,9 +968,13 @@ impl TickCore {
                 self.book_servo_tick(tick_start_ns, shared, period_ns)
             }
             TickSource::Watchdog => {
+                // The silence before the watchdog's first tick (it waits that long before it
+                // takes over), and any period it missed itself, are ticks lost.
+                self.lost_before = self.periods_without_a_tick(woke_ns, period_ns);
+                self.last_device_tick_ns = Some(woke_ns);
                 self.last_servo_start_ns = None;
                 self.timing.watchdog_ticks += 1;
-                self.lost_before = 0;
+                self.timing.overruns += self.lost_before;
             }
             // Booked by the caller, which knows the deadline.
             TickSource::Thread(_) => {}
@@ -921,6 +997,9 @@ impl TickCore {
         shared
             .device_error
             .store(error.map_or(0, DeviceError::to_word), Ordering::Release);
+        for e in [read.err(), command.err()].into_iter().flatten() {
+            shared.latch_device_error(e);
+        }
         let device_fault = state.flags.contains(ContactFlags::DEVICE_FAULT);
         if device_fault {
             timing.device_faults += 1;
@@ -1172,7 +1251,8 @@ mod tests {
         assert_eq!(lost, [0, 0, 0, 0, 2]);
         assert_eq!(core.timing.period_error.max_ns(), 2 * P);
         // A watchdog tick while the driver's clock was down, then a new run of the clock: the
-        // gap is not a run of lost servo ticks.
+        // periods of the silences before each are lost (the last servo tick began at 16 P), but
+        // neither interval is a servo period.
         core.run_tick(TickSource::Watchdog, 200 * P, &shared, P);
         core.run_tick(
             TickSource::Servo {
@@ -1182,9 +1262,128 @@ mod tests {
             &shared,
             P,
         );
-        assert_eq!(core.timing.overruns, 2);
+        assert_eq!(core.timing.overruns, 2 + 183 + 299);
+        assert_eq!(core.timing.period_error.max_ns(), 2 * P);
         assert_eq!(core.timing.watchdog_ticks, 1);
         assert_eq!(core.next_tick, 7);
+    }
+
+    #[test]
+    fn an_outage_counts_the_ticks_lost_before_the_watchdog_and_across_the_restart() {
+        const P: u64 = 1_000_000;
+        let mut core = grid_core();
+        let (producer, mut consumer) = rtrb::RingBuffer::new(32);
+        core.tick_sink = Some(producer);
+        let shared = Shared::new();
+        let servo = |core: &mut TickCore, at: u64| {
+            core.run_tick(
+                TickSource::Servo {
+                    tick_start_ns: at * P,
+                },
+                at * P,
+                &shared,
+                P,
+            )
+        };
+        for at in 10..15 {
+            servo(&mut core, at);
+        }
+        // The driver's clock stops after the tick at 14 P; the watchdog takes over a hundred
+        // periods later, ticks each period (missing one, at 118 P), and the clock restarts at
+        // 150 P.
+        for at in [115, 116, 117, 119] {
+            core.run_tick(TickSource::Watchdog, at * P, &shared, P);
+        }
+        servo(&mut core, 150);
+        servo(&mut core, 151);
+        let lost: Vec<u64> = std::iter::from_fn(|| consumer.pop().ok())
+            .map(|r| r.lost_before)
+            .collect();
+        assert_eq!(lost, [0, 0, 0, 0, 0, 100, 0, 0, 1, 30, 0]);
+        assert_eq!(core.timing.overruns, 131);
+        // Each tick index once: the lost ticks are counted, not numbered.
+        assert_eq!(core.next_tick, 11);
+    }
+
+    /// A device that fails to read on some ticks, the simulated PHANTOM otherwise.
+    struct Flaky {
+        inner: crate::sim::SimulatedPhantom,
+        reads: u64,
+        fail: std::ops::Range<u64>,
+        error: DeviceError,
+    }
+
+    impl HapticDevice for Flaky {
+        fn limits(&self) -> crate::device::DeviceLimits {
+            self.inner.limits()
+        }
+        fn read(&mut self) -> Result<DeviceSample, DeviceError> {
+            let n = self.reads;
+            self.reads += 1;
+            let sample = self.inner.read();
+            if self.fail.contains(&n) {
+                return Err(self.error);
+            }
+            sample
+        }
+        fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
+            self.inner.command_force(force_n)
+        }
+    }
+
+    #[test]
+    fn a_fault_of_a_few_ticks_between_two_polls_is_latched_for_the_next_poll() {
+        const P: u64 = 1_000_000;
+        let mut core = grid_core();
+        let shared = Shared::new();
+        core.device = Box::new(Flaky {
+            inner: crate::sim::SimulatedPhantom::new(crate::sim::HandScript::press(
+                DVec3::ZERO,
+                DVec3::Y,
+                0.005,
+            )),
+            reads: 0,
+            fail: 5..7,
+            error: DeviceError::Disconnected,
+        });
+        let mut at = 10;
+        let mut ticks = |core: &mut TickCore, n: u64| {
+            for _ in 0..n {
+                core.run_tick(
+                    TickSource::Servo {
+                        tick_start_ns: at * P,
+                    },
+                    at * P,
+                    &shared,
+                    P,
+                );
+                at += 1;
+            }
+        };
+        // Fifty ticks between two polls, two of them faulted: the last tick's error is gone by
+        // the poll, the latch still has the fault.
+        ticks(&mut core, 50);
+        assert_eq!(
+            DeviceError::from_word(shared.device_error.load(Ordering::Acquire)),
+            None
+        );
+        assert_eq!(shared.take_device_error(), Some(DeviceError::Disconnected));
+        // Taken: the next poll sees the good ticks since.
+        ticks(&mut core, 50);
+        assert_eq!(shared.take_device_error(), None);
+        // The most severe of the errors since the last poll wins, whatever their order.
+        for e in [
+            DeviceError::Overrun,
+            DeviceError::Disconnected,
+            DeviceError::NeedsCalibration,
+            DeviceError::Driver(0x402),
+        ] {
+            shared.latch_device_error(e);
+        }
+        assert_eq!(shared.take_device_error(), Some(DeviceError::Disconnected));
+        shared.latch_device_error(DeviceError::Driver(-7));
+        shared.latch_device_error(DeviceError::NeedsCalibration);
+        assert_eq!(shared.take_device_error(), Some(DeviceError::Driver(-7)));
     }
 
     #[test]

@@ -42,11 +42,15 @@
 //! [`RECONNECT_AFTER_FAILED_TICKS`] ticks is reconnected by a thread of its own, off the servo
 //! path, with exponential backoff: it stops the scheduler (the loop's watchdog then runs fault
 //! ticks), disables the old handle, initialises the device again until it answers, and restarts
-//! the scheduler. An uncalibrated device renders no force ([`DeviceError::NeedsCalibration`])
+//! the scheduler. A reconnected device gets its [`RECONNECT_AFTER_FAILED_TICKS`] again, and one
+//! lost again before [`RECONNECTED_AFTER_GOOD_TICKS`] good ticks (it opens, but does not work)
+//! is reopened only after a wait that keeps doubling from one reconnection to the next. Only the
+//! driver's servo thread, inside the frame it opened, touches the device: a tick run on any
+//! other thread (the loop's watchdog) reads nothing and sends nothing. An uncalibrated device renders no force ([`DeviceError::NeedsCalibration`])
 //! until it reports itself calibrated; a device whose style allows it is recalibrated
 //! automatically.
 
-use std::cell::UnsafeCell;
+use std::cell::{Cell, UnsafeCell};
 use std::ffi::{CStr, CString, c_char, c_double, c_int, c_uint, c_ulong, c_ushort, c_void};
 use std::path::{Path, PathBuf};
 use std::ptr::NonNull;
@@ -86,8 +90,21 @@ Systems' support site), or set SOFTHAPTIC_HD_LIBRARY to the full path of libHD.s
 pub const RECONNECT_AFTER_FAILED_TICKS: u32 = 250;
 
 /// First and longest wait between two reconnection attempts.
-const RECONNECT_BACKOFF_MIN: Duration = Duration::from_millis(100);
-const RECONNECT_BACKOFF_MAX: Duration = Duration::from_secs(2);
+pub const RECONNECT_BACKOFF_MIN: Duration = Duration::from_millis(100);
+pub const RECONNECT_BACKOFF_MAX: Duration = Duration::from_secs(2);
+
+/// Good ticks in a row after which a reconnected device counts as working again: the next loss
+/// is reconnected at once and its backoff starts again from [`RECONNECT_BACKOFF_MIN`]. A device
+/// lost again before that (it opens, but does not work) is reconnected only after a wait that
+/// keeps growing from one reconnection to the next.
+pub const RECONNECTED_AFTER_GOOD_TICKS: u32 = 1_000;
+
+thread_local! {
+    /// The device whose servo frame this thread has open: set by the servo callback around the
+    /// loop's tick, null otherwise. Per thread, so that a tick run on another thread (the loop's
+    /// watchdog) while the driver's thread has a frame open is outside the frame.
+    static FRAME_OPEN_FOR: Cell<*const Inner> = const { Cell::new(std::ptr::null()) };
+}
 
 // The HD API's types and constants (OpenHaptics 3.0 `hdDefines.h`, `hdScheduler.h`).
 type Hhd = c_uint;
@@ -623,8 +640,6 @@ struct Inner {
     display_name: String,
     handle: AtomicU32,
     period_ns: u64,
-    /// Set by the servo callback around the loop's tick: the device may be read and commanded.
-    in_frame: AtomicBool,
     /// CLOCK_MONOTONIC time the current servo tick began.
     tick_start_ns: AtomicU64,
     /// +1 each time the scheduler starts: the device clock's count restarts from there.
@@ -633,6 +648,9 @@ struct Inner {
     reconnect_wanted: AtomicBool,
     /// +1 per successful reconnection: the device checks its calibration again.
     generation: AtomicU32,
+    /// Set by the servo side after [`RECONNECTED_AFTER_GOOD_TICKS`] good ticks of a connection
+    /// (and at open); taken by the reconnection thread, whose backoff restarts only then.
+    working: AtomicBool,
     /// The clock is stopping: the reconnection thread gives up.
     shutting_down: AtomicBool,
     /// Last HD error code the servo side saw (for the reconnection thread's log line).
@@ -727,8 +745,13 @@ impl Inner {
                 control.scheduler_running = false;
             }
         }
-        self.in_frame.store(false, Ordering::Release);
         let _ = self.lib.take_error();
+    }
+
+    /// Whether the calling thread has this device's servo frame open: only then may the device
+    /// be read and commanded.
+    fn in_frame_here(&self) -> bool {
+        FRAME_OPEN_FOR.with(|f| std::ptr::eq(f.get(), self))
     }
 
     /// Disables the device handle, if any.
@@ -794,13 +817,13 @@ unsafe extern "C" fn servo_callback(user: *mut c_void) -> HdCallbackCode {
     // SAFETY: as above.
     unsafe { (api.begin_frame)(handle) };
     inner.tick_start_ns.store(tick_start_ns, Ordering::Relaxed);
-    inner.in_frame.store(true, Ordering::Release);
+    FRAME_OPEN_FOR.with(|f| f.set(Arc::as_ptr(inner)));
     // SAFETY: only this callback touches the closure, and the scheduler calls it from one
     // thread, one call at a time.
     let tick = unsafe { &mut *context.tick.get() };
     // A panic must not unwind into C (that aborts); the tick's state is released on unwinding.
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| tick(tick_start_ns)));
-    inner.in_frame.store(false, Ordering::Release);
+    FRAME_OPEN_FOR.with(|f| f.set(std::ptr::null()));
     // SAFETY: as above; closes the frame this callback opened.
     unsafe { (api.end_frame)(handle) };
     match outcome {
@@ -868,8 +891,10 @@ pub struct OpenHapticsDevice {
     generation_seen: u32,
     /// The style `hdUpdateCalibration` is asked for when the driver can update by itself.
     update_style: Option<HdEnum>,
-    /// Ticks in a row the device was unreachable.
+    /// Ticks in a row the device was unreachable (since the last reconnection at most).
     failed_ticks: u32,
+    /// Good ticks in a row since the last reconnection, up to [`RECONNECTED_AFTER_GOOD_TICKS`].
+    good_ticks: u32,
     /// The driver stopped force output after a force error; enabled again next tick.
     force_output_lost: bool,
 }
@@ -900,11 +925,11 @@ impl OpenHapticsDevice {
             display_name: display_name.clone(),
             handle: AtomicU32::new(HD_INVALID_HANDLE),
             period_ns: config.period_ns.max(1),
-            in_frame: AtomicBool::new(false),
             tick_start_ns: AtomicU64::new(0),
             servo_epoch: AtomicU32::new(0),
             reconnect_wanted: AtomicBool::new(false),
             generation: AtomicU32::new(0),
+            working: AtomicBool::new(true),
             shutting_down: AtomicBool::new(false),
             last_error: AtomicU32::new(HD_SUCCESS),
             control: Mutex::new(Control::default()),
@@ -963,6 +988,7 @@ impl OpenHapticsDevice {
             generation_seen: 0,
             update_style,
             failed_ticks: 0,
+            good_ticks: 0,
             force_output_lost: false,
         })
     }
@@ -1044,6 +1070,7 @@ impl OpenHapticsDevice {
     /// Books an unreachable tick; asks for a reconnection when there have been enough in a row.
     fn unreachable_tick(&mut self) {
         self.failed_ticks = self.failed_ticks.saturating_add(1);
+        self.good_ticks = 0;
         if self.failed_ticks >= RECONNECT_AFTER_FAILED_TICKS {
             // The reconnection thread polls the flag every few milliseconds: the servo path
             // signals nothing else (no lock, no system call).
@@ -1076,13 +1103,32 @@ impl OpenHapticsDevice {
         Err(error)
     }
 
-    /// The calibration state, checked once per connection (inside a frame).
-    fn check_calibration(&mut self) -> Result<(), DeviceError> {
+    /// A new connection (the reconnection thread reopened the device): its calibration is
+    /// checked again, and its failures are counted from zero, so that it gets
+    /// [`RECONNECT_AFTER_FAILED_TICKS`] ticks before it is reconnected again.
+    fn follow_generation(&mut self) {
         let generation = self.inner.generation.load(Ordering::Acquire);
         if generation != self.generation_seen {
             self.generation_seen = generation;
             self.calibrated = false;
+            self.failed_ticks = 0;
+            self.good_ticks = 0;
         }
+    }
+
+    /// A good tick: after a run of them the connection counts as working again.
+    fn good_tick(&mut self) {
+        self.failed_ticks = 0;
+        if self.good_ticks < RECONNECTED_AFTER_GOOD_TICKS {
+            self.good_ticks += 1;
+            if self.good_ticks == RECONNECTED_AFTER_GOOD_TICKS {
+                self.inner.working.store(true, Ordering::Release);
+            }
+        }
+    }
+
+    /// The calibration state, checked once per connection (inside a frame).
+    fn check_calibration(&mut self) -> Result<(), DeviceError> {
         if self.calibrated {
             return Ok(());
         }
@@ -1117,9 +1163,10 @@ impl HapticDevice for OpenHapticsDevice {
     }
 
     fn read(&mut self) -> Result<DeviceSample, DeviceError> {
-        if !self.inner.in_frame.load(Ordering::Acquire) {
+        if !self.inner.in_frame_here() {
             return Err(self.outside_frame_error());
         }
+        self.follow_generation();
         let inner = Arc::clone(&self.inner);
         let api = &inner.lib.api;
         // Errors left by the last frame's end (the force was sent there) count for this tick.
@@ -1135,7 +1182,7 @@ impl HapticDevice for OpenHapticsDevice {
         let velocity: [f64; 3] = lib.get_doubles(HD_CURRENT_VELOCITY);
         let buttons = lib.get_integer(HD_CURRENT_BUTTONS);
         self.check_errors()?;
-        self.failed_ticks = 0;
+        self.good_tick();
         // Column-major: the rotation's columns, then the translation in millimetres.
         let rotation = DMat3::from_cols_array(&[
             transform[0],
@@ -1166,7 +1213,7 @@ impl HapticDevice for OpenHapticsDevice {
     }
 
     fn command_force(&mut self, force_n: DVec3) -> Result<(), DeviceError> {
-        if !self.inner.in_frame.load(Ordering::Acquire) {
+        if !self.inner.in_frame_here() {
             // Outside a frame nothing can be sent, and the driver sends no force without frames:
             // zero is already what the motors get.
             return if force_n == DVec3::ZERO {
@@ -1285,27 +1332,59 @@ fn free_context(control: &mut Control) {
 
 /// The reconnection thread: waits for the servo side to ask, then stops the scheduler, reopens
 /// the device with backoff and restarts the scheduler.
+///
+/// The backoff outlives one reconnection: a device that opens but is lost again before
+/// [`RECONNECTED_AFTER_GOOD_TICKS`] good ticks (`Inner::working`) is reopened only after the
+/// next, doubled, wait, so a device that keeps failing is not stopped and restarted every few
+/// milliseconds. Only a working connection starts the next loss over at the shortest wait.
 fn reconnect_when_asked(inner: &Inner) {
+    let mut backoff = RECONNECT_BACKOFF_MIN;
+    // The last loss ended in a reconnection that has not yet worked for a run of good ticks.
+    let mut reconnected_unproven = false;
     while !inner.shutting_down.load(Ordering::Acquire) {
         std::thread::park_timeout(Duration::from_millis(5));
         if !inner.reconnect_wanted.load(Ordering::Acquire) {
             continue;
         }
+        if inner.working.swap(false, Ordering::AcqRel) {
+            backoff = RECONNECT_BACKOFF_MIN;
+            reconnected_unproven = false;
+        }
         let code = inner.last_error.load(Ordering::Relaxed);
-        tracing::warn!(
-            device = %inner.display_name,
-            error = %inner.lib.error_text(code),
-            code = error_name(code),
-            "haptic device lost: force is off; reconnecting"
-        );
+        if reconnected_unproven {
+            tracing::warn!(
+                device = %inner.display_name,
+                error = %inner.lib.error_text(code),
+                code = error_name(code),
+                wait_ms = backoff.as_millis() as u64,
+                "haptic device lost again right after reconnecting: force is off; reconnecting \
+                 after a longer wait"
+            );
+        } else {
+            tracing::warn!(
+                device = %inner.display_name,
+                error = %inner.lib.error_text(code),
+                code = error_name(code),
+                "haptic device lost: force is off; reconnecting"
+            );
+        }
         {
             let mut control = inner.control();
             inner.stop_servo(&mut control);
         }
         inner.disable_device();
-        let mut backoff = RECONNECT_BACKOFF_MIN;
         let mut attempts = 0u32;
         loop {
+            if attempts > 0 || reconnected_unproven {
+                // Sleep in slices, so that a stop does not wait for a long backoff.
+                let wake = std::time::Instant::now() + backoff;
+                while std::time::Instant::now() < wake
+                    && !inner.shutting_down.load(Ordering::Acquire)
+                {
+                    std::thread::park_timeout(Duration::from_millis(10));
+                }
+                backoff = (backoff * 2).min(RECONNECT_BACKOFF_MAX);
+            }
             if inner.shutting_down.load(Ordering::Acquire) {
                 return;
             }
@@ -1323,6 +1402,7 @@ fn reconnect_when_asked(inner: &Inner) {
                                 attempts,
                                 "haptic device reconnected: force ramps in again"
                             );
+                            reconnected_unproven = true;
                             break;
                         }
                         Err(code) => {
@@ -1341,12 +1421,6 @@ fn reconnect_when_asked(inner: &Inner) {
                 ),
                 Err(_) => {}
             }
-            // Sleep in slices, so that a stop does not wait for a long backoff.
-            let wake = std::time::Instant::now() + backoff;
-            while std::time::Instant::now() < wake && !inner.shutting_down.load(Ordering::Acquire) {
-                std::thread::park_timeout(Duration::from_millis(10));
-            }
-            backoff = (backoff * 2).min(RECONNECT_BACKOFF_MAX);
         }
     }
 }

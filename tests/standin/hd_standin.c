@@ -168,6 +168,8 @@ static const double MAX_WORKSPACE_MM[6] = {-100.0, -80.0, -80.0, 100.0, 80.0, 80
 #define MAX_RATE_HZ 20000ul
 #define ERROR_STACK_DEPTH 32
 #define MAX_CALLBACKS 64
+/* Successful hdInitDevice calls whose times are kept (hdStandinInits). */
+#define MAX_INIT_TIMES 256
 /* Latency histogram: 1 µs bins up to 2 ms, then one overflow bin. */
 #define LATENCY_BINS 2000
 
@@ -222,6 +224,11 @@ typedef struct {
     uint64_t latency_hist[LATENCY_BINS + 1];
     uint64_t latency_frames;
     double latency_max_us;
+
+    /* Successful hdInitDevice calls since the last reset, and the CLOCK_MONOTONIC times of the
+     * first MAX_INIT_TIMES of them. */
+    int inits;
+    struct timespec init_times[MAX_INIT_TIMES];
 } State;
 
 static pthread_mutex_t g_mu = PTHREAD_MUTEX_INITIALIZER;
@@ -232,6 +239,11 @@ static atomic_ullong g_ticks;
 static atomic_ulong g_rate_hz = DEFAULT_RATE_HZ;
 /* Set while the servo loop runs: hdEndFrame drives the motors only then. */
 static atomic_int g_servo_running;
+/* Scheduler starts since the last reset (hdStartScheduler calls that started its thread). */
+static atomic_ullong g_scheduler_starts;
+/* Gets of current state and sets of force refused since the last reset because the calling
+ * thread had no frame open: a backend touching the device from the wrong thread. */
+static atomic_ullong g_outside_frame_calls;
 /* Bumped by hdStandinReset: frames begun before it (on any thread) are no longer open. */
 static atomic_uint g_epoch;
 
@@ -469,6 +481,8 @@ API HHD hdInitDevice(const char *pConfigName) {
     }
     g.open = 1;
     g.stale = 0;
+    if (g.inits < MAX_INIT_TIMES) now_monotonic(&g.init_times[g.inits]);
+    g.inits += 1;
     /* As on the real library, force output is on once the device is initialised. */
     g.force_output = 1;
     g.current = DEVICE_HANDLE;
@@ -796,6 +810,7 @@ API void hdStartScheduler(void) {
         return;
     }
     g_sched_state = SCHED_RUNNING;
+    atomic_fetch_add(&g_scheduler_starts, 1ull);
     pthread_mutex_unlock(&g_sched_mu);
 }
 
@@ -1073,6 +1088,7 @@ static int property_values_locked(HDenum pname, double out[16]) {
 static int get_values(HDenum pname, const void *out, double values[16]) {
     if (is_frame_state(pname)) {
         if (!frame_active()) {
+            atomic_fetch_add(&g_outside_frame_calls, 1ull);
             push_error(HD_FRAME_ERROR, HD_INVALID_HANDLE);
             return 0;
         }
@@ -1131,6 +1147,7 @@ API const char *hdGetString(HDenum pname) {
 
 API void hdSetDoublev(HDenum pname, const double *params) {
     if (!frame_active()) {
+        atomic_fetch_add(&g_outside_frame_calls, 1ull);
         push_error(HD_FRAME_ERROR, HD_INVALID_HANDLE);
         return;
     }
@@ -1288,6 +1305,27 @@ API int hdStandinSchedulerRunning(void) { return atomic_load(&g_servo_running); 
 
 API unsigned long long hdStandinTicks(void) { return atomic_load(&g_ticks); }
 
+API unsigned long long hdStandinSchedulerStarts(void) {
+    return atomic_load(&g_scheduler_starts);
+}
+
+API unsigned long long hdStandinOutsideFrameCalls(void) {
+    return atomic_load(&g_outside_frame_calls);
+}
+
+/* The number of successful hdInitDevice calls since the last reset; the CLOCK_MONOTONIC times
+ * (seconds) of the first `max` of them (at most MAX_INIT_TIMES) go to `times_s`. */
+API int hdStandinInits(double *times_s, int max) {
+    pthread_mutex_lock(&g_mu);
+    int n = g.inits;
+    int kept = n < MAX_INIT_TIMES ? n : MAX_INIT_TIMES;
+    for (int i = 0; times_s != NULL && i < kept && i < max; i++) {
+        times_s[i] = (double)g.init_times[i].tv_sec + (double)g.init_times[i].tv_nsec * 1e-9;
+    }
+    pthread_mutex_unlock(&g_mu);
+    return n;
+}
+
 API int hdStandinDeviceOpen(void) {
     pthread_mutex_lock(&g_mu);
     int open = g.open;
@@ -1375,4 +1413,6 @@ API void hdStandinReset(void) {
     pthread_mutex_lock(&g_err_mu);
     g_error_count = 0;
     pthread_mutex_unlock(&g_err_mu);
+    atomic_store(&g_scheduler_starts, 0ull);
+    atomic_store(&g_outside_frame_calls, 0ull);
 }

@@ -7,7 +7,7 @@
 //! `hdStandinReset`. Nothing asserts a wall-clock rate: the tests count servo ticks and poll
 //! for conditions with generous deadlines.
 //!
-//! Long because the stand-in is one per process: its 22 tests share a lock and the HD bindings.
+//! Long because the stand-in is one per process: its 23 tests share a lock and the HD bindings.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -1269,4 +1269,61 @@ fn misuse_is_reported_on_the_error_stack_not_crashed() {
     s.reset();
     hd.end(h);
     assert_eq!(hd.errors(), [HD_ILLEGAL_END]);
+}
+
+/// The stand-in's counters of what a backend did to it (controls the backend never calls).
+struct Counters {
+    inits: libloading::Symbol<'static, unsafe extern "C" fn(*mut c_double, c_int) -> c_int>,
+    scheduler_starts: libloading::Symbol<'static, unsafe extern "C" fn() -> u64>,
+    outside_frame_calls: libloading::Symbol<'static, unsafe extern "C" fn() -> u64>,
+}
+
+fn counters() -> Counters {
+    let library = &hd()._library;
+    // SAFETY: the stand-in exports these with these C signatures; the library is never unloaded
+    // (`hd()` is a static).
+    unsafe {
+        Counters {
+            inits: library.get(b"hdStandinInits\0").unwrap(),
+            scheduler_starts: library.get(b"hdStandinSchedulerStarts\0").unwrap(),
+            outside_frame_calls: library.get(b"hdStandinOutsideFrameCalls\0").unwrap(),
+        }
+    }
+}
+
+#[test]
+fn the_stand_in_counts_inits_scheduler_starts_and_calls_from_outside_a_frame() {
+    let (_turn, hd, _s) = setup();
+    let c = counters();
+    // SAFETY (all calls below): plain values, or a buffer as long as passed.
+    let inits = |times: &mut [f64]| unsafe { (c.inits)(times.as_mut_ptr(), times.len() as c_int) };
+    assert_eq!(inits(&mut []), 0, "cleared by the reset");
+    assert_eq!(unsafe { (c.scheduler_starts)() }, 0);
+    assert_eq!(unsafe { (c.outside_frame_calls)() }, 0);
+
+    let h = hd.init(None);
+    hd.disable_device(h);
+    // A refused init is not counted.
+    hd.init(Some("No Such Device"));
+    let h = hd.init(None);
+    let mut times = [0.0; 4];
+    assert_eq!(inits(&mut times), 2);
+    assert!(times[0] > 0.0 && times[1] >= times[0], "{times:?}");
+    assert_eq!(times[2..], [0.0, 0.0]);
+
+    hd.start_scheduler();
+    hd.start_scheduler(); // already running: not a start
+    hd.stop_scheduler();
+    hd.start_scheduler();
+    assert_eq!(unsafe { (c.scheduler_starts)() }, 2);
+    hd.stop_scheduler();
+
+    // Gets of current state and force sets without a frame on this thread; properties and
+    // calls inside a frame are not counted.
+    hd.get_doublev(HD_CURRENT_POSITION);
+    hd.set_doublev(HD_CURRENT_FORCE, &[0.0; 3]);
+    hd.get_doublev(HD_NOMINAL_MAX_FORCE);
+    hd.position(h);
+    let _ = hd.errors();
+    assert_eq!(unsafe { (c.outside_frame_calls)() }, 2);
 }

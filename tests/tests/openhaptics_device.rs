@@ -9,11 +9,14 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
+use std::ffi::{c_double, c_int, c_ulonglong};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use glam::{DMat3, DQuat, DVec3};
-use softhaptic_device::device::{DeviceLimits, HapticDevice};
+use softhaptic_device::device::{DeviceError, DeviceLimits, HapticDevice};
 use softhaptic_device::openhaptics::{self, OpenHapticsConfig, OpenHapticsDevice};
 use softhaptic_device::sim::{SimParams, SimulatedPhantom};
 use softhaptic_proto::ContactFlags;
@@ -24,6 +27,7 @@ use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
 use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
+use softhaptic_server::session::tools::Info;
 use softhaptic_tests::standin::{StandIn, hd, missing_symbol_path, standin_path};
 use softhaptic_tests::{RecordedServer, Viewer, scratch_dir, start_recorded, test_options};
 
@@ -96,6 +100,51 @@ async fn start_with(
 async fn finish(live: RecordedServer) -> (softhaptic_device::stats::LoopStats, Recording) {
     let (stats, _, path, _) = live.finish().await;
     (stats, Recording::open(&path).unwrap())
+}
+
+/// The stand-in's counters of what the backend did to it (controls the backend never calls).
+struct Counters {
+    _library: libloading::Library,
+    inits: unsafe extern "C" fn(*mut c_double, c_int) -> c_int,
+    scheduler_starts: unsafe extern "C" fn() -> c_ulonglong,
+    outside_frame_calls: unsafe extern "C" fn() -> c_ulonglong,
+}
+
+impl Counters {
+    fn load() -> Counters {
+        // SAFETY: the stand-in, already loaded by `standin`: its constructor does not run again.
+        let library = unsafe { libloading::Library::new(standin_path()) }.unwrap();
+        // SAFETY: the stand-in exports these with the C signatures of the fields.
+        unsafe {
+            Counters {
+                inits: *library.get(b"hdStandinInits\0").unwrap(),
+                scheduler_starts: *library.get(b"hdStandinSchedulerStarts\0").unwrap(),
+                outside_frame_calls: *library.get(b"hdStandinOutsideFrameCalls\0").unwrap(),
+                _library: library,
+            }
+        }
+    }
+
+    /// The CLOCK_MONOTONIC times (s) of the device's successful `hdInitDevice` calls since the
+    /// stand-in's reset (the open, then each reconnection).
+    fn init_times_s(&self) -> Vec<f64> {
+        let mut times = vec![0.0; 256];
+        // SAFETY: `times` holds as many doubles as passed.
+        let n = unsafe { (self.inits)(times.as_mut_ptr(), times.len() as c_int) };
+        times.truncate(n.max(0) as usize);
+        times
+    }
+
+    fn scheduler_starts(&self) -> u64 {
+        // SAFETY: no arguments.
+        unsafe { (self.scheduler_starts)() }
+    }
+
+    /// Gets of current state and sets of force made from a thread with no frame open.
+    fn outside_frame_calls(&self) -> u64 {
+        // SAFETY: no arguments.
+        unsafe { (self.outside_frame_calls)() }
+    }
 }
 
 /// Waits (polling, generous deadline) until `condition` holds.
@@ -415,6 +464,12 @@ async fn an_unplugged_device_is_reconnected_and_the_force_ramps_in_again() {
     );
     // Every tick index is there: the gap is marked by faulted ticks, not missing ones.
     assert!(device.windows(2).all(|w| w[1].tick == w[0].tick + 1));
+    // The silence before the watchdog took over (a hundred periods) is counted as lost ticks,
+    // and `softhaptic info` says so.
+    let lost: u64 = device.iter().map(|d| d.lost_before).sum();
+    assert!(lost >= 99, "{lost} ticks counted lost across the outage");
+    let info = Info::of(&recording).to_string();
+    assert!(!info.contains("lost ticks:        none"), "{info}");
     // The hand kept pressing through the outage: the force ramps in where it is.
     let before = force(&device[first - 1]);
     let back = first + outage;
@@ -533,4 +588,146 @@ async fn the_device_listing_shows_the_stand_in_with_its_limits_and_calibration()
     let device = OpenHapticsDevice::open(&OpenHapticsConfig::new(DeviceLimits::TOUCH)).unwrap();
     assert_eq!(device.limits().peak_force_n, 3.3);
     assert_eq!(device.description().max_stiffness_n_per_m, 1860.0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_that_opens_but_keeps_failing_is_reconnected_a_few_times_with_growing_waits() {
+    let (_guard, s) = standin().await;
+    let counters = Counters::load();
+    let live = start(liver_scene(), "openhaptics-keeps-failing").await;
+    wait_pressing(&s, 1.0).await;
+    // Two seconds of servo ticks that all fail: the device reopens each time, and keeps
+    // failing. The stand-in counts them down only while its scheduler runs.
+    s.inject_error(hd::HD_COMM_ERROR, 2_000);
+    wait_ticks(&s, 2_000 + 1_500).await;
+    wait_until("the scheduler running again", || s.scheduler_running()).await;
+    wait_pressing(&s, 0.5).await;
+    let (stats, recording) = finish(live).await;
+    let inits = counters.init_times_s();
+    let reconnections = inits.len() - 1;
+    println!(
+        "{reconnections} reconnections over 2000 failing ticks, {} scheduler starts, at {:?} s",
+        counters.scheduler_starts(),
+        inits.windows(2).map(|w| w[1] - w[0]).collect::<Vec<_>>()
+    );
+    // Each reconnection gives the device its RECONNECT_AFTER_FAILED_TICKS failing ticks again.
+    let most = (2_000 / openhaptics::RECONNECT_AFTER_FAILED_TICKS) as usize;
+    assert!(
+        (2..=most).contains(&reconnections),
+        "{reconnections} reconnections (at most {most})"
+    );
+    assert!(counters.scheduler_starts() <= inits.len() as u64);
+    // The first reconnection is at once; each one after it, with no run of good ticks between,
+    // waits the doubled backoff first (the 250 failing ticks between come on top).
+    let mut wait = openhaptics::RECONNECT_BACKOFF_MIN;
+    for (k, gap) in inits[1..].windows(2).map(|w| w[1] - w[0]).enumerate() {
+        assert!(
+            gap >= wait.as_secs_f64() * 0.99,
+            "reconnection {} came {gap} s after the one before, not after its {wait:?} wait",
+            k + 2
+        );
+        wait = (wait * 2).min(openhaptics::RECONNECT_BACKOFF_MAX);
+    }
+    assert!(stats.watchdog_ticks > 0, "the waits were ticked through");
+    // The force comes back through the ramp once the device works again.
+    let device = &recording.device;
+    let first = device
+        .iter()
+        .position(|d| d.device_error.is_some())
+        .unwrap();
+    let before = force(&device[first - 1]);
+    let last_fault = device.len()
+        - 1
+        - device
+            .iter()
+            .rev()
+            .position(|d| d.device_error.is_some())
+            .unwrap();
+    assert!(
+        device[last_fault + 1..]
+            .iter()
+            .any(|d| force(d) > 0.5 * before),
+        "the force came back"
+    );
+    assert!(device.windows(2).all(|w| w[1].tick == w[0].tick + 1));
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tick_run_off_the_servo_thread_while_a_frame_is_open_does_not_touch_the_device() {
+    let (_guard, _s) = standin().await;
+    let counters = Counters::load();
+    let mut opened =
+        OpenHapticsDevice::open(&OpenHapticsConfig::new(DeviceLimits::PHANTOM_DESKTOP)).unwrap();
+    let mut clock = opened.servo_clock().unwrap();
+    let device = Arc::new(Mutex::new(opened));
+    let frame_open = Arc::new(AtomicBool::new(false));
+    let release = Arc::new(AtomicBool::new(false));
+    let servo_read: Arc<Mutex<Option<Result<(), DeviceError>>>> = Arc::default();
+    {
+        let (device, frame_open, release, servo_read) = (
+            Arc::clone(&device),
+            Arc::clone(&frame_open),
+            Arc::clone(&release),
+            Arc::clone(&servo_read),
+        );
+        // The servo thread's first tick reads the device in its frame, then keeps the frame
+        // open until the test has run its tick on another thread (as the loop's watchdog does
+        // when the driver resumes in the middle of a watchdog tick).
+        clock
+            .start(Box::new(move |_| {
+                if frame_open.load(Ordering::Acquire) {
+                    return;
+                }
+                let read = device.lock().unwrap().read().map(|_| ());
+                *servo_read.lock().unwrap() = Some(read);
+                frame_open.store(true, Ordering::Release);
+                let give_up = Instant::now() + Duration::from_secs(30);
+                while !release.load(Ordering::Acquire) && Instant::now() < give_up {
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+            }))
+            .unwrap();
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !frame_open.load(Ordering::Acquire) {
+        assert!(Instant::now() < deadline, "no servo tick");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let (read, command, touched) = {
+        let mut d = device.lock().unwrap();
+        let before = counters.outside_frame_calls();
+        let read = d.read().map(|_| ());
+        let command = d.command_force(DVec3::new(0.0, 1.0, 0.0));
+        (read, command, counters.outside_frame_calls() - before)
+    };
+    release.store(true, Ordering::Release);
+    clock.stop();
+    assert_eq!(
+        *servo_read.lock().unwrap(),
+        Some(Ok(())),
+        "the servo thread reads in its frame"
+    );
+    assert_eq!(touched, 0, "the device was touched from outside the frame");
+    assert_eq!(read, Err(DeviceError::Timeout));
+    assert_eq!(command, Err(DeviceError::Timeout));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fault_of_three_ticks_reaches_the_viewers() {
+    let (_guard, s) = standin().await;
+    let live = start(liver_scene(), "openhaptics-short-fault").await;
+    let mut viewer = Viewer::connect(live.server.local_addr()).await;
+    wait_pressing(&s, 1.0).await;
+    // Three milliseconds of fault, far shorter than the status' 50 ms poll.
+    s.inject_error(hd::HD_COMM_ERROR, 3);
+    wait_for_device_state(&mut viewer, DeviceStatus::Disconnected).await;
+    wait_for_device_state(&mut viewer, DeviceStatus::Ok).await;
+    let (_, recording) = finish(live).await;
+    let faulted = recording
+        .device
+        .iter()
+        .filter(|d| d.device_error.is_some())
+        .count();
+    assert_eq!(faulted, 3);
 }

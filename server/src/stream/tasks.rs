@@ -114,7 +114,10 @@ pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, perio
         tokio::select! {
             _ = interval.tick() => {}
             _ = poll.tick() => {
-                let error = haptic_loop.device_error();
+                // The most severe error since the last poll, not the last tick's: a fault of a
+                // tick or two between polls is logged and shown (and the next poll, if it is
+                // over, says the device is back).
+                let error = haptic_loop.take_device_error();
                 let now = device_status(error);
                 if now == device {
                     continue;
