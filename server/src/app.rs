@@ -552,25 +552,19 @@ pub(crate) fn upgrade_viewer(
     };
     let admission = hub.access.admit(peer.map(|p| p.ip()));
     let limits = hub.limits;
-    upgrade
-        .max_message_size(limits.max_incoming_bytes)
-        .max_frame_size(limits.max_incoming_bytes)
-        // Bounds what one stalled viewer can make the server buffer: a frame or two.
-        .write_buffer_size(0)
-        .max_write_buffer_size(1 << 20)
-        .on_upgrade(move |socket| async move {
-            match admission {
-                Ok(admission) => {
-                    let mut connection = Connection::new(peer, origin, Some(admission));
-                    let end = stream::serve_viewer(socket, hub, &mut connection).await;
-                    connection.finish(&end);
-                }
-                Err(refusal) => {
-                    stream::refuse_connection(socket, &hub, refusal).await;
-                    Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
-                }
+    limits.bound(upgrade).on_upgrade(move |socket| async move {
+        match admission {
+            Ok(admission) => {
+                let mut connection = Connection::new(peer, origin, Some(admission));
+                let end = stream::serve_viewer(socket, hub, &mut connection).await;
+                connection.finish(&end);
             }
-        })
+            Err(refusal) => {
+                stream::refuse_connection(socket, &hub, refusal).await;
+                Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+            }
+        }
+    })
 }
 
 /// The viewer's directory when none is given: the first `web/` holding `index.html` found

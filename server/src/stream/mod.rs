@@ -36,7 +36,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::time::Duration;
 
-use axum::extract::ws::Utf8Bytes;
+use axum::extract::ws::{Utf8Bytes, WebSocketUpgrade};
 use softhaptic_proto::wire::ReplayControl;
 use softhaptic_proto::wire::{Hello, MarkMessage, MarkRequest, Role, ServerMessage};
 use tokio::sync::{broadcast, watch};
@@ -76,6 +76,19 @@ impl Default for ViewerLimits {
             max_incoming_bytes: 64 * 1024,
             send_timeout: Duration::from_secs(10),
         }
+    }
+}
+
+impl ViewerLimits {
+    /// `upgrade` bounded as every viewer's WebSocket is, a station's, a replay's or a hub's:
+    /// incoming messages and frames no larger than [`ViewerLimits::max_incoming_bytes`], and
+    /// at most 1 MiB buffered for a viewer that stopped reading (a frame or two).
+    pub fn bound(&self, upgrade: WebSocketUpgrade) -> WebSocketUpgrade {
+        upgrade
+            .max_message_size(self.max_incoming_bytes)
+            .max_frame_size(self.max_incoming_bytes)
+            .write_buffer_size(0)
+            .max_write_buffer_size(1 << 20)
     }
 }
 

@@ -78,32 +78,14 @@ pub fn serve(
     let handle = axum_server::Handle::new();
     let guard = ConnectionGuard::new(caps);
     let served: Pin<Box<dyn Future<Output = io::Result<()>> + Send>> = match tls {
-        None => {
-            let mut server = axum_server::Server::from_listener(listener)
-                .acceptor(guard.wrap(DefaultAcceptor::new()))
-                .handle(handle.clone())
-                .first_request_timeout(caps.first_request_timeout)
-                .accept_error_handler(log_refused_connection);
-            server
-                .http_builder()
-                .http1()
-                .header_read_timeout(caps.header_read_timeout);
-            Box::pin(server.serve(service))
-        }
+        None => Box::pin(
+            server(listener, guard.wrap(DefaultAcceptor::new()), &handle, caps).serve(service),
+        ),
         Some(config) => {
             let acceptor = RustlsAcceptor::new(RustlsConfig::from_config(config))
                 .handshake_timeout(HANDSHAKE_TIMEOUT)
                 .acceptor(guard.wrap(RefusePlainText));
-            let mut server = axum_server::Server::from_listener(listener)
-                .acceptor(acceptor)
-                .handle(handle.clone())
-                .first_request_timeout(caps.first_request_timeout)
-                .accept_error_handler(log_refused_connection);
-            server
-                .http_builder()
-                .http1()
-                .header_read_timeout(caps.header_read_timeout);
-            Box::pin(server.serve(service))
+            Box::pin(server(listener, acceptor, &handle, caps).serve(service))
         }
     };
     tokio::spawn(async move {
@@ -125,6 +107,26 @@ pub fn serve(
             tracing::error!(error = %e, "HTTP server failed");
         }
     })
+}
+
+/// The server on `listener` with `acceptor`, both ways of serving alike: `caps`' timeouts,
+/// shut down through `handle`, refusals logged.
+fn server<Acc>(
+    listener: TcpListener,
+    acceptor: Acc,
+    handle: &axum_server::Handle<SocketAddr>,
+    caps: ConnectionCaps,
+) -> axum_server::Server<SocketAddr, Acc> {
+    let mut server = axum_server::Server::from_listener(listener)
+        .acceptor(acceptor)
+        .handle(handle.clone())
+        .first_request_timeout(caps.first_request_timeout)
+        .accept_error_handler(log_refused_connection);
+    server
+        .http_builder()
+        .http1()
+        .header_read_timeout(caps.header_read_timeout);
+    server
 }
 
 /// Counts the open connections per client address and in all, refusing one over
