@@ -38,6 +38,10 @@ use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{ContactFlags, ContactState, Material, ModelSpec, Pose, ToolShape};
 
+#[path = "common/targets.rs"]
+mod targets;
+use targets::{Target, grid, liver_top, vertex_target};
+
 #[path = "common/liver_world.rs"]
 mod liver_world;
 use liver_world::liver_world;
@@ -63,48 +67,6 @@ const COMBINED: ModelSpec = ModelSpec {
     hyperelastic: true,
     ..ModelSpec::PAPER
 };
-
-/// Where the hand presses: a surface point with its outward normal, on a mesh.
-struct Target {
-    mesh: HapticMesh,
-    point_m: DVec3,
-    normal: DVec3,
-}
-
-/// The flat grid, 1 mm spacing, pressed at its centre vertex.
-fn grid() -> Target {
-    Target {
-        mesh: HapticMesh::grid(81, 0.08),
-        point_m: DVec3::ZERO,
-        normal: DVec3::Y,
-    }
-}
-
-/// The liver, pressed on top of its thick lobe at the haptic mesh's vertex nearest
-/// [`liver::top_contact`], along that vertex's normal: on a vertex, so that the paper's mode
-/// starts a contact even for a tool smaller than the mesh spacing.
-fn liver_top() -> Target {
-    vertex_target(liver::haptic_mesh(), liver::top_contact().point_m)
-}
-
-/// The vertex of `mesh` nearest `near_m`, with its normal.
-fn vertex_target(mesh: HapticMesh, near_m: DVec3) -> Target {
-    let (index, _) = mesh
-        .positions_m()
-        .iter()
-        .enumerate()
-        .min_by(|a, b| {
-            (*a.1 - near_m)
-                .length()
-                .total_cmp(&(*b.1 - near_m).length())
-        })
-        .unwrap();
-    Target {
-        point_m: mesh.positions_m()[index],
-        normal: mesh.normals()[index],
-        mesh,
-    }
-}
 
 /// Spheres and 45° cones from 0.5 mm to the default 10 mm.
 fn tools() -> Vec<ToolShape> {

@@ -40,12 +40,15 @@ use glam::{DQuat, DVec3};
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceError, DeviceLimits, DeviceSample};
 use softhaptic_device::force::ForceConfig;
-use softhaptic_device::liver;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::shape;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::{ContactFlags, ContactState, Material, ModelSpec, Pose, ToolShape};
+
+#[path = "common/targets.rs"]
+mod targets;
+use targets::{Target, grid, liver_top};
 
 const PERIOD_NS: u64 = 1_000_000;
 const PERIOD_S: f64 = 1e-3;
@@ -64,45 +67,6 @@ const WITHDRAW_M_S: f64 = 0.05;
 
 /// Tolerance on "below the surface" (the positions are exact here).
 const TOLERANCE_M: f64 = 2e-5;
-
-/// Where the hand goes in: a surface point with its outward normal, on a mesh.
-struct Target {
-    mesh: HapticMesh,
-    point_m: DVec3,
-    normal: DVec3,
-}
-
-/// The flat grid, 1 mm spacing, entered at its centre vertex.
-fn grid() -> Target {
-    Target {
-        mesh: HapticMesh::grid(81, 0.08),
-        point_m: DVec3::ZERO,
-        normal: DVec3::Y,
-    }
-}
-
-/// The liver, entered on top of its thick lobe at the haptic mesh's vertex nearest
-/// [`liver::top_contact`], along that vertex's normal (on a vertex, so that the paper's mode
-/// sees the contact of a tool smaller than the mesh spacing, as in `pop_through.rs`).
-fn liver_top() -> Target {
-    let mesh = liver::haptic_mesh();
-    let near_m = liver::top_contact().point_m;
-    let (index, _) = mesh
-        .positions_m()
-        .iter()
-        .enumerate()
-        .min_by(|a, b| {
-            (*a.1 - near_m)
-                .length()
-                .total_cmp(&(*b.1 - near_m).length())
-        })
-        .unwrap();
-    Target {
-        point_m: mesh.positions_m()[index],
-        normal: mesh.normals()[index],
-        mesh,
-    }
-}
 
 /// The 0.5 mm sphere, the 0.5 mm-tip 45° cone and the 1 mm sphere.
 fn small_tools() -> [ToolShape; 3] {
