@@ -197,33 +197,6 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
     }
 }
 
-fn log_archive(report: &softhaptic_server::lab::archive::ArchiveReport) {
-    for f in &report.uploaded {
-        tracing::info!(file = %f, "recording archived in the lab (verified)");
-    }
-    for (f, why) in &report.failed {
-        tracing::warn!(file = %f, "recording not archived ({why}): it is kept, and tried again at the next start");
-    }
-    if !report.already.is_empty() {
-        tracing::info!(
-            count = report.already.len(),
-            "recordings already in the lab's archive"
-        );
-    }
-    for (id, parts) in &report.orphans_removed {
-        tracing::info!(
-            chunk_id = %id,
-            parts,
-            "removed the parts of an upload that can never finish (no archived object uses them)"
-        );
-    }
-    if let Some(why) = &report.sweep_failed {
-        tracing::warn!(
-            "the archive's unused parts were not swept ({why}): tried again at the next start"
-        );
-    }
-}
-
 fn hub(args: HubArgs) -> anyhow::Result<()> {
     let access = args.access.resolve(args.addr)?;
     let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
@@ -237,7 +210,8 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
             app::StopSignals::listen().context("could not listen for the stop signals")?;
         let hub = softhaptic_server::lab::hub::start(softhaptic_server::lab::hub::HubOptions {
             nats: softhaptic_server::lab::NatsOptions {
-                url: args.nats.clone(),
+                url: softhaptic_server::lab::parse_nats_url(&args.nats)
+                    .map_err(|e| anyhow::anyhow!("--nats: {e}"))?,
                 credentials: args.nats_credentials.clone(),
             },
             addr: args.addr,
@@ -264,6 +238,10 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     // Refuse to serve an address beyond loopback without tokens, and bad token sources, before
     // anything starts.
     let access = args.access.resolve(args.addr)?;
+    if let Some(url) = &args.nats {
+        // Refused with the reason, never the URL: it would carry the credentials.
+        softhaptic_server::lab::parse_nats_url(url).map_err(|e| anyhow::anyhow!("--nats: {e}"))?;
+    }
     // A certificate that does not load stops the start too, before a recording is begun.
     let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
     if let Some(t) = &tls {
@@ -341,8 +319,9 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                 r.path().display()
             ));
         }
-        // A lab station archives its finished recordings (earlier sessions now, this one when it
-        // stops) in the lab's object store; a file not verified there is tried again next start.
+        // A lab station archives its finished recordings (earlier sessions now, and again while it
+        // runs until none is left unarchived; this one when it stops); a file not verified there
+        // by then is tried again at the next start.
         let archive = match (&lab, &recording) {
             (Some(lab), Some(r)) => {
                 let client = softhaptic_server::lab::connect(
@@ -351,20 +330,13 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                     "station",
                 )
                 .await?;
-                let (station, dir, current) =
-                    (lab.name.clone(), args.record.record_dir.clone(), r.path().to_owned());
-                let pass_client = client.clone();
-                tokio::spawn(async move {
-                    let report = softhaptic_server::lab::archive::upload_finished(
-                        &pass_client,
-                        &station,
-                        &dir,
-                        Some(&current),
-                    )
-                    .await;
-                    log_archive(&report);
-                });
-                Some((client, lab.name.clone()))
+                Some(softhaptic_server::lab::archive::StationArchive::start(
+                    client,
+                    lab.name.clone(),
+                    args.record.record_dir.clone(),
+                    Some(r.path().to_owned()),
+                    Default::default(),
+                ))
             }
             _ => None,
         };
@@ -396,15 +368,10 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                 contact_frames = rec.contact_frames_recorded,
                 "recording closed"
             );
-            if let Some((client, station)) = archive {
-                let upload = async {
-                    let store = softhaptic_server::lab::archive::store(&client).await?;
-                    softhaptic_server::lab::archive::upload(&store, &station, &path).await
-                };
-                match tokio::time::timeout(std::time::Duration::from_secs(60), upload).await {
-                    Ok(Ok(_)) => tracing::info!(file = %path.display(), "recording archived in the lab (verified)"),
-                    Ok(Err(e)) => tracing::warn!("recording not archived ({e}): it is kept, and tried again at the next start"),
-                    Err(_) => tracing::warn!("recording not archived within 60 s: it is kept, and tried again at the next start"),
+            if let Some(archive) = archive {
+                match archive.finish(&path, std::time::Duration::from_secs(60)).await {
+                    Ok(_) => tracing::info!(file = %path.display(), "recording archived in the lab (verified)"),
+                    Err(e) => tracing::warn!("recording not archived ({e}): it is kept, and tried again at the next start"),
                 }
             }
         }

@@ -380,6 +380,19 @@ fn dechunk(mut body: &[u8]) -> Vec<u8> {
     }
 }
 
+/// Polls `condition` until it holds, failing the test after a minute: the tests wait for what
+/// they check, never for a time.
+pub async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    while !condition() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "timed out waiting for {what}"
+        );
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
 /// A fresh, empty directory for one test's files: `<tmp>/softhaptic-<name>-<pid>`.
 ///
 /// The same test's directories left by earlier runs whose process is gone (a failed or killed

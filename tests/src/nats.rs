@@ -277,3 +277,49 @@ impl Drop for NatsServer {
         let _ = std::fs::remove_dir_all(&self.store);
     }
 }
+
+/// Options for the NATS at `url`, without credentials.
+pub fn options(url: String) -> softhaptic_server::lab::NatsOptions {
+    softhaptic_server::lab::NatsOptions {
+        url,
+        credentials: None,
+    }
+}
+
+/// A simulated station named `name` on the built-in scene (the test options: loopback, a free
+/// port, no recording), publishing to the NATS of `options`.
+pub async fn start_station(
+    name: &str,
+    options: softhaptic_server::lab::NatsOptions,
+) -> Result<softhaptic_server::app::RunningServer, softhaptic_server::app::ServerError> {
+    let mut o = crate::test_options();
+    o.lab = Some(softhaptic_server::lab::station::StationOptions {
+        nats: options,
+        name: name.to_owned(),
+    });
+    let scene =
+        softhaptic_server::scene::Scene::builtin_default().expect("the built-in scene loads");
+    softhaptic_server::app::start(scene, o).await
+}
+
+/// A hub on a free loopback port relaying the stations of the NATS of `options`, with the
+/// tests' tokens when `tokens`.
+pub async fn start_hub(
+    options: softhaptic_server::lab::NatsOptions,
+    tokens: bool,
+) -> softhaptic_server::lab::hub::RunningHub {
+    let access = softhaptic_server::access::AccessConfig {
+        tokens: tokens.then(crate::test_tokens),
+        ..Default::default()
+    };
+    softhaptic_server::lab::hub::start(softhaptic_server::lab::hub::HubOptions {
+        nats: options,
+        addr: ([127, 0, 0, 1], 0).into(),
+        web_dir: softhaptic_server::app::default_web_dir(),
+        access,
+        tls: None,
+        viewer_limits: Default::default(),
+    })
+    .await
+    .expect("the hub starts")
+}

@@ -10,13 +10,13 @@ use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use softhaptic_proto::wire::{ContactFrame, Role, ServerMessage};
-use softhaptic_server::app::{self, RunningServer, default_web_dir};
+use softhaptic_server::app::{self, RunningServer};
 use softhaptic_server::lab::NatsOptions;
-use softhaptic_server::lab::hub::{self, HubOptions, RunningHub};
+use softhaptic_server::lab::hub::{self};
 use softhaptic_server::lab::station::StationOptions;
 use softhaptic_server::scene::Scene;
-use softhaptic_tests::nats::NatsServer;
-use softhaptic_tests::{Viewer, scratch_dir, test_options};
+use softhaptic_tests::nats::{NatsServer, start_hub as hub};
+use softhaptic_tests::{Viewer, scratch_dir, test_options, wait_until};
 
 const O: &str = softhaptic_tests::OBSERVER_TOKEN;
 
@@ -34,31 +34,6 @@ async fn station(
         name: name.to_owned(),
     });
     app::start(Scene::builtin_default().unwrap(), o).await
-}
-
-async fn hub(options: NatsOptions, tokens: bool) -> RunningHub {
-    let mut access = softhaptic_server::access::AccessConfig::default();
-    if tokens {
-        access.tokens = Some(softhaptic_tests::test_tokens());
-    }
-    hub::start(HubOptions {
-        nats: options,
-        addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: default_web_dir(),
-        access,
-        tls: None,
-        viewer_limits: Default::default(),
-    })
-    .await
-    .unwrap()
-}
-
-async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !condition() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
 }
 
 /// Contact frames by seq (their `dropped` set to 0: each viewer has its own count) until

@@ -8,16 +8,14 @@
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::net::SocketAddr;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use softhaptic_proto::wire::{Mode, ServerMessage};
-use softhaptic_server::app::{self, RunningServer, default_web_dir};
+use softhaptic_server::app::RunningServer;
 use softhaptic_server::lab::NatsOptions;
-use softhaptic_server::lab::hub::{self, HubOptions, RunningHub};
-use softhaptic_server::lab::station::StationOptions;
-use softhaptic_server::scene::Scene;
-use softhaptic_tests::nats::NatsServer;
-use softhaptic_tests::{Viewer, http_request, scratch_dir, test_options};
+use softhaptic_server::lab::hub::RunningHub;
+use softhaptic_tests::nats::{NatsServer, options as nats, start_hub, start_station};
+use softhaptic_tests::{Viewer, http_request, scratch_dir, wait_until};
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::http::HeaderValue;
 
@@ -31,49 +29,6 @@ const INTERNAL: [&str; 5] = [
     "heard from",
     "nosuch",
 ];
-
-fn nats(url: String) -> NatsOptions {
-    NatsOptions {
-        url,
-        credentials: None,
-    }
-}
-
-async fn station(name: &str, options: NatsOptions) -> RunningServer {
-    let mut o = test_options();
-    o.lab = Some(StationOptions {
-        nats: options,
-        name: name.to_owned(),
-    });
-    app::start(Scene::builtin_default().unwrap(), o)
-        .await
-        .unwrap()
-}
-
-async fn tokened_hub(options: NatsOptions) -> RunningHub {
-    let access = softhaptic_server::access::AccessConfig {
-        tokens: Some(softhaptic_tests::test_tokens()),
-        ..Default::default()
-    };
-    hub::start(HubOptions {
-        nats: options,
-        addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: default_web_dir(),
-        access,
-        tls: None,
-        viewer_limits: Default::default(),
-    })
-    .await
-    .unwrap()
-}
-
-async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !condition() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
 
 /// Connects to the hub's `/ws?QUERY` as a page of `origin` would (no `Origin` when `None`),
 /// naming it `host` (its address when `None`). `Err` is a refused upgrade's status and body.
@@ -302,4 +257,12 @@ async fn an_archived_replay_is_fetched_for_an_authenticated_viewer_and_dropped_a
     hub.shutdown().await;
     let (close, _) = third.until_closed(WAIT).await;
     assert_eq!(close.map(|c| c.0), Some(1001));
+}
+
+async fn station(name: &str, options: NatsOptions) -> RunningServer {
+    start_station(name, options).await.unwrap()
+}
+
+async fn tokened_hub(options: NatsOptions) -> RunningHub {
+    start_hub(options, true).await
 }

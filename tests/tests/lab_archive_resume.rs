@@ -9,11 +9,9 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use softhaptic_server::app::default_web_dir;
-use softhaptic_server::lab::NatsOptions;
 use softhaptic_server::lab::archive::{self, UploadEvent, UploadOptions};
-use softhaptic_server::lab::hub::{self, HubOptions, RunningHub};
-use softhaptic_tests::nats::NatsServer;
+use softhaptic_server::lab::hub::RunningHub;
+use softhaptic_tests::nats::{NatsServer, options as nats, start_hub};
 use softhaptic_tests::scratch_dir;
 use tokio::sync::mpsc;
 
@@ -23,26 +21,6 @@ const PART_BYTES: usize = 4096;
 const PAUSE_AFTER: usize = 20;
 /// Every wait in this file: generous, for a loaded 2-core CI machine.
 const DEADLINE: Duration = Duration::from_secs(120);
-
-fn nats(url: String) -> NatsOptions {
-    NatsOptions {
-        url,
-        credentials: None,
-    }
-}
-
-async fn hub(url: String) -> RunningHub {
-    hub::start(HubOptions {
-        nats: nats(url),
-        addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: default_web_dir(),
-        access: Default::default(),
-        tls: None,
-        viewer_limits: Default::default(),
-    })
-    .await
-    .unwrap()
-}
 
 /// A copy of a recorded session in a fresh directory, and its number of parts.
 fn recording(dir: &Path, name: &str) -> (PathBuf, usize) {
@@ -380,4 +358,8 @@ async fn the_parts_of_an_upload_that_can_never_finish_are_swept_once_old_and_not
         archive::sweep_orphan_parts(&store, Duration::ZERO).await,
         Ok(vec![])
     );
+}
+
+async fn hub(url: String) -> RunningHub {
+    start_hub(nats(url), false).await
 }

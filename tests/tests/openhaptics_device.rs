@@ -29,7 +29,9 @@ use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::tools::Info;
 use softhaptic_tests::standin::{StandIn, hd, missing_symbol_path, standin_path};
-use softhaptic_tests::{RecordedServer, Viewer, scratch_dir, start_recorded, test_options};
+use softhaptic_tests::{
+    RecordedServer, Viewer, scratch_dir, start_recorded, test_options, wait_until,
+};
 
 /// One test at a time owns the stand-in (an async mutex: the tests hold it across awaits, and a
 /// test that fails releases it as it unwinds).
@@ -144,15 +146,6 @@ impl Counters {
     fn outside_frame_calls(&self) -> u64 {
         // SAFETY: no arguments.
         unsafe { (self.outside_frame_calls)() }
-    }
-}
-
-/// Waits (polling, generous deadline) until `condition` holds.
-async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !condition() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(5)).await;
     }
 }
 

@@ -22,7 +22,7 @@ use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
 use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
-use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
+use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options, wait_until};
 
 /// A report every 16 ms, as a wired SpaceMouse sends them while its puck is off centre.
 const REPORT_EVERY_S: f64 = 0.016;
@@ -55,14 +55,6 @@ fn puck_script() -> ReportScript {
     s = s.unplug(2.9).replug(4.9);
     s = s.hold_translation(5.2, 5.8, REPORT_EVERY_S, [0, 0, -FULL]);
     s.report(6.1, &[3, 1]).report(6.4, &[3, 0])
-}
-
-async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !condition() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -5,22 +5,13 @@
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::sync::atomic::Ordering;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use softhaptic_proto::wire::ServerMessage;
 use softhaptic_server::app::RunningServer;
-use softhaptic_tests::{Viewer, start_default, test_options};
+use softhaptic_tests::{Viewer, start_default, test_options, wait_until};
 
 const WAIT: Duration = Duration::from_secs(10);
-
-/// Polls `condition` until it holds, for at most a minute.
-async fn wait_until(what: &str, mut condition: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while !condition() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
 
 /// Connected, greeted and streaming.
 async fn streaming(server: &RunningServer) -> Viewer {

@@ -1,14 +1,18 @@
 //! Finished recordings into the lab's JetStream object store, and back out for the hubs.
 //!
 //! A station with a recording directory uploads every finished recording there (all but the one
-//! being written) when it starts, and the session's own recording when it stops, each as
+//! being written) when it starts, again while it runs until none is left unarchived
+//! ([`mod@schedule`]), and the session's own recording when it stops, each as
 //! `STATION/FILE` in the bucket [`BUCKET`]. An upload goes part by part and resumes: a pass cut
 //! short (NATS restarted, the station stopped) leaves the parts it stored in the store, and the
-//! next attempt, in the same pass once NATS is back or at the next start, asks the store how far
+//! next attempt, in the same pass or the next, or at the next start, asks the store how far
 //! it got and sends only the rest ([`mod@upload`] explains how the store keeps that count exact).
 //! A file is archived once every part is stored, read back with the file's SHA-256, and the
-//! object's meta written: only then do hubs list it, and they read it with the object store's
-//! ordinary reader, the same for objects older stations wrote with a plain `put`.
+//! object's meta written: only then do hubs list it. They read it for a replay with the object
+//! store's ordinary reader, and for a download ([`download`]) a part at a time as the client
+//! takes it, the same for objects older stations wrote with a plain `put`. A hub's list says
+//! "nothing archived" only when the bucket does not exist; any other failure to ask the store is
+//! an error, not an empty list.
 //!
 //! No recording is ever deleted here: the local file stays where it is (a lab that wants its
 //! disks back removes archived files after checking with `/api/archive`), and so does every
@@ -18,8 +22,10 @@
 //! the last of them is [`ORPHAN_PARTS_AGE`] old ([`sweep_orphan_parts`]), long after any upload
 //! still going would have stored its next part.
 
+pub mod schedule;
 pub mod upload;
 
+pub use schedule::{ArchiveProgress, RetryOptions, StationArchive};
 pub use upload::{UploadEvent, UploadOptions, upload_with};
 
 use std::collections::HashSet;
@@ -285,9 +291,16 @@ pub async fn list(
     station: Option<&str>,
 ) -> Result<Vec<ArchivedSession>, String> {
     use futures_util::StreamExt;
+    // Not connected: the request would only time out (and "nothing archived" would be a lie).
+    if !crate::lab::is_connected(client) {
+        return Err("NATS is not connected".to_owned());
+    }
     let js = async_nats::jetstream::new(client.clone());
-    let Ok(store) = js.get_object_store(BUCKET).await else {
-        return Ok(Vec::new());
+    let store = match js.get_object_store(BUCKET).await {
+        Ok(store) => store,
+        // Nothing was ever archived: no bucket yet.
+        Err(e) if is_no_bucket(&e) => return Ok(Vec::new()),
+        Err(e) => return Err(format!("the object store {BUCKET:?}: {e}")),
     };
     let mut objects = store.list().await.map_err(|e| e.to_string())?;
     let mut out = Vec::new();
@@ -308,6 +321,18 @@ pub async fn list(
     }
     out.sort_by(|a, b| (&a.station, &a.file).cmp(&(&b.station, &b.file)));
     Ok(out)
+}
+
+/// Whether `error` says that the bucket does not exist (its stream is not found), rather than
+/// that the store could not be asked.
+fn is_no_bucket(error: &jetstream::context::ObjectStoreError) -> bool {
+    use async_nats::jetstream::ErrorCode;
+    use async_nats::jetstream::context::{GetStreamError, GetStreamErrorKind};
+    std::error::Error::source(error)
+        .and_then(|source| source.downcast_ref::<GetStreamError>())
+        .is_some_and(|e| {
+            matches!(e.kind(), GetStreamErrorKind::JetStream(j) if j.error_code() == ErrorCode::STREAM_NOT_FOUND)
+        })
 }
 
 /// One archived recording's bytes (at most a recording's size limit).
@@ -337,4 +362,133 @@ pub async fn fetch(
         return Err(format!("larger than the {limit} bytes a recording may be"));
     }
     Ok(bytes)
+}
+
+/// An archived recording opened for a download: its size, and its bytes a part at a time as
+/// the client takes them (each part is asked of the store when the one before has gone, so a
+/// download holds one part, never the whole file, however slow its client). The whole file's
+/// SHA-256 is checked before its last part goes: a body that ends with an error was not the
+/// recording (and is shorter than its `Content-Length`).
+pub struct Download {
+    pub bytes: u64,
+    pub body: futures_util::stream::BoxStream<'static, std::io::Result<axum::body::Bytes>>,
+}
+
+/// Opens one archived recording for a download (at most a recording's size limit).
+pub async fn download(
+    client: &async_nats::Client,
+    station: &str,
+    file: &str,
+) -> Result<Download, String> {
+    use futures_util::StreamExt;
+    let js = async_nats::jetstream::new(client.clone());
+    let objects = js
+        .get_object_store(BUCKET)
+        .await
+        .map_err(|e| e.to_string())?;
+    let info = objects
+        .info(object_name(station, file))
+        .await
+        .map_err(|e| e.to_string())?;
+    if info.deleted {
+        return Err("deleted".to_owned());
+    }
+    if info.options.as_ref().is_some_and(|o| o.link.is_some()) {
+        return Err("a link, not a recording".to_owned());
+    }
+    let limit = crate::files::FileKind::Recording.max_bytes();
+    let bytes = info.size as u64;
+    if bytes > limit {
+        return Err(format!(
+            "{bytes} bytes, larger than the {limit} bytes a recording may be"
+        ));
+    }
+    if info.chunks == 0 && bytes != 0 {
+        return Err(format!("{bytes} bytes in no part"));
+    }
+    let stream = js
+        .get_stream(format!("OBJ_{BUCKET}"))
+        .await
+        .map_err(|e| e.to_string())?;
+    let reading = Reading {
+        stream,
+        subject: upload::chunk_subject(&info.nuid),
+        chunks: info.chunks,
+        digest: info.digest.clone(),
+        bytes,
+        next_chunk: 0,
+        next_sequence: 1,
+        sent: 0,
+        hasher: Sha256::new(),
+    };
+    let body = futures_util::stream::unfold(Some(reading), |state| async move {
+        let mut reading = state?;
+        match reading.next_part().await {
+            Ok(Some(part)) => Some((Ok(part), Some(reading))),
+            Ok(None) => None,
+            Err(e) => Some((Err(std::io::Error::other(e)), None)),
+        }
+    })
+    .boxed();
+    Ok(Download { bytes, body })
+}
+
+/// Where a download is in the object's parts.
+struct Reading {
+    stream: Stream,
+    subject: String,
+    chunks: usize,
+    digest: Option<String>,
+    bytes: u64,
+    next_chunk: usize,
+    /// The stream sequence to look for the next part from.
+    next_sequence: u64,
+    sent: u64,
+    hasher: Sha256,
+}
+
+impl Reading {
+    /// The next part, checked; `None` after the last.
+    async fn next_part(&mut self) -> Result<Option<axum::body::Bytes>, String> {
+        if self.next_chunk == self.chunks {
+            return Ok(None);
+        }
+        let message = self
+            .stream
+            .raw_message_builder()
+            .next_by_subject(self.subject.clone())
+            .sequence(self.next_sequence)
+            .send()
+            .await
+            .map_err(|e| format!("part {} of {}: {e}", self.next_chunk + 1, self.chunks))?;
+        self.next_sequence = message.sequence + 1;
+        self.next_chunk += 1;
+        self.sent += message.payload.len() as u64;
+        if self.sent > self.bytes {
+            return Err(format!(
+                "the object holds more than its {} bytes",
+                self.bytes
+            ));
+        }
+        self.hasher.update(&message.payload);
+        if self.next_chunk == self.chunks {
+            if self.sent != self.bytes {
+                return Err(format!(
+                    "the object holds {} of its {} bytes",
+                    self.sent, self.bytes
+                ));
+            }
+            let digest = format!(
+                "SHA-256={}",
+                base64::engine::general_purpose::URL_SAFE
+                    .encode(std::mem::take(&mut self.hasher).finalize())
+            );
+            if let Some(want) = &self.digest
+                && !same_digest(want, &digest)
+            {
+                return Err(format!("its parts' digest is {digest}, not {want}"));
+            }
+        }
+        Ok(Some(message.payload))
+    }
 }

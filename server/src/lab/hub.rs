@@ -799,16 +799,19 @@ async fn archived_file(
             ),
         );
     }
-    match super::archive::fetch(&lab.client, &station, &file).await {
-        Ok(bytes) => (
+    // Streamed from the store as the client takes it: a download holds a piece of the
+    // recording at a time, not the whole file, however many run at once.
+    match super::archive::download(&lab.client, &station, &file).await {
+        Ok(download) => (
             [
                 (header::CONTENT_TYPE, "application/octet-stream".to_owned()),
+                (header::CONTENT_LENGTH, download.bytes.to_string()),
                 (
                     header::CONTENT_DISPOSITION,
                     format!("attachment; filename=\"{station}-{file}\""),
                 ),
             ],
-            bytes,
+            axum::body::Body::from_stream(download.body),
         )
             .into_response(),
         Err(e) => refused(
@@ -912,66 +915,60 @@ async fn ws(
     let archive = q.archive;
     let admission = lab.access.admit(peer.map(|p| p.ip()));
     let limits = lab.limits;
-    upgrade
-        .max_message_size(limits.max_incoming_bytes)
-        .max_frame_size(limits.max_incoming_bytes)
-        // Bounds what one stalled viewer can make the hub buffer: a frame or two.
-        .write_buffer_size(0)
-        .max_write_buffer_size(1 << 20)
-        .on_upgrade(move |socket| async move {
-            let admission = match admission {
-                Ok(admission) => admission,
-                Err(refusal) => {
-                    lab.access
-                        .refuse_viewer(socket, refusal, limits, &lab.gate)
-                        .await;
-                    Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
-                    return;
+    limits.bound(upgrade).on_upgrade(move |socket| async move {
+        let admission = match admission {
+            Ok(admission) => admission,
+            Err(refusal) => {
+                lab.access
+                    .refuse_viewer(socket, refusal, limits, &lab.gate)
+                    .await;
+                Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                return;
+            }
+        };
+        let mut connection = Connection::new(peer, origin, Some(admission));
+        // The viewer's use of a replay, given back when it ends.
+        let mut replay_use = None;
+        let used = &mut replay_use;
+        let (hub_lab, client) = (&lab, &client);
+        let (station, archive) = (station.as_str(), archive.as_deref());
+        let find = move || async move {
+            match hub_lab.viewer_stream(station, archive).await {
+                // Made after the hub's feeds were closed: nobody would close it.
+                Ok(_) if *hub_lab.shutdown.borrow() => {
+                    Err((axum::extract::ws::close_code::AWAY, "server shutting down"))
                 }
-            };
-            let mut connection = Connection::new(peer, origin, Some(admission));
-            // The viewer's use of a replay, given back when it ends.
-            let mut replay_use = None;
-            let used = &mut replay_use;
-            let (hub_lab, client) = (&lab, &client);
-            let (station, archive) = (station.as_str(), archive.as_deref());
-            let find = move || async move {
-                match hub_lab.viewer_stream(station, archive).await {
-                    // Made after the hub's feeds were closed: nobody would close it.
-                    Ok(_) if *hub_lab.shutdown.borrow() => {
-                        Err((axum::extract::ws::close_code::AWAY, "server shutting down"))
-                    }
-                    Ok((hub, archive_use)) => {
-                        *used = archive_use;
-                        Ok(hub)
-                    }
-                    Err((status, detail)) => {
-                        tracing::info!(%client, %status, "viewer refused: {detail}");
-                        let reason = public_reason(status);
-                        Err(match status {
-                            StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
-                            StatusCode::SERVICE_UNAVAILABLE | StatusCode::BAD_GATEWAY => {
-                                (CLOSE_TRY_LATER, reason)
-                            }
-                            _ => (axum::extract::ws::close_code::ERROR, reason),
-                        })
-                    }
+                Ok((hub, archive_use)) => {
+                    *used = archive_use;
+                    Ok(hub)
                 }
-            };
-            let end = lab
-                .access
-                .serve_viewer_found_after_auth(
-                    socket,
-                    limits,
-                    &lab.shutdown,
-                    &lab.gate,
-                    &mut connection,
-                    find,
-                )
-                .await;
-            drop(replay_use);
-            connection.finish(&end);
-        })
+                Err((status, detail)) => {
+                    tracing::info!(%client, %status, "viewer refused: {detail}");
+                    let reason = public_reason(status);
+                    Err(match status {
+                        StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
+                        StatusCode::SERVICE_UNAVAILABLE | StatusCode::BAD_GATEWAY => {
+                            (CLOSE_TRY_LATER, reason)
+                        }
+                        _ => (axum::extract::ws::close_code::ERROR, reason),
+                    })
+                }
+            }
+        };
+        let end = lab
+            .access
+            .serve_viewer_found_after_auth(
+                socket,
+                limits,
+                &lab.shutdown,
+                &lab.gate,
+                &mut connection,
+                find,
+            )
+            .await;
+        drop(replay_use);
+        connection.finish(&end);
+    })
 }
 
 /// Connects to NATS, follows the stations and serves the page.
