@@ -18,6 +18,8 @@ pub const INSTRUCTOR_TOKEN_ENV: &str = "SOFTHAPTIC_INSTRUCTOR_TOKEN";
 pub const OBSERVER_TOKEN_ENV: &str = "SOFTHAPTIC_OBSERVER_TOKEN";
 /// The shortest token accepted: 32 characters, as the 128 bits of a generated one in hex.
 pub const MIN_TOKEN_CHARS: usize = 32;
+/// Fewest different characters a token given by a person may use.
+pub const MIN_DISTINCT_TOKEN_CHARS: usize = 8;
 /// The longest token accepted (a bound on what a token file can make the server hold).
 pub const MAX_TOKEN_CHARS: usize = 512;
 /// Bytes drawn from the OS for a generated token: 128 bits.
@@ -35,6 +37,11 @@ pub enum TokenProblem {
     TooShort { role: &'static str, chars: usize },
     #[error("the {role} token is {chars} characters long; at most {MAX_TOKEN_CHARS} are accepted")]
     TooLong { role: &'static str, chars: usize },
+    #[error(
+        "the {role} token uses only {distinct} different characters: it looks made by hand, not \
+         drawn at random; make one with `openssl rand -hex 16`"
+    )]
+    HandMade { role: &'static str, distinct: usize },
     #[error(
         "the {role} token has a character other than a letter, a digit, `-`, `.`, `_` or `~` \
          (it must go into a link unchanged)"
@@ -95,6 +102,15 @@ impl Token {
         }
         if chars > MAX_TOKEN_CHARS {
             return Err(TokenProblem::TooLong { role, chars });
+        }
+        // Length alone does not make a secret: `aaaa…` or `abab…` passes it. Thirty-two random
+        // hex digits use about 14 of the 16 (fewer than 8 with odds below 1e-9).
+        let distinct = text
+            .bytes()
+            .collect::<std::collections::BTreeSet<u8>>()
+            .len();
+        if distinct < MIN_DISTINCT_TOKEN_CHARS {
+            return Err(TokenProblem::HandMade { role, distinct });
         }
         Ok(Token(zeroize::Zeroizing::new(text.to_owned())))
     }
@@ -409,6 +425,10 @@ mod tests {
             (
                 format!("instructor = {I}\n{O}\n"),
                 "/lab/tokens.txt:2: expected `instructor = <token>`",
+            ),
+            (
+                format!("instructor = {I}\nobserver = {}\n", "ab".repeat(20)),
+                "/lab/tokens.txt:2: the observer token uses only 2 different characters",
             ),
             (
                 format!("instructor = {I}\ntrainee = {O}\n"),
