@@ -17,6 +17,11 @@
 //! | [`topic::MARKS`] | the `mark` wire message, verbatim | each instructor's mark as sent |
 //! | [`topic::METRICS`] | the `metrics` wire message, verbatim | each 1 Hz message as sent, and the final one at the end |
 //!
+//! The build and scene records are written once more right after the first chunk, in an
+//! attachment named [`START_COPY_ATTACHMENT`]: its data is a chunk record of its own holding the
+//! first chunk's schemas, channels, build and scene again, so that a reader that finds the first
+//! chunk damaged still knows what the rest of the file is.
+//!
 //! Every message's log time is the device time in nanoseconds since the loop started, so a
 //! recording's timeline is the device's and replay can pace itself on it.
 //!
@@ -36,6 +41,13 @@ pub const SESSION_FORMAT_VERSION: u32 = 1;
 
 /// The MCAP profile string written in the file header.
 pub const MCAP_PROFILE: &str = "softhaptic";
+
+/// Name of the attachment that repeats the first chunk: its data is one MCAP chunk record holding
+/// every schema and channel, the build record and the scene record.
+pub const START_COPY_ATTACHMENT: &str = "softhaptic/start";
+
+/// Media type of the [`START_COPY_ATTACHMENT`].
+pub const START_COPY_MEDIA_TYPE: &str = "application/x-mcap-chunk";
 
 /// Schema encoding and message encoding of every channel.
 pub const SCHEMA_ENCODING: &str = "jsonschema";

@@ -168,17 +168,72 @@ fn any_flipped_length_bit_loses_at_most_its_own_chunk() {
     }
 }
 
-/// A bit flipped in the first chunk, which holds the build and scene records (the writer keeps
-/// them nowhere else): the recording cannot be read, but the refusal says the file is damaged
-/// (not that it ends early), and that the ticks after the damage are intact: the channels they
-/// are on are read from the file's summary.
+/// A bit flipped in the first chunk, which holds the build and scene records: the writer's copy
+/// of that chunk, right after it, takes its place, and every tick is read; the account names
+/// the damaged chunk and the copy.
 #[test]
-fn a_damaged_first_chunk_is_refused_as_damage_naming_the_intact_ticks() {
+fn a_damaged_first_chunk_is_replaced_by_its_copy_and_nothing_is_lost() {
     let (path, bytes) = slide();
     let full = Recording::from_bytes(&path, &bytes).unwrap();
     let (_, start, end) = *records(&bytes).iter().find(|r| r.0 == 0x06).unwrap();
+    // The copy is the attachment after the first chunk's message indexes.
+    assert!(
+        records(&bytes)
+            .iter()
+            .skip_while(|r| r.1 < end)
+            .take_while(|r| r.0 != 0x06)
+            .any(|r| r.0 == 0x09),
+        "no attachment between the first chunk and the second"
+    );
+    for at in [(start + 9 + 44 + end) / 2, end - 3, start + 30] {
+        let mut damaged = bytes.clone();
+        damaged[at] ^= 0x02;
+        let r = Recording::from_bytes(&path, &damaged).unwrap();
+        assert_eq!(r.device, full.device, "byte {at}: {}", r.recovery());
+        assert_eq!(r.scene.scene_toml, full.scene.scene_toml);
+        assert_eq!(r.lost.len(), 1, "byte {at}: {}", r.recovery());
+        assert_eq!(r.lost[0].first_byte, start as u64);
+        assert!(
+            r.lost[0].reason.contains("read from their copy"),
+            "{}",
+            r.lost[0]
+        );
+    }
+    // A file cut short as well (a crash): no summary to define the channels, and the copy
+    // alone makes the chunks kept readable.
+    let third_chunk_end = records(&bytes)
+        .iter()
+        .filter(|r| r.0 == 0x06)
+        .nth(2)
+        .unwrap()
+        .2;
+    let mut cut = bytes[..third_chunk_end].to_vec();
+    cut[(start + 9 + 44 + end) / 2] ^= 0x02;
+    let r = Recording::from_bytes(&path, &cut).unwrap();
+    let kept: Vec<_> = full
+        .device
+        .iter()
+        .take_while(|d| d.time_ns <= r.device.last().unwrap().time_ns)
+        .cloned()
+        .collect();
+    assert!(r.device.len() > 1_000, "{}", r.recovery());
+    assert_eq!(r.device, kept, "{}", r.recovery());
+}
+
+/// The first chunk and its copy both damaged (or a recording made before the copy existed): the
+/// recording cannot be read, but the refusal says the file is damaged (not that it ends early),
+/// and that the ticks after the damage are intact: the channels they are on are read from the
+/// file's summary.
+#[test]
+fn a_damaged_first_chunk_and_copy_are_refused_as_damage_naming_the_intact_ticks() {
+    let (path, bytes) = slide();
+    let full = Recording::from_bytes(&path, &bytes).unwrap();
+    let all = records(&bytes);
+    let (_, start, end) = *all.iter().find(|r| r.0 == 0x06).unwrap();
+    let (_, copy_start, copy_end) = *all.iter().find(|r| r.0 == 0x09).unwrap();
     let mut damaged = bytes.clone();
     damaged[(start + 9 + 44 + end) / 2] ^= 0x02;
+    damaged[(copy_start + copy_end) / 2] ^= 0x02;
     let e = Recording::from_bytes(&path, &damaged)
         .unwrap_err()
         .to_string();
@@ -187,7 +242,7 @@ fn a_damaged_first_chunk_is_refused_as_damage_naming_the_intact_ticks() {
             && !e.contains("the file ends")
             && e.contains(&format!("the {} ticks after it", full.device.len()))
             && e.contains("summary")
-            && e.contains("only in the first chunk"),
+            && e.contains("the first chunk and its copy"),
         "{e}"
     );
 }

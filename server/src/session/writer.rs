@@ -118,20 +118,7 @@ impl SessionWriter {
         let mut mcap = options
             .create(NoSeek::new(BufWriter::new(file)))
             .map_err(mcap_err)?;
-        let mut ids = [0u16; 8];
-        for (slot, (topic, name, schema)) in ids.iter_mut().zip(schema::ALL) {
-            let schema_id = mcap
-                .add_schema(name, record::SCHEMA_ENCODING, schema.as_bytes())
-                .map_err(mcap_err)?;
-            *slot = mcap
-                .add_channel(
-                    schema_id,
-                    topic,
-                    record::MESSAGE_ENCODING,
-                    &Default::default(),
-                )
-                .map_err(mcap_err)?;
-        }
+        let ids = add_channels(&mut mcap).map_err(mcap_err)?;
         let [
             build_id,
             scene_id,
@@ -162,9 +149,28 @@ impl SessionWriter {
             chunk_start_ns: None,
             last_time_ns: 0,
         };
-        w.write_json(w.channels.build, 0, build)?;
-        w.write_json(w.channels.scene, 0, scene)?;
+        let encode = |e: serde_json::Error| SessionError::Encode {
+            path: path.to_path_buf(),
+            what: e.to_string(),
+        };
+        let build_json = serde_json::to_vec(build).map_err(encode)?;
+        let scene_json = serde_json::to_vec(scene).map_err(encode)?;
+        w.write_raw(w.channels.build, 0, &build_json)?;
+        w.write_raw(w.channels.scene, 0, &scene_json)?;
         // The build and scene records go to disk at once: a file cut short keeps them.
+        w.flush_chunk()?;
+        // And once more, apart from the first chunk: without them nothing after it can be read,
+        // so one damaged chunk there would cost the whole recording.
+        let copy = start_copy(path, ids, &build_json, &scene_json)?;
+        w.mcap
+            .attach(&mcap::Attachment {
+                log_time: 0,
+                create_time: 0,
+                name: record::START_COPY_ATTACHMENT.into(),
+                media_type: record::START_COPY_MEDIA_TYPE.into(),
+                data: std::borrow::Cow::Owned(copy),
+            })
+            .map_err(mcap_err)?;
         w.flush_chunk()?;
         Ok(w)
     }
@@ -312,6 +318,82 @@ impl SessionWriter {
             })
     }
 }
+
+/// Adds every channel of a recording (with its schema) to `mcap`, in the order of
+/// [`schema::ALL`], and returns their ids in that order.
+fn add_channels<W: Write + std::io::Seek>(
+    mcap: &mut mcap::Writer<W>,
+) -> Result<[u16; 8], mcap::McapError> {
+    let mut ids = [0u16; 8];
+    for (slot, (topic, name, schema)) in ids.iter_mut().zip(schema::ALL) {
+        let schema_id = mcap.add_schema(name, record::SCHEMA_ENCODING, schema.as_bytes())?;
+        *slot = mcap.add_channel(
+            schema_id,
+            topic,
+            record::MESSAGE_ENCODING,
+            &Default::default(),
+        )?;
+    }
+    Ok(ids)
+}
+
+/// The data of the [`record::START_COPY_ATTACHMENT`] of the recording at `path`: one chunk
+/// record holding the schemas and channels (`ids`, as the file numbers them) and the build and
+/// scene records, as the first chunk holds them. Written by the MCAP library into a file in
+/// memory, whose first chunk it is.
+fn start_copy(
+    path: &Path,
+    ids: [u16; 8],
+    build: &[u8],
+    scene: &[u8],
+) -> Result<Vec<u8>, SessionError> {
+    let mcap_err = |source| SessionError::Mcap {
+        path: path.to_path_buf(),
+        source,
+    };
+    let unlike = |what: &str| SessionError::Encode {
+        path: path.to_path_buf(),
+        what: format!("the copy of the first chunk: {what}"),
+    };
+    let mut mcap = mcap::WriteOptions::new()
+        .profile(record::MCAP_PROFILE)
+        .compression(Some(mcap::Compression::Zstd))
+        .compression_threads(0)
+        .create(std::io::Cursor::new(Vec::new()))
+        .map_err(mcap_err)?;
+    // Both writers number channels in the order added, from the same start.
+    if add_channels(&mut mcap).map_err(mcap_err)? != ids {
+        return Err(unlike("its channels are numbered differently"));
+    }
+    let [build_id, scene_id, ..] = ids;
+    for (channel_id, data) in [(build_id, build), (scene_id, scene)] {
+        let header = MessageHeader {
+            channel_id,
+            sequence: 1,
+            log_time: 0,
+            publish_time: 0,
+        };
+        mcap.write_to_known_channel(&header, data)
+            .map_err(mcap_err)?;
+    }
+    mcap.finish().map_err(mcap_err)?;
+    let bytes = mcap.into_inner().into_inner();
+    // The records after the magic: the header, then the chunk.
+    let record_end = |at: usize| -> Option<usize> {
+        let len = u64::from_le_bytes(bytes.get(at + 1..at + 9)?.try_into().ok()?);
+        at.checked_add(9)?
+            .checked_add(usize::try_from(len).ok()?)
+            .filter(|&end| end <= bytes.len())
+    };
+    let chunk = record_end(mcap::MAGIC.len())
+        .and_then(|at| Some(at..record_end(at)?))
+        .filter(|r| bytes.get(r.start) == Some(&OP_CHUNK))
+        .ok_or_else(|| unlike("no chunk follows the header"))?;
+    Ok(bytes[chunk].to_vec())
+}
+
+/// MCAP opcode of a chunk record.
+const OP_CHUNK: u8 = 0x06;
 
 /// The file name of a new recording: UTC start time, then the session id.
 pub fn recording_file_name(started_unix_ns: u64, session_id: &str) -> String {

@@ -290,9 +290,10 @@ impl Recording {
 }
 
 /// The refusal of a recording whose build and scene records were in a damaged part of the file
-/// (`first`, the first part skipped): the writer keeps them only in the first chunk, and a
-/// recording cannot be replayed, checked or even described without them, however much of the
-/// rest is intact (`device`: the ticks read from it).
+/// (`first`, the first part skipped): the writer keeps them in the first chunk and in a copy
+/// right after it (recordings made before the copy have none), and a recording cannot be
+/// replayed, checked or even described without them, however much of the rest is intact
+/// (`device`: the ticks read from it).
 fn damaged_before_start(
     path: &Path,
     first: &super::LostSpan,
@@ -305,7 +306,8 @@ fn damaged_before_start(
     ) {
         (Some(a), Some(b)) => format!(
             "; the {} ticks after it ({:.3} s to {:.3} s{}) are intact, but cannot be used without \
-             the build and scene records, which the writer keeps only in the first chunk",
+             the build and scene records, which were in the first chunk and its copy (or it has \
+             none)",
             device.len(),
             a as f64 * 1e-9,
             b as f64 * 1e-9,

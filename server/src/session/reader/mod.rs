@@ -7,8 +7,10 @@
 //! second of device time), never the rest of it. Every other record's fields must end where its
 //! length says, and a length that led the walk into damage is not trusted: the search for the next
 //! good chunk starts where that record did. The index and summary after the data are not needed,
-//! and read only for the channels when the first chunk (which defines them) is lost, so damage
-//! there hides nothing. A file cut short by a crash yields every complete chunk before the cut.
+//! and read only for the channels when the first chunk (which defines them) and its copy are
+//! lost, so damage there hides nothing. The first chunk also holds the build and scene records,
+//! without which nothing else can be read: when it is damaged, the writer's copy of it (an
+//! attachment right after it) takes its place. A file cut short by a crash yields every complete chunk before the cut.
 //! [`Recording::recovery`] says what was recovered and what was lost, as device-time ranges. Files
 //! that are not recordings, or not ones this build can read (wrong magic, a channel with another
 //! schema, a newer format or protocol version, a message that does not parse) are refused with a

@@ -392,10 +392,64 @@ fn record_fits_at<S: Source + ?Sized>(
     Ok(fits.is_some() && c.pos == end)
 }
 
+/// The chunk inside the attachment whose body is `start..end`, as a range of the file, when
+/// the attachment is the writer's copy of the first chunk
+/// ([`softhaptic_proto::record::START_COPY_ATTACHMENT`]) and checks out: its name, then its
+/// checksum, then the chunk its data holds, whole and intact ([`chunk_damage`]). Reads the name
+/// first, and the rest only when it is that one.
+fn start_copy_at<S: Source + ?Sized>(
+    src: &S,
+    start: u64,
+    end: u64,
+    scratch: &mut Vec<u8>,
+) -> std::io::Result<Option<std::ops::Range<u64>>> {
+    let name = softhaptic_proto::record::START_COPY_ATTACHMENT.as_bytes();
+    // log time, create time, then the name's length and the name.
+    let name_end = 16 + 4 + name.len() as u64;
+    let len = end - start;
+    if len < name_end || len > MAX_RECORD_BYTES {
+        return Ok(None);
+    }
+    let mut head = vec![0u8; name_end as usize];
+    src.read_at(start, &mut head)?;
+    if read_u32(&head, 16) != Some(name.len() as u32) || &head[20..] != name {
+        return Ok(None);
+    }
+    scratch.clear();
+    scratch.resize(len as usize, 0);
+    src.read_at(start, scratch)?;
+    let body = &scratch[..];
+    // media type, then the data's length, the data, and the checksum of everything before it.
+    let Some(media_len) = read_u32(body, name_end as usize) else {
+        return Ok(None);
+    };
+    let data_len_at = name_end as usize + 4 + media_len as usize;
+    let Some(data_len) = read_u64(body, data_len_at) else {
+        return Ok(None);
+    };
+    let data_start = data_len_at + 8;
+    let Some(data_end) = usize::try_from(data_len)
+        .ok()
+        .and_then(|n| data_start.checked_add(n))
+        .filter(|&e| e.checked_add(4) == Some(body.len()))
+    else {
+        return Ok(None);
+    };
+    let crc = read_u32(body, data_end).unwrap_or(0);
+    if crc != 0 && crc32fast::hash(&body[..data_end]) != crc {
+        return Ok(None);
+    }
+    let data = &body[data_start..data_end];
+    let whole_chunk = data.first() == Some(&OP_CHUNK)
+        && read_u64(data, 1).is_some_and(|n| n.checked_add(9) == Some(data.len() as u64))
+        && chunk_damage(&data[9..]).is_ok();
+    Ok(whole_chunk.then(|| start + data_start as u64..start + data_end as u64))
+}
+
 /// Where [`resume_after`] found reading can resume.
 enum Resume {
     /// At the record at this byte: a chunk that checks out in full (with the times of its
-    /// messages), or the data section's end (`None`).
+    /// messages), or the copy of the first chunk or the data section's end (`None`).
     At(u64, Option<Times>),
     /// Nowhere: no chunk after the damage checks out.
     Nowhere,
@@ -403,8 +457,9 @@ enum Resume {
     GaveUp,
 }
 
-/// Where reading can resume after damage at `from`: the next chunk that checks out in full, or
-/// the data section's end record, whichever comes first. Damage may have hit a length, so the
+/// Where reading can resume after damage at `from`: the next chunk that checks out in full, the
+/// copy of the first chunk ([`start_copy_at`]), or the data section's end record, whichever
+/// comes first. Damage may have hit a length, so the
 /// walk cannot step over it; a chunk is only trusted once its checksum matches. Reads the file
 /// a window at a time and looks closer only where a byte could start such a record: a chunk
 /// body is read only when its fixed fields check out ([`chunk_fields`]), and only while the
@@ -426,7 +481,7 @@ fn resume_after<S: Source + ?Sized>(
         let candidates = n.min(RESUME_WINDOW_BYTES);
         for i in 0..candidates {
             let op = window[i];
-            if op != OP_CHUNK && op != OP_DATA_END {
+            if op != OP_CHUNK && op != OP_DATA_END && op != OP_ATTACHMENT {
                 continue;
             }
             let pos = base + i as u64;
@@ -437,6 +492,16 @@ fn resume_after<S: Source + ?Sized>(
             match header_fits(len, pos, &header) {
                 Some((OP_DATA_END, start, end)) if end - start == 4 => {
                     return Ok(Resume::At(pos, None));
+                }
+                Some((OP_ATTACHMENT, start, end)) => {
+                    // Only the copy of the first chunk, whose name is read before its body.
+                    let body_len = end - start;
+                    if *budget < body_len {
+                        return Ok(Resume::GaveUp);
+                    }
+                    if start_copy_at(src, start, end, scratch)?.is_some() {
+                        return Ok(Resume::At(pos, None));
+                    }
                 }
                 Some((OP_CHUNK, start, end)) => {
                     let body_len = end - start;
@@ -502,6 +567,8 @@ pub(super) fn scan<S: Source + ?Sized>(src: &S) -> std::io::Result<Scanned> {
     let mut trusted_end = pos;
     // The chunk the search for a resumption point found and checked, not to read it again.
     let mut checked: Option<(u64, Times)> = None;
+    // The copy of the first chunk, once seen: read only if the first chunk is lost.
+    let mut start_copy: Option<std::ops::Range<u64>> = None;
     loop {
         if pos >= len {
             tail = Some("the file ends without its data section's end and footer".to_owned());
@@ -559,6 +626,9 @@ pub(super) fn scan<S: Source + ?Sized>(src: &S) -> std::io::Result<Scanned> {
             Some((op @ (OP_MESSAGE_INDEX | OP_ATTACHMENT | OP_METADATA), start, end))
                 if record_fits_at(src, op, start, end)? =>
             {
+                if op == OP_ATTACHMENT && start_copy.is_none() {
+                    start_copy = start_copy_at(src, start, end, &mut scratch)?;
+                }
                 if trusted_end == pos {
                     trusted_end = end;
                 }
@@ -660,7 +730,7 @@ pub(super) fn scan<S: Source + ?Sized>(src: &S) -> std::io::Result<Scanned> {
         }
     }
     // The time each lost stretch covers, from the kept chunks around it.
-    let lost = lost
+    let mut lost = lost
         .into_iter()
         .map(|(mut span, claimed)| {
             let before = chunks
@@ -678,21 +748,30 @@ pub(super) fn scan<S: Source + ?Sized>(src: &S) -> std::io::Result<Scanned> {
             span
         })
         .collect::<Vec<LostSpan>>();
-    // The first chunk, which defines the channels, lost: the summary's copies of the schema and
-    // channel records define them for the chunks kept after it.
+    // The first chunk, which defines the channels and holds the build and scene, lost: its copy
+    // takes its place; without one (a recording made before the copy existed, or the copy
+    // damaged too), the summary's copies of the schema and channel records define the channels
+    // for the chunks kept after it, and the refusal can say what was intact.
     let first_chunk_lost = lost
         .first()
         .is_some_and(|l| chunks.first().is_none_or(|&(at, _)| l.first_byte < at));
     let mut definitions_from_summary = false;
     if first_chunk_lost {
-        let definitions = summary_definitions(src)?;
-        if !definitions.is_empty() {
-            definitions_from_summary = true;
-            let at = keep
-                .iter()
-                .take_while(|r| r.start < lost[0].first_byte)
-                .count();
-            keep.splice(at..at, definitions);
+        let at = keep
+            .iter()
+            .take_while(|r| r.start < lost[0].first_byte)
+            .count();
+        if let Some(copy) = start_copy {
+            keep.insert(at, copy);
+            lost[0]
+                .reason
+                .push_str("; the session's build and scene were read from their copy after it");
+        } else {
+            let definitions = summary_definitions(src)?;
+            if !definitions.is_empty() {
+                definitions_from_summary = true;
+                keep.splice(at..at, definitions);
+            }
         }
     }
     Ok(Scanned {
