@@ -13,8 +13,11 @@
 //! tests point it at a copy), tries the haptic devices as `softhaptic devices` does, and changes
 //! nothing on the machine.
 //!
-//! Exit status: 0 when the host is ready, 1 with warnings, 2 when the loop cannot run as
-//! configured (a refused SCHED_FIFO, a CPU the process cannot use, a loop that does not start).
+//! Exit status ([`EXIT_STATUS_HELP`]): 0 when the host is ready, 1 with warnings or an item
+//! that could not be read (what the doctor cannot see, it cannot call ready), 2 when the loop
+//! cannot run as configured (a refused SCHED_FIFO, a CPU the process cannot use, a loop that
+//! does not start) or the doctor itself could not run (a bad option, the report not written):
+//! a script that sees 2 without a report on stdout knows it is the second kind.
 
 pub mod checks;
 #[cfg(test)]
@@ -39,7 +42,7 @@ pub enum Verdict {
     Good,
     /// Nothing to judge here (not applicable, or not requested).
     Info,
-    /// Could not be read.
+    /// Could not be read: not shown to be good, so it counts as a warning.
     Unknown,
     /// The loop runs, but this costs it ticks or timing.
     Warn,
@@ -113,8 +116,18 @@ impl Default for LoopPlan {
     }
 }
 
+/// The exit statuses, as `softhaptic doctor --help` prints them after the options.
+pub const EXIT_STATUS_HELP: &str = "\
+Exit status:
+  0  ready: every item good (or information only), and the loop met its goal when measured
+  1  warnings: the loop runs, but an item costs it ticks or timing, or could not be read
+  2  cannot run: the loop cannot run as configured (the FAIL items say why), or the doctor
+     itself could not run (a bad option, the report not written: the reason on stderr and no
+     report on stdout)";
+
 /// The command line of `softhaptic doctor`.
 #[derive(clap::Args, Debug, Clone)]
+#[command(after_help = EXIT_STATUS_HELP)]
 pub struct DoctorArgs {
     /// Print the report as JSON, for scripts.
     #[arg(long)]
@@ -173,10 +186,12 @@ impl Report {
             .chain(timing.as_ref().map(|t| t.verdict))
             .max()
             .unwrap_or(Verdict::Good);
+        // An item that could not be read is not shown to be good: calling the host ready would
+        // promise what nothing checked.
         let (status, exit_code) = match worst {
-            Verdict::Fail => ("cannot_run", 2),
-            Verdict::Warn => ("warnings", 1),
-            Verdict::Good | Verdict::Info | Verdict::Unknown => ("ready", 0),
+            Verdict::Fail => ("cannot_run", EXIT_CANNOT_RUN),
+            Verdict::Warn | Verdict::Unknown => ("warnings", 1),
+            Verdict::Good | Verdict::Info => ("ready", 0),
         };
         Self {
             status,
@@ -190,7 +205,25 @@ impl Report {
         self.checks.iter().filter(|c| c.verdict == v).count()
             + usize::from(self.timing.as_ref().is_some_and(|t| t.verdict == v))
     }
+
+    /// The titles of the items that could not be read.
+    fn unread(&self) -> Vec<&'static str> {
+        self.checks
+            .iter()
+            .filter(|c| c.verdict == Verdict::Unknown)
+            .map(|c| c.title)
+            .chain(
+                self.timing
+                    .as_ref()
+                    .filter(|t| t.verdict == Verdict::Unknown)
+                    .map(|_| "Loop timing"),
+            )
+            .collect()
+    }
 }
+
+/// The status of a loop that cannot run as configured, and of a doctor that could not run.
+pub const EXIT_CANNOT_RUN: i32 = 2;
 
 /// What OpenHaptics and hidapi find here, as `softhaptic devices` finds it.
 pub fn device_facts() -> DeviceFacts {
@@ -228,14 +261,22 @@ pub fn device_facts() -> DeviceFacts {
 }
 
 /// Inspects the host (and measures the loop unless `--no-timing`), prints the report, and
-/// returns the exit status.
+/// returns the exit status. A doctor that could not finish (its report not written) says why
+/// on stderr and returns [`EXIT_CANNOT_RUN`] rather than an error, which the command line would
+/// turn into 1 and so into "warnings".
 pub fn run(args: &DoctorArgs) -> anyhow::Result<i32> {
+    Ok(report(args).unwrap_or_else(|e| {
+        eprintln!("error: {}", crate::logging::error_text(e.as_ref()));
+        EXIT_CANNOT_RUN
+    }))
+}
+
+fn report(args: &DoctorArgs) -> anyhow::Result<i32> {
     let plan = LoopPlan {
         realtime: !args.no_realtime,
         cpu: args.loop_cpu,
     };
     let tree = Tree::new(&args.root);
-    let checks = checks::inspect(&tree, &plan, &device_facts());
     let disk_dir = args.record_dir.clone().unwrap_or_else(|| {
         let sessions = PathBuf::from("sessions");
         if sessions.is_dir() {
@@ -244,6 +285,15 @@ pub fn run(args: &DoctorArgs) -> anyhow::Result<i32> {
             std::env::temp_dir()
         }
     });
+    // A directory named for the disk run that is not there is the command line's mistake, told
+    // before the inspection rather than as a timing run that failed.
+    anyhow::ensure!(
+        args.no_timing || disk_dir.is_dir(),
+        "--record-dir {}: no such directory (the server makes the recordings' directory when it \
+         first starts)",
+        disk_dir.display()
+    );
+    let checks = checks::inspect(&tree, &plan, &device_facts());
     let timing = (!args.no_timing).then(|| timing::measure(args.seconds, &plan, &disk_dir));
     let report = Report::new(checks, timing);
     let text = if args.json {
@@ -304,21 +354,61 @@ pub fn render(report: &Report, tree: &Tree) -> String {
         render_timing(&mut out, t);
     }
     let _ = writeln!(out);
-    let (fails, warns) = (report.count(Verdict::Fail), report.count(Verdict::Warn));
-    let verdict = match report.exit_code {
-        0 => "ready for the 1 kHz loop".to_owned(),
-        1 => format!(
-            "{warns} warning{}: the loop runs, and loses ticks or timing the fixes above would save",
-            if warns == 1 { "" } else { "s" }
-        ),
-        _ => format!(
-            "{fails} failure{} ({warns} warning{}): the loop cannot run as configured; fix the FAIL items",
-            if fails == 1 { "" } else { "s" },
-            if warns == 1 { "" } else { "s" }
-        ),
-    };
-    let _ = writeln!(out, "verdict: {verdict} (exit {})", report.exit_code);
+    let _ = writeln!(
+        out,
+        "verdict: {} (exit {})",
+        verdict_text(report),
+        report.exit_code
+    );
     out
+}
+
+/// `1 warning`, `2 warnings`.
+fn counted(n: usize, thing: &str) -> String {
+    format!("{n} {thing}{}", if n == 1 { "" } else { "s" })
+}
+
+/// The last line's verdict: ready, or what stands in the way and what it means.
+fn verdict_text(report: &Report) -> String {
+    let (fails, warns) = (report.count(Verdict::Fail), report.count(Verdict::Warn));
+    let unread = report.unread();
+    let not_read = (!unread.is_empty()).then(|| {
+        format!(
+            "{} not read ({})",
+            counted(unread.len(), "item"),
+            unread.join(", ")
+        )
+    });
+    match report.exit_code {
+        0 => "ready for the 1 kHz loop".to_owned(),
+        1 => {
+            let mut parts = Vec::new();
+            if warns > 0 {
+                parts.push(counted(warns, "warning"));
+            }
+            parts.extend(not_read);
+            let mut meaning = Vec::new();
+            if warns > 0 {
+                meaning.push("the loop runs, and loses ticks or timing the fixes above would save");
+            }
+            if !unread.is_empty() {
+                meaning.push(
+                    "what could not be read is not shown to be ready (run the doctor where it \
+                     can read it: as the server's user, outside a container)",
+                );
+            }
+            format!("{}: {}", parts.join(", "), meaning.join("; "))
+        }
+        _ => {
+            let mut parts = vec![counted(warns, "warning")];
+            parts.extend(not_read);
+            format!(
+                "{} ({}): the loop cannot run as configured; fix the FAIL items",
+                counted(fails, "failure"),
+                parts.join(", ")
+            )
+        }
+    }
 }
 
 fn render_timing(out: &mut String, t: &timing::Timing) {

@@ -40,8 +40,8 @@ enum Command {
     /// Is this machine ready for the 1 kHz loop? Inspects the kernel's preemption model, the
     /// real-time limits, CPU isolation, interrupts, the frequency governor, swap and the haptic
     /// devices, then measures the loop idle and beside a loaded neighbour; prints what it found,
-    /// whether it is good and the fix. Exits 0 when ready, 1 with warnings, 2 when the loop
-    /// cannot run as configured.
+    /// whether it is good and the fix. Exits 0 when ready, 1 with warnings or an item it could
+    /// not read, 2 when the loop cannot run as configured or the doctor itself could not run.
     Doctor(softhaptic_server::doctor::DoctorArgs),
     /// A teaching lab's hub: lists the stations that publish to NATS (`--nats URL --station
     /// NAME` on each device host) and relays any of them to browsers, with the same wire, roles,

@@ -1,6 +1,8 @@
 //! The README's systemd unit for a device host: its command line is one this build accepts, its
-//! limits let the loop get what it asks for, its state directory is where the recordings go,
-//! and (where `systemd-analyze` is installed) systemd itself accepts the unit.
+//! limits let the loop get what it asks for, its state directory is where the recordings go, it
+//! names the host for viewers that reach it by name, and (where `systemd-analyze` is installed)
+//! systemd itself accepts the unit; the README's doctor command measures the disk the unit
+//! records to.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -86,6 +88,30 @@ fn the_readme_unit_runs_this_build_with_the_limits_the_loop_needs() {
     assert!(stop_s >= 10);
     // Beyond loopback the server refuses to start without tokens: the unit gives them.
     assert!(exec.contains(&"--token-file"), "{exec:?}");
+    // A viewer's request naming a host other than an address, localhost or a --host-name is
+    // refused: the unit names the host as viewers type it.
+    assert!(
+        exec.windows(2)
+            .any(|w| w[0] == "--host-name" && w[1].contains('.')),
+        "{exec:?}"
+    );
+
+    // The README's doctor command, run as the service runs, writes its disk run where the
+    // service records.
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+            .unwrap();
+    let confirm = readme
+        .split("```")
+        .find(|block| block.contains("systemd-run") && block.contains("doctor"))
+        .expect("the README confirms the host with the doctor under systemd-run");
+    let confirm = confirm.replace("\\\n", " ");
+    let confirm: Vec<&str> = confirm.split_whitespace().collect();
+    let doctor_record_dir = confirm
+        .windows(2)
+        .find(|w| w[0] == "--record-dir")
+        .map(|w| w[1]);
+    assert_eq!(doctor_record_dir, Some(record_dir), "{confirm:?}");
 }
 
 #[test]

@@ -29,6 +29,21 @@ impl Fixture {
         self
     }
 
+    /// `/rel` as gzip holds `text`, as the kernel publishes `/proc/config.gz`.
+    fn gzip_file(&self, rel: &str, text: &str) -> &Self {
+        use std::io::Write as _;
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        gz.write_all(text.as_bytes()).unwrap();
+        self.file_bytes(rel, &gz.finish().unwrap())
+    }
+
+    fn file_bytes(&self, rel: &str, bytes: &[u8]) -> &Self {
+        let path = self.dir.path().join(rel.trim_start_matches('/'));
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(path, bytes).unwrap();
+        self
+    }
+
     fn remove(&self, rel: &str) -> &Self {
         let _ = std::fs::remove_file(self.dir.path().join(rel.trim_start_matches('/')));
         self
@@ -214,12 +229,22 @@ fn the_preemption_model_is_read_from_the_running_kernel() {
         "{fix}"
     );
 
-    // Without the build configuration the mode is not known, and said so.
+    // Without the build configuration the mode is not known, said so, and how to read it.
     f.remove("/boot/config-6.8.0-45-generic");
     let c = preemption_check(&f.tree());
     assert_eq!(preemption(&f.tree()).model, Preemption::DynamicUnknown);
     assert_eq!(c.verdict, Verdict::Warn);
-    assert!(c.found.contains("root only"), "{}", c.found);
+    assert!(
+        c.found.contains("/proc/config.gz") && c.found.contains("root only"),
+        "{}",
+        c.found
+    );
+    let fix = c.fix.unwrap();
+    assert!(
+        fix.contains("dmesg | grep 'Dynamic Preempt'")
+            && fix.contains("mount -t debugfs none /sys/kernel/debug"),
+        "{fix}"
+    );
 
     // preempt=full on the command line is good.
     f.file("/proc/cmdline", "ro quiet preempt=full\n");
@@ -252,6 +277,73 @@ fn the_preemption_model_is_read_from_the_running_kernel() {
     let c = preemption_check(&rt.tree());
     assert_eq!(preemption(&rt.tree()).model, Preemption::Rt);
     assert_eq!(c.verdict, Verdict::Good, "{c:?}");
+}
+
+#[test]
+fn the_build_configuration_is_read_from_proc_config_gz_before_boot() {
+    // A PREEMPT_DYNAMIC kernel with no /boot of its own, built with preemption none (a virtual
+    // machine's kernel as its host boots it), booted without preempt=.
+    let f = Fixture::stock();
+    f.remove("/boot/config-6.8.0-45-generic").gzip_file(
+        "/proc/config.gz",
+        "CONFIG_PREEMPT_BUILD=y\nCONFIG_PREEMPT_NONE=y\n# CONFIG_PREEMPT_VOLUNTARY is not set\n\
+         # CONFIG_PREEMPT is not set\nCONFIG_PREEMPTION=y\nCONFIG_PREEMPT_DYNAMIC=y\n",
+    );
+    let p = preemption(&f.tree());
+    assert_eq!(p.model, Preemption::None, "{p:?}");
+    assert!(p.dynamic && p.source.contains("/proc/config.gz"), "{p:?}");
+    let c = preemption_check(&f.tree());
+    assert_eq!(c.verdict, Verdict::Warn);
+    assert!(c.found.contains("none (preempt=none)"), "{}", c.found);
+    assert!(c.fix.unwrap().contains("boot with preempt=full"));
+
+    // The running kernel's own copy wins over the file installed in /boot for its release.
+    f.file(
+        "/boot/config-6.8.0-45-generic",
+        "CONFIG_PREEMPT_VOLUNTARY=y\nCONFIG_PREEMPT_DYNAMIC=y\n",
+    );
+    assert_eq!(preemption(&f.tree()).model, Preemption::None);
+    // preempt= on the command line still chooses the mode of a PREEMPT_DYNAMIC kernel.
+    f.file("/proc/cmdline", "ro preempt=full\n");
+    assert_eq!(preemption(&f.tree()).model, Preemption::Full);
+    f.file("/proc/cmdline", "ro quiet\n");
+
+    // A /proc/config.gz that is not gzip is passed over for /boot's.
+    f.file("/proc/config.gz", "CONFIG_PREEMPT_NONE=y\n");
+    let p = preemption(&f.tree());
+    assert_eq!(p.model, Preemption::Voluntary, "{p:?}");
+    assert!(p.source.contains("/boot/config-6.8.0-45-generic"), "{p:?}");
+
+    // A kernel built without PREEMPT_DYNAMIC, whose /proc/version cannot tell none from
+    // voluntary, is told apart by its configuration; PREEMPT_RT is read there too.
+    let plain = Fixture::empty();
+    plain
+        .file(
+            "/proc/version",
+            "Linux version 5.10.0-30-amd64 (debian-kernel@lists.debian.org) #1 SMP Debian 5.10.218-1\n",
+        )
+        .gzip_file("/proc/config.gz", "CONFIG_PREEMPT_VOLUNTARY=y\n");
+    let p = preemption(&plain.tree());
+    assert_eq!(
+        (p.model, p.dynamic),
+        (Preemption::Voluntary, false),
+        "{p:?}"
+    );
+    assert_eq!(p.source, "/proc/config.gz");
+    plain.gzip_file("/proc/config.gz", "CONFIG_PREEMPT_RT=y\n");
+    assert_eq!(preemption(&plain.tree()).model, Preemption::Rt);
+}
+
+#[test]
+fn a_gzip_file_is_read_no_further_than_the_file_size_bound() {
+    // 9 MiB of configuration that compresses to a few KiB: only the first 8 MiB are inflated.
+    let f = Fixture::empty();
+    let line = "# padding\n";
+    let text = line.repeat((9 << 20) / line.len());
+    f.gzip_file("/proc/config.gz", &text);
+    let read = f.tree().read_gzip("/proc/config.gz").unwrap();
+    assert_eq!(read.len(), 8 << 20);
+    assert!(f.tree().read_gzip("/proc/missing.gz").is_none());
 }
 
 #[test]
@@ -370,6 +462,44 @@ fn interrupts_still_sent_to_the_loops_cpu_are_named_with_the_commands_to_move_th
     assert!(
         fix.contains("for irq in 128 130; do echo 0-2 | sudo tee /proc/irq/$irq/smp_affinity_list")
             && fix.contains("irqaffinity=0-2"),
+        "{fix}"
+    );
+
+    // Without debugfs nothing tells which interrupts the kernel manages: the fix says what a
+    // refused write means.
+    assert!(
+        fix.contains("Input/output error") && fix.contains("isolcpus=managed_irq,3"),
+        "{fix}"
+    );
+
+    // With debugfs readable, a kernel-managed interrupt is named as such and left out of the
+    // writes, which the kernel would refuse.
+    stock
+        .file(
+            "/sys/kernel/debug/irq/irqs/128",
+            "handler:  handle_edge_irq\ndevice:   0000:02:00.0\ndstate:   0x3540a200\n\
+             \x20           IRQD_ACTIVATED\n            IRQD_IRQ_STARTED\n\
+             \x20           IRQD_AFFINITY_MANAGED\n",
+        )
+        .file(
+            "/sys/kernel/debug/irq/irqs/130",
+            "handler:  handle_edge_irq\ndstate:   0x00401200\n            IRQD_ACTIVATED\n",
+        );
+    let checks = inspect_fixture(&stock, plan(CpuChoice::Index(3)));
+    let c = check(&checks, "irq_affinity");
+    assert_eq!(c.verdict, Verdict::Warn);
+    assert!(
+        c.found
+            .contains("IRQ 128 nvme0q1 (95123 since boot, kernel-managed)"),
+        "{}",
+        c.found
+    );
+    let fix = c.fix.as_deref().unwrap();
+    assert!(
+        fix.contains("for irq in 130; do")
+            && fix.contains("IRQ 128 is managed by the kernel")
+            && fix.contains("isolcpus=managed_irq,3")
+            && !fix.contains("Input/output error"),
         "{fix}"
     );
 
@@ -521,6 +651,7 @@ fn missing_or_damaged_files_are_unknown_never_a_panic() {
         "/sys/devices/system/cpu/online",
         "/sys/devices/system/cpu/isolated",
         "/sys/kernel/debug/sched/preempt",
+        "/proc/config.gz",
     ] {
         junk.file(
             rel,
@@ -544,9 +675,13 @@ fn the_exit_status_is_the_worst_verdict() {
         Report::new(vec![good("a"), with(Verdict::Info)], None).exit_code,
         0
     );
-    assert_eq!(
-        Report::new(vec![good("a"), with(Verdict::Unknown)], None).exit_code,
-        0
+    // What could not be read is not shown to be ready: a warning, naming it.
+    let unread = Report::new(vec![good("a"), with(Verdict::Unknown)], None);
+    assert_eq!((unread.exit_code, unread.status), (1, "warnings"));
+    let text = render(&unread, &Tree::host());
+    assert!(
+        text.contains("verdict: 1 item not read (t): ") && !text.contains("verdict: ready"),
+        "{text}"
     );
     let warn = Report::new(vec![good("a"), with(Verdict::Warn)], None);
     assert_eq!((warn.exit_code, warn.status), (1, "warnings"));
@@ -573,8 +708,10 @@ fn a_ready_host_reads_ready() {
     let checks = inspect(&rt.tree(), &plan(CpuChoice::Index(3)), &devices);
     let bad: Vec<&Check> = checks
         .iter()
-        .filter(|c| c.verdict > Verdict::Unknown)
+        .filter(|c| c.verdict > Verdict::Info)
         .collect();
     assert!(bad.is_empty(), "{bad:#?}");
-    assert_eq!(Report::new(checks, None).exit_code, 0);
+    let report = Report::new(checks, None);
+    assert_eq!(report.exit_code, 0);
+    assert!(render(&report, &rt.tree()).contains("verdict: ready for the 1 kHz loop (exit 0)"));
 }

@@ -1,5 +1,14 @@
 //! The interrupts still delivered to the loop's CPU: `/proc/interrupts` parsed, each busy
 //! interrupt's affinity read, and the commands that move them elsewhere.
+//!
+//! Not every interrupt can be moved by hand: the kernel spreads the queues of multi-queue
+//! devices (NVMe and virtio disks, many network cards) over the CPUs itself, and refuses a write
+//! to their `smp_affinity_list` with EIO. Only debugfs (`/sys/kernel/debug/irq/irqs/N`, root)
+//! says which interrupts those are; `/proc/irq/N` looks the same for both kinds (the effective
+//! affinity is a subset of the allowed one either way). So the fix names the managed ones where
+//! debugfs is readable, and otherwise says what a refused write means.
+
+use std::fmt::Write as _;
 
 use super::Tree;
 use super::cpus::CpuLayout;
@@ -88,6 +97,13 @@ fn irq_affinity(tree: &Tree, irq: &str) -> Option<Vec<usize>> {
         })
 }
 
+/// Whether the kernel manages the affinity of interrupt `irq` itself (debugfs's
+/// `IRQD_AFFINITY_MANAGED` flag); `None` when debugfs cannot be read.
+fn irq_managed(tree: &Tree, irq: &str) -> Option<bool> {
+    tree.read(&format!("/sys/kernel/debug/irq/irqs/{irq}"))
+        .map(|t| t.split_whitespace().any(|w| w == "IRQD_AFFINITY_MANAGED"))
+}
+
 /// How many of the busiest interrupts on the loop's CPU are named.
 const BUSIEST_SHOWN: usize = 5;
 
@@ -165,12 +181,79 @@ pub fn irq_check(tree: &Tree, layout: &CpuLayout) -> Check {
         );
     }
     let shown = &busy[..busy.len().min(BUSIEST_SHOWN)];
+    let managed: Vec<Option<bool>> = shown
+        .iter()
+        .map(|(_, l)| irq_managed(tree, &l.irq))
+        .collect();
     let names: Vec<String> = shown
         .iter()
-        .map(|(n, l)| format!("IRQ {} {} ({n} since boot)", l.irq, l.device()))
+        .zip(&managed)
+        .map(|((n, l), m)| {
+            format!(
+                "IRQ {} {} ({n} since boot{})",
+                l.irq,
+                l.device(),
+                if *m == Some(true) {
+                    ", kernel-managed"
+                } else {
+                    ""
+                }
+            )
+        })
         .collect();
     let others = format_cpu_list(&others);
-    let irqs: Vec<&str> = shown.iter().map(|(_, l)| l.irq.as_str()).collect();
+    let irqs_where = |want: &dyn Fn(Option<bool>) -> bool| -> Vec<&str> {
+        shown
+            .iter()
+            .zip(&managed)
+            .filter(|(_, m)| want(**m))
+            .map(|((_, l), _)| l.irq.as_str())
+            .collect()
+    };
+    let movable = irqs_where(&|m| m != Some(true));
+    let kernel_managed = irqs_where(&|m| m == Some(true));
+    let mut fix = String::new();
+    if !movable.is_empty() {
+        let _ = write!(
+            fix,
+            "move them now: `for irq in {}; do echo {others} | sudo tee \
+             /proc/irq/$irq/smp_affinity_list; done`; ",
+            movable.join(" ")
+        );
+    }
+    if !kernel_managed.is_empty() {
+        let (are, them) = if kernel_managed.len() == 1 {
+            ("is", "it")
+        } else {
+            ("are", "them")
+        };
+        let _ = write!(
+            fix,
+            "IRQ {} {are} managed by the kernel, which refuses a new affinity for {them} (EIO): \
+             boot with isolcpus=managed_irq,{cpu} to keep {them} off CPU {cpu}; ",
+            kernel_managed.join(", "),
+        );
+    }
+    let _ = write!(
+        fix,
+        "to keep it so, boot with irqaffinity={others} and, where irqbalance runs, add \
+         IRQBALANCE_BANNED_CPULIST={cpu} to /etc/default/irqbalance"
+    );
+    if managed.contains(&None) && !movable.is_empty() {
+        let _ = write!(
+            fix,
+            ". A write refused with `Input/output error` is an interrupt the kernel manages \
+             itself (the queues of NVMe and virtio disks, multi-queue network cards): it cannot \
+             be moved by hand and follows isolcpus=managed_irq,{cpu} at boot (debugfs's \
+             /sys/kernel/debug/irq/irqs/N lists IRQD_AFFINITY_MANAGED for those)"
+        );
+    } else if kernel_managed.is_empty() {
+        let _ = write!(
+            fix,
+            " (interrupts the kernel places itself, such as NVMe queues, follow \
+             isolcpus=managed_irq,{cpu})"
+        );
+    }
     Check::new(
         "irq_affinity",
         title,
@@ -182,13 +265,6 @@ pub fn irq_check(tree: &Tree, layout: &CpuLayout) -> Check {
             names.join("; ")
         ),
         why,
-        Some(format!(
-            "move them now: `for irq in {}; do echo {others} | sudo tee \
-             /proc/irq/$irq/smp_affinity_list; done`; to keep it so, boot with irqaffinity={others} and, where \
-             irqbalance runs, add IRQBALANCE_BANNED_CPULIST={cpu} to /etc/default/irqbalance \
-             (interrupts the kernel places itself, such as NVMe queues, follow \
-             isolcpus=managed_irq,{cpu})",
-            irqs.join(" ")
-        )),
+        Some(fix),
     )
 }

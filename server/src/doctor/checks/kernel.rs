@@ -67,9 +67,34 @@ pub struct PreemptionFinding {
     pub release: Option<String>,
 }
 
+/// Where the running kernel's build configuration was read, and its text.
+struct BuildConfig {
+    source: String,
+    text: String,
+}
+
+/// The running kernel's build configuration: `/proc/config.gz` first, the kernel's own copy
+/// (CONFIG_IKCONFIG_PROC), which is always the running kernel's and is often the only one on a
+/// machine without a `/boot` of its own (a virtual machine booted by its host, a container);
+/// else `/boot/config-<release>`, installed beside the kernel by distributions' packages.
+fn build_config(tree: &Tree, release: Option<&str>) -> Option<BuildConfig> {
+    let proc = "/proc/config.gz";
+    tree.read_gzip(proc)
+        .map(|text| BuildConfig {
+            source: proc.to_owned(),
+            text,
+        })
+        .or_else(|| {
+            let boot = format!("/boot/config-{}", release?);
+            tree.read(&boot)
+                .map(|text| BuildConfig { source: boot, text })
+        })
+}
+
 /// Reads the kernel's preemption model: `/sys/kernel/realtime`, debugfs's `sched/preempt` (root
-/// only), `preempt=` on the command line of a PREEMPT_DYNAMIC kernel, the build configuration in
-/// `/boot`, and the build flags in `/proc/version` (what `uname -v` shows).
+/// only), `preempt=` on the command line of a PREEMPT_DYNAMIC kernel, the build configuration
+/// (`/proc/config.gz` or `/boot/config-<release>`), and the build flags in `/proc/version` (what
+/// `uname -v` shows).
 pub fn preemption(tree: &Tree) -> PreemptionFinding {
     let version = tree.read("/proc/version").unwrap_or_default();
     let flags: BTreeSet<&str> = version.split_whitespace().collect();
@@ -77,10 +102,10 @@ pub fn preemption(tree: &Tree) -> PreemptionFinding {
         .read_line("/proc/sys/kernel/osrelease")
         .filter(|r| !r.is_empty())
         .or_else(|| version.split_whitespace().nth(2).map(str::to_owned));
-    let config = release
-        .as_deref()
-        .and_then(|r| tree.read(&format!("/boot/config-{r}")))
-        .unwrap_or_default();
+    let build = build_config(tree, release.as_deref());
+    let (config, config_source) = build.as_ref().map_or(("", "no build configuration"), |b| {
+        (b.text.as_str(), b.source.as_str())
+    });
     let configured = |option: &str| config.lines().any(|l| l == format!("{option}=y"));
     let dynamic = flags.contains("PREEMPT_DYNAMIC") || configured("CONFIG_PREEMPT_DYNAMIC");
     let finding = |model, source: &str| PreemptionFinding {
@@ -93,8 +118,11 @@ pub fn preemption(tree: &Tree) -> PreemptionFinding {
     if tree.read_line("/sys/kernel/realtime").as_deref() == Some("1") {
         return finding(Preemption::Rt, "/sys/kernel/realtime");
     }
-    if flags.contains("PREEMPT_RT") || configured("CONFIG_PREEMPT_RT") {
+    if flags.contains("PREEMPT_RT") {
         return finding(Preemption::Rt, "/proc/version");
+    }
+    if configured("CONFIG_PREEMPT_RT") {
+        return finding(Preemption::Rt, config_source);
     }
     // debugfs lists the modes with the current one in parentheses: `none voluntary (full) lazy`.
     if let Some(mode) = tree.read("/sys/kernel/debug/sched/preempt").and_then(|m| {
@@ -113,7 +141,7 @@ pub fn preemption(tree: &Tree) -> PreemptionFinding {
         if let Some(mode) = build_choice(&configured) {
             return finding(
                 mode,
-                "the build's default (/boot/config-*), no preempt= on the command line",
+                &format!("the build's default ({config_source}), no preempt= on the command line"),
             );
         }
         return finding(Preemption::DynamicUnknown, "/proc/version");
@@ -125,7 +153,7 @@ pub fn preemption(tree: &Tree) -> PreemptionFinding {
         return finding(Preemption::Full, "/proc/version");
     }
     if let Some(mode) = build_choice(&configured) {
-        return finding(mode, "/boot/config-*");
+        return finding(mode, config_source);
     }
     if version.is_empty() {
         return finding(Preemption::Unknown, "nothing (no /proc/version)");
@@ -149,6 +177,12 @@ fn build_choice(configured: &dyn Fn(&str) -> bool) -> Option<Preemption> {
 
 pub(super) const GRUB_STEPS: &str = "in /etc/default/grub add it to GRUB_CMDLINE_LINUX, run `sudo update-grub` \
 (Debian, Ubuntu) or `sudo grub2-mkconfig -o /boot/grub2/grub.cfg` (Fedora, RHEL), and reboot";
+
+/// How to read the mode a PREEMPT_DYNAMIC kernel runs in when the doctor could not.
+const READ_DYNAMIC_MODE: &str = "`sudo dmesg | grep 'Dynamic Preempt'` (the kernel logs the \
+mode at boot, while its log still holds the line), or `sudo cat /sys/kernel/debug/sched/preempt` \
+(the mode in parentheses), mounting debugfs first when that directory is empty: `sudo mount -t \
+debugfs none /sys/kernel/debug`";
 
 const RT_KERNEL: &str = "install a PREEMPT_RT kernel (Debian: `sudo apt install \
 linux-image-rt-amd64`; Ubuntu: `sudo pro enable realtime-kernel`; Fedora/RHEL: kernel-rt) and boot it";
@@ -174,20 +208,26 @@ pub fn preemption_check(tree: &Tree) -> Check {
                to milliseconds: the loop is woken on time and runs only then, a lost tick that no \
                priority prevents";
     let (verdict, fix) = match f.model {
-        Preemption::Unknown => (Verdict::Unknown, None),
+        Preemption::Unknown => (
+            Verdict::Unknown,
+            Some(format!(
+                "to name it: `uname -v` shows the build's flags (PREEMPT_RT, PREEMPT, \
+                 PREEMPT_DYNAMIC) and {READ_DYNAMIC_MODE}"
+            )),
+        ),
         Preemption::Rt => (Verdict::Good, None),
         Preemption::Full | Preemption::Lazy => (Verdict::Good, None),
         Preemption::DynamicUnknown => {
             found.push_str(
-                " (the mode is in /sys/kernel/debug/sched/preempt, readable by root only; no \
-                 preempt= on the command line)",
+                " (no preempt= on the command line, no build configuration naming it in \
+                 /proc/config.gz or /boot, and debugfs's sched/preempt not readable: it is \
+                 mounted and read by root only)",
             );
             (
                 Verdict::Warn,
                 Some(format!(
                     "boot with preempt=full to be sure of it: {GRUB_STEPS}; or {RT_KERNEL}. \
-                     To read the mode now: `sudo cat /sys/kernel/debug/sched/preempt` (the one \
-                     in parentheses)"
+                     To read the mode now: {READ_DYNAMIC_MODE}"
                 )),
             )
         }

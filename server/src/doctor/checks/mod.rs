@@ -8,7 +8,8 @@
 //!   order they are printed.
 //! - `formats.rs`: the kernel's formats read by more than one check (CPU lists, the command
 //!   line, limits, status fields, cgroup paths).
-//! - `kernel.rs`: the preemption model and virtualisation.
+//! - `kernel.rs`: the preemption model (from the running kernel and its build configuration)
+//!   and virtualisation.
 //! - `limits.rs`: real-time scheduling, memory locking and swap: the limits and capabilities.
 //! - `cpus.rs`: CPU isolation and the loop's CPU, and the frequency governor.
 //! - `interrupts.rs`: the interrupts delivered to the loop's CPU.
@@ -72,6 +73,19 @@ impl Tree {
         let file = std::fs::File::open(self.path(rel)).ok()?;
         let mut bytes = Vec::new();
         file.take(MAX_FILE_BYTES).read_to_end(&mut bytes).ok()?;
+        Some(String::from_utf8_lossy(&bytes).into_owned())
+    }
+
+    /// The text of the gzip file `/rel` once inflated (`/proc/config.gz`), at most
+    /// `MAX_FILE_BYTES` of it, so a file that inflates without end costs no more than that;
+    /// `None` when it is missing, unreadable or not gzip.
+    pub fn read_gzip(&self, rel: &str) -> Option<String> {
+        let file = std::fs::File::open(self.path(rel)).ok()?;
+        let mut bytes = Vec::new();
+        flate2::read::GzDecoder::new(file.take(MAX_FILE_BYTES))
+            .take(MAX_FILE_BYTES)
+            .read_to_end(&mut bytes)
+            .ok()?;
         Some(String::from_utf8_lossy(&bytes).into_owned())
     }
 
