@@ -2,8 +2,9 @@
 //!
 //! [`open`] builds the device a scene names (the simulated PHANTOM moved by its scripted hand,
 //! a PHANTOM / Touch through OpenHaptics, or a SpaceMouse through hidapi) and writes back into the scene what the device
-//! really is: its limits (the tighter of the device's and the preset's) and its label for the
-//! viewers, before the recording and the `scene` message are made from the scene. A device that
+//! really is: its limits (the tighter of the device's and the preset's; for a SpaceMouse, the
+//! preset's with a workspace that reaches the scene's box) and its label for the viewers, before
+//! the recording and the `scene` message are made from the scene. A device that
 //! cannot be opened stops the start with the device backend's error (which library was looked
 //! for, where, and how to install it), before anything listens or records.
 //!
@@ -20,19 +21,42 @@ use softhaptic_device::openhaptics::{
 };
 use softhaptic_device::sim::{SimParams, SimulatedPhantom};
 use softhaptic_device::spacemouse::script::ReportScript;
-use softhaptic_device::spacemouse::{Connector, SpaceMouseDevice, SpaceMouseError, hid};
+use softhaptic_device::spacemouse::{
+    Connector, SpaceMouseDevice, SpaceMouseError, TransportError, hid,
+};
 
 /// Why the scene's device could not be opened.
 #[derive(Debug, thiserror::Error)]
 pub enum DeviceOpenError {
     #[error(transparent)]
     OpenHaptics(#[from] OpenHapticsError),
-    #[error(
-        "{0}; plug one in (`softhaptic devices` lists what is found), or choose another device with --device"
-    )]
-    SpaceMouse(#[from] SpaceMouseError),
+    /// The SpaceMouse backend's reason, then what to do about it. Its text already holds every
+    /// cause, so it names no `source`: a report that prints an error and then its causes would
+    /// print the reason twice.
+    #[error("{0}{advice}", advice = spacemouse_advice(.0))]
+    SpaceMouse(SpaceMouseError),
     #[error("the SpaceMouse report script {0}")]
     ReportScript(String),
+}
+
+impl From<SpaceMouseError> for DeviceOpenError {
+    fn from(e: SpaceMouseError) -> Self {
+        Self::SpaceMouse(e)
+    }
+}
+
+/// What to do when the SpaceMouse did not open: plug one in when none was found. A device that
+/// would not open already says which udev rule fixes it, and a scene's bad setting names its
+/// field.
+fn spacemouse_advice(e: &SpaceMouseError) -> &'static str {
+    match e {
+        SpaceMouseError::Transport(
+            TransportError::NotFound(_) | TransportError::Disconnected(_),
+        ) => {
+            "; plug one in (`softhaptic devices` lists what is found), or choose another device with --device"
+        }
+        _ => "",
+    }
 }
 
 use crate::scene::{DeviceKind, Scene};
@@ -91,8 +115,20 @@ pub fn open(scene: &mut Scene) -> Result<Box<dyn HapticDevice>, DeviceOpenError>
                     "hidraw".to_owned(),
                 ),
             };
-            let device =
-                SpaceMouseDevice::open(connector, scene.spacemouse_rate, scene.device_limits)?;
+            // The world takes a tip farther from its origin than the limits' workspace radius
+            // (times a tolerance) for a broken reading and faults the tick. The puck's tool goes
+            // wherever the scene's box lets it, and the box is placed around the object wherever
+            // that is: the box's farthest corner is this device's reach.
+            let rate = &scene.spacemouse_rate;
+            let farthest_corner_m = rate
+                .workspace_min_m
+                .abs()
+                .max(rate.workspace_max_m.abs())
+                .length();
+            let mut limits = scene.device_limits;
+            limits.workspace_radius_m = limits.workspace_radius_m.max(farthest_corner_m);
+            let device = SpaceMouseDevice::open(connector, scene.spacemouse_rate, limits)?;
+            scene.device_limits = limits;
             scene.device_label = Some(format!(
                 "{} (SpaceMouse, {source}; renders no force)",
                 device.model().name
@@ -213,6 +249,27 @@ pub fn spacemouse_listing(out: &mut String, listing: &hid::Listing) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_spacemouse_that_is_not_found_says_so_once_with_what_to_do() {
+        let e = DeviceOpenError::from(SpaceMouseError::Transport(TransportError::NotFound(
+            "no 3Dconnexion device among the HID devices".into(),
+        )));
+        let text = crate::logging::error_text(&e);
+        assert_eq!(text.matches("no SpaceMouse found").count(), 1, "{text}");
+        assert_eq!(text.matches("no 3Dconnexion device").count(), 1, "{text}");
+        assert!(
+            text.ends_with("choose another device with --device"),
+            "{text}"
+        );
+        // A scene's setting is not fixed by plugging a device in.
+        let e = DeviceOpenError::from(SpaceMouseError::Config(
+            "dead_band must be in [0, 1)".into(),
+        ));
+        let text = crate::logging::error_text(&e);
+        assert!(!text.contains("plug one in"), "{text}");
+        assert_eq!(text.matches("dead_band").count(), 1, "{text}");
+    }
 
     #[test]
     fn the_spacemouse_listing_names_models_paths_and_the_udev_fix() {

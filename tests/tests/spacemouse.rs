@@ -1,20 +1,22 @@
 //! The SpaceMouse backend end to end through a scripted transport: a recorded report stream with
-//! realistic timing (a report every 16 ms while the puck moves, silence at rest, an unplug and a
-//! replug, a button press) drives the tool into the liver through the whole server. The viewer
-//! is told that the force is not felt and sees contact, force and R_d as with any device; the
-//! tool path is smooth, stays in the scene's box, holds still while unplugged, and the recorded
-//! session replays bit for bit.
+//! realistic timing (a report every 16 ms while the puck moves, silence at rest, an unplug in the
+//! middle of a pull and a replug, a button press) drives the tool into the liver through the
+//! whole server. The viewer is told that the force is not felt and sees contact, force and R_d as
+//! with any device; the tool path is smooth, stays in the scene's box, holds still while
+//! unplugged and starts again from rest, and the recorded session replays bit for bit. A
+//! SpaceMouse Compact's combined reports turn a cone (and the session replays) but not a sphere,
+//! and a scene's box far larger than the preset's workspace is driven to without a device fault.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::time::{Duration, Instant};
 
-use glam::DVec3;
+use glam::{DQuat, DVec3};
 use softhaptic_device::device::HapticDevice;
 use softhaptic_device::spacemouse::SpaceMouseDevice;
 use softhaptic_device::spacemouse::rate::RateControl;
 use softhaptic_device::spacemouse::report::{MODELS, find_model};
-use softhaptic_device::spacemouse::script::{ReportScript, axis_report};
+use softhaptic_device::spacemouse::script::{ReportScript, axis_report, six_axis_report};
 use softhaptic_proto::ContactFlags;
 use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
 use softhaptic_proto::wire::{DeviceStatus, ServerMessage};
@@ -43,16 +45,26 @@ fn liver_scene() -> Scene {
     scene
 }
 
-/// The session's puck: at rest, a push down held against the box's floor, a release, silence,
-/// an unplug and a replug, a pull up, and the reset button.
+/// When the cable is pulled: in the middle of a pull up, the puck still deflected.
+const UNPLUG_AT_S: f64 = 2.9;
+
+/// The session's puck: at rest, a push down held against the box's floor, a release, a pull up
+/// cut short by an unplug, a replug and silence, a pull up, and the reset button.
 fn puck_script() -> ReportScript {
     let navigator = find_model(0x046d, 0xc626).unwrap();
     let mut s = ReportScript::new(navigator).report(0.0, &axis_report(1, [0; 3]));
     // Pushing the puck down is +z in the HID.
     s = s.hold_translation(0.2, 2.4, REPORT_EVERY_S, [0, 0, FULL]);
-    // Silence at rest, then the cable is pulled and plugged back in.
-    // Unplugged for two seconds: longer than the 1 s between two `stats`.
-    s = s.unplug(2.9).replug(4.9);
+    // Pulling it up from 2.6 s, until the cable is pulled: no release, the tool is still moving
+    // (about 13 mm above the floor, 47 mm under the box's top) when the reports stop.
+    let mut t = 2.6;
+    while t < UNPLUG_AT_S {
+        s = s.report(t, &axis_report(1, [0, 0, -FULL]));
+        t += REPORT_EVERY_S;
+    }
+    // Unplugged for two seconds (longer than the 1 s between two `stats`), then plugged back in
+    // and silent for 0.3 s: the reader's fresh puck is at rest.
+    s = s.unplug(UNPLUG_AT_S).replug(4.9);
     s = s.hold_translation(5.2, 5.8, REPORT_EVERY_S, [0, 0, -FULL]);
     s.report(6.1, &[3, 1]).report(6.4, &[3, 0])
 }
@@ -190,12 +202,33 @@ fn assert_path(device: &[DeviceRecord], rate: &RateControl) {
     for d in &device[first..last] {
         assert!(d.device_fault && d.force_n == [0.0; 3], "{d:?}");
     }
-    let before = position(&device[first - 1]).unwrap();
-    let after = position(&device[last]).unwrap();
+    // The reports stopped mid-pull: the tool was moving, off every face of the box (a tool
+    // at rest, or held by a face, would stand still across the outage whatever the backend did).
+    let moving = device[first - 1].sample.unwrap();
+    let before = DVec3::from_array(moving.tip_position_m);
+    let speed_m_s = DVec3::from_array(moving.tip_velocity_m_s).length();
     assert!(
-        (after - before).length() < 1e-4,
+        speed_m_s > 0.5 * c.gain_m_s,
+        "{speed_m_s} m/s at the unplug"
+    );
+    let clearance_m = (before - c.workspace_min_m)
+        .min(c.workspace_max_m - before)
+        .min_element();
+    assert!(
+        clearance_m > 0.005,
+        "{clearance_m} m from a face at the unplug"
+    );
+    // It holds still over the outage, and starts again from rest.
+    let replugged = device[last].sample.unwrap();
+    let after = DVec3::from_array(replugged.tip_position_m);
+    assert!(
+        (after - before).length() <= 1e-6,
         "the tool moved {} m across the unplug",
         (after - before).length()
+    );
+    assert_eq!(
+        replugged.tip_velocity_m_s, [0.0; 3],
+        "the first sample after the replug"
     );
 
     // The pull up after the replug moved it, and the button brought it home.
@@ -332,4 +365,153 @@ fn the_twist_turns_a_cone_by_default_and_not_a_sphere() {
     let cone = Scene::load(&softhaptic_tests::repo_scenes().join("cone.toml")).unwrap();
     assert!(cone.spacemouse_rate.rotation);
     assert!(!liver_scene().spacemouse_rate.rotation);
+}
+
+#[test]
+fn a_scene_whose_box_reaches_far_from_the_origin_drives_the_tool_there_without_a_fault() {
+    let dir = scratch_dir("spacemouse-far");
+    // A full push to the right (+x), a report every 16 ms for 20 s.
+    let mut script = String::from("model 046d:c626\n");
+    for k in 0..1250 {
+        script.push_str(&format!("{} 01 5e 01 00 00 00 00\n", k * 16));
+    }
+    std::fs::write(dir.join("far.hid"), script).unwrap();
+    let text = scene_with_device(
+        "[device]\nkind = \"spacemouse\"\nreport_script = \"far.hid\"\n\n\
+         [device.rate]\ngain_m_s = 1.0\nmax_speed_m_s = 1.0\n\
+         workspace_half_extent_m = [1.0, 1.0, 1.0]\n",
+    );
+    let mut scene = softhaptic_tests::load_scene_text(&dir, &text).unwrap();
+    let preset_reach_m = scene.device_limits.workspace_radius_m;
+    let mut device = devices::open(&mut scene).unwrap();
+    // The limits the world (and the `scene` message, and the replay check) use reach the box's
+    // farthest corner.
+    let rate = scene.spacemouse_rate;
+    let corner_m = rate
+        .workspace_min_m
+        .abs()
+        .max(rate.workspace_max_m.abs())
+        .length();
+    assert!(scene.device_limits.workspace_radius_m >= corner_m);
+    assert!(corner_m > 1.0 && preset_reach_m < 0.2);
+    assert_eq!(
+        scene.message().device.workspace_radius_m,
+        scene.device_limits.workspace_radius_m
+    );
+
+    // The loop's ticks, one a millisecond, until the tool is far beyond the preset's workspace
+    // (and twice it, where a PHANTOM's reading is taken for a broken one).
+    let mut world = scene.haptic_world();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut farthest_m = 0.0f64;
+    while farthest_m < 0.6 {
+        let outcome = world.tick(device.as_mut());
+        let state = outcome.state;
+        assert!(
+            !state.flags.contains(ContactFlags::DEVICE_FAULT),
+            "tick {} at {} ({} m from the origin) faulted",
+            state.tick,
+            state.tip_in_world.position_m,
+            state.tip_in_world.position_m.length()
+        );
+        farthest_m = farthest_m.max(state.tip_in_world.position_m.length());
+        assert!(
+            Instant::now() < deadline,
+            "the tool reached only {farthest_m} m"
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// A SpaceMouse Compact's stream (the combined 12-byte report, all six axes in one): from 0.2 s
+/// a push down while the puck is twisted about its vertical and tilted a little, a report every
+/// 16 ms until 1.7 s, then a release.
+fn compact_twist_script() -> ReportScript {
+    let compact = find_model(0x256f, 0xc635).unwrap();
+    let mut s = ReportScript::new(compact).report(0.0, &six_axis_report([0; 3], [0; 3]));
+    let mut t = 0.2;
+    while t < 1.7 {
+        // +z down, −rz a twist about the puck's up axis, +rx a tilt.
+        s = s.report(t, &six_axis_report([0, 0, FULL], [FULL / 4, 0, -FULL]));
+        t += REPORT_EVERY_S;
+    }
+    s.report(1.7, &six_axis_report([0; 3], [0; 3]))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_compact_s_twist_turns_the_cone_and_the_session_replays_bit_for_bit() {
+    let mut scene = Scene::load(&softhaptic_tests::repo_scenes().join("cone.toml")).unwrap();
+    scene.choose_device(&DeviceChoice {
+        kind: DeviceKind::Spacemouse,
+        name: None,
+    });
+    let (point, _) = scene.press_site_in_object;
+    let site = scene.object_in_world.transform_point(point);
+    scene.spacemouse_rate.workspace_min_m.y = site.y - 0.005;
+    let rate = scene.spacemouse_rate;
+    assert!(rate.rotation, "a cone turns with the puck by default");
+    let home = rate.home_in_world.orientation;
+
+    let (connector, clock) = compact_twist_script().connector_started_later();
+    let device = SpaceMouseDevice::open(Box::new(connector), rate, scene.device_limits).unwrap();
+    assert_eq!(device.model().name, "SpaceMouse Compact");
+    let mut options = test_options();
+    options.device = Some(Box::new(device));
+    let live = start_recorded(scene, &scratch_dir("spacemouse-twist"), options).await;
+    let mut viewer = Viewer::connect(live.server.local_addr()).await;
+    clock.start();
+
+    // Until the cone has pressed and turned by a radian on the wire.
+    let (mut pressed, mut turned_rad) = (false, 0.0f64);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !(pressed && turned_rad > 1.0) {
+        assert!(
+            Instant::now() < deadline,
+            "pressed {pressed}, turned {turned_rad} rad"
+        );
+        if let Some(Ok(ServerMessage::Contact(c))) = viewer.next(Duration::from_secs(5)).await {
+            pressed |= c.in_contact && c.force_n.length() > 0.05;
+            turned_rad = turned_rad.max(c.tip_in_world.orientation.angle_between(home));
+        }
+    }
+    let (_, _, path, _) = live.finish().await;
+    let recorded = Recording::open(&path).unwrap();
+    let orientations: Vec<DQuat> = recorded
+        .device
+        .iter()
+        .filter_map(|d| d.sample)
+        .map(|s| DQuat::from_array(s.tip_orientation))
+        .collect();
+    assert!(orientations[0].angle_between(home) < 1e-12);
+    let last = orientations.last().unwrap();
+    assert!(last.angle_between(home) > 1.0, "{last}");
+    assert!(recorded.device.iter().any(|d| d.in_contact));
+
+    let report = check(&recorded, CheckOverrides::default()).unwrap();
+    assert!(report.passed(), "{report}");
+    assert_eq!(report.ticks_compared, recorded.device.len() as u64);
+}
+
+#[test]
+fn a_sphere_ignores_the_compact_s_twist() {
+    let scene = liver_scene();
+    let rate = scene.spacemouse_rate;
+    assert!(!rate.rotation);
+    let mut device = SpaceMouseDevice::open(
+        Box::new(compact_twist_script().connector()),
+        rate,
+        scene.device_limits,
+    )
+    .unwrap();
+    // Until the push down has brought the tool to the box's floor: the stream is being read.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let s = device.read().unwrap();
+        assert_eq!(s.tip_in_world.orientation, rate.home_in_world.orientation);
+        if s.tip_in_world.position_m.y == rate.workspace_min_m.y {
+            break;
+        }
+        assert!(Instant::now() < deadline, "{s:?}");
+        std::thread::sleep(Duration::from_millis(1));
+    }
 }

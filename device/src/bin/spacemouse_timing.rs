@@ -6,8 +6,12 @@
 //! The 1 kHz loop runs with the SpaceMouse backend fed by a report stream played in real time
 //! (a full push along x, a report every 16 ms for 0.3 s, then a release, repeated): the same
 //! reader thread, seqlock and rate control as with a device, the transport only replaced. Each
-//! report the transport hands over is stamped (CLOCK_MONOTONIC), and set beside the loop's tick
-//! records:
+//! push starts at a random point within its millisecond (seeded by `--seed`): pushes started on
+//! whole milliseconds, with reports 16 ms apart, would all land at the same phase of the loop's
+//! 1 ms period and give one latency many times over instead of its spread. Each report the
+//! transport hands over is stamped (CLOCK_MONOTONIC), and set beside the loop's tick records.
+//! USB and the kernel's hidraw are not in these figures: the scripted transport stands in for
+//! them. The figures:
 //!
 //! - *report → motion*: from the first report of a push to the first tick whose velocity moves
 //!   (the reader's parse and publication, plus the wait for the next tick: at most one period);
@@ -45,6 +49,9 @@ struct Args {
     /// Ask for SCHED_FIFO for the loop thread (granted to root or with an rtprio limit).
     #[arg(long)]
     realtime: bool,
+    /// Seed of the pushes' onsets within their millisecond (the same seed, the same stream).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
 }
 
 const PUSH_S: f64 = 0.3;
@@ -91,6 +98,23 @@ impl Transport for StampedTransport {
     }
 }
 
+/// SplitMix64: a small, seedable generator of the onsets' phases (the figures need a spread,
+/// not a cryptographic quality).
+struct SplitMix64(u64);
+
+impl SplitMix64 {
+    /// The next value, uniform in [0, 1).
+    fn next_unit(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        // The top 53 bits: every value exactly representable, 1.0 never reached.
+        (z >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 fn percentile(sorted: &[f64], p: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
@@ -102,8 +126,10 @@ fn main() -> anyhow::Result<()> {
     let args = Args::parse();
     let navigator = find_model(0x046d, 0xc626).context("the SpaceNavigator is a listed model")?;
     let mut script = ReportScript::new(navigator).report(0.0, &axis_report(1, [0; 3]));
+    let mut phase = SplitMix64(args.seed);
     for k in 0..args.pushes {
-        let t0 = 0.5 + f64::from(k) * EVERY_S;
+        // Whole milliseconds plus a phase within one: see the module's documentation.
+        let t0 = 0.5 + f64::from(k) * EVERY_S + phase.next_unit() * 1e-3;
         script = script.hold_translation(t0, t0 + PUSH_S, REPORT_EVERY_S, [350, 0, 0]);
     }
     let total_s = 0.5 + f64::from(args.pushes) * EVERY_S + 0.2;
@@ -197,9 +223,10 @@ fn main() -> anyhow::Result<()> {
         v.sort_by(f64::total_cmp);
     }
     println!(
-        "SpaceMouse backend, {} pushes timed of {} (loop: {} ticks, {} lost; real-time {})",
+        "SpaceMouse backend, {} pushes timed of {}, onsets seeded {} (loop: {} ticks, {} lost; real-time {})",
         motion.len(),
         args.pushes,
+        args.seed,
         stats.ticks,
         stats.overruns,
         if stats.realtime_granted {

@@ -2,8 +2,8 @@
 //!
 //! hidapi is built on its native Linux backend (hidraw through the kernel's interface, device
 //! discovery from sysfs): nothing to install, no libusb, no libudev headers. Opening
-//! `/dev/hidraw*` needs read access, which a udev rule gives to the desk's user
-//! ([`UDEV_RULE`]).
+//! `/dev/hidraw*` needs read access, which a udev rule gives to the desk's user and to the
+//! `plugdev` group a service runs in ([`UDEV_RULE`]).
 
 use std::path::Path;
 
@@ -12,12 +12,14 @@ use hidapi::{DeviceInfo, HidApi, HidDevice};
 use super::report::{Model, find_model, is_3dconnexion_vendor};
 use super::{Connector, Transport, TransportError};
 
-/// Where the udev rule goes, and the rule: read access for the logged-in user to the hidraw
-/// nodes of 3Dconnexion devices (both vendor ids).
+/// Where the udev rule goes, and the rule: read access to the hidraw nodes of 3Dconnexion
+/// devices (both vendor ids) for the user logged in at the seat (`uaccess`) and for the
+/// `plugdev` group. The tag alone would leave out a station run as a systemd service, which has
+/// no seat: its unit joins `plugdev` (`SupplementaryGroups=plugdev`) instead.
 pub const UDEV_RULE_PATH: &str = "/etc/udev/rules.d/70-softhaptic-spacemouse.rules";
 pub const UDEV_RULE: &str = concat!(
-    "KERNEL==\"hidraw*\", ATTRS{idVendor}==\"256f\", MODE=\"0660\", TAG+=\"uaccess\"\n",
-    "KERNEL==\"hidraw*\", ATTRS{idVendor}==\"046d\", ATTRS{idProduct}==\"c6[0-5]?\", MODE=\"0660\", TAG+=\"uaccess\"\n",
+    "KERNEL==\"hidraw*\", ATTRS{idVendor}==\"256f\", MODE=\"0660\", GROUP=\"plugdev\", TAG+=\"uaccess\"\n",
+    "KERNEL==\"hidraw*\", ATTRS{idVendor}==\"046d\", ATTRS{idProduct}==\"c6[0-5]?\", MODE=\"0660\", GROUP=\"plugdev\", TAG+=\"uaccess\"\n",
 );
 
 /// How to install the rule, for messages.
@@ -207,6 +209,15 @@ mod tests {
     #[test]
     fn the_udev_rule_covers_both_vendor_ids() {
         assert!(UDEV_RULE.contains("\"256f\"") && UDEV_RULE.contains("\"046d\""));
+        // Every line opens the node to the seat's user and to the service's group.
+        assert_eq!(UDEV_RULE.lines().count(), 2);
+        for line in UDEV_RULE.lines() {
+            assert!(
+                line.contains("GROUP=\"plugdev\"") && line.contains("TAG+=\"uaccess\""),
+                "{line}"
+            );
+            assert!(line.contains("MODE=\"0660\""), "{line}");
+        }
         assert!(udev_hint().contains(UDEV_RULE_PATH) && udev_hint().contains("udevadm"));
         // Every listed Logitech-era product matches the rule's product pattern c6[0-5]?.
         for m in super::super::report::MODELS {

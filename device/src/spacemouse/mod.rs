@@ -50,8 +50,9 @@ const READ_TIMEOUT_MS: i32 = 50;
 /// Reports older than this are taken to have stopped (a device sends ~60 a second while its puck
 /// is off centre): the target velocity is then zero and the tool comes to rest.
 pub const REPORTS_STALE_AFTER_NS: u64 = 250_000_000;
-/// The longest step the integration takes: a loop that lost ticks does not teleport the tool.
-const MAX_STEP_S: f64 = 0.02;
+/// The longest step the integration takes, s: a loop that lost ticks (or a read after a long
+/// pause) moves the tool by at most the speed limit times this, never teleports it.
+pub const MAX_STEP_S: f64 = 0.02;
 
 /// Why the transport could not go on.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -345,5 +346,140 @@ impl Reader {
             std::thread::sleep(step);
             slept += step;
         }
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    //! The backend through its reader thread and a scripted transport, read as the loop reads it.
+    //! Time is real here (the reader stamps reports with CLOCK_MONOTONIC), so each test asserts
+    //! what holds however late the threads run: a bound, or a condition polled for with a
+    //! generous deadline.
+
+    use std::time::Instant;
+
+    use softhaptic_proto::Pose;
+
+    use super::script::{ReportScript, axis_report};
+    use super::*;
+
+    const FULL_X: [i16; 3] = [350, 0, 0];
+
+    /// A tool at the origin in a box of ±1 m: no face is reached in these tests.
+    fn config() -> RateConfig {
+        RateConfig::new(
+            Pose::from_position(DVec3::ZERO),
+            DVec3::splat(-1.0),
+            DVec3::splat(1.0),
+        )
+    }
+
+    fn open(script: ReportScript) -> SpaceMouseDevice {
+        SpaceMouseDevice::open(
+            Box::new(script.connector()),
+            config(),
+            DeviceLimits::PHANTOM_DESKTOP,
+        )
+        .unwrap()
+    }
+
+    /// Reads about once a millisecond, as the loop does, until `done` says so (a minute at most).
+    fn read_until(
+        device: &mut SpaceMouseDevice,
+        mut done: impl FnMut(&[DeviceSample]) -> bool,
+    ) -> Vec<DeviceSample> {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        let mut samples = Vec::new();
+        loop {
+            samples.push(device.read().expect("the script keeps it plugged in"));
+            if done(&samples) {
+                return samples;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "gave up after {} reads; the last {:?}",
+                samples.len(),
+                samples.last()
+            );
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
+    #[test]
+    fn a_deflection_whose_reports_stop_comes_to_rest_after_the_stale_time() {
+        let gain = config().gain_m_s;
+        // One report of a full push, then silence: a wireless link lost with the puck deflected.
+        let mut device =
+            open(ReportScript::new(&report::MODELS[6]).report(0.0, &axis_report(1, FULL_X)));
+        let mut fastest = 0.0f64;
+        let samples = read_until(&mut device, |s| {
+            let v = s[s.len() - 1].tip_velocity_m_s.length();
+            fastest = fastest.max(v);
+            fastest > 0.5 * gain && v < gain * 1e-6
+        });
+        // The stale report moved the tool until it was REPORTS_STALE_AFTER_NS old, and only
+        // then did the velocity fall: the report came after the device opened, so no sample
+        // younger than the stale time may show a slower tool than the one before.
+        let first_slower = samples
+            .windows(2)
+            .position(|w| w[1].tip_velocity_m_s.x < w[0].tip_velocity_m_s.x)
+            .expect("the velocity decays");
+        assert!(
+            samples[first_slower + 1].time_ns >= REPORTS_STALE_AFTER_NS,
+            "slowed at {} ns",
+            samples[first_slower + 1].time_ns
+        );
+        // From then on it only decays, along x alone.
+        for w in samples[first_slower..].windows(2) {
+            assert!(w[1].tip_velocity_m_s.x <= w[0].tip_velocity_m_s.x, "{w:?}");
+        }
+        assert!(
+            samples
+                .iter()
+                .all(|s| s.tip_velocity_m_s.y == 0.0 && s.tip_velocity_m_s.z == 0.0)
+        );
+        // The pose settles: what is left of a first-order decay's travel is its speed times τ.
+        let at_rest = samples[samples.len() - 1].tip_in_world.position_m;
+        // On its own, not against the box's face (which also stops a tool, 20 s of push away):
+        // a quarter second of push and the filter's lag are about 15 mm.
+        assert!(
+            at_rest.x > 0.0 && at_rest.x < 0.5 * config().workspace_max_m.x,
+            "at rest at {at_rest}"
+        );
+        let later = read_until(&mut device, |s| s.len() >= 50);
+        for s in &later {
+            let drift = (s.tip_in_world.position_m - at_rest).length();
+            assert!(
+                drift <= gain * 1e-6 * config().smoothing_s + 1e-15,
+                "{drift} m"
+            );
+        }
+    }
+
+    #[test]
+    fn a_long_gap_between_reads_moves_the_tool_by_at_most_the_longest_step() {
+        let c = config();
+        let mut device =
+            open(ReportScript::new(&report::MODELS[6]).hold_translation(0.0, 60.0, 0.016, FULL_X));
+        let samples = read_until(&mut device, |s| {
+            s[s.len() - 1].tip_velocity_m_s.x >= 0.99 * c.gain_m_s
+        });
+        let before = samples[samples.len() - 1];
+        // The loop stalls (or the machine does) for ten times the longest step.
+        std::thread::sleep(Duration::from_secs_f64(10.0 * MAX_STEP_S));
+        let after = device.read().unwrap();
+        assert!(after.time_ns - before.time_ns >= (10.0 * MAX_STEP_S * 1e9) as u64);
+        let moved_m = (after.tip_in_world.position_m - before.tip_in_world.position_m).length();
+        assert!(
+            moved_m <= c.max_speed_m_s * MAX_STEP_S + 1e-15,
+            "moved {moved_m} m in one read"
+        );
+        // The step is the bound's, not nothing: the push still drives the tool (live or
+        // decaying, its speed is more than half the gain over that one step).
+        assert!(
+            moved_m >= 0.5 * c.gain_m_s * MAX_STEP_S,
+            "moved {moved_m} m"
+        );
     }
 }

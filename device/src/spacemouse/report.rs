@@ -254,6 +254,27 @@ mod tests {
     #[test]
     fn combined_layout_gives_six_axes_with_their_signs() {
         let p = Parser::new(find_model(VENDOR_3DCONNEXION, 0xc635).expect("listed"));
+        // Each of the six axes alone, both ways: a swapped or sign-flipped axis shows here.
+        for axis in 0..6 {
+            for sign in [-1i16, 1] {
+                let mut raw = [0i16; 6];
+                raw[axis] = sign * 175;
+                let mut report = vec![1u8];
+                report.extend(le(&raw));
+                let mut expected = Axes::default();
+                let half = f64::from(sign) * 0.5;
+                if axis < 3 {
+                    expected.translation[axis] = half;
+                } else {
+                    expected.rotation[axis - 3] = half;
+                }
+                assert_eq!(
+                    p.parse(&report),
+                    Ok(ReportUpdate::SixAxes(expected)),
+                    "axis {axis}, sign {sign}"
+                );
+            }
+        }
         let mut report = vec![1u8];
         report.extend(le(&[350, -350, 35, -35, 700, -700]));
         assert_eq!(

@@ -49,6 +49,21 @@ pub struct ScriptError {
 
 /// Longest report a script may hold (HID full-speed reports are at most 64 bytes).
 const MAX_REPORT_BYTES: usize = 64;
+/// The shortest interval [`ReportScript::hold_translation`] puts between reports, s: a
+/// full-speed HID device is polled at most once a millisecond.
+pub const MIN_REPORT_INTERVAL_S: f64 = 1e-3;
+/// The longest hold [`ReportScript::hold_translation`] writes out, s (an hour of reports).
+pub const MAX_HOLD_S: f64 = 3600.0;
+
+/// `t_s` seconds as an offset from the stream's start: negative and NaN are the start, a time
+/// too large for a [`Duration`] (∞ among them) the end of time.
+fn stream_offset(t_s: f64) -> Duration {
+    if t_s.is_nan() || t_s <= 0.0 {
+        Duration::ZERO
+    } else {
+        Duration::try_from_secs_f64(t_s).unwrap_or(Duration::MAX)
+    }
+}
 
 impl ReportScript {
     /// An empty stream from `model`.
@@ -60,33 +75,41 @@ impl ReportScript {
     }
 
     /// Adds a report at `t_s` seconds.
-    pub fn report(mut self, t_s: f64, bytes: &[u8]) -> Self {
-        self.events.push((
-            Duration::from_secs_f64(t_s),
-            ScriptEvent::Report(bytes.to_vec()),
-        ));
-        self
+    pub fn report(self, t_s: f64, bytes: &[u8]) -> Self {
+        self.at(t_s, ScriptEvent::Report(bytes.to_vec()))
     }
 
     /// Adds an unplug at `t_s` seconds.
-    pub fn unplug(mut self, t_s: f64) -> Self {
-        self.events
-            .push((Duration::from_secs_f64(t_s), ScriptEvent::Unplug));
-        self
+    pub fn unplug(self, t_s: f64) -> Self {
+        self.at(t_s, ScriptEvent::Unplug)
     }
 
     /// Adds a replug at `t_s` seconds.
-    pub fn replug(mut self, t_s: f64) -> Self {
-        self.events
-            .push((Duration::from_secs_f64(t_s), ScriptEvent::Replug));
+    pub fn replug(self, t_s: f64) -> Self {
+        self.at(t_s, ScriptEvent::Replug)
+    }
+
+    /// Adds `event` at `t_s` seconds, in time order: playback hands out the events in the order
+    /// they are stored, so an event added at an earlier time than the last goes before it (after
+    /// any at the same time). A time before the start or NaN is the start, and one beyond what a
+    /// [`Duration`] holds is the end of time: a builder never panics on a time.
+    fn at(mut self, t_s: f64, event: ScriptEvent) -> Self {
+        let time = stream_offset(t_s);
+        let index = self.events.partition_point(|(t, _)| *t <= time);
+        self.events.insert(index, (time, event));
         self
     }
 
     /// Reports of a puck held at `translation` (raw HID values, three-report layout) from
-    /// `from_s` to `to_s` every `every_s`, then a release to zero.
+    /// `from_s` to `to_s` every `every_s` (at least [`MIN_REPORT_INTERVAL_S`]; the hold at most
+    /// [`MAX_HOLD_S`]), then a release to zero at `to_s`.
     pub fn hold_translation(mut self, from_s: f64, to_s: f64, every_s: f64, raw: [i16; 3]) -> Self {
+        // NaN and anything faster than a full-speed HID device become its fastest rate, so the
+        // loop below always advances and ends.
+        let every_s = every_s.max(MIN_REPORT_INTERVAL_S);
+        let end_s = to_s.min(from_s + MAX_HOLD_S);
         let mut t = from_s;
-        while t < to_s {
+        while t < end_s {
             self = self.report(t, &axis_report(1, raw));
             t += every_s;
         }
@@ -396,6 +419,53 @@ mod tests {
             assert_eq!(e.line, line, "{text}: {e}");
             assert!(e.reason.contains(words), "{text}: {e}");
         }
+    }
+
+    #[test]
+    fn builder_times_outside_a_duration_are_clamped_and_kept_in_time_order() {
+        let s = ReportScript::new(&MODELS[6])
+            .report(0.5, &[3, 1])
+            .report(-1.0, &[3, 2])
+            .unplug(f64::NAN)
+            .replug(f64::INFINITY)
+            .report(1e300, &[3, 3])
+            .report(0.25, &[3, 4])
+            .report(f64::NEG_INFINITY, &[3, 5]);
+        let times: Vec<Duration> = s.events.iter().map(|(t, _)| *t).collect();
+        assert_eq!(
+            times,
+            [
+                Duration::ZERO,
+                Duration::ZERO,
+                Duration::ZERO,
+                Duration::from_millis(250),
+                Duration::from_millis(500),
+                Duration::MAX,
+                Duration::MAX,
+            ]
+        );
+        // Equal times keep the order they were added in.
+        assert_eq!(s.events[0].1, ScriptEvent::Report(vec![3, 2]));
+        assert_eq!(s.events[1].1, ScriptEvent::Unplug);
+        assert_eq!(s.events[2].1, ScriptEvent::Report(vec![3, 5]));
+        assert_eq!(s.events[5].1, ScriptEvent::Replug);
+        assert_eq!(s.events[6].1, ScriptEvent::Report(vec![3, 3]));
+    }
+
+    #[test]
+    fn a_hold_with_no_usable_interval_still_ends() {
+        for every_s in [0.0, -0.016, f64::NAN] {
+            let s =
+                ReportScript::new(&MODELS[6]).hold_translation(0.0, 0.0105, every_s, [350, 0, 0]);
+            // One report a millisecond at most (0 to 10 ms), and the release.
+            assert_eq!(s.events.len(), 12, "every {every_s} s");
+            assert_eq!(s.events[11].1, ScriptEvent::Report(axis_report(1, [0; 3])));
+        }
+        let s = ReportScript::new(&MODELS[6]).hold_translation(f64::NAN, 1.0, 0.016, [1, 0, 0]);
+        assert_eq!(s.events.len(), 1);
+        let s = ReportScript::new(&MODELS[6]).hold_translation(0.0, f64::INFINITY, 60.0, [1, 0, 0]);
+        assert_eq!(s.events.len(), 61);
+        assert_eq!(s.events[60].0, Duration::MAX);
     }
 
     #[test]
