@@ -13,15 +13,18 @@
 //! - **time in contact**: Σ dt over ticks in contact;
 //! - **path length in contact**: Σ |Δp| of the tip between consecutive ticks both in contact;
 //! - **smoothness**: the mean squared jerk of the tip in contact, m²/s⁶, from its position
-//!   every 10 ms (third backward difference over four samples all in contact): at 1 kHz the
-//!   third difference of an encoder's positions would be quantisation noise;
+//!   every 10 ms (six times the third divided difference over four samples all in contact, at
+//!   their device times, so a sample delayed by lost ticks is weighed by its real interval): at
+//!   1 kHz the third difference of an encoder's positions would be quantisation noise;
 //! - **pushes**: contacts that began after at least [`PUSH_GAP_S`] free (a grazing tool's
 //!   flicker is one push);
 //! - **device faults**: ticks with the `device_fault` flag; **flag onsets**: for each contact flag,
 //!   how many times it turned on.
 //!
 //! A fault tick carries no trustworthy position: it adds to the fault count and breaks the
-//! path and jerk chains, nothing else.
+//! path and jerk chains, nothing else. In particular it neither ends a contact nor moves the
+//! time the tool was last in contact: a fault in the middle of one held press is not a release,
+//! and the press that goes on after it is the same push.
 
 use glam::DVec3;
 use softhaptic_proto::ContactFlags;
@@ -136,8 +139,10 @@ pub struct MetricsAccumulator {
     in_contact: bool,
     /// Device time the tool was last in contact (for the push debounce).
     last_contact_ns: Option<u64>,
-    /// The last four 10 ms samples of the tip in contact, newest last, and their count.
+    /// The last four 10 ms samples of the tip in contact and their device times, newest last,
+    /// and their count.
     jerk_samples: [DVec3; 4],
+    jerk_times_ns: [u64; 4],
     jerk_count: usize,
     next_jerk_sample_ns: u64,
     jerk_sum: f64,
@@ -157,6 +162,7 @@ impl MetricsAccumulator {
             in_contact: false,
             last_contact_ns: None,
             jerk_samples: [DVec3::ZERO; 4],
+            jerk_times_ns: [0; 4],
             jerk_count: 0,
             next_jerk_sample_ns: 0,
             jerk_sum: 0.0,
@@ -197,7 +203,15 @@ impl MetricsAccumulator {
         }
 
         let position = t.tip_position_m.filter(|p| p.is_finite());
-        let touching = t.in_contact && position.is_some();
+        let Some(p) = position else {
+            // A fault tick: no position to trust, so nothing is known of the contact. The path
+            // and the jerk start again after it; the contact state and the time of the last
+            // contact stay as they were, so a press held through a fault stays one push.
+            self.last_position_in_contact = None;
+            self.jerk_count = 0;
+            return;
+        };
+        let touching = t.in_contact;
         if touching {
             m.time_in_contact_s += dt_s;
             if !self.in_contact {
@@ -212,18 +226,15 @@ impl MetricsAccumulator {
         }
         self.in_contact = touching;
 
-        match (touching, position) {
-            (true, Some(p)) => {
-                if let Some(last) = self.last_position_in_contact {
-                    m.path_length_in_contact_m += (p - last).length();
-                }
-                self.last_position_in_contact = Some(p);
-                self.jerk_sample(t.time_ns, p);
+        if touching {
+            if let Some(last) = self.last_position_in_contact {
+                m.path_length_in_contact_m += (p - last).length();
             }
-            _ => {
-                self.last_position_in_contact = None;
-                self.jerk_count = 0;
-            }
+            self.last_position_in_contact = Some(p);
+            self.jerk_sample(t.time_ns, p);
+        } else {
+            self.last_position_in_contact = None;
+            self.jerk_count = 0;
         }
     }
 
@@ -234,16 +245,29 @@ impl MetricsAccumulator {
         self.next_jerk_sample_ns = time_ns + JERK_SAMPLE_NS;
         self.jerk_samples.rotate_left(1);
         self.jerk_samples[3] = p;
+        self.jerk_times_ns.rotate_left(1);
+        self.jerk_times_ns[3] = time_ns;
         self.jerk_count = (self.jerk_count + 1).min(4);
         if self.jerk_count == 4 {
-            let [a, b, c, d] = self.jerk_samples;
-            let h = JERK_SAMPLE_NS as f64 * 1e-9;
-            let jerk = (d - 3.0 * c + 3.0 * b - a) / (h * h * h);
+            let jerk = third_derivative(self.jerk_samples, self.jerk_times_ns);
             self.jerk_sum += jerk.length_squared();
             self.jerk_terms += 1;
             self.m.mean_squared_jerk_m2_s6 = self.jerk_sum / self.jerk_terms as f64;
         }
     }
+}
+
+/// The third derivative of a path through four samples at increasing device times `t_ns`: six
+/// times their third divided difference, exact for a cubic whatever the intervals (for equal
+/// intervals h it is the third backward difference over h³). The intervals are taken as
+/// differences of the integer times before they become seconds, so a long session's large
+/// times lose no precision. Samples are at least a tick apart (`jerk_sample`), so no interval
+/// is zero.
+fn third_derivative(p: [DVec3; 4], t_ns: [u64; 4]) -> DVec3 {
+    let dt_s = |i: usize, j: usize| t_ns[j].saturating_sub(t_ns[i]) as f64 * 1e-9;
+    let first = |i: usize| (p[i + 1] - p[i]) / dt_s(i, i + 1);
+    let second = |i: usize| (first(i + 1) - first(i)) / dt_s(i, i + 2);
+    6.0 * (second(1) - second(0)) / dt_s(0, 3)
 }
 
 #[cfg(test)]
@@ -331,30 +355,116 @@ mod tests {
     }
 
     #[test]
-    fn a_noisy_path_is_less_smooth_and_flickers_count_as_one_push() {
-        let mut smooth = MetricsAccumulator::new(10.0);
-        let mut noisy = MetricsAccumulator::new(10.0);
-        // A deterministic jitter of ±50 µm on a slow press.
-        let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
+    fn a_jittered_press_has_its_hand_computed_path_length_and_jerk() {
+        // A slow press (5 mm/s down) with a square-wave jitter of ±50 µm that flips every 10 ms:
+        // +a in [0, 10) ms, -a in [10, 20) ms, … over 1 s at 1 kHz, all in contact.
+        let (a, v) = (50e-6, 0.005);
+        let jitter = |t: u64| if (t / 10).is_multiple_of(2) { a } else { -a };
+        let mut acc = MetricsAccumulator::new(10.0);
         for t in 0..=1000u64 {
-            state = state
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1);
-            let jitter = ((state >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 1e-4;
-            let y = -0.005 * t as f64 * 1e-3;
-            smooth.update(&tick(t, y, true, 0.5));
-            // The noisy trace also loses contact for 5 ms twice: a flicker, not new pushes.
-            let flicker = (300..305).contains(&t) || (700..705).contains(&t);
-            noisy.update(&tick(t, y + jitter, !flicker, 0.5));
+            acc.update(&tick(t, -v * t as f64 * 1e-3 + jitter(t), true, 0.5));
         }
-        let (s, n) = (smooth.metrics(), noisy.metrics());
-        assert!(n.mean_squared_jerk_m2_s6 > 1e3 * s.mean_squared_jerk_m2_s6.max(1e-9));
-        assert!(n.path_length_in_contact_m > s.path_length_in_contact_m);
-        assert_eq!(n.pushes, 1);
+        let m = acc.metrics();
+        // Path: 1000 steps of 1 ms. The 100 flips (at 10, 20, … 1000 ms) alternate down (2a + v
+        // dt, with the press) and up (2a - v dt, against it): 100 · 2a in all; the other 900
+        // steps are the press alone, v dt each.
+        let path_m = 100.0 * 2.0 * a + 900.0 * v * 1e-3;
+        assert!(
+            (m.path_length_in_contact_m - path_m).abs() < 1e-12,
+            "{} vs {path_m}",
+            m.path_length_in_contact_m
+        );
+        // Jerk: the 10 ms samples (0, 10, … 1000 ms) alternate +a, -a, so every third difference
+        // is ±(a + 3a + 3a + a) = ±8a (the press, linear, adds none) over h³ = (10 ms)³: the mean
+        // of its square over all 98 windows is (8a / h³)².
+        let h = 0.01;
+        let jerk = 8.0 * a / (h * h * h);
+        assert!(
+            (m.mean_squared_jerk_m2_s6 - jerk * jerk).abs() < 1e-9 * jerk * jerk,
+            "{} vs {}",
+            m.mean_squared_jerk_m2_s6,
+            jerk * jerk
+        );
+        assert_eq!(m.pushes, 1);
+        assert!((m.time_in_contact_s - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn flickers_count_as_one_push_and_separate_presses_as_two() {
+        // Contact lost for 5 ms twice: a flicker, not new pushes.
+        let mut flicker = MetricsAccumulator::new(10.0);
+        for t in 0..=1000u64 {
+            let lost = (300..305).contains(&t) || (700..705).contains(&t);
+            flicker.update(&tick(t, 0.0, !lost, 0.5));
+        }
+        assert_eq!(flicker.metrics().pushes, 1);
         // Separate presses 100 ms apart are two.
         let mut two = MetricsAccumulator::new(10.0);
         for t in 0..400u64 {
             two.update(&tick(t, 0.0, !(150..250).contains(&t), 0.5));
+        }
+        assert_eq!(two.metrics().pushes, 2);
+    }
+
+    #[test]
+    fn the_jerk_of_a_cubic_is_exact_across_lost_ticks() {
+        // y = k t³ with 63 ticks lost from 200 ms: the 10 ms samples around the gap are 70 ms
+        // apart, and the jerk, taken at the samples' device times, is still 6k.
+        let k = 0.02;
+        let mut acc = MetricsAccumulator::new(10.0);
+        for t in (0..=500u64).filter(|t| !(201..=263).contains(t)) {
+            let s = t as f64 * 1e-3;
+            acc.update(&tick(t, k * s * s * s, true, 0.1));
+        }
+        let m = acc.metrics();
+        let expected = (6.0 * k) * (6.0 * k);
+        assert!(
+            (m.mean_squared_jerk_m2_s6 - expected).abs() < 1e-6 * expected,
+            "{} vs {expected}",
+            m.mean_squared_jerk_m2_s6
+        );
+    }
+
+    #[test]
+    fn a_fault_during_one_held_press_leaves_it_one_push() {
+        let mut acc = MetricsAccumulator::new(10.0);
+        // 100 ms free, a press from 100 ms to 1 s with the device faulting for 200 ms in it.
+        for t in 0..1000u64 {
+            let pressing = t >= 100;
+            let input = if (400..600).contains(&t) {
+                TickInput {
+                    tip_position_m: None,
+                    flags: ContactFlags::DEVICE_FAULT,
+                    ..tick(t, 0.0, false, 0.0)
+                }
+            } else {
+                tick(t, 0.0, pressing, if pressing { 1.0 } else { 0.0 })
+            };
+            acc.update(&input);
+        }
+        let m = acc.metrics();
+        assert_eq!(m.pushes, 1);
+        assert_eq!(m.device_fault_ticks, 200);
+        // In contact from 100 ms to 1 s but for the 200 faulted ticks (and the first tick after
+        // the fault, whose 1 ms is the fault's last).
+        assert!(
+            (m.time_in_contact_s - 0.7).abs() < 1e-9,
+            "{}",
+            m.time_in_contact_s
+        );
+        // A release during the fault, and a press 100 ms after the last contact: two.
+        let mut two = MetricsAccumulator::new(10.0);
+        for t in 0..400u64 {
+            let input = if (150..200).contains(&t) {
+                TickInput {
+                    tip_position_m: None,
+                    flags: ContactFlags::DEVICE_FAULT,
+                    ..tick(t, 0.0, true, 0.0)
+                }
+            } else {
+                tick(t, 0.0, !(150..250).contains(&t), 0.5)
+            };
+            two.update(&input);
         }
         assert_eq!(two.metrics().pushes, 2);
     }

@@ -6,8 +6,9 @@
 //!
 //! [`start`] builds everything from a loaded [`Scene`], binds the address and returns a
 //! [`RunningServer`] that knows its real address (port 0 is allowed) and shuts everything down
-//! in order: stop producing frames, close every viewer, stop the HTTP server, and finally stop
-//! the haptic loop (which commands zero force first).
+//! in order: stop producing frames and stats, stop the haptic loop (which commands zero force
+//! first), send every viewer the session's final metrics (the stopped loop's, the ones the
+//! recording closes with), close every viewer once it has sent them, and stop the HTTP server.
 //!
 //! Every route passes the access rules of [`crate::access`]: the Host rule on every request,
 //! the security headers on every response, a bearer token on the session data (`/api/scene`,
@@ -40,6 +41,9 @@ use tower_http::services::{ServeDir, ServeFile};
 use crate::access::{self, Access, AccessConfig, AccessError, Connection};
 use crate::scene::Scene;
 use crate::stream::{self, StreamHub, ViewerEnd, ViewerLimits};
+
+/// The frame and stats tasks, first in [`RunningServer`]'s tasks: they stop before the loop.
+const STREAM_TASKS: usize = 2;
 
 /// How long a shutdown waits for the viewers' connections to close.
 pub(crate) const VIEWERS_CLOSE_WAIT: Duration = Duration::from_secs(3);
@@ -146,6 +150,9 @@ impl ServerOptions {
 pub struct RunningServer {
     local_addr: SocketAddr,
     shutdown_tx: watch::Sender<bool>,
+    /// Stops the frame and stats tasks alone, before the loop stops and before `shutdown_tx`
+    /// closes the viewers: the final metrics are sent between the two.
+    stop_tasks_tx: watch::Sender<bool>,
     http: JoinHandle<()>,
     tasks: Vec<JoinHandle<()>>,
     haptic_loop: Arc<HapticLoop>,
@@ -188,44 +195,52 @@ impl RunningServer {
         &self.hub.counters
     }
 
-    /// Closes every viewer, stops the HTTP server and the haptic loop; returns the loop's final
-    /// statistics.
+    /// Stops the haptic loop, closes every viewer, stops the HTTP server; returns the loop's
+    /// final statistics.
     pub async fn shutdown(self) -> LoopStats {
         self.shutdown_with_metrics().await.0
     }
 
-    /// [`RunningServer::shutdown`], with the trainee's metrics over every tick the loop ran.
+    /// [`RunningServer::shutdown`], with the trainee's metrics over every tick the loop ran:
+    /// the ones every viewer still connected is sent last, marked final, before it is closed.
     pub async fn shutdown_with_metrics(
         self,
     ) -> (LoopStats, softhaptic_device::metrics::TraineeMetrics) {
-        // Receivers are alive as long as `hub` is; a send error cannot happen here.
-        let _ = self.shutdown_tx.send(true);
-        for task in self.tasks {
+        // 1. No more frames or stats: the frame and stats tasks stop (and drop their handles on
+        //    the loop). Receivers are alive as long as `self` is; a send error cannot happen.
+        let _ = self.stop_tasks_tx.send(true);
+        let mut tasks = self.tasks;
+        let others = tasks.split_off(STREAM_TASKS.min(tasks.len()));
+        for task in tasks {
             let _ = task.await;
         }
-        // Every viewer is being closed; wait (briefly) for them to be gone, so that each one's
-        // audit line is written before the process ends.
-        let _ =
-            tokio::time::timeout(VIEWERS_CLOSE_WAIT, self.hub.access.until_no_connections()).await;
-        // Viewer tasks see the flag and close; give them a moment, then stop accepting.
-        let _ = tokio::time::timeout(Duration::from_secs(5), self.http).await;
-        drop(self.hub);
-        let haptic_loop = self.haptic_loop;
-        // Every other holder (the frame and stats tasks) has finished, so this is the last one.
-        match Arc::try_unwrap(haptic_loop) {
+        // 2. The loop stops (zero force first); its metrics are then over every tick it ran.
+        let (stats, metrics) = match Arc::try_unwrap(self.haptic_loop) {
             Ok(mut l) => tokio::task::spawn_blocking(move || {
                 let stats = l.stop_ref();
                 (stats, l.metrics())
             })
             .await
             .unwrap_or_default(),
-            Err(shared) => {
-                let stats = shared.stats();
-                let metrics = shared.metrics();
-                drop(shared);
-                (stats, metrics)
-            }
+            // Nothing else holds the loop once its two tasks have ended; were it still shared,
+            // its latest publications are the best there is (its own drop stops it).
+            Err(shared) => (shared.stats(), shared.metrics()),
+        };
+        // 3. Every viewer still connected gets them, queued before the close below.
+        stream::send_final_metrics(&self.hub, &metrics);
+        // 4. The viewers close (each sends what is queued for it first, within a bound) and the
+        //    other tasks (a lab station's) stop; wait (briefly) for the viewers to be gone, so
+        //    that each one's audit line is written before the process ends.
+        let _ = self.shutdown_tx.send(true);
+        for task in others {
+            let _ = task.await;
         }
+        let _ =
+            tokio::time::timeout(VIEWERS_CLOSE_WAIT, self.hub.access.until_no_connections()).await;
+        // Viewer tasks see the flag and close; give them a moment, then stop accepting.
+        let _ = tokio::time::timeout(Duration::from_secs(5), self.http).await;
+        drop(self.hub);
+        (stats, metrics)
     }
 }
 
@@ -282,6 +297,7 @@ pub async fn start(
         mode: Mode::Live,
         server: SERVER_NAME.into(),
         force_feedback: message.device.force_feedback,
+        accepts_marks: true,
     };
     let mut meshes = HashMap::new();
     meshes.insert(
@@ -315,6 +331,7 @@ pub async fn start(
     )?);
 
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let (stop_tasks_tx, stop_tasks_rx) = watch::channel(false);
     // The page's own origin is https when the server serves TLS.
     options.access.secure_transport = options.tls.is_some();
     let caps = crate::tls::ConnectionCaps::for_limits(&options.access.limits);
@@ -340,13 +357,16 @@ pub async fn start(
             scene.calibration.clone(),
             Arc::clone(&hub),
             options.frame_period,
+            stop_tasks_rx.clone(),
         )),
         tokio::spawn(stream::stats_task(
             Arc::clone(&haptic_loop),
             Arc::clone(&hub),
             options.stats_period,
+            stop_tasks_rx,
         )),
     ];
+    debug_assert_eq!(tasks.len(), STREAM_TASKS);
 
     if let (Some(client), Some(lab)) = (nats, &options.lab) {
         let data = crate::lab::station::StationData {
@@ -388,6 +408,7 @@ pub async fn start(
     Ok(RunningServer {
         local_addr,
         shutdown_tx,
+        stop_tasks_tx,
         http,
         tasks,
         haptic_loop,

@@ -1,6 +1,7 @@
 //! Instructor marks: an instructor's note (and point on the organ) reaches every viewer at once
-//! and every later one as it connects; an observer's, or one sent to a replay, is refused; the
-//! marks are recorded, and a replay of the recording shows them and puts them on its timeline.
+//! and every later one as it connects; an observer's, one sent to a replay, one sent through a
+//! lab hub, or one past the session's cap is refused; the marks are recorded, `info` prints them and `export` writes them,
+//! and a replay of the recording shows them and puts them on its timeline.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -14,7 +15,11 @@ use softhaptic_server::app::default_web_dir;
 use softhaptic_server::scene::Scene;
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::replay::{self, ReplayOptions};
-use softhaptic_server::stream::{REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, ViewerLimits};
+use softhaptic_server::session::tools::{Info, export};
+use softhaptic_server::stream::{
+    MAX_MARKS, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_MARKS_FULL,
+    ViewerLimits,
+};
 use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
 use tokio_tungstenite::tungstenite::Message;
 
@@ -93,6 +98,22 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     let r = Recording::open(&path).unwrap();
     assert_eq!(r.marks, vec![seen.clone()]);
 
+    // `info` prints it (time from the first tick, point, note); `export` writes marks.json.
+    let info = Info::of(&r).to_string();
+    assert!(info.contains("\nmarks:             1\n"), "{info}");
+    let time_s = (seen.time_ns - r.device[0].time_ns) as f64 * 1e-9;
+    assert!(
+        info.contains(&format!(
+            "  #1 at {time_s:.3} s at (10.0, 20.0, 30.0) mm: too fast on the approach\n"
+        )),
+        "{info}"
+    );
+    let written = export(&r, &dir.join("export"), false).unwrap();
+    let exported: Vec<MarkMessage> =
+        serde_json::from_str(&std::fs::read_to_string(&written.marks).unwrap()).unwrap();
+    assert_eq!(exported, vec![seen.clone()]);
+    assert_eq!(written.marks.parent(), written.metrics.parent());
+
     // The replay shows it to its viewers and on its timeline; it takes no new marks.
     let replay = replay::start(
         r,
@@ -122,4 +143,74 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     assert!(refused.contains(REFUSED_MARK_REPLAY), "{refused}");
     replay.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lab_hub_says_it_takes_no_marks_and_refuses_an_instructors() {
+    use softhaptic_tests::nats::{NatsServer, options, start_hub, start_station};
+    let nats = NatsServer::start("hub-marks");
+    let station = start_station("desk-m", options(nats.url())).await.unwrap();
+    let hub = start_hub(options(nats.url()), true).await;
+    softhaptic_tests::wait_until("the station listed", || {
+        hub.stations()
+            .iter()
+            .any(|s| s.name == "desk-m" && s.state != "offline")
+    })
+    .await;
+    let mut relayed =
+        Viewer::connect_url(&format!("ws://{}/ws?station=desk-m", hub.local_addr())).await;
+    relayed.authenticate(I).await;
+    match relayed.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => {
+            assert_eq!(h.role, softhaptic_proto::wire::Role::Instructor);
+            assert!(!h.accepts_marks, "{h:?}");
+        }
+        other => panic!("expected hello, got {other:?}"),
+    }
+    // The station's own viewers are told it takes marks.
+    let own = ServerMessage::decode(
+        station
+            .hub()
+            .hello(softhaptic_proto::wire::Role::Instructor)
+            .as_str(),
+    )
+    .unwrap();
+    assert!(matches!(own, ServerMessage::Hello(h) if h.accepts_marks));
+
+    next_of(&mut relayed, "contact").await;
+    relayed
+        .send_text(r#"{"type":"add_mark","note":"through the hub"}"#)
+        .await;
+    let refused = next_of(&mut relayed, "refused").await;
+    assert!(refused.contains(REFUSED_MARK_HUB), "{refused}");
+    // The connection stays open, and no mark was made anywhere.
+    next_of(&mut relayed, "contact").await;
+    assert!(station.hub().made_marks().is_empty());
+    hub.shutdown().await;
+    station.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mark_past_the_sessions_cap_is_refused_and_not_kept() {
+    let mut options = test_options();
+    // A rate that lets one link send every mark at once.
+    options.access.limits.messages_per_s = 1e6;
+    options.access.limits.message_burst = 1e6;
+    let server = softhaptic_tests::start_default(options).await;
+    let mut instructor = Viewer::connect(server.local_addr()).await;
+    next_of(&mut instructor, "contact").await;
+    for n in 1..=MAX_MARKS + 1 {
+        instructor
+            .send_text(&format!(r#"{{"type":"add_mark","note":"mark {n}"}}"#))
+            .await;
+    }
+    let refused = next_of(&mut instructor, "refused").await;
+    assert!(refused.contains(REFUSED_MARKS_FULL), "{refused}");
+    let kept = server.hub().made_marks();
+    assert_eq!(kept.len(), MAX_MARKS);
+    assert_eq!(
+        mark_of(&kept[MAX_MARKS - 1]).note,
+        format!("mark {MAX_MARKS}")
+    );
+    server.shutdown().await;
 }

@@ -1,6 +1,8 @@
-//! The trainee's metrics end to end: a viewer gets them once a second; the loop's final metrics
-//! are recorded, and are what the recording gives when computed again from its ticks (`info`,
-//! `export`), what the replay check's world computes replaying them, and what a replay sends.
+//! The trainee's metrics end to end: a viewer gets them once a second, and last before the
+//! server closes it the loop's final ones, which are recorded, and are what the recording gives
+//! when computed again from its ticks (`info`, `export`), what the replay check's world computes
+//! replaying them, and what a replay sends (after a seek, those of the new position). A scene's
+//! safe force is read from a recording whether written `1` or `1.0`.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -13,7 +15,7 @@ use softhaptic_server::scene::Scene;
 use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::replay::{self, ReplayOptions};
-use softhaptic_server::session::tools::{Info, export, recording_metrics};
+use softhaptic_server::session::tools::{Info, export, recorded_safe_force_n, recording_metrics};
 use softhaptic_server::stream::{ViewerLimits, metrics_message};
 use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
 
@@ -83,7 +85,7 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     // `info` and `export` give the same.
     assert_eq!(Info::of(&r).metrics, recorded);
     let out = dir.join("export");
-    let (_, _, json) = export(&r, &out, false).unwrap();
+    let json = export(&r, &out, false).unwrap().metrics;
     // A second export into the same directory keeps the first, unless told to replace it.
     let e = export(&r, &out, false).unwrap_err().to_string();
     assert!(e.contains("device.csv") && e.contains("--replace"), "{e}");
@@ -130,4 +132,175 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     );
     replay.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The next `metrics` message; panics when none comes within 30 s (the other messages, a
+/// paused replay's status among them, go on coming).
+async fn next_metrics(viewer: &mut Viewer) -> softhaptic_proto::wire::MetricsMessage {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        assert!(Instant::now() < deadline, "no metrics message");
+        if let Some(Ok(ServerMessage::Metrics(m))) = viewer.next(Duration::from_secs(10)).await {
+            return m;
+        }
+    }
+}
+
+/// A shipped recording of `tests/sessions/`.
+fn shipped(name: &str) -> Recording {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("sessions")
+        .join(name);
+    Recording::open(&path).unwrap()
+}
+
+#[test]
+fn a_whole_number_safe_force_in_a_recorded_scene_is_the_one_counted_against() {
+    let mut r = shipped("sphere-press.mcap");
+    let default = recording_metrics(&r);
+    assert_eq!(default.safe_force_n, 2.0);
+    // The recorded scene says `safe_force_n = 1`, as a person writes it: a TOML integer.
+    let others: Vec<&str> = r
+        .scene
+        .scene_toml
+        .lines()
+        .filter(|l| !l.trim_start().starts_with("safe_force_n"))
+        .collect();
+    let mut text = others.join("\n");
+    if text.contains("[haptics]") {
+        text = text.replacen("[haptics]", "[haptics]\nsafe_force_n = 1", 1);
+    } else {
+        text.push_str("\n[haptics]\nsafe_force_n = 1\n");
+    }
+    r.scene.scene_toml = text;
+    assert_eq!(recorded_safe_force_n(&r), 1.0);
+    let m = recording_metrics(&r);
+    assert_eq!(m.safe_force_n, 1.0);
+    // The press goes above 1 N for longer than above 2 N.
+    assert!(
+        m.time_above_safe_s > default.time_above_safe_s,
+        "{} vs {}",
+        m.time_above_safe_s,
+        default.time_above_safe_s
+    );
+    let info = Info::of(&r);
+    assert_eq!(info.metrics.safe_force_n, 1.0);
+    assert!(info.to_string().contains("above the safe 1.00 N"), "{info}");
+    let dir = scratch_dir("whole-safe-force");
+    let json = export(&r, &dir, true).unwrap().metrics;
+    let exported: softhaptic_proto::wire::MetricsMessage =
+        serde_json::from_str(&std::fs::read_to_string(json).unwrap()).unwrap();
+    assert_eq!(exported.safe_force_n, 1.0);
+    assert_eq!(exported, metrics_message(&m, true));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn info_prints_the_fault_ticks_and_flags_raised_of_a_press_held_through_a_fault_as_one_push() {
+    let r = shipped("fault-mid-press.mcap");
+    let m = recording_metrics(&r);
+    assert_eq!(m.pushes, 1, "{m:?}");
+    let text = Info::of(&r).to_string();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("trainee metrics:"))
+        .unwrap();
+    assert!(line.contains("; 1 push;"), "{line}");
+    assert!(
+        line.contains(&format!("; {} device fault ticks;", m.device_fault_ticks))
+            && m.device_fault_ticks > 0,
+        "{line}"
+    );
+    assert!(line.contains("flags raised: device_fault ×1"), "{line}");
+    assert!(text.contains("\nmarks:             none\n"), "{text}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_last_metrics_a_viewer_gets_before_the_close_are_the_final_ones_recorded() {
+    let scene = Scene::builtin_default().unwrap();
+    let dir = scratch_dir("final-metrics");
+    let session = start_recorded(scene, &dir, test_options()).await;
+    let mut viewer = Viewer::connect(session.server.local_addr()).await;
+    // The viewer is served: it has had the 1 Hz metrics once.
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        assert!(Instant::now() < deadline, "no metrics");
+        if let Some(Ok(ServerMessage::Metrics(_))) = viewer.next(Duration::from_secs(10)).await {
+            break;
+        }
+    }
+    // The server stops while the viewer reads on, to the close.
+    let finish = tokio::spawn(session.finish());
+    let (close, texts) = viewer.until_closed(Duration::from_secs(60)).await;
+    assert_eq!(close.map(|c| c.0), Some(1001), "{texts:?}");
+    let (_, final_live, path, _) = finish.await.unwrap();
+    let last = texts
+        .iter()
+        .rev()
+        .find_map(|t| match ServerMessage::decode(t) {
+            Ok(ServerMessage::Metrics(m)) => Some(m),
+            _ => None,
+        })
+        .expect("metrics before the close");
+    assert!(last.is_final, "{last:?}");
+    assert_eq!(last, metrics_message(&final_live, true));
+    let r = Recording::open(&path).unwrap();
+    assert_eq!(r.final_metrics(), Some(&last));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_seek_sends_the_metrics_of_the_new_position() {
+    let r = shipped("slide.mcap");
+    let timeline: Vec<(u64, softhaptic_proto::wire::MetricsMessage)> = replay::metrics_timeline(&r)
+        .into_iter()
+        .map(|m| match ServerMessage::decode(&m.json).unwrap() {
+            ServerMessage::Metrics(metrics) => (m.time_ns, metrics),
+            other => panic!("{other:?}"),
+        })
+        .collect();
+    assert!(timeline.len() >= 3, "{timeline:?}");
+    let start_ns = r.contacts[0].time_ns;
+    let replay = replay::start(
+        r.clone(),
+        ReplayOptions {
+            addr: ([127, 0, 0, 1], 0).into(),
+            web_dir: default_web_dir(),
+            speed: 1.0,
+            start_paused: true,
+            viewer_limits: ViewerLimits::default(),
+            access: AccessConfig::default(),
+            tls: None,
+        },
+    )
+    .await
+    .unwrap();
+    let mut watcher = Viewer::connect(replay.local_addr()).await;
+    assert!(matches!(
+        watcher.expect_message(Duration::from_secs(10)).await,
+        ServerMessage::Hello(_)
+    ));
+    // Paused, a seek sends the metrics at or before the new position, and nothing plays on.
+    let seek = |time_s: f64| {
+        serde_json::json!({"type": "replay_control", "action": "seek", "time_s": time_s})
+            .to_string()
+    };
+    for time_s in [2.5, 0.2, 1.5] {
+        watcher.send_text(&seek(time_s)).await;
+        let got = next_metrics(&mut watcher).await;
+        let t = start_ns + (time_s * 1e9) as u64;
+        match timeline.iter().rev().find(|(at, _)| *at <= t) {
+            Some((_, expected)) => assert_eq!(&got, expected, "at {time_s} s"),
+            // Before the first second's: none yet, all zero.
+            None => {
+                assert_eq!(
+                    (got.ticks, got.pushes, got.is_final),
+                    (0, 0, false),
+                    "{got:?}"
+                );
+                assert_eq!(got.peak_force_n, 0.0);
+            }
+        }
+    }
+    replay.shutdown().await;
 }

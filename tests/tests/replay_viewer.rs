@@ -164,7 +164,11 @@ async fn replay_sends_hello_scene_and_the_recorded_frames_in_order() {
         previous_seq = f.seq;
     }
     let status = next_status(&mut socket).await;
-    assert!(!status.paused);
+    // Playing, unless a player stalled by a loaded machine skipped to the end, where it pauses.
+    assert!(
+        !status.paused || status.time_s >= status.duration_s - 0.05,
+        "{status:?}"
+    );
     assert_eq!(status.speed, 2.0);
     // The same HTTP routes as live: the scene and the render mesh it names.
     let (code, body) = softhaptic_tests::http_get(addr, "/api/scene").await;

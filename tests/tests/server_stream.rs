@@ -209,7 +209,8 @@ async fn shutdown_closes_viewers_and_stops_the_loop() {
         viewer.expect_message(WAIT).await,
         ServerMessage::Hello(_)
     ));
-    tokio::time::sleep(Duration::from_millis(300)).await;
+    softhaptic_tests::wait_until("200 ticks of the loop", || server.loop_stats().ticks >= 200)
+        .await;
     let stats = server.shutdown().await;
     assert!(stats.ticks >= 200, "the loop ran: {} ticks", stats.ticks);
     // The viewer's stream ends (close frame) instead of hanging.

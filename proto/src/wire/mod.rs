@@ -111,10 +111,24 @@ pub struct Hello {
     /// that predate it: `true` (they drove force-rendering devices only).
     #[serde(default = "renders_force")]
     pub force_feedback: bool,
+    /// Whether an instructor may mark this stream (`add_mark`): false where a mark could be
+    /// neither stamped with the session's time nor recorded (a lab hub's relay of a station),
+    /// and the viewer hides its mark control. Sent only when false; absent means `true` (a
+    /// live server; a replay takes no marks either, which its `mode` already says).
+    #[serde(default = "accepts", skip_serializing_if = "is_true")]
+    pub accepts_marks: bool,
 }
 
 fn renders_force() -> bool {
     true
+}
+
+fn accepts() -> bool {
+    true
+}
+
+fn is_true(value: &bool) -> bool {
+    *value
 }
 
 /// `refused`: a request the server did not carry out, and why, in words a person reads.
@@ -791,6 +805,7 @@ mod tests {
             mode: Mode::Replay,
             server: "softhaptic 0.1.0".into(),
             force_feedback: false,
+            accepts_marks: true,
         })
         .encode()
         .unwrap();
@@ -801,9 +816,38 @@ mod tests {
         // From a server that predates the field: a force-rendering device.
         let old = r#"{"type":"hello","protocol_version":1,"session_id":"s1","role":"observer","mode":"replay","server":"softhaptic 0.1.0"}"#;
         match ServerMessage::decode(old).unwrap() {
-            ServerMessage::Hello(h) => assert!(h.force_feedback),
+            ServerMessage::Hello(h) => assert!(h.force_feedback && h.accepts_marks),
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn a_hello_that_takes_no_marks_says_so_and_one_that_does_is_unchanged() {
+        let hello = Hello {
+            protocol_version: PROTOCOL_VERSION,
+            session_id: "s1".into(),
+            role: Role::Instructor,
+            mode: Mode::Live,
+            server: "softhaptic 0.1.0".into(),
+            force_feedback: true,
+            accepts_marks: false,
+        };
+        let text = ServerMessage::Hello(hello.clone()).encode().unwrap();
+        assert!(
+            text.ends_with(r#""force_feedback":true,"accepts_marks":false}"#),
+            "{text}"
+        );
+        assert_eq!(
+            ServerMessage::decode(&text).unwrap(),
+            ServerMessage::Hello(hello.clone())
+        );
+        let taking = ServerMessage::Hello(Hello {
+            accepts_marks: true,
+            ..hello
+        })
+        .encode()
+        .unwrap();
+        assert!(!taking.contains("accepts_marks"), "{taking}");
     }
 
     #[test]

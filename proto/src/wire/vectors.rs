@@ -32,6 +32,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         mode: Mode::Live,
         server: "softhaptic 0.1.0".into(),
         force_feedback: true,
+        accepts_marks: true,
     });
     let tool = ToolShape::Sphere { radius_m: 0.01 };
     let material = Material::PAPER_SOFT;
@@ -222,6 +223,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 server: "softhaptic 0.1.0".into(),
                 // An observer of a desk with a SpaceMouse: the force is not felt.
                 force_feedback: false,
+                accepts_marks: true,
             }),
         ),
         (
@@ -299,6 +301,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 mode: Mode::Replay,
                 server: "softhaptic 0.1.0".into(),
                 force_feedback: true,
+                accepts_marks: true,
             }))?,
         ),
         (

@@ -8,7 +8,9 @@
 //! `Feed`: the station's session fetched once (its `hello` and `scene`), a
 //! [`StreamHub`] of the hub's own fed by one NATS subscription to the station's frames and
 //! stats. Viewers then connect to that stream hub exactly as they would to the station's, with
-//! the hub's access rules (tokens, Origin, Host, TLS): the same wire, the same roles. A feed
+//! the hub's access rules (tokens, Origin, Host, TLS): the same wire, the same roles, but no
+//! marks: their `hello` says `accepts_marks: false` and an `add_mark` is refused, since a mark
+//! made here would be stamped with no station time and recorded nowhere. A feed
 //! lives as long as its station's session; a station that restarts (a new session id) gets a
 //! new feed, and the old one's viewers are closed, so they reconnect to the new session. An
 //! archived recording's replay (`&archive=FILE`) is fetched for its first viewer and dropped when
@@ -487,6 +489,10 @@ impl Lab {
             mode: Mode::Live,
             server: SERVER_NAME.into(),
             force_feedback: session.force_feedback,
+            // The hub relays a station's frames: it knows neither the station's device time (a
+            // mark's stamp) nor its recording (where a mark is kept), so it takes no marks, and
+            // the viewer hides its control; an `add_mark` is refused.
+            accepts_marks: false,
         };
         let (stop, stop_rx) = watch::channel(false);
         let hub = Arc::new(

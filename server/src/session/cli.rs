@@ -38,21 +38,22 @@ pub struct RecordArgs {
 #[allow(clippy::large_enum_variant)]
 #[derive(clap::Subcommand, Debug, Clone)]
 pub enum SessionCommand {
-    /// What a recording holds: duration, ticks, losses, contacts, peak force, flags, and whether
-    /// the file is complete or was recovered from a truncated one.
+    /// What a recording holds: duration, ticks, losses, contacts, peak force, flags, the trainee's
+    /// metrics, the instructors' marks, and whether the file is complete or was recovered from a
+    /// truncated one.
     Info {
         /// The recording (.mcap).
         file: PathBuf,
     },
-    /// Write the device and contact channels of a recording as CSV (device.csv, contact.csv) and
-    /// the trainee's metrics (metrics.json).
+    /// Write the device and contact channels of a recording as CSV (device.csv, contact.csv), the
+    /// trainee's metrics (metrics.json) and the instructors' marks (marks.json).
     Export {
         /// The recording (.mcap).
         file: PathBuf,
         /// Output directory (created).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// Write over device.csv, contact.csv and metrics.json already in the directory
+        /// Write over device.csv, contact.csv, metrics.json and marks.json already in the directory
         /// (without it they are kept and the export refused).
         #[arg(long)]
         replace: bool,
@@ -147,10 +148,15 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             if !recording.is_complete() {
                 eprintln!("{}", recording.recovery());
             }
-            let (device, contact, metrics) = export(&recording, &out, replace)?;
-            println!("wrote {}", device.display());
-            println!("wrote {}", contact.display());
-            println!("wrote {}", metrics.display());
+            let written = export(&recording, &out, replace)?;
+            for path in [
+                &written.device,
+                &written.contact,
+                &written.metrics,
+                &written.marks,
+            ] {
+                println!("wrote {}", path.display());
+            }
             Ok(())
         }
         SessionCommand::Check { file, damping } => {

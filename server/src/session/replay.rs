@@ -249,6 +249,7 @@ pub fn replay_feed(
         server: SERVER_NAME.into(),
         // As the recorded session's device was: a SpaceMouse session renders no force.
         force_feedback: message.device.force_feedback,
+        accepts_marks: true,
     };
 
     let (control_tx, control_rx) = mpsc::channel(CONTROL_QUEUE);
@@ -367,7 +368,9 @@ const METRICS_PERIOD_NS: u64 = 1_000_000_000;
 /// The trainee's `metrics` messages a replay sends, on the recording's device-time axis: one
 /// each second of ticks and the final one at the last tick, computed from the recorded ticks
 /// as `info` and `export` compute them (the live loop's own, when the file holds every tick).
-fn metrics_timeline(recording: &Recording) -> Vec<RecordedMessage> {
+/// After a seek the replay sends the last of them at or before the new position (the metrics
+/// before any tick, all zero, when there is none).
+pub fn metrics_timeline(recording: &Recording) -> Vec<RecordedMessage> {
     let mut acc = MetricsAccumulator::new(super::tools::recorded_safe_force_n(recording));
     let mut out = Vec::new();
     let Some(first) = recording.device.first() else {
@@ -398,6 +401,12 @@ struct Player {
     contacts: Vec<RecordedMessage>,
     /// The recorded `stats` messages and the replay's `metrics` ones, in device-time order.
     loop_stats: Vec<RecordedMessage>,
+    /// The `metrics` messages alone, in device-time order, and those before any tick (all
+    /// zero): what a seek sends for the new position.
+    metrics: Vec<RecordedMessage>,
+    no_metrics_yet: Option<Utf8Bytes>,
+    /// Set by a seek (or a play that starts over): the metrics of the new position are due.
+    metrics_stale: bool,
     /// Device time of the recording's first frame: replay time 0.
     start_ns: u64,
     duration_ns: u64,
@@ -427,15 +436,30 @@ impl Player {
         let mut loop_stats = recording.loop_stats.clone();
         // The final metrics come with the last frame, where the replay ends, even when the
         // ticks went on a little after it.
-        loop_stats.extend(metrics_timeline(recording).into_iter().map(|mut m| {
-            m.time_ns = m.time_ns.min(end_ns);
-            m
-        }));
+        let metrics: Vec<RecordedMessage> = metrics_timeline(recording)
+            .into_iter()
+            .map(|mut m| {
+                m.time_ns = m.time_ns.min(end_ns);
+                m
+            })
+            .collect();
+        loop_stats.extend(metrics.iter().cloned());
         // Stable: a stats and a metrics message at the same time keep that order.
         loop_stats.sort_by_key(|m| m.time_ns);
+        let safe_force_n = super::tools::recorded_safe_force_n(recording);
+        let no_metrics_yet = ServerMessage::Metrics(crate::stream::metrics_message(
+            &MetricsAccumulator::new(safe_force_n).metrics(),
+            false,
+        ))
+        .encode()
+        .map(Utf8Bytes::from)
+        .ok();
         Self {
             contacts: recording.contacts.clone(),
             loop_stats,
+            metrics,
+            no_metrics_yet,
+            metrics_stale: false,
             start_ns,
             duration_ns: end_ns.saturating_sub(start_ns),
             file: recording.file_name(),
@@ -449,11 +473,7 @@ impl Player {
                     note: m.note.clone(),
                 })
                 .collect(),
-            above_safe: above_safe(
-                &recording.device,
-                start_ns,
-                super::tools::recorded_safe_force_n(recording),
-            ),
+            above_safe: above_safe(&recording.device, start_ns, safe_force_n),
             speed,
             paused,
             anchor_pos_ns: 0,
@@ -525,6 +545,28 @@ impl Player {
             .partition_point(|c| c.time_ns <= t)
             .saturating_sub(1);
         self.next_stats = self.loop_stats.partition_point(|s| s.time_ns < t);
+        self.metrics_stale = true;
+    }
+
+    /// The `metrics` in effect at `pos_ns`: the last sent at or before it, or those before any
+    /// tick.
+    fn metrics_at(&self, pos_ns: u64) -> Option<Utf8Bytes> {
+        let t = self.start_ns + pos_ns;
+        match self.metrics.partition_point(|m| m.time_ns <= t) {
+            0 => self.no_metrics_yet.clone(),
+            n => Some(Utf8Bytes::from(self.metrics[n - 1].json.as_str())),
+        }
+    }
+
+    /// After a seek, sends the metrics of the new position, so that a viewer does not go on
+    /// showing those of where the replay was (a paused replay sends nothing else until played).
+    fn send_metrics_if_stale(&mut self, hub: &StreamHub, now: Instant) {
+        if !std::mem::take(&mut self.metrics_stale) {
+            return;
+        }
+        if let Some(text) = self.metrics_at(self.position_ns(now)) {
+            let _ = hub.stats.send(text);
+        }
     }
 
     /// Sends everything due at `pos_ns`, in order; when the player fell more than a viewer's
@@ -648,6 +690,7 @@ impl Player {
                     let Some(control) = control else { return };
                     let now = Instant::now();
                     self.apply(control, now);
+                    self.send_metrics_if_stale(&hub, now);
                     if control.action == ReplayAction::Seek {
                         // Show the frame at the new position even when paused.
                         let pos = self.position_ns(now);

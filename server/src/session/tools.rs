@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use softhaptic_device::metrics::{MetricsAccumulator, TickInput, TraineeMetrics};
 use softhaptic_proto::ContactFlags;
 use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
-use softhaptic_proto::wire::{ServerMessage, flag_names};
+use softhaptic_proto::wire::{MarkMessage, ServerMessage, flag_names};
 
 use super::SessionError;
 use super::reader::{Ending, Recording};
@@ -60,15 +60,38 @@ pub struct Info {
     /// The final metrics the live loop recorded at the session's end, and whether they are the
     /// ones computed from the recorded ticks (`None`: the recording holds none).
     pub recorded_metrics: Option<(softhaptic_proto::wire::MetricsMessage, bool)>,
+    /// The instructors' marks, in the order made.
+    pub marks: Vec<MarkMessage>,
+    /// Device time of the recording's first tick, ns: marks are printed in seconds from it, as
+    /// the fault gaps are.
+    pub start_time_ns: u64,
 }
 
-/// The safe force a recording's scene set (`[haptics] safe_force_n`), or the default.
+/// The part of a recorded scene's TOML the safe force is read from, typed as the scene's own
+/// schema types it (`scene::file::HapticsSection`): a number, whole (`1`) or not (`1.5`).
+/// Everything else in the text is ignored here; the scene loader checks it.
+#[derive(serde::Deserialize)]
+struct SafeForceOnly {
+    #[serde(default)]
+    haptics: SafeForceHaptics,
+}
+
+#[derive(serde::Deserialize, Default)]
+struct SafeForceHaptics {
+    safe_force_n: Option<f64>,
+}
+
+/// The safe force a recording's scene set (`[haptics] safe_force_n`, read as the scene loader
+/// reads it); the one the live loop's `metrics` messages carry when the recorded text does not
+/// parse; else the default (what a scene without one runs with).
 pub fn recorded_safe_force_n(r: &Recording) -> f64 {
-    toml::from_str::<toml::Table>(&r.scene.scene_toml)
-        .ok()
-        .and_then(|t| t.get("haptics")?.get("safe_force_n")?.as_float())
-        .filter(|f| f.is_finite() && *f > 0.0)
-        .unwrap_or(softhaptic_device::world::DEFAULT_SAFE_FORCE_N)
+    let usable = |f: &f64| f.is_finite() && *f > 0.0;
+    match toml::from_str::<SafeForceOnly>(&r.scene.scene_toml) {
+        Ok(scene) => scene.haptics.safe_force_n,
+        Err(_) => r.metrics.first().map(|m| m.safe_force_n),
+    }
+    .filter(usable)
+    .unwrap_or(softhaptic_device::world::DEFAULT_SAFE_FORCE_N)
 }
 
 /// The trainee's metrics of a recording, from its ticks in order: the live server's, exactly.
@@ -130,6 +153,10 @@ fn fault_spans(device: &[DeviceRecord]) -> Vec<FaultSpan> {
 
 /// At most this many fault spans are listed one by one.
 const FAULT_SPANS_LISTED: usize = 10;
+/// At most this many marks are listed one by one (the rest are counted).
+const MARKS_LISTED: usize = 20;
+/// A mark's note is printed up to this many characters (notes are at most 280).
+const MARK_NOTE_PRINTED: usize = 80;
 
 impl Info {
     pub fn of(r: &Recording) -> Info {
@@ -210,6 +237,8 @@ impl Info {
             recovery: r.recovery().to_string(),
             metrics: recording_metrics(r),
             recorded_metrics: None,
+            marks: r.marks.clone(),
+            start_time_ns: r.device.first().map_or(0, |d| d.time_ns),
         }
         .with_recorded_metrics(r)
     }
@@ -327,9 +356,18 @@ impl fmt::Display for Info {
             }
         )?;
         let m = &self.metrics;
+        let raised = crate::stream::metrics_message(m, true).flags_raised;
+        let mut flags_raised = String::new();
+        for (name, n) in &raised {
+            let _ = write!(
+                flags_raised,
+                "{}{name} ×{n}",
+                if flags_raised.is_empty() { "" } else { ", " }
+            );
+        }
         writeln!(
             f,
-            "trainee metrics:   peak {:.3} N at {:.3} s; {:.2} s above the safe {:.2} N; {:.2} s in contact over {:.1} mm; {} pushes; mean squared jerk {:.3e} m²/s⁶",
+            "trainee metrics:   peak {:.3} N at {:.3} s; {:.2} s above the safe {:.2} N; {:.2} s in contact over {:.1} mm; {} {}; mean squared jerk {:.3e} m²/s⁶; {} device fault ticks; flags raised: {}",
             m.peak_force_n,
             m.peak_force_time_s,
             m.time_above_safe_s,
@@ -337,7 +375,14 @@ impl fmt::Display for Info {
             m.time_in_contact_s,
             m.path_length_in_contact_m * 1e3,
             m.pushes,
-            m.mean_squared_jerk_m2_s6
+            if m.pushes == 1 { "push" } else { "pushes" },
+            m.mean_squared_jerk_m2_s6,
+            m.device_fault_ticks,
+            if flags_raised.is_empty() {
+                "none"
+            } else {
+                &flags_raised
+            }
         )?;
         match &self.recorded_metrics {
             Some((_, true)) => writeln!(
@@ -358,6 +403,7 @@ impl fmt::Display for Info {
                 "                   computed from the recorded ticks (the file holds no final metrics: cut short, or recorded before they were kept)"
             )?,
         }
+        self.fmt_marks(f)?;
         let status = match (&self.ending, self.damaged_stretches) {
             (Ending::Complete, 0) => "complete".to_owned(),
             (Ending::Complete, n) => format!("DAMAGED, recovered around {n} damaged stretches"),
@@ -371,13 +417,59 @@ impl fmt::Display for Info {
     }
 }
 
-/// Writes `device.csv`, `contact.csv` and `metrics.json` (the trainee's metrics as the `metrics`
-/// message carries them) into `out_dir` (created); returns their paths.
-pub fn export(
-    r: &Recording,
-    out_dir: &Path,
-    replace: bool,
-) -> Result<(PathBuf, PathBuf, PathBuf), SessionError> {
+impl Info {
+    /// The marks line: how many, then each one's time and note (at most [`MARKS_LISTED`], each
+    /// note cut at [`MARK_NOTE_PRINTED`] characters, on one line whatever it holds).
+    fn fmt_marks(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.marks.is_empty() {
+            return writeln!(f, "marks:             none");
+        }
+        writeln!(f, "marks:             {}", self.marks.len())?;
+        for mark in self.marks.iter().take(MARKS_LISTED) {
+            let time_s = mark.time_ns.saturating_sub(self.start_time_ns) as f64 * 1e-9;
+            // A note is the instructor's free text: control characters (a newline) would break
+            // the report's one-line-per-item shape.
+            let mut note: String = mark
+                .note
+                .chars()
+                .map(|c| if c.is_control() { ' ' } else { c })
+                .take(MARK_NOTE_PRINTED)
+                .collect();
+            if mark.note.chars().count() > MARK_NOTE_PRINTED {
+                note.push('…');
+            }
+            let point = mark.point_m.map_or_else(String::new, |p| {
+                format!(
+                    " at ({:.1}, {:.1}, {:.1}) mm",
+                    p[0] * 1e3,
+                    p[1] * 1e3,
+                    p[2] * 1e3
+                )
+            });
+            writeln!(f, "  #{} at {time_s:.3} s{point}: {note}", mark.id)?;
+        }
+        if self.marks.len() > MARKS_LISTED {
+            writeln!(f, "  … and {} more", self.marks.len() - MARKS_LISTED)?;
+        }
+        Ok(())
+    }
+}
+
+/// What [`export`] wrote.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Exported {
+    pub device: PathBuf,
+    pub contact: PathBuf,
+    /// The trainee's metrics as the final `metrics` message carries them.
+    pub metrics: PathBuf,
+    /// The instructors' marks as the `mark` messages carry them, a JSON list (empty when the
+    /// session has none).
+    pub marks: PathBuf,
+}
+
+/// Writes `device.csv`, `contact.csv`, `metrics.json` (the trainee's metrics as the `metrics`
+/// message carries them) and `marks.json` (the instructors' marks) into `out_dir` (created).
+pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, SessionError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |reason| SessionError::Io { path, reason }
@@ -386,10 +478,11 @@ pub fn export(
     let device_path = out_dir.join("device.csv");
     let contact_path = out_dir.join("contact.csv");
     let metrics_path = out_dir.join("metrics.json");
+    let marks_path = out_dir.join("marks.json");
     // Checked before anything is written: an earlier export (another session's, say) is kept
     // whole unless it is to be replaced.
     if !replace {
-        for path in [&device_path, &contact_path, &metrics_path] {
+        for path in [&device_path, &contact_path, &metrics_path, &marks_path] {
             if std::fs::symlink_metadata(path).is_ok() {
                 return Err(SessionError::ExportExists { path: path.clone() });
             }
@@ -476,12 +569,23 @@ pub fn export(
     }
     write_file(&contact_path, out.as_bytes())?;
     let metrics = crate::stream::metrics_message(&recording_metrics(r), true);
-    let json = serde_json::to_string_pretty(&metrics).map_err(|e| SessionError::Io {
-        path: metrics_path.clone(),
+    write_json(&metrics_path, &metrics)?;
+    write_json(&marks_path, &r.marks)?;
+    Ok(Exported {
+        device: device_path,
+        contact: contact_path,
+        metrics: metrics_path,
+        marks: marks_path,
+    })
+}
+
+/// Writes `value` as pretty JSON with a final newline.
+fn write_json<T: serde::Serialize + ?Sized>(path: &Path, value: &T) -> Result<(), SessionError> {
+    let json = serde_json::to_string_pretty(value).map_err(|e| SessionError::Io {
+        path: path.to_path_buf(),
         reason: std::io::Error::other(e),
     })?;
-    std::fs::write(&metrics_path, json + "\n").map_err(io(&metrics_path))?;
-    Ok((device_path, contact_path, metrics_path))
+    write_file(path, (json + "\n").as_bytes())
 }
 
 /// Flag names joined by `|` (no commas, so the field needs no quoting).

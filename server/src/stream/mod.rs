@@ -21,10 +21,11 @@
 //! closed. Both are decided by the connection's own task, so a misbehaving client delays no one.
 //!
 //! # Layout
-//! - this file: the [`StreamHub`] every connection shares (channels, counters, limits, marks)
-//!   and the backlogs.
+//! - this file: the [`StreamHub`] every connection shares (channels, counters, limits, marks,
+//!   at most [`MAX_MARKS`]) and the backlogs.
 //! - `frame.rs`: [`EncodedFrame`], a frame encoded once with each viewer's `dropped` spliced in.
-//! - `tasks.rs`: [`frame_task`] and [`stats_task`] (with the `metrics` and the device's state).
+//! - `tasks.rs`: [`frame_task`] and [`stats_task`] (with the `metrics` and the device's state),
+//!   and [`send_final_metrics`], the session's last `metrics`, sent once the loop has stopped.
 //! - `viewer.rs`: [`serve_viewer`], one viewer's connection: its role, what it is sent, what it
 //!   may ask, and how it is closed.
 
@@ -44,10 +45,12 @@ use tokio::sync::{broadcast, watch};
 use crate::access::Access;
 
 pub use frame::EncodedFrame;
-pub use tasks::{device_status, frame_task, metrics_message, stats_message, stats_task};
+pub use tasks::{
+    device_status, frame_task, metrics_message, send_final_metrics, stats_message, stats_task,
+};
 pub use viewer::{
-    REASON_FLOOD, REFUSED_LIVE, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_OBSERVER,
-    ViewerEnd, refuse_connection, serve_viewer,
+    REASON_FLOOD, REFUSED_LIVE, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY,
+    REFUSED_MARKS_FULL, REFUSED_OBSERVER, ViewerEnd, refuse_connection, serve_viewer,
 };
 
 /// Frames a viewer may fall behind before it skips to the newest (80 ms at 50 Hz): enough to
@@ -58,6 +61,20 @@ pub const FRAME_BACKLOG: usize = 4;
 pub const STATS_BACKLOG: usize = 2;
 /// Marks a slow viewer may fall behind by before it loses one (they are rare and small).
 pub const MARK_BACKLOG: usize = 64;
+/// Marks a session keeps (and sends every viewer as it connects); a further `add_mark` is
+/// refused. A thousand notes is far beyond any lesson, and bounds what an instructor's link,
+/// within its message rate, can make the server hold and resend to each new viewer (about
+/// 400 KiB at the longest notes).
+pub const MAX_MARKS: usize = 1000;
+
+/// Why [`StreamHub::add_mark`] made no mark.
+#[derive(Debug, thiserror::Error)]
+pub enum AddMarkError {
+    #[error("the session already has its {MAX_MARKS} marks")]
+    Full,
+    #[error("could not encode the mark: {0}")]
+    Encode(#[from] serde_json::Error),
+}
 
 /// Limits of one viewer connection.
 #[derive(Debug, Clone, Copy)]
@@ -135,8 +152,11 @@ pub struct StreamHub {
     pub access: Arc<Access>,
     /// Instructors' marks as they are made (to every viewer, and to the recorder).
     pub marks: broadcast::Sender<Utf8Bytes>,
-    /// Every mark so far, encoded, for a viewer that connects later.
+    /// Every mark so far (at most [`MAX_MARKS`]), encoded, for a viewer that connects later.
     made_marks: std::sync::Mutex<Vec<Utf8Bytes>>,
+    /// Whether an instructor's `add_mark` is taken (`hello.accepts_marks`): not on a lab hub's
+    /// relay, which knows neither the station's device time nor its recording.
+    pub accepts_marks: bool,
     /// Device time of the latest contact frame: a mark's time.
     pub latest_time_ns: AtomicU64,
     /// The frame a replay shows now, sent to a viewer as it connects so that a paused replay
@@ -178,6 +198,7 @@ impl StreamHub {
             access,
             marks: broadcast::channel(MARK_BACKLOG).0,
             made_marks: std::sync::Mutex::new(Vec::new()),
+            accepts_marks: hello.accepts_marks,
             latest_time_ns: AtomicU64::new(0),
             held_frame: std::sync::Mutex::new(None),
         })
@@ -192,9 +213,13 @@ impl StreamHub {
     }
 
     /// Adds a mark: numbered, stamped with the session's device time, kept for later viewers
-    /// and sent to everyone now. `Err` when it cannot be encoded.
-    pub fn add_mark(&self, request: MarkRequest) -> Result<MarkMessage, serde_json::Error> {
+    /// and sent to everyone now. `Err` when the session has [`MAX_MARKS`] already, or when it
+    /// cannot be encoded.
+    pub fn add_mark(&self, request: MarkRequest) -> Result<MarkMessage, AddMarkError> {
         let mut made = self.made_marks.lock().unwrap_or_else(|p| p.into_inner());
+        if made.len() >= MAX_MARKS {
+            return Err(AddMarkError::Full);
+        }
         let mark = MarkMessage {
             id: made.len() as u64 + 1,
             time_ns: self.latest_time_ns.load(Ordering::Relaxed),
@@ -207,10 +232,12 @@ impl StreamHub {
         Ok(mark)
     }
 
-    /// Marks a replayed recording holds, shown to its viewers as they connect.
+    /// Marks a replayed recording holds, shown to its viewers as they connect (the first
+    /// [`MAX_MARKS`]: a live session keeps no more).
     pub fn preload_marks(&self, marks: &[MarkMessage]) {
         let mut made = self.made_marks.lock().unwrap_or_else(|p| p.into_inner());
-        for m in marks {
+        let room = MAX_MARKS.saturating_sub(made.len());
+        for m in marks.iter().take(room) {
             if let Ok(text) = ServerMessage::Mark(m.clone()).encode() {
                 made.push(Utf8Bytes::from(text));
             }
@@ -236,5 +263,79 @@ impl StreamHub {
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .clone()
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use softhaptic_proto::wire::{Mode, PROTOCOL_VERSION};
+
+    fn hub() -> StreamHub {
+        let hello = Hello {
+            protocol_version: PROTOCOL_VERSION,
+            session_id: "s".into(),
+            role: Role::Instructor,
+            mode: Mode::Live,
+            server: "test".into(),
+            force_feedback: true,
+            accepts_marks: true,
+        };
+        let access = Arc::new(Access::new(
+            crate::access::AccessConfig::default(),
+            std::path::Path::new("web"),
+        ));
+        StreamHub::new(
+            &hello,
+            Utf8Bytes::from_static("{}"),
+            ViewerLimits::default(),
+            watch::channel(false).1,
+            None,
+            access,
+        )
+        .unwrap()
+    }
+
+    fn note(n: usize) -> MarkRequest {
+        serde_json::from_str(&format!(r#"{{"type":"add_mark","note":"mark {n}"}}"#)).unwrap()
+    }
+
+    #[test]
+    fn the_marks_kept_for_later_viewers_stop_at_the_cap_and_a_further_one_is_refused() {
+        let live = hub();
+        for n in 1..=MAX_MARKS {
+            assert_eq!(live.add_mark(note(n)).unwrap().id, n as u64);
+        }
+        let mut receiver = live.marks.subscribe();
+        assert!(matches!(
+            live.add_mark(note(MAX_MARKS + 1)),
+            Err(AddMarkError::Full)
+        ));
+        assert!(REFUSED_MARKS_FULL.contains(&MAX_MARKS.to_string()));
+        let kept = live.made_marks();
+        assert_eq!(kept.len(), MAX_MARKS);
+        assert!(
+            kept[MAX_MARKS - 1]
+                .as_str()
+                .contains(&format!("\"mark {MAX_MARKS}\""))
+        );
+        // The refused one reached no viewer either.
+        assert!(matches!(
+            receiver.try_recv(),
+            Err(broadcast::error::TryRecvError::Empty)
+        ));
+        // A replay's recording with more marks is cut at the same cap.
+        let replay = hub();
+        let marks: Vec<MarkMessage> = (1..=MAX_MARKS as u64 + 5)
+            .map(|id| MarkMessage {
+                id,
+                time_ns: id,
+                note: "n".into(),
+                point_m: None,
+            })
+            .collect();
+        replay.preload_marks(&marks);
+        assert_eq!(replay.made_marks().len(), MAX_MARKS);
     }
 }

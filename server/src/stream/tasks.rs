@@ -1,5 +1,12 @@
 //! The tasks that feed every viewer: the 50 Hz frame task, which reads the loop's wait-free
 //! publication, and the 1 Hz stats task with the trainee's metrics and the device's state.
+//!
+//! Both stop on their own signal (`stop`), before the viewers are closed: the session's final
+//! metrics are those of the stopped loop, which only the server's shutdown has
+//! ([`crate::app::RunningServer::shutdown_with_metrics`]), and it sends them
+//! ([`send_final_metrics`]) to viewers that are still connected. Were this task to send the
+//! loop's latest publication when the viewers' shutdown comes, it would send metrics up to 100
+//! ticks old while the loop still ran, on a channel the viewers were leaving at that moment.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -16,16 +23,18 @@ use softhaptic_proto::wire::{
     StatsMessage,
 };
 
+use tokio::sync::watch;
+
 use super::{EncodedFrame, StreamCounters, StreamHub};
 
-/// Reads the loop's latest contact every `period` and broadcasts it, until shutdown.
+/// Reads the loop's latest contact every `period` and broadcasts it, until `stop` turns true.
 pub async fn frame_task(
     haptic_loop: Arc<HapticLoop>,
     calibration: CalibrationTable,
     hub: Arc<StreamHub>,
     period: Duration,
+    mut stop: watch::Receiver<bool>,
 ) {
-    let mut shutdown = hub.shutdown.clone();
     let mut interval = tokio::time::interval(period);
     // After a stall, continue at the normal rate rather than bursting the missed frames.
     interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -33,7 +42,7 @@ pub async fn frame_task(
     loop {
         tokio::select! {
             _ = interval.tick() => {}
-            _ = shutdown.changed() => break,
+            _ = stop.changed() => break,
         }
         let state = haptic_loop.latest_contact();
         let deformed_radius_m = if state.in_contact {
@@ -100,9 +109,14 @@ pub fn device_status(error: Option<DeviceError>) -> DeviceStatus {
 /// viewers at once rather than with the next second's stats.
 const DEVICE_STATUS_POLL: Duration = Duration::from_millis(50);
 
-/// Broadcasts `stats` every `period`, until shutdown.
-pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, period: Duration) {
-    let mut shutdown = hub.shutdown.clone();
+/// Broadcasts `stats` and `metrics` every `period`, until `stop` turns true (the final
+/// `metrics` are the server's to send, once the loop has stopped: [`send_final_metrics`]).
+pub async fn stats_task(
+    haptic_loop: Arc<HapticLoop>,
+    hub: Arc<StreamHub>,
+    period: Duration,
+    mut stop: watch::Receiver<bool>,
+) {
     let mut interval = tokio::time::interval(period);
     interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     // The first tick fires at once; the loop has no statistics yet then.
@@ -129,11 +143,7 @@ pub async fn stats_task(haptic_loop: Arc<HapticLoop>, hub: Arc<StreamHub>, perio
                 }
                 device = now;
             }
-            _ = shutdown.changed() => {
-                // The session's end: its metrics as they stand, marked final.
-                send_metrics(&hub, &haptic_loop.metrics(), true);
-                break;
-            }
+            _ = stop.changed() => break,
         }
         let message = stats_message(&haptic_loop.stats(), &hub.counters, device);
         match ServerMessage::Stats(message).encode() {
@@ -172,6 +182,13 @@ pub fn metrics_message(m: &TraineeMetrics, is_final: bool) -> MetricsMessage {
         ticks: m.ticks,
         is_final,
     }
+}
+
+/// Sends every viewer the session's final `metrics`: those of the stopped loop, over every tick
+/// it ran (the ones the recording closes with). Sent before the viewers are told to close, so
+/// each viewer's queue holds them when it closes, and drains them first.
+pub fn send_final_metrics(hub: &StreamHub, m: &TraineeMetrics) {
+    send_metrics(hub, m, true);
 }
 
 fn send_metrics(hub: &StreamHub, m: &TraineeMetrics, is_final: bool) {

@@ -2,6 +2,10 @@
 //! server has tokens), then `hello`, `scene`, the marks so far and every frame, stats and mark,
 //! while it answers what the viewer sends; every send has a deadline, and every close reads
 //! until the peer's close frame so that the peer learns its close code.
+//!
+//! At the server's shutdown a viewer first sends what is already queued for it on the stats
+//! and marks channels (for [`SHUTDOWN_DRAIN`] at most): the session's final `metrics`, sent
+//! just before the shutdown, are the last thing a viewer is told before the close.
 
 use std::fmt;
 use std::sync::Arc;
@@ -100,6 +104,12 @@ pub const REFUSED_OBSERVER: &str =
 pub const REFUSED_MARK_OBSERVER: &str = "only an instructor marks the session";
 /// The `refused` reason of an `add_mark` sent to a replay.
 pub const REFUSED_MARK_REPLAY: &str = "a replay's marks are the recording's: mark a live session";
+/// The `refused` reason of an `add_mark` sent to a stream that takes none (a lab hub's relay of
+/// a station: it can neither stamp a mark with the station's time nor record it).
+pub const REFUSED_MARK_HUB: &str =
+    "marks are not taken through the lab hub: mark the session on its station's own page";
+/// The `refused` reason of an `add_mark` once the session has all the marks it keeps.
+pub const REFUSED_MARKS_FULL: &str = "this session has all the marks it can keep (1000)";
 /// The `refused` reason of a `replay_control` sent to a live session.
 pub const REFUSED_LIVE: &str = "this is a live session: there is no replay to control";
 
@@ -267,6 +277,7 @@ async fn serve_role(
     let mut dropped: u64 = 0;
     loop {
         if *shutdown.borrow() {
+            drain_queued(&mut socket, &mut stats, &mut marks, &hub.counters, timeout).await;
             close(
                 &mut socket,
                 close_code::AWAY,
@@ -280,6 +291,7 @@ async fn serve_role(
             changed = shutdown.changed() => {
                 // An error means the server was dropped without an orderly shutdown: leave too.
                 if changed.is_err() {
+                    drain_queued(&mut socket, &mut stats, &mut marks, &hub.counters, timeout).await;
                     close(&mut socket, close_code::AWAY, "server shutting down", timeout).await;
                     return ViewerEnd::Shutdown;
                 }
@@ -338,6 +350,38 @@ async fn serve_role(
             },
         }
     }
+}
+
+/// Longest a closing viewer spends sending what was queued for it before the shutdown.
+const SHUTDOWN_DRAIN: Duration = Duration::from_secs(1);
+
+/// Sends the stats, metrics and marks already queued for this viewer (the session's final
+/// `metrics` among them), in the order each channel received them, for at most
+/// [`SHUTDOWN_DRAIN`]: the shutdown flag and the last messages arrive together, and the
+/// viewer's `select!` may see the flag first. A viewer that stopped reading costs the drain's
+/// bound, no more; one that lagged gets the newest (the channels keep those).
+async fn drain_queued(
+    socket: &mut WebSocket,
+    stats: &mut broadcast::Receiver<Utf8Bytes>,
+    marks: &mut broadcast::Receiver<Utf8Bytes>,
+    counters: &StreamCounters,
+    timeout: Duration,
+) {
+    let drain = async {
+        for channel in [marks, stats] {
+            loop {
+                let text = match channel.try_recv() {
+                    Ok(text) => text,
+                    Err(broadcast::error::TryRecvError::Lagged(_)) => continue,
+                    Err(_) => break,
+                };
+                if !send(socket, Message::Text(text), timeout, counters).await {
+                    return;
+                }
+            }
+        }
+    };
+    let _ = tokio::time::timeout(SHUTDOWN_DRAIN, drain).await;
 }
 
 /// Waits for the connection's `auth` (nothing is sent before it): the role of its token, or
@@ -543,6 +587,9 @@ async fn handle_incoming(
             if hub.replay_control.is_some() {
                 return refuse(socket, hub, connection, &kind, REFUSED_MARK_REPLAY).await;
             }
+            if !hub.accepts_marks {
+                return refuse(socket, hub, connection, &kind, REFUSED_MARK_HUB).await;
+            }
             if role == Role::Observer {
                 return refuse(socket, hub, connection, &kind, REFUSED_MARK_OBSERVER).await;
             }
@@ -550,7 +597,10 @@ async fn handle_incoming(
             match request.and_then(|r| r.problem().map_or(Ok(r), Err)) {
                 Ok(r) => match hub.add_mark(r) {
                     Ok(m) => tracing::info!(id = m.id, time_ns = m.time_ns, "instructor mark"),
-                    Err(e) => tracing::error!(error = %e, "could not encode a mark"),
+                    Err(super::AddMarkError::Full) => {
+                        return refuse(socket, hub, connection, &kind, REFUSED_MARKS_FULL).await;
+                    }
+                    Err(e) => tracing::error!(error = %e, "could not make a mark"),
                 },
                 Err(reason) => return refuse(socket, hub, connection, &kind, &reason).await,
             }
