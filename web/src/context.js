@@ -35,6 +35,8 @@ export const view = {
   ring: null,
   arrow: null,
   objectsGroup: null,
+  /** The marks' markers on the object: `{id, mesh}`, one per mark with a point. */
+  markers: [],
 };
 export const state = {
   sceneJson: null,
@@ -60,6 +62,11 @@ export const state = {
   archive: archiveOf(window.location),
   /** Whether the object is cut open through the contact (the section view). */
   section: false,
+  /**
+   * Whether the meshes are drawn in their rest shape although the tool presses them (a frame
+   * to compare a press with: the browser tests; `setRestShape`).
+   */
+  restShape: false,
   /** Where the section passes: the last contact point and its normal. */
   sectionPoint: [0, 0, 0],
   sectionNormal: [0, 1, 0],

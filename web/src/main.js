@@ -5,8 +5,9 @@
 // Reading order: `init()` builds everything once; `onMessage()` takes the server's messages;
 // `animate()` runs per screen refresh and allocates nothing. The 3-D view is `scene3d.js`, the
 // panels `panels.js`, the state they share `context.js`; `testhook.js` is what the browser
-// tests read (installed only under automation). When the server replays a recording, the timeline panel (`replay.js`)
-// shows where the replay stands and sends the instructor's pause, play, seek and speed.
+// tests read, fetched only under automation (a dynamic import), so no other browser downloads
+// it. When the server replays a recording, the timeline panel (`replay.js`) shows where the
+// replay stands and sends the instructor's pause, play, seek and speed.
 //
 // Access (`access.js`): the token of the page's link is presented on every connection and with
 // every fetch from the server; `hello` says the role it grants (instructor or observer), shown
@@ -19,7 +20,7 @@ import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ForcePlot } from './forceplot.js';
 import { parseRenderMesh } from './mesh.js';
 import { ViewerConnection, webSocketUrl } from './connection.js';
-import { encodeMark, forceFeedbackOf, accessOf, contactModelOf, validateMessage } from './protocol.js';
+import { encodeMark, forceFeedbackOf, accessOf, contactModelOf, marksAcceptedOf, validateMessage } from './protocol.js';
 import {
   bindPanels,
   flagNames,
@@ -48,10 +49,10 @@ import {
   resizeView,
   setDeformation,
   setDepressionMap,
+  setRestShape,
   setSection,
 } from './scene3d.js';
 import { StationList, withStation } from './lab.js';
-import { installTestHook } from './testhook.js';
 
 /** How often a hub's page asks for its station list again. */
 const STATION_LIST_REFRESH_MS = 2000;
@@ -72,13 +73,9 @@ class Unauthorized extends Error {
   }
 }
 
-function init() {
-  bindPanels();
-  plot = new ForcePlot(dom['force-plot'], { pixelRatio: Math.min(window.devicePixelRatio || 1, 2) });
-
-  initThree();
-  // Only under automation (the browser tests): see testhook.js.
-  installTestHook({
+/** The page's parts the test hook reads (`testhook.js`); later ones through getters. */
+function testHookParts() {
+  return {
     state,
     view,
     dom,
@@ -111,8 +108,24 @@ function init() {
     setDeformation,
     drawnMesh,
     setSection,
+    setRestShape,
+    frameCamera,
     sectionPlane: () => view.sectionPlane,
-  });
+  };
+}
+
+function init() {
+  bindPanels();
+  plot = new ForcePlot(dom['force-plot'], { pixelRatio: Math.min(window.devicePixelRatio || 1, 2) });
+
+  initThree();
+  // Only under automation (the browser tests, whose pages wait for `window.__softhaptic`): see
+  // testhook.js. A static import would make every browser download it.
+  if (navigator.webdriver) {
+    import('./testhook.js')
+      .then(({ installTestHook }) => installTestHook(testHookParts()))
+      .catch((e) => console.warn(`softhaptic: no test hook: ${e.message}`));
+  }
 
   keeper = new TokenKeeper({ storage: sessionStorageOrNull() });
   keeper.adopt(window.location, window.history);
@@ -327,6 +340,7 @@ async function applyScene(scene) {
   for (const m of state.meshes) {
     view.objectsGroup.remove(m.mesh);
     m.geometry.dispose();
+    m.section?.line.geometry.dispose();
   }
   state.meshes = [];
   let loaded;
@@ -372,8 +386,14 @@ function onMessage(message, receivedAtMs) {
         const access = accessOf(message);
         state.mode = access.mode;
         showRole(access.role);
-        // Instructors mark a live session; a replay's marks are the recording's.
-        dom['mark-form'].hidden = !(access.role === 'instructor' && access.mode === 'live');
+        // Instructors mark a live session; a replay's marks are the recording's, and a hub
+        // (a station's stream in a teaching lab) records nothing and refuses them.
+        const onHub = state.station !== null || stationList.isHub === true;
+        dom['mark-form'].hidden = !(
+          access.role === 'instructor' &&
+          access.mode === 'live' &&
+          marksAcceptedOf(message, onHub)
+        );
         showForceFeedback(forceFeedbackOf(message));
         timeline.setControllable(access.role === 'instructor');
         if (access.mode === 'replay') {

@@ -49,6 +49,7 @@ const DOM_IDS = [
   'map-toggle',
   'map-scale',
   'section-toggle',
+  'section-key',
   'mark-form',
   'mark-note',
   'mark-list',

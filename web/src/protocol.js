@@ -166,6 +166,7 @@ function validateHello(m) {
   string(m.server, 'hello.server');
   string(m.role, 'hello.role');
   if (m.force_feedback !== undefined) boolean(m.force_feedback, 'hello.force_feedback');
+  if (m.accepts_marks !== undefined) boolean(m.accepts_marks, 'hello.accepts_marks');
   if (m.mode === undefined) {
     if (!ROLES.includes(m.role) && !Object.hasOwn(LEGACY_ROLES, m.role)) {
       throw new ProtocolError('hello.role', `unknown role ${show(m.role)} (known: ${ROLES.join(', ')})`);
@@ -182,11 +183,6 @@ function validateHello(m) {
 }
 
 /**
- * The role and mode of a validated `hello`: `{role, mode}`, with `role` one of `ROLES` and
- * `mode` one of `MODES`. A `hello` without `mode` (servers before roles) is read through its
- * old role: `viewer` watches a live session, `replay` controls a replay.
- */
-/**
  * Whether the trainee feels the force (`hello.force_feedback`): false for an input-only device,
  * whose force is computed and shown but not rendered. Servers before the field: true.
  */
@@ -194,6 +190,21 @@ export function forceFeedbackOf(hello) {
   return hello.force_feedback ?? true;
 }
 
+/**
+ * Whether the server takes instructors' marks (`hello.accepts_marks`, sent only when false): a
+ * teaching lab's hub relays a station's stream, can neither time nor record a mark, and refuses
+ * them. Without the field, a page on a hub (`onHub`: it shows a station through a hub) offers
+ * none, since a hub older than the field refuses them too; any other server takes them.
+ */
+export function marksAcceptedOf(hello, onHub) {
+  return hello.accepts_marks ?? !onHub;
+}
+
+/**
+ * The role and mode of a validated `hello`: `{role, mode}`, with `role` one of `ROLES` and
+ * `mode` one of `MODES`. A `hello` without `mode` (servers before roles) is read through its
+ * old role: `viewer` watches a live session, `replay` controls a replay.
+ */
 export function accessOf(hello) {
   if (hello.mode === undefined && Object.hasOwn(LEGACY_ROLES, hello.role)) return { ...LEGACY_ROLES[hello.role] };
   return { role: hello.role, mode: hello.mode ?? 'live' };

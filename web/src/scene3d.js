@@ -1,15 +1,17 @@
 // The 3-D view: the three.js scene (lights, grid, the deformed-region ring, the force arrow),
 // the tool and the render meshes of a scene, and what each animation frame does to them: bend
 // the meshes with the scene's deformation profile, place the tool, the ring, the arrow and the
-// section plane, colour the depression map. With WebGL the meshes' vertex shaders bend them
-// (`shaderdeform.js`: one radial table per frame, whatever the mesh's size); without it, or with
-// `?deform=cpu` in the address, `MeshDeformer` bends the vertex buffers, and the panels and the
-// tests read them even when nothing is drawn.
+// section plane and the section's line of the undeformed surface (cut by `section.js`), colour
+// the depression map. With WebGL the meshes' vertex shaders bend them (`shaderdeform.js`: one
+// radial table per frame, whatever the mesh's size); without it, or with `?deform=cpu` in the
+// address, `MeshDeformer` bends the vertex buffers, and the panels and the tests read them even
+// when nothing is drawn.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 import { profileSetup, profileTable, surfaceSetup, surfaceTable } from './deformation.js';
 import { MeshDeformer } from './deformer.js';
+import { cutMesh, segmentBuffer } from './section.js';
 import { DeformationTable } from './shaderdeform.js';
 import { TIMING_SAMPLES, dom, rendered, scratch, state, timings, view } from './context.js';
 import { setText } from './panels.js';
@@ -21,6 +23,17 @@ import { setText } from './panels.js';
 const TOOL_OPACITY_IN_CONTACT = 0.3;
 /** The depression map's colour at full scale (multiplies the object's). */
 const DEPRESSION_COLOR = [0.25, 0.45, 1.0];
+/**
+ * The colour of the section's line of the undeformed surface: a green found nowhere else in the
+ * view (the object is pink, the map blue, the ring orange, the markers yellow).
+ */
+const SECTION_REFERENCE_COLOR = 0x7ee787;
+/**
+ * How far the section plane (object frame) must move before the undeformed mesh is cut again:
+ * 10⁻⁶ of the normal's components and 0.1 µm of the offset, far below a pixel.
+ */
+const SECTION_RECUT_NORMAL = 1e-6;
+const SECTION_RECUT_OFFSET_M = 1e-7;
 
 /** Creates the WebGL renderer and the static scene; without WebGL, says so and goes on. */
 export function initThree() {
@@ -204,6 +217,10 @@ export function buildMesh(desc, data) {
     colorAttr,
     rest: data.positions,
     restNormals: data.normals,
+    /** The triangles (three vertex indices each), for the section's cut of the rest shape. */
+    indices: data.indices,
+    /** The section's line of the undeformed surface (`sectionReference`), made when first shown. */
+    section: null,
     deformer: new MeshDeformer(data.positions, data.normals),
     uniforms,
     /** The contact of the last frame in the object frame, for `drawnMesh`. */
@@ -252,7 +269,8 @@ export function deformMeshes() {
   if (view.shaderFailure !== null) fallBackToCpu();
   if (!state.tool || state.meshes.length === 0) return;
   const c = scratch.contact;
-  c.inContact = rendered.valid && rendered.inContact;
+  // Drawn undeformed on request (`setRestShape`): the tool and the ring still show the contact.
+  c.inContact = rendered.valid && rendered.inContact && !state.restShape;
   c.depthM = rendered.depthM;
   c.contactRadiusM = rendered.contactRadiusM;
   c.deformedRadiusM = rendered.deformedRadiusM;
@@ -335,6 +353,16 @@ function copyContact(from, to) {
   to.point.set(from.point);
   to.normal.set(from.normal);
   to.version++;
+}
+
+/**
+ * Draws the meshes in their rest shape (true) or bent by the contact (false), from now on; the
+ * tool, the ring and the arrow still show the contact. A frame pressed and the same frame
+ * undeformed differ by the dent alone (the browser tests compare them).
+ */
+export function setRestShape(on) {
+  state.restShape = Boolean(on);
+  deformMeshes();
 }
 
 /**
@@ -448,17 +476,20 @@ export function addMarker(m) {
   );
   marker.position.set(m.point_m[0], m.point_m[1], m.point_m[2]);
   view.scene.add(marker);
+  view.markers.push({ id: m.id, mesh: marker });
 }
 
 /** Turns the section view on or off. */
 export function setSection(on) {
   state.section = Boolean(on);
   dom['section-toggle'].checked = state.section;
+  dom['section-key'].hidden = !state.section;
   view.sectionPlanes.length = 0;
   if (state.section) {
     view.sectionPlane ??= new THREE.Plane();
     view.sectionPlanes.push(view.sectionPlane);
   }
+  for (const m of state.meshes) if (m.section) m.section.line.visible = state.section;
 }
 
 /**
@@ -484,6 +515,85 @@ export function placeSection() {
   if (toCamera.lengthSq() < 1e-12) toCamera.set(1, 0, 0);
   // Keep what lies away from the camera: the plane's normal points away from it.
   view.sectionPlane.setFromNormalAndCoplanarPoint(toCamera.normalize().negate(), scratch.p);
+  // Without WebGL nothing is drawn: no line to cut.
+  if (view.renderer) for (const m of state.meshes) placeSectionReference(m, view.sectionPlane);
+}
+
+/**
+ * The section's line of the undeformed surface of mesh `m`: where the plane cuts its rest shape
+ * (`section.js`), drawn through everything, over the cut of the bent mesh, so the dent shows as
+ * the bent surface's profile dipping below the line. The clipping plane hides all of the object
+ * on the camera's side of the plane and the line lies in the plane, so nothing of the object can
+ * stand in front of it. A child of the mesh, so its points stay in the object frame; cut again
+ * only when the plane moved (about 1 ms per 100 000 vertices), allocating only when a cut has
+ * more segments than any before it.
+ */
+function placeSectionReference(m, plane) {
+  if (m.section === null) m.section = sectionReference(m);
+  const s = m.section;
+  // The plane in the object frame: n · (q p_obj + t) + c = n_obj · p_obj + (c + n · t), with
+  // n_obj = q⁻¹ n.
+  const n = scratch.n.copy(plane.normal).applyQuaternion(m.objectInverse);
+  const offset = plane.constant + plane.normal.dot(m.objectPosition);
+  const last = s.plane;
+  if (
+    Math.abs(n.x - last[0]) < SECTION_RECUT_NORMAL &&
+    Math.abs(n.y - last[1]) < SECTION_RECUT_NORMAL &&
+    Math.abs(n.z - last[2]) < SECTION_RECUT_NORMAL &&
+    Math.abs(offset - last[3]) < SECTION_RECUT_OFFSET_M
+  )
+    return;
+  last[0] = n.x;
+  last[1] = n.y;
+  last[2] = n.z;
+  last[3] = offset;
+  const held = s.buffer.positions;
+  const segments = cutMesh(m.rest, m.indices, last, offset, s.distances, s.buffer);
+  if (s.buffer.positions !== held) {
+    // A longer cut than ever: a buffer of the new size on the GPU too.
+    s.line.geometry.dispose();
+    s.line.geometry = sectionGeometry(s);
+  }
+  s.line.geometry.setDrawRange(0, 2 * segments);
+  if (segments > 0) {
+    s.range.count = 6 * segments;
+    s.attr.updateRanges.length = 0;
+    s.attr.updateRanges.push(s.range);
+    s.attr.needsUpdate = true;
+  }
+}
+
+/** Makes mesh `m`'s line of the undeformed surface for the section view (hidden when off). */
+function sectionReference(m) {
+  const s = {
+    buffer: segmentBuffer(4096),
+    distances: new Float32Array(m.rest.length / 3),
+    /** The plane last cut, in the object frame: normal x, y, z and offset (m); NaN before any. */
+    plane: new Float64Array(4).fill(NaN),
+    range: { start: 0, count: 0 },
+    attr: null,
+    line: null,
+  };
+  s.line = new THREE.LineSegments(
+    sectionGeometry(s),
+    new THREE.LineBasicMaterial({ color: SECTION_REFERENCE_COLOR, depthTest: false, transparent: true }),
+  );
+  // After the see-through tool, the ring and the arrow; its points change, so no bounds either.
+  s.line.renderOrder = 4;
+  s.line.frustumCulled = false;
+  s.line.visible = state.section;
+  m.mesh.add(s.line);
+  return s;
+}
+
+/** A geometry over the section line's buffer of segments (sets `s.attr`). */
+function sectionGeometry(s) {
+  const geometry = new THREE.BufferGeometry();
+  s.attr = new THREE.BufferAttribute(s.buffer.positions, 3);
+  s.attr.setUsage(THREE.DynamicDrawUsage);
+  geometry.setAttribute('position', s.attr);
+  geometry.setDrawRange(0, 0);
+  return geometry;
 }
 
 /** Turns the depression map on or off; off, every vertex gets its own colour back. */

@@ -1,7 +1,9 @@
 // The browser tests' window onto the page: `window.__softhaptic`, installed only when the page
-// runs under automation (`navigator.webdriver`, as playwright drives Chromium), so a trainee's
-// or an instructor's browser carries no test surface. Every function returns plain data, so a
-// test can take a consistent snapshot of one rendered frame inside a single `page.evaluate`.
+// runs under automation (`navigator.webdriver`, as playwright drives Chromium). `main.js` imports
+// this module dynamically and only then, so a trainee's or an instructor's browser neither
+// downloads it nor carries a test surface; the tests wait for `window.__softhaptic` to appear.
+// Every function returns plain data, so a test can take a consistent snapshot of one rendered
+// frame inside a single `page.evaluate`.
 //
 // `ctx` gives the page's parts: the objects it keeps for its whole life, and getters for those it
 // makes later (the connection, the timeline, the token keeper and prompt, the station list).
@@ -180,7 +182,15 @@ export function installTestHook(ctx) {
     }),
     lastStats: () => state.lastStats,
     /** The last metrics message, and the panel's text for it. */
-    metrics: () => ({ last: state.lastMetrics, peakShown: dom['t-peak'].textContent }),
+    metrics: () => ({
+      last: state.lastMetrics,
+      peakShown: dom['t-peak'].textContent,
+      shown: {
+        contact: dom['t-contact'].textContent,
+        path: dom['t-path'].textContent,
+        pushes: dom['t-pushes'].textContent,
+      },
+    }),
     /** The role the server granted (`instructor`, `observer`; null before a `hello`). */
     role: () => state.role,
     /** `live` or `replay`, as the server's `hello` said; null before one. */
@@ -234,6 +244,37 @@ export function installTestHook(ctx) {
       const p = state.section ? ctx.sectionPlane() : null;
       return p ? { on: true, normal: p.normal.toArray(), constant: p.constant } : { on: false };
     },
+    /**
+     * The section's line of the undeformed surface: its segments (all meshes) and whether it is
+     * drawn. With an argument, shows or hides it until the section is turned on or off again (a
+     * frame of the cut without it, to compare).
+     */
+    sectionReference: (visible) => {
+      let segments = 0;
+      let shown = false;
+      for (const m of state.meshes) {
+        if (!m.section) continue;
+        if (visible !== undefined) m.section.line.visible = Boolean(visible);
+        segments += m.section.buffer.segments;
+        shown ||= m.section.line.visible;
+      }
+      return { segments, visible: shown };
+    },
+    /**
+     * Draws the meshes in their rest shape (true) or bent (false) from now on, the tool still
+     * placed and see-through as the contact says: a pressed frame and the same frame undeformed
+     * differ by the dent alone.
+     */
+    restShape: (on) => ctx.setRestShape(on),
+    /** The instructors' markers on the object: each mark's id and the marker's world position. */
+    markers: () =>
+      view.markers.map(({ id, mesh }) => ({ id, position: mesh.position.toArray(), visible: mesh.visible })),
+    /** Shows or hides the markers (a frame without them, to compare). */
+    markersVisible: (on) => {
+      for (const { mesh } of view.markers) mesh.visible = Boolean(on);
+    },
+    /** Puts the camera back where the page put it when the scene loaded (the default view). */
+    resetCamera: () => ctx.frameCamera(),
     /** The tool's opacity now (1 free, less in contact). */
     toolOpacity: () => view.toolMaterials[0]?.opacity ?? null,
     /** Shows or hides the tool (a screenshot of the surface alone). */

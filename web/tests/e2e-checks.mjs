@@ -1,5 +1,6 @@
 // Checks shared by the browser tests: a press drawn on the render mesh exactly as the profile
-// says, and the page's Content-Security-Policy violations. Each takes a Playwright page showing
+// says, how two reads of the drawn pixels differ, and the page's Content-Security-Policy
+// violations. Each takes a Playwright page showing
 // the viewer.
 import assert from 'node:assert/strict';
 
@@ -52,6 +53,40 @@ export async function freezeOffSurface(page, { timeout = 120000 } = {}) {
     null,
     { timeout, polling: 'raf' },
   );
+}
+
+/**
+ * How two reads of the same region (`regionPixels`: RGBA) differ: `mean`, the mean absolute
+ * difference per colour channel (0–255), and `visible`, the fraction of pixels where some channel
+ * differs by more than 10 levels (a change an eye sees).
+ */
+export function pixelDifference(a, b) {
+  let sum = 0;
+  let visible = 0;
+  for (let i = 0; i < a.length; i += 4) {
+    let most = 0;
+    for (let k = 0; k < 3; k++) {
+      const d = Math.abs(a[i + k] - b[i + k]);
+      sum += d;
+      if (d > most) most = d;
+    }
+    if (most > 10) visible++;
+  }
+  const pixels = a.length / 4;
+  return { mean: sum / (3 * pixels), visible: visible / pixels };
+}
+
+/**
+ * The pixels of a region (`regionPixels`: RGBA) drawn in the section's line colour (#7ee787, a
+ * green found nowhere else in the view), as `[column, row]` from the region's bottom left.
+ */
+export function sectionLinePixels(pixels, sizePx) {
+  const found = [];
+  for (let i = 0; i < pixels.length; i += 4) {
+    const [r, g, b] = [pixels[i], pixels[i + 1], pixels[i + 2]];
+    if (g > 150 && g > r + 40 && g > b + 20) found.push([(i / 4) % sizePx, Math.floor(i / 4 / sizePx)]);
+  }
+  return found;
 }
 
 /**

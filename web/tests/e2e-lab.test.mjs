@@ -1,9 +1,10 @@
 // End to end through a teaching lab: a real nats-server, two real stations (the default liver
 // pressed by a sphere, and by a cone) publishing to it, and a real hub; the viewer page on the
 // hub in headless Chromium, read through the page's test hook. Checks: the page lists both
-// stations as links; picking one shows that station's stream (its tool, its frames); switching
-// to the other shows the other's; a station that stops archives its recording in the lab's
-// object store, and the hub's page lists it and replays it; no page error.
+// stations as links; picking one shows that station's stream (its tool, its frames) without the
+// mark form (a hub takes no marks); switching to the other shows the other's; a station that
+// stops archives its recording in the lab's object store, and the hub's page lists it and
+// replays it; no page error.
 //
 //   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_BIN to reuse a built one;
 //                        needs nats-server, which `make test` installs)
@@ -101,7 +102,7 @@ async function waitFor(what, predicate, arg = null) {
 }
 
 test('the hub lists both stations as links', async () => {
-  await waitFor('two stations listed', () => window.__softhaptic.stations().listed.length === 2);
+  await waitFor('two stations listed', () => window.__softhaptic?.stations().listed.length === 2);
   const s = await page.evaluate(() => window.__softhaptic.stations());
   assert.equal(s.isHub, true);
   assert.equal(s.current, null);
@@ -123,12 +124,18 @@ test('picking a station shows its stream, and switching shows the other', async 
     await page.click(`li[data-station="${name}"] a`);
     await waitFor(`${name} drawn`, () => window.__softhaptic?.ready());
     await waitFor(`frames of ${name}`, () => window.__softhaptic.contactFrames() > 10);
+    await waitFor(`the hello of ${name}`, () => window.__softhaptic.role() !== null);
     const shown = await page.evaluate(() => ({
       stations: window.__softhaptic.stations(),
       scene: window.__softhaptic.scene(),
       connection: window.__softhaptic.connection().state,
+      role: window.__softhaptic.role(),
+      marks: window.__softhaptic.marks(),
     }));
     assert.equal(shown.stations.current, name);
+    // An instructor, yet no mark form: the hub records nothing and refuses marks.
+    assert.equal(shown.role, 'instructor');
+    assert.equal(shown.marks.formShown, false);
     assert.equal(shown.scene.tool.shape, shape);
     assert.equal(shown.connection, 'open');
     assert.ok(shown.scene.render_meshes[0].url.startsWith(`/stations/${name}/`));

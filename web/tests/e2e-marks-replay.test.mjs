@@ -1,5 +1,6 @@
 // End to end, instructor marks: a live session recorded to a scratch directory, a mark made in
-// one browser, seen in a second one, and then, after the server stops, in the replay of the
+// one browser during a press, seen in a second one (listed, and its marker drawn at the contact
+// point), and then, after the server stops, in the replay of the
 // recording in a third (the list beside the timeline and a mark on its track).
 //
 //   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_BIN to reuse a built one)
@@ -10,6 +11,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
 import { launchBrowser } from './browser.mjs';
+import { freezeOnPress, pixelDifference } from './e2e-checks.mjs';
 import { startServer } from './server.mjs';
 
 const NOTE = 'too fast into the capsule';
@@ -47,10 +49,37 @@ test('a mark made live shows in another browser and in the replay of the recordi
     const instructor = await openViewer(live.url);
     const other = await openViewer(live.url);
     assert.equal(await instructor.evaluate(() => window.__softhaptic.marks().formShown), true);
+    // During a press, so the mark carries the point the tool touches.
+    await freezeOnPress(instructor, 1e-3);
+    const touched = (await instructor.evaluate(() => window.__softhaptic.contact())).point;
     await instructor.evaluate((note) => window.__softhaptic.submitMark(note), NOTE);
     await other.waitForFunction(() => window.__softhaptic.marks().marks.length === 1, null, WAIT);
     marked = (await other.evaluate(() => window.__softhaptic.marks())).marks[0];
     assert.equal(marked.note, NOTE);
+    assert.deepEqual(marked.point_m, touched);
+
+    // The other browser draws the mark's marker at its point: placed there, and seen there (the
+    // region around the point on the screen, close up and with the tool hidden, read with the
+    // markers and, in the same frame, without them).
+    const drawn = await other.evaluate((point) => {
+      const h = window.__softhaptic;
+      h.pause(true);
+      h.toolVisible(false);
+      h.focusCamera(point, 0.08);
+      const at = h.toScreen(point);
+      const markers = h.markers();
+      const shown = h.regionPixels(at.x, at.y, 20);
+      h.markersVisible(false);
+      const hidden = h.regionPixels(at.x, at.y, 20);
+      h.markersVisible(true);
+      return { markers, shown, hidden };
+    }, marked.point_m);
+    assert.equal(drawn.markers.length, 1);
+    assert.equal(drawn.markers[0].id, marked.id);
+    assert.deepEqual(drawn.markers[0].position, marked.point_m);
+    const seen = pixelDifference(drawn.shown, drawn.hidden);
+    // Measured about 70 per channel: the marker fills the region.
+    assert.ok(seen.mean > 20, `the marker changes the region around its point by ${seen.mean.toFixed(1)} per channel`);
   } finally {
     // A stop signal closes the recording properly.
     await live.stop();

@@ -15,6 +15,7 @@ import {
   encodeMark,
   encodeReplayControl,
   forceFeedbackOf,
+  marksAcceptedOf,
   ProtocolError,
 } from '../src/protocol.js';
 import { contact, contactModel, hello, legacyHello, scene, stats } from './fixtures.mjs';
@@ -323,4 +324,19 @@ test('a mark is encoded trimmed, with its point, and refused empty, overlong or 
       (e) => e instanceof ProtocolError && e.field.startsWith(field),
     );
   }
+});
+
+test('marks are offered where the server takes them: not through a hub unless its hello says so', () => {
+  const live = decodeMessage(JSON.stringify(hello)).message;
+  assert.equal(marksAcceptedOf(live, false), true, 'a station or a quick start takes marks');
+  assert.equal(marksAcceptedOf(live, true), false, 'a hub that does not say records none');
+  assert.equal(
+    marksAcceptedOf(decodeMessage(JSON.stringify({ ...hello, accepts_marks: false })).message, false),
+    false,
+  );
+  assert.equal(marksAcceptedOf(decodeMessage(JSON.stringify({ ...hello, accepts_marks: true })).message, true), true);
+  assert.throws(
+    () => decodeMessage(JSON.stringify({ ...hello, accepts_marks: 'yes' })),
+    (e) => e instanceof ProtocolError && e.field === 'hello.accepts_marks',
+  );
 });
