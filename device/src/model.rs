@@ -1,8 +1,8 @@
 //! The runtime contact model: the paper's law of the tool times the corrections a scene turns on
 //! (physics.md, "Corrections that go past the paper").
 //!
-//! Long because the second half is the tests that pin each correction to its closed form; the model
-//! itself is about 500 lines.
+//! Long because its last 450 lines are the tests that pin each correction to its closed form; the
+//! model itself is about 680 lines: five corrections, each with how it is kept safe at the extremes.
 //!
 //! Each correction is a pure factor or a change of the effective geometry, cheap enough for the
 //! 1 kHz loop (a few tens of nanoseconds each, no iteration, no allocation). A [`ForceModel`] is
@@ -538,11 +538,27 @@ impl ForceModel {
         ((self.force_n(hi, geometry) - self.force_n(lo, geometry)) / (hi - lo)).max(0.0)
     }
 
-    /// Radius a of the contact circle (for a cone on a curved object, the root of its law).
+    /// Radius a of the contact circle, the one a contact streams and the `paper` profile draws
+    /// with; it never enters the force. The paper's law's (Hertz's √(Rδ), Sneddon's 2δ tanα/π,
+    /// [`law::contact_radius_m`] bit for bit) unless the model bends it: on a curved object the
+    /// effective radius R* = 1/(1/R + κ) (for a cone, the root of its law), and under the exact
+    /// sphere the exact sphere's root of δ = (a/2) ln((R*+a)/(R*−a))
+    /// ([`softhaptic_proto::deformation::exact_sphere_contact_radius_m`]), which stays inside
+    /// the tool at every depth where Hertz's reaches R at δ = R.
     pub fn contact_radius_m(&self, depth_m: f64, geometry: &LocalGeometry) -> f64 {
+        let exact_sphere = self.spec.exact_sphere && matches!(self.tool, ToolShape::Sphere { .. });
+        if !self.spec.curvature && !exact_sphere {
+            return law::contact_radius_m(&self.tool, depth_m);
+        }
         let d = if depth_m > 0.0 { depth_m } else { 0.0 };
         let kappa = self.clamp_curvature(geometry.curvature_1_per_m);
         match self.tool {
+            ToolShape::Sphere { radius_m } if exact_sphere => {
+                softhaptic_proto::deformation::exact_sphere_contact_radius_m(
+                    1.0 / (1.0 / radius_m + kappa),
+                    d,
+                )
+            }
             ToolShape::Sphere { radius_m } => ((d / (1.0 / radius_m + kappa)).max(0.0)).sqrt(),
             ToolShape::Cone { half_angle_rad, .. } => {
                 let p = FRAC_PI_2 / half_angle_rad.tan();
@@ -1005,6 +1021,52 @@ mod tests {
                 radius_m
             }),
         ]
+    }
+
+    #[test]
+    fn the_contact_radius_is_the_exact_spheres_under_the_exact_sphere_and_the_laws_otherwise() {
+        let m = Material::PAPER_SOFT;
+        let curved = LocalGeometry {
+            curvature_1_per_m: 1.0 / (30.0 * MM),
+            ..LocalGeometry::FLAT
+        };
+        let exact = ModelSpec {
+            exact_sphere: true,
+            ..ModelSpec::PAPER
+        };
+        let both = ModelSpec {
+            curvature: true,
+            ..exact
+        };
+        let paper = ForceModel::paper(sphere6(), m);
+        let exact_model = ForceModel::new(sphere6(), m, exact).unwrap();
+        let both_model = ForceModel::new(sphere6(), m, both).unwrap();
+        for d_mm in [0.5, 3.0, 6.0, 9.0] {
+            let d = d_mm * MM;
+            // Without a correction that bends it: the paper's law, bit for bit.
+            assert_eq!(
+                paper.contact_radius_m(d, &curved).to_bits(),
+                law::contact_radius_m(&sphere6(), d).to_bits()
+            );
+            let cone = ForceModel::new(cone45(), m, ModelSpec::PAPER).unwrap();
+            assert_eq!(
+                cone.contact_radius_m(d, &curved).to_bits(),
+                law::contact_radius_m(&cone45(), d).to_bits()
+            );
+            // Under the exact sphere: its root, inside Hertz's and inside the tool even at δ ≥ R.
+            let a = exact_model.contact_radius_m(d, &curved);
+            let expected =
+                softhaptic_proto::deformation::exact_sphere_contact_radius_m(6.0 * MM, d);
+            assert_eq!(a, expected);
+            assert!(a < law::contact_radius_m(&sphere6(), d) && a < 6.0 * MM);
+            // With the curvature too: the exact sphere of the effective radius 1/(1/R + κ).
+            let r_eff = 1.0 / (1.0 / (6.0 * MM) + 1.0 / (30.0 * MM));
+            let a = both_model.contact_radius_m(d, &curved);
+            let expected = softhaptic_proto::deformation::exact_sphere_contact_radius_m(r_eff, d);
+            assert_eq!(a, expected);
+        }
+        assert_eq!(exact_model.contact_radius_m(f64::NAN, &curved), 0.0);
+        assert_eq!(exact_model.contact_radius_m(-MM, &curved), 0.0);
     }
 
     proptest! {

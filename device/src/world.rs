@@ -17,7 +17,6 @@ use crate::metrics::{MetricsAccumulator, TickInput, TraineeMetrics};
 /// The safe force of a world whose scene sets none, N.
 pub const DEFAULT_SAFE_FORCE_N: f64 = 2.0;
 use crate::force::{ForceConfig, ForceRenderer, RenderedForce, WorldContact};
-use crate::law;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::tracking::ContactTracker;
 
@@ -225,14 +224,13 @@ impl HapticWorld {
             state.depth_m = g.depth_m.max(0.0);
             state.normal = c.normal;
             state.contact_point_m = o.transform_point(g.contact_point_m);
-            let model = self.renderer.model();
             // The paper's a = √(Rδ) (sphere) or 2δ tan α/π (cone) unless the model bends it
-            // with the curvature; the renderer holds this tick's geometry.
-            state.contact_radius_m = if model.spec().curvature {
-                model.contact_radius_m(state.depth_m, self.renderer.geometry())
-            } else {
-                law::contact_radius_m(&tool, state.depth_m)
-            };
+            // with the curvature or the exact sphere; the renderer holds this tick's geometry.
+            // Computed after the force and never read by it: it is drawn, never felt.
+            state.contact_radius_m = self
+                .renderer
+                .model()
+                .contact_radius_m(state.depth_m, self.renderer.geometry());
         }
         state
     }
@@ -298,6 +296,7 @@ impl HapticWorld {
 mod tests {
     use super::*;
     use crate::collision::CollisionMode;
+    use crate::law;
     use crate::mesh::HapticMesh;
     use glam::DQuat;
 

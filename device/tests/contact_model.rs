@@ -166,7 +166,8 @@ fn the_curvature_is_measured_only_for_a_model_that_uses_it() {
 
 #[test]
 fn the_contact_radius_follows_the_curvature() {
-    // On the convex lobe a = √(R* δ) with R* < R: smaller than the paper's √(R δ).
+    // On the convex lobe, with the exact sphere on: the exact sphere's a with R* = 1/(1/R + κ) < R,
+    // smaller than the paper's √(R δ).
     let mut paper = static_world(ModelSpec::PAPER);
     let mut curved = static_world(combined());
     let top = liver::top_contact();
@@ -188,7 +189,10 @@ fn the_contact_radius_follows_the_curvature() {
     );
     let kappa = curved.geometry().curvature_1_per_m;
     assert!(kappa > 0.0);
-    let expected = (c.depth_m / (1.0 / 0.01 + kappa)).sqrt();
+    let expected = softhaptic_proto::deformation::exact_sphere_contact_radius_m(
+        1.0 / (1.0 / 0.01 + kappa),
+        c.depth_m,
+    );
     assert!((c.contact_radius_m - expected).abs() < 1e-15);
     assert!(c.contact_radius_m < p.contact_radius_m);
 }

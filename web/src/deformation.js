@@ -54,12 +54,39 @@ export function toolFromJson(tool) {
 
 /**
  * Contact radius a of the closed-form laws: √(Rδ) for a sphere (Hertz), 2δ·tanα/π for a cone
- * (Sneddon, α the half-angle between axis and flank).
+ * (Sneddon, α the half-angle between axis and flank). A model with the exact sphere streams
+ * `exactSphereContactRadius` instead.
  */
 export function contactRadius(tool, depthM) {
   const d = sanitise(depthM);
   if (tool.shape === 'sphere') return Math.sqrt(tool.radiusM * d);
   return (2 * d * tool.tanAlpha) / Math.PI;
+}
+
+/** Newton steps of `exactSphereContactRadius` (4 reach the last bits; 6 leave a margin). */
+const EXACT_SPHERE_NEWTON_STEPS = 6;
+/** From δ/R = 20 on, tanh of the root is 1 to the last bit: a = R exactly. */
+const EXACT_SPHERE_SATURATED_DEPTH_OVER_RADIUS = 20;
+
+/**
+ * Contact radius a of Sneddon's exact sphere (not Hertz's paraboloid), what a contact streams
+ * when its model uses the exact sphere: the root a ∈ [0, R) of δ = (a/2)·ln((R+a)/(R−a)), solved
+ * for t = atanh(a/R) (t·tanh t = δ/R) by the same Newton steps as the Rust reference
+ * (`proto::deformation::exact_sphere_contact_radius_m`). a ≈ √(Rδ) shallow, 0.834·R at δ = R,
+ * → R deep; 0 for a non-finite or non-positive depth or radius, R for an infinite depth.
+ */
+export function exactSphereContactRadius(radiusM, depthM) {
+  if (!(Number.isFinite(radiusM) && radiusM > 0) || Number.isNaN(depthM) || !(depthM > 0)) return 0;
+  const s = depthM / radiusM;
+  if (s >= EXACT_SPHERE_SATURATED_DEPTH_OVER_RADIUS) return radiusM;
+  let t = Math.sqrt(s) * Math.sqrt(1 + s / 3);
+  for (let k = 0; k < EXACT_SPHERE_NEWTON_STEPS; k++) {
+    const tanhT = Math.tanh(t);
+    // The slope tanh t + t·sech² t is > 0 for t > 0, and t stays > 0 from t₀ > 0.
+    const slope = tanhT + t * (1 - tanhT * tanhT);
+    t -= (t * tanhT - s) / slope;
+  }
+  return radiusM * Math.tanh(t);
 }
 
 /** Depth of the tool surface below its tip plane at radial distance r (profile step 2). */

@@ -1,5 +1,6 @@
 // The deformation profile against the shared vectors written by the Rust reference, against
-// the wire contract's definition, and MeshDeformer on real grids.
+// the wire contract's definition, and MeshDeformer on real grids. Long (over 700 lines) because
+// both profiles, the paper's and the FEM's, are checked those same three ways with shared helpers.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
@@ -10,6 +11,7 @@ import {
   contactRadius,
   depression,
   depressionAt,
+  exactSphereContactRadius,
   profileSetup,
   profileTable,
   surfaceDepressionAt,
@@ -58,6 +60,39 @@ test('profile equals the Rust reference on every shared vector', () => {
     );
     close(z, num(v.depression_m), `vector ${i} ${JSON.stringify(v)}`);
   }
+});
+
+test("the exact sphere's contact radius equals the Rust reference on every sphere vector", () => {
+  const list = JSON.parse(readFileSync(VECTORS, 'utf8'));
+  const spheres = list.filter((v) => v.tool.shape === 'sphere');
+  assert.ok(spheres.length > 0 && spheres.every((v) => typeof v.exact_sphere_contact_radius_m === 'number'));
+  for (const [i, v] of spheres.entries()) {
+    const a = exactSphereContactRadius(v.tool.radius_m, num(v.depth_m));
+    close(a, v.exact_sphere_contact_radius_m, `sphere vector ${i} ${JSON.stringify(v)}`);
+  }
+  // The cases reach past δ = R, where the exact sphere's contact is still narrower than the tool.
+  assert.ok(
+    spheres.some((v) => num(v.depth_m) >= v.tool.radius_m && v.exact_sphere_contact_radius_m < 0.9 * v.tool.radius_m),
+  );
+});
+
+test("the exact sphere's contact radius solves its law, is Hertz's when shallow and stays inside the tool", () => {
+  const R = 10 * MM;
+  // δ = (a/2)·ln((R+a)/(R−a)), written with log1p so that it is accurate for a ≪ R.
+  const depthOf = (a) => 0.5 * a * Math.log1p((2 * a) / (R - a));
+  let last = 0;
+  for (let k = 1; k <= 200; k++) {
+    const d = 0.1 * MM * k;
+    const a = exactSphereContactRadius(R, d);
+    assert.ok(a > last && a < Math.sqrt(R * d) && a < R, `δ = ${d}: a = ${a}`);
+    if (a < 0.999 * R) close(depthOf(a), d, `δ = ${d}`);
+    last = a;
+  }
+  close(exactSphereContactRadius(R, R), 0.8335565596 * R, 'δ = R');
+  assert.ok(Math.abs(exactSphereContactRadius(R, 1e-6 * R) / Math.sqrt(R * 1e-6 * R) - 1) < 1e-6);
+  for (const d of [0, -MM, NaN, -Infinity]) assert.equal(exactSphereContactRadius(R, d), 0);
+  for (const r of [0, -R, NaN, Infinity]) assert.equal(exactSphereContactRadius(r, MM), 0);
+  assert.equal(exactSphereContactRadius(R, Infinity), R);
 });
 
 test('centre of the contact is pressed by the full depth', () => {

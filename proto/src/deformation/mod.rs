@@ -20,6 +20,11 @@
 //! The viewer draws the `fem` profile on its render mesh from a [`SurfaceTable`], the profile
 //! sampled once per frame, within 2 µm of it.
 //!
+//! The `paper` profile's contact radius a is the one the contact streams: the contact law's
+//! (Hertz's √(Rδ), Sneddon's 2δ tanα/π, bent by the object's curvature when the model is), or
+//! Sneddon's exact sphere's ([`exact_sphere_contact_radius_m`]) when the model uses the exact
+//! sphere, which stays inside the tool at every depth where Hertz's reaches R at δ = R.
+//!
 //! The viewer (web/src) implements the same functions in JavaScript; the shared vectors in
 //! `proto/vectors/deformation.json` and `proto/vectors/surface_profile.json`, written from this
 //! code, keep the two identical. Every degenerate input (zero depth, R_d inside the contact, a
@@ -30,10 +35,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::tool::ToolShape;
 
+mod exact_sphere;
 mod fem;
 mod paper;
 mod vectors;
 
+pub use exact_sphere::exact_sphere_contact_radius_m;
 pub use fem::{
     SURFACE_TABLE_INTERVALS, SurfaceFamily, SurfaceFamilyError, SurfaceProfile, SurfaceRow,
     SurfaceTable,

@@ -5,9 +5,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::tool::ToolShape;
 
-use super::{DeformationProfile, SURFACE_TABLE_INTERVALS, SurfaceFamily, SurfaceRow};
+use super::{
+    DeformationProfile, SURFACE_TABLE_INTERVALS, SurfaceFamily, SurfaceRow,
+    exact_sphere_contact_radius_m,
+};
 
-/// One entry of `proto/vectors/deformation.json`: inputs and the expected depression.
+/// One entry of `proto/vectors/deformation.json`: inputs and the expected depression, and for a
+/// sphere the exact sphere's contact radius at the entry's depth.
 ///
 /// JSON has no NaN or infinity, so non-finite inputs are written as the strings `"NaN"`,
 /// `"Infinity"` and `"-Infinity"` (the spellings of JavaScript's `Number()`).
@@ -23,6 +27,10 @@ pub struct DeformationVector {
     #[serde(with = "number_or_name")]
     pub r_m: f64,
     pub depression_m: f64,
+    /// Sphere tools only: [`exact_sphere_contact_radius_m`] of the tool's radius at `depth_m`,
+    /// the contact radius a model with the exact sphere streams (always finite).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exact_sphere_contact_radius_m: Option<f64>,
 }
 
 /// A finite `f64` as a JSON number, a non-finite one as its name.
@@ -66,7 +74,9 @@ mod number_or_name {
 
 /// The shared deformation vectors: normal contacts of a sphere and of cones (45° and 30°) swept
 /// across every region, and each degenerate case of proto/WIRE.md (zero and negative depth, R_d
-/// inside the contact, contact wider than the tool, zero contact radius, negative radius).
+/// inside the contact, contact wider than the tool, zero contact radius, negative radius); the
+/// sphere also drawn with the exact sphere's contact radius from a micrometre to far past δ = R,
+/// each sphere entry carrying that radius at its depth.
 pub fn deformation_vectors() -> Vec<DeformationVector> {
     const MM: f64 = 1e-3;
     let sphere = ToolShape::Sphere {
@@ -112,6 +122,20 @@ pub fn deformation_vectors() -> Vec<DeformationVector> {
     cases.push((sphere, f64::INFINITY, 0.002, 20.0 * MM));
     cases.push((sphere, 2.0 * MM, f64::NAN, 20.0 * MM));
     cases.push((cone45, 2.0 * MM, law_a(&cone45, 2.0 * MM), f64::INFINITY));
+    // The exact sphere's contact radius, as a model with the exact sphere streams it: a
+    // micrometre deep (Hertz's to 7 digits), at depth, at δ = R (0.83 R, where Hertz's reaches R
+    // and the flank would vanish), past it, and where it is R to the last bit.
+    for (d_mm, rd_mm) in [
+        (1e-3, 0.5),
+        (4.0, 25.0),
+        (10.0, 31.0),
+        (15.0, 60.0),
+        (250.0, 300.0),
+    ] {
+        let d = d_mm * MM;
+        let a = exact_sphere_contact_radius_m(sphere.radius_m(), d);
+        cases.push((sphere, d, a, rd_mm * MM));
+    }
 
     let mut out = Vec::new();
     for (tool, depth_m, contact_radius_m, deformed_radius_m) in cases {
@@ -135,6 +159,12 @@ pub fn deformation_vectors() -> Vec<DeformationVector> {
                 deformed_radius_m,
                 r_m,
                 depression_m: p.depression_m(r_m),
+                exact_sphere_contact_radius_m: match tool {
+                    ToolShape::Sphere { radius_m } => {
+                        Some(exact_sphere_contact_radius_m(radius_m, depth_m))
+                    }
+                    ToolShape::Cone { .. } => None,
+                },
             });
         }
     }
@@ -308,7 +338,31 @@ mod tests {
                 b.r_m,
             );
             assert_eq!(z, b.depression_m);
+            let exact = match b.tool {
+                ToolShape::Sphere { radius_m } => {
+                    Some(exact_sphere_contact_radius_m(radius_m, b.depth_m))
+                }
+                ToolShape::Cone { .. } => None,
+            };
+            assert_eq!(exact, b.exact_sphere_contact_radius_m);
         }
+        // The exact sphere's radius is drawn below δ = R, at it and past it, never as wide as the
+        // tool before it saturates.
+        let exact: Vec<(f64, f64)> = vectors
+            .iter()
+            .filter_map(|v| Some((v.depth_m, v.exact_sphere_contact_radius_m?)))
+            .collect();
+        assert!(
+            exact
+                .iter()
+                .any(|&(d, a)| (d - 0.01).abs() < 1e-12 && a > 0.0083 && a < 0.0084)
+        );
+        assert!(
+            exact
+                .iter()
+                .any(|&(d, a)| (d - 0.25).abs() < 1e-12 && a == 0.01)
+        );
+        assert!(exact.iter().any(|&(d, a)| d.is_nan() && a == 0.0));
     }
 
     #[test]
