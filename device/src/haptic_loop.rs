@@ -1,7 +1,7 @@
 //! The 1 kHz loop thread.
 //!
 //! One file because the tick's order (read, step, command, publish) and its real-time rules are
-//! checked by reading it top to bottom; the last 240 lines are its tests.
+//! checked by reading it top to bottom; the last 360 lines are its tests.
 //!
 //! [`HapticLoop::spawn`] moves a device and a [`HapticWorld`] onto a dedicated std thread that,
 //! every period: waits for its absolute deadline, reads the device, steps the world, commands the

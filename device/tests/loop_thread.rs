@@ -6,7 +6,7 @@
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use glam::DVec3;
 use softhaptic_device::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
@@ -62,23 +62,38 @@ fn setup() -> (Watched, HapticWorld, Arc<AtomicU64>, Arc<AtomicU64>) {
     (device, world, last_force_bits, commands)
 }
 
+/// Starts the loop thread on `device` and `world` with `config`: [`test_loop`], or what a test
+/// changes of it.
+fn spawn(
+    device: impl HapticDevice + 'static,
+    world: HapticWorld,
+    config: LoopConfig,
+) -> Result<HapticLoop, LoopError> {
+    HapticLoop::spawn(Box::new(device), world, config)
+}
+
+/// Polls `done` every 5 ms until it holds, however loaded the machine; fails with `what` after
+/// 20 s.
+fn wait_until(what: &str, mut done: impl FnMut() -> bool) {
+    let give_up = Instant::now() + Duration::from_secs(20);
+    while !done() {
+        assert!(Instant::now() < give_up, "{what}");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
 #[test]
 fn loop_runs_publishes_and_stops_with_zero_force() {
     let (device, world, last_force_bits, commands) = setup();
     // A small ring that the test drains only partly: some records arrive, some are dropped.
     let (producer, mut consumer) = rtrb::RingBuffer::<TickRecord>::new(64);
-    let haptic = HapticLoop::spawn(Box::new(device), world, test_loop(Some(producer))).unwrap();
+    let haptic = spawn(device, world, test_loop(Some(producer))).unwrap();
     assert!(!haptic.realtime().requested);
 
-    // Wait for 150 ms of device time (the hand is pressing by then), however loaded the machine.
-    let give_up = std::time::Instant::now() + Duration::from_secs(20);
-    while haptic.latest_contact().time_ns < 150_000_000 {
-        assert!(
-            std::time::Instant::now() < give_up,
-            "the loop does not advance"
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    // Wait for 150 ms of device time (the hand is pressing by then).
+    wait_until("the loop does not advance", || {
+        haptic.latest_contact().time_ns >= 150_000_000
+    });
     let early = haptic.latest_contact();
     // Read the publication from another thread while the loop runs.
     let reader = std::thread::scope(|s| {
@@ -140,14 +155,12 @@ fn loop_runs_publishes_and_stops_with_zero_force() {
 #[test]
 fn zero_period_is_refused() {
     let (device, world, _, _) = setup();
-    let err = HapticLoop::spawn(
-        Box::new(device),
+    let err = spawn(
+        device,
         world,
         LoopConfig {
             period_ns: 0,
-            realtime: false,
-            tick_sink: None,
-            standby: true,
+            ..test_loop(None)
         },
     )
     .err()
@@ -159,21 +172,11 @@ fn zero_period_is_refused() {
 #[test]
 fn dropping_the_loop_stops_the_thread_and_releases_the_device() {
     let (device, world, last_force_bits, commands) = setup();
-    let haptic = HapticLoop::spawn(
-        Box::new(device),
-        world,
-        LoopConfig {
-            realtime: false,
-            ..LoopConfig::default()
-        },
-    )
-    .unwrap();
-    let give_up = std::time::Instant::now() + Duration::from_secs(20);
+    let haptic = spawn(device, world, test_loop(None)).unwrap();
     // Pressing with a force by now.
-    while f64::from_bits(last_force_bits.load(Ordering::Relaxed)) == 0.0 {
-        assert!(std::time::Instant::now() < give_up, "no force commanded");
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    wait_until("no force commanded", || {
+        f64::from_bits(last_force_bits.load(Ordering::Relaxed)) != 0.0
+    });
     drop(haptic);
     // The threads are gone with the device they held (their handles to the counters with it),
     // and the device's last command was zero force.
@@ -200,8 +203,8 @@ impl HapticDevice for Stalling {
     fn read(&mut self) -> Result<DeviceSample, DeviceError> {
         self.reads += 1;
         if self.reads.is_multiple_of(50) {
-            let until = std::time::Instant::now() + Duration::from_micros(2500);
-            while std::time::Instant::now() < until {
+            let until = Instant::now() + Duration::from_micros(2500);
+            while Instant::now() < until {
                 std::hint::spin_loop();
             }
             self.stalls.fetch_add(1, Ordering::Relaxed);
@@ -222,23 +225,10 @@ fn stalls_are_counted_as_overruns() {
         reads: 0,
         stalls: Arc::clone(&stalls),
     };
-    let haptic = HapticLoop::spawn(
-        Box::new(device),
-        world,
-        LoopConfig {
-            realtime: false,
-            ..LoopConfig::default()
-        },
-    )
-    .unwrap();
-    let give_up = std::time::Instant::now() + Duration::from_secs(20);
-    while stalls.load(Ordering::Relaxed) < 4 {
-        assert!(
-            std::time::Instant::now() < give_up,
-            "the loop does not advance"
-        );
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    let haptic = spawn(device, world, test_loop(None)).unwrap();
+    wait_until("the loop does not advance", || {
+        stalls.load(Ordering::Relaxed) >= 4
+    });
     let stats = haptic.stop();
     let stalled = stalls.load(Ordering::Relaxed);
     println!("{stalled} stalls: {stats:?}");
@@ -252,12 +242,12 @@ fn stalls_are_counted_as_overruns() {
 #[test]
 fn realtime_request_is_reported_consistently() {
     let (device, world, _, _) = setup();
-    let haptic = HapticLoop::spawn(
-        Box::new(device),
+    let haptic = spawn(
+        device,
         world,
         LoopConfig {
             realtime: true,
-            ..LoopConfig::default()
+            ..test_loop(None)
         },
     )
     .unwrap();

@@ -1,7 +1,7 @@
 //! The session log: what a recording holds, channel by channel.
 //!
 //! Long because every channel's record type lives here, so that the table below is complete in one
-//! file; the last 180 lines are its tests.
+//! file; the last 270 lines are its tests.
 //!
 //! A session is recorded to one MCAP file with JSON-encoded messages and a JSON schema per channel,
 //! so that generic tools (Foxglove, `mcap cat`) can open it without this project's code:

@@ -25,6 +25,8 @@ pub enum FileKind {
     Secrets,
     /// A TLS certificate chain or private key (PEM): a few kB, a long chain a few tens.
     Pem,
+    /// The viewer's page (`index.html`), read for its scripts' hashes: a few kB.
+    Page,
 }
 
 impl FileKind {
@@ -37,6 +39,7 @@ impl FileKind {
             FileKind::Recording => 4 << 30,
             FileKind::Secrets => 64 << 10,
             FileKind::Pem => 1 << 20,
+            FileKind::Page => 1 << 20,
         }
     }
 
@@ -48,6 +51,7 @@ impl FileKind {
             FileKind::Recording => "a recording",
             FileKind::Secrets => "a token or credentials file",
             FileKind::Pem => "a PEM certificate or key file",
+            FileKind::Page => "the viewer's page",
         }
     }
 }

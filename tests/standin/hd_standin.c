@@ -1,6 +1,10 @@
 /*
  * A stand-in for OpenHaptics' HD API library (libHD.so), for tests without a PHANTOM.
  *
+ * One file of 1400 lines because it is one library: the device, the hand, the scheduler and the
+ * error stack are static state that every HD function shares under the locks described below, and
+ * one file keeps that state private; the last 200 lines are the test controls.
+ *
  * The test build compiles this file into a shared library named libHD.so, and the OpenHaptics
  * backend loads it through the very path it loads the vendor's library through. It exports the
  * HD API functions the backend calls, with the same C signatures, and keeps the rules that make

@@ -6,6 +6,9 @@
 //!
 //! The stand-in is one library per process with one device, so the tests here take turns
 //! ([`standin`]).
+//!
+//! Long (730 lines) because its twelve tests share the 200 lines of server, stand-in and
+//! assertion helpers above them.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 

@@ -2,7 +2,9 @@
 //! neo-Hookean FEM, and the speed-versus-accuracy table of every runtime model.
 //!
 //! One file for three studies because they share their FEM runs and constants: the hyperelastic fit
-//! is made on the force study's runs and feeds the speed-accuracy table.
+//! is made on the force study's runs and feeds the speed-accuracy table. Hence the length: the
+//! shared runs take 145 lines, the force study 125, the fit and its transfer check 235, the
+//! speed-accuracy table 190.
 
 use serde::Serialize;
 use softhaptic_device::law;
@@ -14,6 +16,9 @@ use super::{
     ExperimentError, FORCE_BLOCK_M, IndentationRun, JND_PERCENT, MATERIAL, MM, Mode, Resolution,
     RunCache, RunSpec, block_body, depths, first_crossing, spec,
 };
+// The §4.3 tools stand with what every study shares, since the verification and the ν study
+// press them too; they are named from here as well, where a reader of §4.3 looks for them.
+pub use super::force_tools;
 use crate::analytic;
 use crate::element::LawKind;
 use crate::mesh::Symmetry;
@@ -65,20 +70,6 @@ pub fn force_depths(mode: Mode) -> Vec<f64> {
         Mode::Quick => depths(1.0, 6.0, 1.0),
         Mode::Full => depths(0.5, 6.0, 0.5),
     }
-}
-
-/// The §4.3 tools: sphere R = 6 mm and a 45° cone of base radius 6 mm.
-pub fn force_tools() -> [(&'static str, ToolShape); 2] {
-    [
-        ("sphere6", ToolShape::Sphere { radius_m: 0.006 }),
-        (
-            "cone6_45",
-            ToolShape::Cone {
-                half_angle_rad: std::f64::consts::FRAC_PI_4,
-                radius_m: 0.006,
-            },
-        ),
-    ]
 }
 
 /// Thickness of the §4.3 block: the layer of the thickness-corrected models.

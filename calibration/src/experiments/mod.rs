@@ -402,6 +402,21 @@ pub fn tool_description(tool: &ToolShape) -> String {
     }
 }
 
+/// The §4.3 tools: sphere R = 6 mm and a 45° cone of base radius 6 mm; the deep-block check of
+/// the verification and the ν study press the same two.
+pub fn force_tools() -> [(&'static str, ToolShape); 2] {
+    [
+        ("sphere6", ToolShape::Sphere { radius_m: 0.006 }),
+        (
+            "cone6_45",
+            ToolShape::Cone {
+                half_angle_rad: std::f64::consts::FRAC_PI_4,
+                radius_m: 0.006,
+            },
+        ),
+    ]
+}
+
 /// The paper's tools of radius 10 mm: a sphere and a 45° cone.
 pub fn paper_tools_10mm() -> [(&'static str, ToolShape); 2] {
     [

@@ -8,8 +8,8 @@ use softhaptic_device::model::LocalGeometry;
 use softhaptic_proto::{Material, ModelSpec, ToolShape};
 
 use super::{
-    Body, ExperimentError, MATERIAL, MM, Mode, Resolution, RunCache, RunSpec, depths,
-    force::force_tools, max_contact_radius_m,
+    Body, ExperimentError, MATERIAL, MM, Mode, Resolution, RunCache, RunSpec, depths, force_tools,
+    max_contact_radius_m,
 };
 use crate::analytic;
 use crate::element::{Constitutive, LawKind};

@@ -157,7 +157,8 @@ impl Access {
     /// script hashes).
     pub fn new(config: AccessConfig, web_dir: &Path) -> Self {
         let index = web_dir.join("index.html");
-        let page = match std::fs::read_to_string(&index) {
+        // Bounded and regular files only: a FIFO or a huge file put there must not hang the start.
+        let page = match crate::files::read_text(&index, crate::files::FileKind::Page) {
             Ok(page) => page,
             Err(e) => {
                 tracing::debug!(file = %index.display(), error = %e, "no viewer page to hash for the CSP");

@@ -6,9 +6,8 @@ use std::path::{Path, PathBuf};
 use softhaptic_proto::calibration::PAPER_THRESHOLD_M;
 use softhaptic_proto::{CalibrationError, CalibrationTable, Material, ModelLimitsFile, ToolShape};
 
-use super::SceneError;
 use super::file::SceneFile;
-use super::load::{FileBase, ModelSource};
+use super::{FileBase, ModelSource, SceneError};
 use crate::files::{self, FileKind, ReadError};
 
 /// The limits file a scene uses when it names none, relative to the scene file.
@@ -34,15 +33,6 @@ const EMBEDDED_TABLES: [(&str, &str); 4] = [
         include_str!("../../../scenes/calibration/cone10_45_1500kpa.json"),
     ),
 ];
-
-/// The `scenes/` directory of the source tree this binary was built from.
-pub fn source_tree_scenes_dir() -> PathBuf {
-    let server = Path::new(env!("CARGO_MANIFEST_DIR"));
-    server
-        .parent()
-        .map_or_else(|| server.join(".."), Path::to_path_buf)
-        .join("scenes")
-}
 
 /// Reads the limits file: the one `named` in the scene (which must exist), or the default one
 /// (whose absence means the paper's limits, logged). `None` when there is no file.

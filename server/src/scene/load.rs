@@ -3,7 +3,7 @@
 //! contact model with its validity limits. Every value is checked here, and a refused one names
 //! its field.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
 use glam::{DQuat, DVec3};
@@ -11,39 +11,12 @@ use softhaptic_device::force::ForceConfig;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::spacemouse::rate::RateConfig;
-use softhaptic_proto::record::{MeshRecord, SceneRecord};
+use softhaptic_proto::record::MeshRecord;
 use softhaptic_proto::{ModelError, Pose, ToolShape, ValidityLimits};
 
-use super::calibration::{self, source_tree_scenes_dir};
+use super::calibration;
 use super::file::{Builtin, DeviceKind, SceneFile, WorldFromDeviceSection, identity_quaternion};
-use super::{RenderSurface, Scene, SceneError, obj};
-
-/// Where a scene's relative file names resolve: the scene file's directory, or, for a built-in
-/// scene, the tables built into the binary and the source tree's `scenes/`.
-#[derive(Debug, Clone, Copy)]
-pub(super) enum FileBase<'a> {
-    Dir(&'a Path),
-    BuiltIn,
-}
-
-impl FileBase<'_> {
-    pub(super) fn resolve(&self, p: &Path) -> PathBuf {
-        match self {
-            FileBase::Dir(base) => base.join(p),
-            FileBase::BuiltIn => source_tree_scenes_dir().join(p),
-        }
-    }
-}
-
-/// Where the object's model and its limits come from.
-#[derive(Debug, Clone, Copy)]
-pub(super) enum ModelSource<'a> {
-    /// The scene file's `[object.model]` and limits file.
-    File,
-    /// A recording: the model and limits its `scene` message says the session ran with, its
-    /// calibration table, and the meshes it holds (never the files its scene names).
-    Recorded(&'a SceneRecord),
-}
+use super::{FileBase, ModelSource, RenderSurface, Scene, SceneError, obj};
 
 impl Scene {
     /// Validates a parsed scene file and loads what it names; `path` names the scene in errors,

@@ -102,6 +102,9 @@
 //!   recording's) and the model-limits file.
 //! - `obj`: the OBJ reader.
 //! - `message`: the `scene` message the viewers are sent for a scene ([`Scene::message`]).
+//! - here: the [`Scene`] itself, its errors, and what `load` and `calibration` both ask: where a
+//!   scene's files resolve (`FileBase`) and whether its model comes from the files or from a
+//!   recording (`ModelSource`).
 //!
 //! The render mesh's wire encoding ("SHM1") belongs to the wire, beside its specification:
 //! [`softhaptic_proto::wire::shm1`].
@@ -131,7 +134,7 @@ mod load;
 mod message;
 mod obj;
 
-pub use calibration::{DEFAULT_LIMITS_FILE, source_tree_scenes_dir, validate_limits};
+pub use calibration::{DEFAULT_LIMITS_FILE, validate_limits};
 pub use file::{
     Builtin, CalibrationSection, CollisionModeName, DeviceChoice, DeviceKind, DeviceModel,
     DeviceSection, HapticsSection, MaterialSection, ObjectSection, RateSection, RenderSection,
@@ -176,6 +179,42 @@ pub enum SceneError {
         file: PathBuf,
         reason: String,
     },
+}
+
+/// The `scenes/` directory of the source tree this binary was built from.
+pub fn source_tree_scenes_dir() -> PathBuf {
+    let server = Path::new(env!("CARGO_MANIFEST_DIR"));
+    server
+        .parent()
+        .map_or_else(|| server.join(".."), Path::to_path_buf)
+        .join("scenes")
+}
+
+/// Where a scene's relative file names resolve: the scene file's directory, or, for a built-in
+/// scene, the tables built into the binary and the source tree's `scenes/`.
+#[derive(Debug, Clone, Copy)]
+enum FileBase<'a> {
+    Dir(&'a Path),
+    BuiltIn,
+}
+
+impl FileBase<'_> {
+    fn resolve(&self, p: &Path) -> PathBuf {
+        match self {
+            FileBase::Dir(base) => base.join(p),
+            FileBase::BuiltIn => source_tree_scenes_dir().join(p),
+        }
+    }
+}
+
+/// Where the object's model and its limits come from.
+#[derive(Debug, Clone, Copy)]
+enum ModelSource<'a> {
+    /// The scene file's `[object.model]` and limits file.
+    File,
+    /// A recording: the model and limits its `scene` message says the session ran with, its
+    /// calibration table, and the meshes it holds (never the files its scene names).
+    Recorded(&'a SceneRecord),
 }
 
 /// A render surface in the object's frame with unit vertex normals.
@@ -283,7 +322,7 @@ impl Scene {
     /// relative files (`None`: a built-in scene, whose files resolve as the module docs say).
     pub fn from_toml(text: &str, path: &Path, base: Option<&Path>) -> Result<Scene, SceneError> {
         let file = SceneFile::parse(text, path)?;
-        let mut scene = Self::from_file(file, path, base, load::ModelSource::File)?;
+        let mut scene = Self::from_file(file, path, base, ModelSource::File)?;
         scene.source_toml = text.to_owned();
         Ok(scene)
     }
@@ -296,7 +335,7 @@ impl Scene {
     /// `path` names the recording's scene in errors.
     pub fn from_recording(record: &SceneRecord, path: &Path) -> Result<Scene, SceneError> {
         let file = SceneFile::parse(&record.scene_toml, path)?;
-        let mut scene = Self::from_file(file, path, None, load::ModelSource::Recorded(record))?;
+        let mut scene = Self::from_file(file, path, None, ModelSource::Recorded(record))?;
         scene.meshes_from_files = record.meshes.is_some();
         scene.source_toml = record.scene_toml.clone();
         Ok(scene)
