@@ -1,7 +1,8 @@
 //! The real `softhaptic` binary on a machine without OpenHaptics: asking for the device stops
 //! the start with where the library was looked for and how to install it, before anything
-//! listens or records; `softhaptic devices` still lists what there is and exits 0; a bad
-//! `--device` is refused by the command line.
+//! listens or records; a SpaceMouse that is not there is refused the same way, its cause said
+//! once; `softhaptic devices` still lists what there is and exits 0; a bad `--device` is refused
+//! by the command line.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -199,4 +200,36 @@ fn an_unknown_device_kind_is_refused_by_the_command_line() {
         err.contains("unknown device kind \"falcon\"") && err.contains("openhaptics"),
         "{err}"
     );
+}
+
+#[test]
+fn a_spacemouse_that_is_not_plugged_in_is_named_once_and_nothing_starts() {
+    let record_dir = scratch("spacemouse-cli");
+    // A serial no device has: refused the same way on a desk with a SpaceMouse plugged in.
+    let out = softhaptic(
+        &[
+            "--device",
+            "spacemouse:NO-SUCH-SERIAL-0000",
+            "--addr",
+            "127.0.0.1:0",
+            "--record-dir",
+            &record_dir.display().to_string(),
+        ],
+        None,
+    );
+    assert_nothing_started(&out, &record_dir);
+    let err = String::from_utf8_lossy(&out.stderr);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("error: "))
+        .unwrap_or_else(|| panic!("no error line in:\n{err}"));
+    for once in [
+        "no SpaceMouse found",
+        "NO-SUCH-SERIAL-0000",
+        "plug one in",
+        "softhaptic devices",
+    ] {
+        assert_eq!(line.matches(once).count(), 1, "{once:?} once in:\n{line}");
+    }
+    let _ = std::fs::remove_dir_all(&record_dir);
 }

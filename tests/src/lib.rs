@@ -106,6 +106,23 @@ impl RecordedServer {
     }
 }
 
+/// A replay's options: a free loopback port, the repository's viewer, no tokens, at `speed`,
+/// paused or playing from the start.
+pub fn replay_options(
+    speed: f64,
+    start_paused: bool,
+) -> softhaptic_server::session::replay::ReplayOptions {
+    softhaptic_server::session::replay::ReplayOptions {
+        addr: ([127, 0, 0, 1], 0).into(),
+        web_dir: app::default_web_dir(),
+        speed,
+        start_paused,
+        viewer_limits: softhaptic_server::stream::ViewerLimits::default(),
+        access: softhaptic_server::access::AccessConfig::default(),
+        tls: None,
+    }
+}
+
 /// Starts the built-in default scene with `options`.
 pub async fn start_default(options: ServerOptions) -> RunningServer {
     let scene = Scene::builtin_default().expect("the built-in scene loads");

@@ -10,15 +10,12 @@ use std::time::{Duration, Instant};
 use futures_util::StreamExt;
 use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{MarkMessage, ServerMessage};
-use softhaptic_server::access::AccessConfig;
-use softhaptic_server::app::default_web_dir;
 use softhaptic_server::scene::Scene;
 use softhaptic_server::session::reader::Recording;
-use softhaptic_server::session::replay::{self, ReplayOptions};
+use softhaptic_server::session::replay;
 use softhaptic_server::session::tools::{Info, export};
 use softhaptic_server::stream::{
     MAX_MARKS, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_MARKS_FULL,
-    ViewerLimits,
 };
 use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
 use tokio_tungstenite::tungstenite::Message;
@@ -115,20 +112,9 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     assert_eq!(written.marks.parent(), written.metrics.parent());
 
     // The replay shows it to its viewers and on its timeline; it takes no new marks.
-    let replay = replay::start(
-        r,
-        ReplayOptions {
-            addr: ([127, 0, 0, 1], 0).into(),
-            web_dir: default_web_dir(),
-            speed: 1.0,
-            start_paused: true,
-            viewer_limits: ViewerLimits::default(),
-            access: AccessConfig::default(),
-            tls: None,
-        },
-    )
-    .await
-    .unwrap();
+    let replay = replay::start(r, softhaptic_tests::replay_options(1.0, true))
+        .await
+        .unwrap();
     let mut watcher = Viewer::connect(replay.local_addr()).await;
     assert_eq!(mark_of(&next_of(&mut watcher, "mark").await), seen);
     let status: ReplayStatus =

@@ -9,14 +9,12 @@
 use std::time::{Duration, Instant};
 
 use softhaptic_proto::wire::ServerMessage;
-use softhaptic_server::access::AccessConfig;
-use softhaptic_server::app::default_web_dir;
 use softhaptic_server::scene::Scene;
 use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
-use softhaptic_server::session::replay::{self, ReplayOptions};
+use softhaptic_server::session::replay;
 use softhaptic_server::session::tools::{Info, export, recorded_safe_force_n, recording_metrics};
-use softhaptic_server::stream::{ViewerLimits, metrics_message};
+use softhaptic_server::stream::metrics_message;
 use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -95,20 +93,9 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     assert_eq!(exported, metrics_message(&recorded, true));
 
     // The replay sends them on the recording's timeline: once a second, then the final ones.
-    let replay = replay::start(
-        r.clone(),
-        ReplayOptions {
-            addr: ([127, 0, 0, 1], 0).into(),
-            web_dir: default_web_dir(),
-            speed: 8.0,
-            start_paused: false,
-            viewer_limits: ViewerLimits::default(),
-            access: AccessConfig::default(),
-            tls: None,
-        },
-    )
-    .await
-    .unwrap();
+    let replay = replay::start(r.clone(), softhaptic_tests::replay_options(8.0, false))
+        .await
+        .unwrap();
     let mut watcher = Viewer::connect(replay.local_addr()).await;
     let deadline = Instant::now() + Duration::from_secs(120);
     let mut seen = Vec::new();
@@ -261,20 +248,9 @@ async fn a_seek_sends_the_metrics_of_the_new_position() {
         .collect();
     assert!(timeline.len() >= 3, "{timeline:?}");
     let start_ns = r.contacts[0].time_ns;
-    let replay = replay::start(
-        r.clone(),
-        ReplayOptions {
-            addr: ([127, 0, 0, 1], 0).into(),
-            web_dir: default_web_dir(),
-            speed: 1.0,
-            start_paused: true,
-            viewer_limits: ViewerLimits::default(),
-            access: AccessConfig::default(),
-            tls: None,
-        },
-    )
-    .await
-    .unwrap();
+    let replay = replay::start(r.clone(), softhaptic_tests::replay_options(1.0, true))
+        .await
+        .unwrap();
     let mut watcher = Viewer::connect(replay.local_addr()).await;
     assert!(matches!(
         watcher.expect_message(Duration::from_secs(10)).await,
