@@ -12,10 +12,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
-use softhaptic_server::app::default_web_dir;
 use softhaptic_server::lab::NatsOptions;
 use softhaptic_server::lab::archive;
-use softhaptic_server::lab::hub::{self, HubOptions};
 use softhaptic_tests::nats::NatsServer;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
@@ -145,16 +143,7 @@ async fn archived_downloads_are_streamed_not_held_whole_in_the_hubs_memory() {
             .await
             .unwrap();
     }
-    let hub = hub::start(HubOptions {
-        nats,
-        addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: default_web_dir(),
-        access: Default::default(),
-        tls: None,
-        viewer_limits: Default::default(),
-    })
-    .await
-    .unwrap();
+    let hub = softhaptic_tests::nats::start_hub(nats, false).await;
     let addr = hub.local_addr();
 
     // Several downloads at once, each read to its end and compared.
@@ -244,16 +233,7 @@ async fn a_download_whose_parts_do_not_have_the_objects_digest_never_ends_whole(
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
 
-    let hub = hub::start(HubOptions {
-        nats,
-        addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: default_web_dir(),
-        access: Default::default(),
-        tls: None,
-        viewer_limits: Default::default(),
-    })
-    .await
-    .unwrap();
+    let hub = softhaptic_tests::nats::start_hub(nats, false).await;
     // The intact object downloads whole.
     let (status, length, bytes, digest) =
         download(hub.local_addr(), "/stations/desk-d/archive/other.mcap").await;
