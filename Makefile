@@ -25,7 +25,8 @@ lint: rust-tools web-deps
 	cd web && npm run lint && npm run format:check
 
 test-rust: rust-tools nats
-	$(CARGO) test --workspace
+	# Every feature, so the report commands' own tests (their command lines) run too.
+	$(CARGO) test --workspace --all-features
 
 test-web: web-deps chromium nats
 	cd web && npm test
@@ -53,14 +54,28 @@ nats:
 	  $$SUDO apt-get update && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y nats-server; }
 
 # A local teaching lab: nats-server with JetStream, two simulated stations (the liver pressed by
-# a sphere and by a cone) and a hub; Ctrl-C stops them all.
+# a sphere and by a cone) and a hub; Ctrl-C stops them all. Kept in target/lab across runs: the
+# JetStream store (the archive) and each station's recordings, archived by the station when it
+# stops and, for earlier ones, when it starts. desk-1 starts with the shipped sphere-press session
+# so that the hub has an archived session to replay from the first run. NATS is started in a
+# session of its own, so that Ctrl-C reaches the stations first and they archive their sessions
+# before it is stopped.
 lab: rust-tools web-deps nats
 	$(CARGO) build --release -p softhaptic-server --bin softhaptic
-	@dir=$$(mktemp -d); nats=$$(command -v nats-server || echo /usr/sbin/nats-server); \
-	trap 'kill $$(jobs -p) 2>/dev/null; rm -rf "$$dir"' EXIT INT TERM; \
-	$$nats -a 127.0.0.1 -p $(LAB_NATS_PORT) -js -sd "$$dir" & \
-	sleep 1; set -- $(LAB_PORTS); \
-	target/release/softhaptic --no-record --addr 127.0.0.1:$$1 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-1 & \
-	target/release/softhaptic --no-record --addr 127.0.0.1:$$2 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-2 --scene scenes/cone.toml & \
-	target/release/softhaptic hub --nats nats://127.0.0.1:$(LAB_NATS_PORT) --addr 127.0.0.1:$(LAB_HUB_PORT) & \
+	@dir=target/lab; nats=$$(command -v nats-server || echo /usr/sbin/nats-server); \
+	mkdir -p "$$dir/nats" "$$dir/desk-1" "$$dir/desk-2"; \
+	ls "$$dir"/desk-1/*.mcap >/dev/null 2>&1 || cp tests/sessions/sphere-press.mcap "$$dir/desk-1/"; \
+	setsid "$$nats" -a 127.0.0.1 -p $(LAB_NATS_PORT) -js -sd "$$dir/nats" & natspid=$$!; pids=; \
+	trap 'kill $$pids 2>/dev/null; wait $$pids 2>/dev/null; kill $$natspid 2>/dev/null' EXIT; \
+	trap 'exit 130' INT TERM; \
+	tries=0; until bash -c 'exec 3<>/dev/tcp/127.0.0.1/$(LAB_NATS_PORT)' 2>/dev/null; do \
+	  kill -0 $$natspid 2>/dev/null || { echo "make lab: nats-server stopped before it listened on 127.0.0.1:$(LAB_NATS_PORT) (port taken? set LAB_NATS_PORT)" >&2; exit 1; }; \
+	  tries=$$((tries + 1)); [ $$tries -le 100 ] || { echo "make lab: nats-server did not listen on 127.0.0.1:$(LAB_NATS_PORT) within 10 s" >&2; exit 1; }; \
+	  sleep 0.1; \
+	done; \
+	kill -0 $$natspid 2>/dev/null || { echo "make lab: nats-server stopped: is 127.0.0.1:$(LAB_NATS_PORT) another server's? (set LAB_NATS_PORT)" >&2; exit 1; }; \
+	set -- $(LAB_PORTS); \
+	target/release/softhaptic --record-dir "$$dir/desk-1" --addr 127.0.0.1:$$1 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-1 & pids="$$pids $$!"; \
+	target/release/softhaptic --record-dir "$$dir/desk-2" --addr 127.0.0.1:$$2 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-2 --scene scenes/cone.toml & pids="$$pids $$!"; \
+	target/release/softhaptic hub --nats nats://127.0.0.1:$(LAB_NATS_PORT) --addr 127.0.0.1:$(LAB_HUB_PORT) & pids="$$pids $$!"; \
 	wait

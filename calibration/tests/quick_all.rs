@@ -52,7 +52,13 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
         "(best combined)",
         "## Nearly incompressible tissue",
         "Small-deformation linear FEM against Sneddon",
+        "Neo-Hookean FEM against Sneddon at small depths",
         "the bonded layer",
+        "FEM, cells a/2 (N)",
+        "| tool | model | ν | valid depth |",
+        "fem, row held out: max error (mm)",
+        "`sphere10_50kpa_nu49.json`",
+        "`cone10_45_50kpa_nu30.json`",
     ] {
         assert!(report.contains(section), "report lacks {section:?}");
     }
@@ -116,7 +122,15 @@ fn quick_all_writes_parsable_report_tables_limits_csv_and_svg() {
             ToolKind::Cone => (cone, "cone6_45"),
         };
         if l.poisson_ratio.is_some() {
-            // Measured over ν by the Poisson sweep; checked below.
+            // Measured over ν by the Poisson sweep; checked below. The tilted runs are at
+            // ν = 0.33 only, and an inclination limit carried to another ν says so.
+            if l.valid_inclination_rad.is_some() {
+                assert!(
+                    l.reference.contains("measured at ν = 0.33, copied"),
+                    "{}",
+                    l.reference
+                );
+            }
             assert!(
                 !limits.limits.iter().any(|o| o.tool == l.tool
                     && o.model == l.model

@@ -43,7 +43,11 @@ pub fn write_or_check(dir: &Path, check: bool) -> Result<Vec<PathBuf>, VectorsEr
     for (name, contents) in files {
         let path = dir.join(name);
         if check {
-            match std::fs::read_to_string(&path) {
+            // The project's own vector files, read by a command on the main thread with no async
+            // runtime.
+            #[allow(clippy::disallowed_methods)]
+            let on_disk = std::fs::read_to_string(&path);
+            match on_disk {
                 Ok(on_disk) if on_disk == contents => {}
                 Ok(_) => stale.push(path.clone()),
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => stale.push(path.clone()),

@@ -3,8 +3,12 @@
 //! `--tokens` or the environment are printed in the links on stdout and nowhere else: not in
 //! its log (stderr, at debug level), not in the recording (its bytes, and every message
 //! decompressed), not in an error; a wrong token source stops the start naming the file, the
-//! line and the problem, without the token.
+//! line and the problem, without the token; every refusal of a running server (a foreign
+//! Origin, a wrong Host, a connection over its cap, a missing or wrong token, a flood) leaves
+//! its log line, and every viewer connection its audit line, with no token in any of them.
 
+// Test code, synchronous: polls the servers it started and reads the recording one wrote.
+#![allow(clippy::disallowed_methods)]
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::io::{BufRead, BufReader, Read, Write};
@@ -137,12 +141,15 @@ impl Server {
     }
 }
 
-/// `http://HOST:PORT/#token=T` → (`HOST:PORT`, `T`).
-fn split_link(link: &str) -> (String, String) {
+/// `http://HOST:PORT/#token=T&role=R` → (`HOST:PORT`, `T`); checks that the link names `role`.
+fn split_link(link: &str, role: &str) -> (String, String) {
     let rest = link.strip_prefix("http://").expect("an http link");
-    let (addr, token) = rest
-        .split_once("/#token=")
-        .expect("a token in the fragment");
+    let (addr, fragment) = rest.split_once("/#").expect("a fragment");
+    let (token, hint) = fragment
+        .strip_prefix("token=")
+        .and_then(|pairs| pairs.split_once("&role="))
+        .unwrap_or_else(|| panic!("not token=…&role=… in the fragment: {fragment}"));
+    assert_eq!(hint, role, "the link's role hint");
     (addr.to_owned(), token.to_owned())
 }
 
@@ -166,6 +173,33 @@ fn connect(
     socket
 }
 
+/// A WebSocket upgrade to `addr` with `Origin: origin`; the HTTP status of a refused one.
+fn connect_from_origin(
+    addr: &str,
+    origin: &str,
+) -> Result<tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>, u16> {
+    use tungstenite::client::IntoClientRequest;
+    let mut request = format!("ws://{addr}/ws").into_client_request().unwrap();
+    request
+        .headers_mut()
+        .insert("Origin", origin.parse().unwrap());
+    match tungstenite::connect(request) {
+        Ok((socket, _)) => Ok(socket),
+        Err(tungstenite::Error::Http(response)) => Err(response.status().as_u16()),
+        Err(e) => panic!("the upgrade from {origin} failed without an answer: {e}"),
+    }
+}
+
+/// The client side's address of `socket`: the `client` its log lines name.
+fn local_addr(
+    socket: &tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>,
+) -> std::net::SocketAddr {
+    match socket.get_ref() {
+        tungstenite::stream::MaybeTlsStream::Plain(tcp) => tcp.local_addr().unwrap(),
+        _ => unreachable!("a ws:// connection is plain TCP"),
+    }
+}
+
 /// The next text message as JSON; `None` at the close (with its code in the second place).
 fn next_json(
     socket: &mut tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>,
@@ -182,12 +216,17 @@ fn next_json(
 
 /// A GET with an optional bearer token over a plain TCP connection: the whole response.
 fn http_get(addr: &str, path: &str, token: Option<&str>) -> String {
+    http_get_naming(addr, addr, path, token)
+}
+
+/// [`http_get`] with `Host: host`.
+fn http_get_naming(addr: &str, host: &str, path: &str, token: Option<&str>) -> String {
     let mut stream = std::net::TcpStream::connect(addr).unwrap();
     stream.set_read_timeout(Some(DEADLINE)).unwrap();
     let auth = token.map_or_else(String::new, |t| format!("Authorization: Bearer {t}\r\n"));
     write!(
         stream,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Connection: close\r\n\r\n"
+        "GET {path} HTTP/1.1\r\nHost: {host}\r\n{auth}Connection: close\r\n\r\n"
     )
     .unwrap();
     let mut response = Vec::new();
@@ -292,8 +331,8 @@ fn tokens_appear_only_in_the_printed_links_never_in_the_log_the_recording_or_an_
         &[("RUST_LOG", "trace")],
     );
     let recording = PathBuf::from(server.line("recording: "));
-    let (addr, instructor) = split_link(&server.line("viewer: "));
-    let (observer_addr, observer) = split_link(&server.line("observer: "));
+    let (addr, instructor) = split_link(&server.line("viewer: "), "instructor");
+    let (observer_addr, observer) = split_link(&server.line("observer: "), "observer");
     assert_eq!(addr, observer_addr);
     assert!(is_generated_token(&instructor) && is_generated_token(&observer));
     assert_ne!(instructor, observer);
@@ -417,9 +456,12 @@ fn stable_tokens_from_the_environment_are_the_ones_in_the_links_and_not_in_the_l
             ("RUST_LOG", "debug"),
         ],
     );
-    let (addr, from_link) = split_link(&server.line("viewer: "));
+    let (addr, from_link) = split_link(&server.line("viewer: "), "instructor");
     assert_eq!(from_link, instructor);
-    assert_eq!(split_link(&server.line("observer: ")).1, observer);
+    assert_eq!(
+        split_link(&server.line("observer: "), "observer").1,
+        observer
+    );
     let mut socket = connect(&addr, Some(observer));
     assert_eq!(next_json(&mut socket).unwrap()["role"], "observer");
     drop(socket);
@@ -478,4 +520,204 @@ fn a_wrong_token_source_stops_the_start_naming_the_problem_without_the_token() {
     );
     assert!(!stderr.contains(only), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The one line of `log` that holds every one of `needles`; the log's refusal and audit lines
+/// when there is none.
+fn log_line<'a>(log: &'a str, needles: &[&str]) -> &'a str {
+    let found: Vec<&str> = log
+        .lines()
+        .filter(|line| needles.iter().all(|n| line.contains(n)))
+        .collect();
+    if found.len() == 1 {
+        return found[0];
+    }
+    let relevant: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains("refused") || l.contains("viewer connection ended"))
+        .collect();
+    panic!(
+        "{} lines hold all of {needles:?}; the refusal and audit lines:\n{}",
+        found.len(),
+        relevant.join("\n")
+    );
+}
+
+/// Connects with `token` once the server has given back the one place this address has (a
+/// viewer that just left is still counted until the server has seen it go): the socket and
+/// the `hello`, or the close code when the token is refused.
+fn connect_when_admitted(
+    addr: &str,
+    origin: &str,
+    token: &str,
+) -> (
+    tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>,
+    Result<serde_json::Value, Option<u16>>,
+) {
+    let auth = serde_json::json!({"type": "auth", "token": token}).to_string();
+    send_first_when_admitted(addr, origin, &auth)
+}
+
+/// [`connect_when_admitted`] sending `first` as the first message.
+fn send_first_when_admitted(
+    addr: &str,
+    origin: &str,
+    first: &str,
+) -> (
+    tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<std::net::TcpStream>>,
+    Result<serde_json::Value, Option<u16>>,
+) {
+    let started = Instant::now();
+    loop {
+        let mut socket = connect_from_origin(addr, origin).expect("the own origin is served");
+        socket.send(tungstenite::Message::text(first)).unwrap();
+        let answer = next_json(&mut socket);
+        if answer != Err(Some(4429)) {
+            return (socket, answer);
+        }
+        assert!(
+            started.elapsed() < DEADLINE,
+            "the address's place was never given back"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn every_refusal_leaves_a_log_line_and_every_connection_an_audit_line_without_a_token() {
+    let mut server = Server::start(
+        &[
+            "--tokens",
+            "--addr",
+            "127.0.0.1:0",
+            "--max-viewers-per-address",
+            "1",
+            "--no-record",
+            "--no-realtime",
+        ],
+        &[("RUST_LOG", "trace")],
+    );
+    let (addr, instructor) = split_link(&server.line("viewer: "), "instructor");
+    let (_, observer) = split_link(&server.line("observer: "), "observer");
+    let port = addr.rsplit(':').next().unwrap().to_owned();
+    let own_origin = format!("http://{addr}");
+
+    // A page on another site: 403, nothing streamed.
+    assert_eq!(
+        connect_from_origin(&addr, "http://evil.example").err(),
+        Some(403)
+    );
+    // A page that rebound its own name to this address: 421.
+    let rebound = format!("evil.example:{port}");
+    let response = http_get_naming(&addr, &rebound, "/api/scene", Some(&observer));
+    assert!(response.starts_with("HTTP/1.1 421"), "{response}");
+
+    // The address's one place taken by an observer; a second viewer is closed with 4429.
+    let (mut first, hello) = connect_when_admitted(&addr, &own_origin, &observer);
+    assert_eq!(hello.unwrap()["role"], "observer");
+    let first_client = local_addr(&first).to_string();
+    let mut second = connect(&addr, Some(&instructor));
+    let second_client = local_addr(&second).to_string();
+    assert_eq!(next_json(&mut second), Err(Some(4429)));
+    drop(second);
+    first.close(None).unwrap();
+    while first.read().is_ok() {}
+
+    // A wrong token, no token (a first message that is not an `auth`), and a flood, each once the place is free again.
+    let wrong: String = instructor.chars().rev().collect();
+    let (_, answer) = connect_when_admitted(&addr, &own_origin, &wrong);
+    assert_eq!(answer, Err(Some(4401)));
+    let (_, answer) = send_first_when_admitted(&addr, &own_origin, "not an auth");
+    assert_eq!(answer, Err(Some(4401)));
+    let (mut flooder, hello) = connect_when_admitted(&addr, &own_origin, &instructor);
+    assert_eq!(hello.unwrap()["role"], "instructor");
+    let flooder_client = local_addr(&flooder).to_string();
+    for _ in 0..1_000 {
+        if flooder
+            .send(tungstenite::Message::Ping(vec![0; 8].into()))
+            .is_err()
+        {
+            break;
+        }
+    }
+    let mut flood_close = None;
+    loop {
+        match next_json(&mut flooder) {
+            Ok(_) => continue,
+            Err(code) => {
+                flood_close = flood_close.or(code);
+                break;
+            }
+        }
+    }
+    assert_eq!(flood_close, Some(1008));
+    drop(flooder);
+    let (stdout, log) = server.stop();
+
+    let origin_refusal = log_line(&log, &["WebSocket upgrade refused (403)", "evil.example"]);
+    assert!(origin_refusal.contains("WARN"), "{origin_refusal}");
+    assert!(
+        origin_refusal.contains("client=127.0.0.1:"),
+        "{origin_refusal}"
+    );
+    let host_refusal = log_line(&log, &["request refused (421)", "/api/scene"]);
+    assert!(host_refusal.contains("WARN"), "{host_refusal}");
+    assert!(
+        host_refusal.contains(&format!("host=\"{rebound}\"")),
+        "{host_refusal}"
+    );
+    // The audit lines: client, role, Origin as sent, how it ended, how long it lasted.
+    let audit = |client: &str| {
+        log_line(
+            &log,
+            &["viewer connection ended", &format!("client={client} ")],
+        )
+    };
+    let over_cap = audit(&second_client);
+    for field in [
+        "role=\"none\"",
+        "origin=\"none\"",
+        "ended=refused: too many viewers from this address (4429)",
+        "duration_s=",
+    ] {
+        assert!(over_cap.contains(field), "{field} not in {over_cap}");
+    }
+    let observed = audit(&first_client);
+    for field in [
+        "role=\"observer\"",
+        &format!("origin=\"{own_origin}\""),
+        "ended=closed by the viewer",
+        "duration_s=",
+    ] {
+        assert!(observed.contains(field), "{field} not in {observed}");
+    }
+    let flooded = audit(&flooder_client);
+    for field in [
+        "role=\"instructor\"",
+        "ended=closed: too many messages (1008)",
+    ] {
+        assert!(flooded.contains(field), "{field} not in {flooded}");
+    }
+    log_line(
+        &log,
+        &[
+            "viewer connection ended",
+            "role=\"none\"",
+            "ended=refused: token not valid for this server (4401)",
+        ],
+    );
+    log_line(
+        &log,
+        &[
+            "viewer connection ended",
+            "role=\"none\"",
+            "ended=refused: no token presented (4401)",
+        ],
+    );
+
+    for token in [&instructor, &observer] {
+        assert!(!log.contains(token.as_str()), "a token is in the log");
+        let printed = stdout.iter().filter(|l| l.contains(token.as_str())).count();
+        assert_eq!(printed, 1, "the token is printed once, in its link");
+    }
 }

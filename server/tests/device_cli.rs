@@ -2,7 +2,8 @@
 //! the start with where the library was looked for and how to install it, before anything
 //! listens or records; a SpaceMouse that is not there is refused the same way, its cause said
 //! once; `softhaptic devices` still lists what there is and exits 0; a bad `--device` is refused
-//! by the command line.
+//! by the command line. The binary driving a device through the HD API stand-in is tested in
+//! `tests/tests/openhaptics_cli.rs`, the crate that builds the stand-in.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -42,6 +43,7 @@ fn softhaptic(args: &[&str], library: Option<&Path>) -> Output {
                 String::from_utf8_lossy(&out.stdout)
             );
         }
+        #[allow(clippy::disallowed_methods)] // test code: polls a child on the test's own thread
         std::thread::sleep(Duration::from_millis(20));
     }
     child.wait_with_output().unwrap()

@@ -3,14 +3,23 @@
 //! when asked for, and `--root` reads a copy of another machine's files. End to end, a copy of
 //! exactly the files the checks read on this machine gives the verdicts the machine itself
 //! gives (whatever the machine: the fixtures' predictions are the unit tests'), and the kernel's
-//! preemption model is named wherever its build configuration can be read.
+//! preemption model is named wherever its build configuration can be read. On a kernel that
+//! preempts none or voluntary, the items that do not depend on the machine are judged as the
+//! unit tests' `stock` fixture predicts (`server/src/doctor/stock_verdicts.rs`).
 
+// Test code, synchronous: reads what the doctor reads (/proc, /sys, /boot) to check its report,
+// and polls the command it started.
+#![allow(clippy::disallowed_methods)]
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::io::Read as _;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
+
+#[path = "../src/doctor/stock_verdicts.rs"]
+mod stock_verdicts;
+use stock_verdicts::{STOCK_PREEMPTION_NAMES, STOCK_VERDICTS};
 
 /// Runs the binary with `args`, killing it if it is still running after a generous deadline.
 fn doctor(args: &[&str]) -> Output {
@@ -350,6 +359,39 @@ fn doctor_gives_this_machines_verdicts_from_a_copy_of_the_files_it_reads() {
         );
     } else {
         eprintln!("no build configuration readable here: {found}");
+    }
+}
+
+#[test]
+fn on_a_stock_kernel_this_machine_is_judged_as_the_stock_fixture_predicts() {
+    let report = assert_report(&doctor(&["--json", "--no-timing"]));
+    let found = check(&report, "preemption")["found"].as_str().unwrap();
+    // Each row beside this machine's verdict, for whoever reads the output.
+    for row in &STOCK_VERDICTS {
+        eprintln!(
+            "{:<15} stock fixture {:<5} here {:<5} {}",
+            row.id,
+            row.verdict,
+            check(&report, row.id)["verdict"].as_str().unwrap(),
+            row.depends_on.unwrap_or("(the same on any stock host)")
+        );
+    }
+    if !STOCK_PREEMPTION_NAMES
+        .iter()
+        .any(|name| found.contains(name))
+    {
+        eprintln!("not a kernel that preempts none or voluntary: {found}");
+        return;
+    }
+    let independent: Vec<&str> = STOCK_VERDICTS
+        .iter()
+        .filter(|row| row.depends_on.is_none())
+        .map(|row| row.id)
+        .collect();
+    assert_eq!(independent, ["preemption", "cpu_isolation"]);
+    for row in STOCK_VERDICTS.iter().filter(|row| row.depends_on.is_none()) {
+        let c = check(&report, row.id);
+        assert_eq!(c["verdict"], row.verdict, "{c:#}");
     }
 }
 

@@ -11,6 +11,7 @@ use softhaptic_server::session::reader::{Ending, Recording};
 
 fn slide() -> (PathBuf, Vec<u8>) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/sessions/slide.mcap");
+    #[allow(clippy::disallowed_methods)] // test code: a recording of the source tree
     let bytes = std::fs::read(&path).unwrap();
     (path, bytes)
 }

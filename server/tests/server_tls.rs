@@ -1,7 +1,10 @@
 //! The real `softhaptic` binary serving TLS: with `--tls-self-signed` it prints the certificate
 //! and its fingerprint and an `https://` link; a wss viewer that trusts exactly that certificate
 //! presents its token and gets `hello`, `scene` and the contact stream; the page comes with its
-//! security headers over https; plain http to the same port gets a short refusal.
+//! security headers over https; plain http, and a plain ws:// upgrade, to the same port get a
+//! short refusal and the server goes on serving TLS. `softhaptic replay` serves a recording the
+//! same way: a wss viewer pinning the printed fingerprint gets `hello` in replay mode with its
+//! token's role, and an upgrade from a foreign Origin gets 403.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -12,14 +15,17 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
+use rustls::client::danger::{HandshakeSignatureValid, ServerCertVerified, ServerCertVerifier};
+use rustls::crypto::CryptoProvider;
 use rustls::pki_types::pem::PemObject;
-use rustls::pki_types::{CertificateDer, ServerName};
-use rustls::{ClientConfig, RootCertStore};
-use softhaptic_proto::wire::{Role, ServerMessage};
+use rustls::pki_types::{CertificateDer, ServerName, UnixTime};
+use rustls::{ClientConfig, DigitallySignedStruct, RootCertStore, SignatureScheme};
+use softhaptic_proto::wire::{Mode, Role, ServerMessage};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio_rustls::TlsConnector;
 use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 
 /// The server, killed when the test ends however it ends.
 struct Server(Child);
@@ -31,15 +37,25 @@ impl Drop for Server {
     }
 }
 
-/// Starts the binary with a self-signed certificate and tokens; returns it, the port, the
-/// instructor's token, the printed fingerprint and the certificate file's path.
-fn start(data_dir: &std::path::Path) -> (Server, u16, String, String, String) {
+/// What a started server printed: its port, the instructor's and the observer's tokens, the
+/// certificate's fingerprint and the path of its PEM file.
+struct Printed {
+    port: u16,
+    instructor: String,
+    observer: String,
+    fingerprint: String,
+    certificate: String,
+}
+
+/// Starts the binary with `command` (nothing for a live session, `replay FILE` for a replay), a
+/// self-signed certificate kept in `data_dir` and tokens; returns it and what it printed once
+/// it has printed both links (the instructor's after `link_label`, then the observer's).
+fn start(command: &[&str], link_label: &str, data_dir: &std::path::Path) -> (Server, Printed) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_softhaptic"))
+        .args(command)
         .args([
             "--addr",
             "127.0.0.1:0",
-            "--no-realtime",
-            "--no-record",
             "--tokens",
             "--tls-self-signed",
             "--data-dir",
@@ -51,9 +67,11 @@ fn start(data_dir: &std::path::Path) -> (Server, u16, String, String, String) {
         .unwrap();
     let stdout = child.stdout.take().unwrap();
     let server = Server(child);
+    let mut lines = BufReader::new(stdout).lines();
     let (mut certificate, mut fingerprint) = (String::new(), String::new());
+    let mut instructor: Option<(u16, String)> = None;
     let deadline = Instant::now() + Duration::from_secs(60);
-    for line in BufReader::new(stdout).lines() {
+    while let Some(line) = lines.next() {
         assert!(Instant::now() < deadline, "the server printed no link");
         let line = line.unwrap();
         if let Some(rest) = line.strip_prefix("TLS certificate: ") {
@@ -62,21 +80,44 @@ fn start(data_dir: &std::path::Path) -> (Server, u16, String, String, String) {
         if let Some(rest) = line.strip_prefix("TLS certificate SHA-256 fingerprint: ") {
             fingerprint = rest.to_owned();
         }
-        if let Some(link) = line.strip_prefix("viewer: ") {
-            let rest = link
-                .strip_prefix("https://127.0.0.1:")
-                .unwrap_or_else(|| panic!("not an https link: {link}"));
-            let (port, token) = rest.split_once("/#token=").unwrap();
-            return (
-                server,
-                port.parse().unwrap(),
-                token.to_owned(),
+        if let Some(link) = line.strip_prefix(link_label) {
+            instructor = Some(port_and_token(link, "instructor"));
+        }
+        if let Some(link) = line.strip_prefix("observer: ") {
+            let (port, instructor) = instructor.expect("the instructor's link comes first");
+            let (observer_port, observer) = port_and_token(link, "observer");
+            assert_eq!(port, observer_port);
+            // Keep reading, so that a later line never finds the pipe closed.
+            std::thread::spawn(move || lines.for_each(drop));
+            let printed = Printed {
+                port,
+                instructor,
+                observer,
                 fingerprint,
                 certificate,
-            );
+            };
+            return (server, printed);
         }
     }
-    panic!("the server ended without printing its link");
+    panic!("the server ended without printing its links");
+}
+
+/// `https://127.0.0.1:PORT/#token=T&role=R` → (PORT, T); checks that the link names `role`.
+fn port_and_token(link: &str, role: &str) -> (u16, String) {
+    let rest = link
+        .strip_prefix("https://127.0.0.1:")
+        .unwrap_or_else(|| panic!("not an https link: {link}"));
+    let (port, fragment) = rest.split_once("/#").unwrap();
+    let (token, hint) = fragment
+        .strip_prefix("token=")
+        .and_then(|pairs| pairs.split_once("&role="))
+        .unwrap_or_else(|| panic!("not token=…&role=… in {link}"));
+    assert_eq!(hint, role, "the role hint of {link}");
+    (port.parse().unwrap(), token.to_owned())
+}
+
+fn provider() -> Arc<CryptoProvider> {
+    Arc::new(rustls::crypto::ring::default_provider())
 }
 
 fn client_trusting(certificate: &str) -> Arc<ClientConfig> {
@@ -84,12 +125,86 @@ fn client_trusting(certificate: &str) -> Arc<ClientConfig> {
     for cert in CertificateDer::pem_file_iter(certificate).unwrap() {
         roots.add(cert.unwrap()).unwrap();
     }
-    let provider = Arc::new(rustls::crypto::ring::default_provider());
     Arc::new(
-        ClientConfig::builder_with_provider(provider)
+        ClientConfig::builder_with_provider(provider())
             .with_safe_default_protocol_versions()
             .unwrap()
             .with_root_certificates(roots)
+            .with_no_client_auth(),
+    )
+}
+
+/// Trusts the one certificate whose SHA-256 fingerprint is the one the server printed, as a lab
+/// without a CA would after comparing it with what the server's console shows.
+#[derive(Debug)]
+struct Pinned {
+    fingerprint: String,
+    provider: Arc<CryptoProvider>,
+}
+
+impl ServerCertVerifier for Pinned {
+    fn verify_server_cert(
+        &self,
+        end_entity: &CertificateDer<'_>,
+        _intermediates: &[CertificateDer<'_>],
+        _server_name: &ServerName<'_>,
+        _ocsp_response: &[u8],
+        _now: UnixTime,
+    ) -> Result<ServerCertVerified, rustls::Error> {
+        if softhaptic_server::tls::fingerprint_sha256(end_entity.as_ref()) == self.fingerprint {
+            Ok(ServerCertVerified::assertion())
+        } else {
+            Err(rustls::Error::InvalidCertificate(
+                rustls::CertificateError::ApplicationVerificationFailure,
+            ))
+        }
+    }
+
+    fn verify_tls12_signature(
+        &self,
+        message: &[u8],
+        cert: &CertificateDer<'_>,
+        dss: &DigitallySignedStruct,
+    ) -> Result<HandshakeSignatureValid, rustls::Error> {
+        rustls::crypto::verify_tls12_signature(
+            message,
+            cert,
+            dss,
+            &self.provider.signature_verification_algorithms,
+        )
+    }
+
+    fn verify_tls13_signature(
+        &self,
+        message: &[u8],
+        cert: &CertificateDer<'_>,
+        dss: &DigitallySignedStruct,
+    ) -> Result<HandshakeSignatureValid, rustls::Error> {
+        rustls::crypto::verify_tls13_signature(
+            message,
+            cert,
+            dss,
+            &self.provider.signature_verification_algorithms,
+        )
+    }
+
+    fn supported_verify_schemes(&self) -> Vec<SignatureScheme> {
+        self.provider
+            .signature_verification_algorithms
+            .supported_schemes()
+    }
+}
+
+fn client_pinning(fingerprint: &str) -> Arc<ClientConfig> {
+    Arc::new(
+        ClientConfig::builder_with_provider(provider())
+            .with_safe_default_protocol_versions()
+            .unwrap()
+            .dangerous()
+            .with_custom_certificate_verifier(Arc::new(Pinned {
+                fingerprint: fingerprint.to_owned(),
+                provider: provider(),
+            }))
             .with_no_client_auth(),
     )
 }
@@ -107,7 +222,14 @@ async fn tls(
 async fn a_wss_viewer_trusting_the_self_signed_certificate_gets_the_stream() {
     let data_dir = std::env::temp_dir().join(format!("softhaptic-tls-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&data_dir);
-    let (_server, port, token, fingerprint, certificate) = start(&data_dir);
+    let (_server, printed) = start(&["--no-realtime", "--no-record"], "viewer: ", &data_dir);
+    let Printed {
+        port,
+        instructor: token,
+        fingerprint,
+        certificate,
+        ..
+    } = printed;
     assert_eq!(fingerprint.split(':').count(), 32, "{fingerprint}");
     assert!(
         certificate.starts_with(&data_dir.display().to_string()),
@@ -146,7 +268,7 @@ async fn a_wss_viewer_trusting_the_self_signed_certificate_gets_the_stream() {
     assert!(seen.0 && seen.1, "{seen:?}");
 
     // The page over https, with its security headers.
-    let mut stream = tls(addr, config).await;
+    let mut stream = tls(addr, Arc::clone(&config)).await;
     stream
         .write_all(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
         .await
@@ -171,5 +293,126 @@ async fn a_wss_viewer_trusting_the_self_signed_certificate_gets_the_stream() {
     let answer = String::from_utf8_lossy(&answer);
     assert!(answer.starts_with("HTTP/1.1 400"), "{answer}");
     assert!(answer.contains("https://"), "{answer}");
+
+    // A plain ws:// upgrade to the TLS port: the same refusal, read by the WebSocket client as
+    // an HTTP answer (not a hang, not a reset), and nothing upgraded.
+    let plain = TcpStream::connect(addr).await.unwrap();
+    let refused = tokio::time::timeout(
+        Duration::from_secs(10),
+        tokio_tungstenite::client_async(format!("ws://127.0.0.1:{port}/ws"), plain),
+    )
+    .await
+    .expect("the plain upgrade is answered within 10 s");
+    match refused {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), 400);
+            let body = String::from_utf8_lossy(response.body().as_deref().unwrap_or_default());
+            assert!(body.contains("https://"), "{body}");
+        }
+        Err(other) => panic!("a plain upgrade to the TLS port ended with {other}, not a 400"),
+        Ok(_) => panic!("a plain ws:// upgrade to the TLS port was accepted"),
+    }
+
+    // The refusals cost the TLS side nothing: a new wss viewer is greeted as before.
+    let stream = tls(addr, config).await;
+    let url = format!("wss://127.0.0.1:{port}/ws");
+    let (mut ws, _) = tokio_tungstenite::client_async(url, stream).await.unwrap();
+    let auth = format!(r#"{{"type":"auth","token":"{token}"}}"#);
+    ws.send(Message::text(auth)).await.unwrap();
+    assert_eq!(first_hello(&mut ws).await.role, Role::Instructor);
+    let _ = std::fs::remove_dir_all(&data_dir);
+}
+
+/// The first text message of a connection, which must be a `hello`.
+async fn first_hello<S>(
+    ws: &mut tokio_tungstenite::WebSocketStream<S>,
+) -> softhaptic_proto::wire::Hello
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin,
+{
+    loop {
+        let next = tokio::time::timeout(Duration::from_secs(10), ws.next())
+            .await
+            .expect("an answer within 10 s");
+        match next.unwrap().unwrap() {
+            Message::Text(text) => match ServerMessage::decode(&text) {
+                Ok(ServerMessage::Hello(hello)) => return hello,
+                other => panic!("the first message is not a hello: {other:?}"),
+            },
+            Message::Close(frame) => panic!("the server closed the connection: {frame:?}"),
+            // Pings and pongs are the WebSocket layer's.
+            _ => continue,
+        }
+    }
+}
+
+#[tokio::test]
+async fn a_replay_served_over_tls_greets_each_token_with_its_role_and_refuses_a_foreign_origin() {
+    let data_dir =
+        std::env::temp_dir().join(format!("softhaptic-tls-replay-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&data_dir);
+    let recording = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/sessions/sphere-press.mcap")
+        .display()
+        .to_string();
+    let (_server, printed) = start(&["replay", &recording, "--paused"], "replay: ", &data_dir);
+    assert_eq!(printed.fingerprint.split(':').count(), 32);
+    let port = printed.port;
+    let addr: SocketAddr = ([127, 0, 0, 1], port).into();
+    // Trusted by the printed fingerprint alone, as a lab without a CA compares it.
+    let config = client_pinning(&printed.fingerprint);
+    let own_origin = format!("https://127.0.0.1:{port}");
+
+    for (token, role) in [
+        (&printed.instructor, Role::Instructor),
+        (&printed.observer, Role::Observer),
+    ] {
+        let mut request = format!("wss://127.0.0.1:{port}/ws")
+            .into_client_request()
+            .unwrap();
+        request
+            .headers_mut()
+            .insert("Origin", own_origin.parse().unwrap());
+        let stream = tls(addr, Arc::clone(&config)).await;
+        let (mut ws, _) = tokio_tungstenite::client_async(request, stream)
+            .await
+            .unwrap();
+        let auth = format!(r#"{{"type":"auth","token":"{token}"}}"#);
+        ws.send(Message::text(auth)).await.unwrap();
+        let hello = first_hello(&mut ws).await;
+        assert_eq!((hello.role, hello.mode), (role, Mode::Replay));
+    }
+
+    // A page on another site (or the same host over plain http) cannot open the replay's socket.
+    for foreign in [
+        "https://evil.example".to_owned(),
+        format!("http://127.0.0.1:{port}"),
+    ] {
+        let mut request = format!("wss://127.0.0.1:{port}/ws")
+            .into_client_request()
+            .unwrap();
+        request
+            .headers_mut()
+            .insert("Origin", foreign.parse().unwrap());
+        let stream = tls(addr, Arc::clone(&config)).await;
+        match tokio_tungstenite::client_async(request, stream).await {
+            Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+                assert_eq!(response.status(), 403, "{foreign}");
+            }
+            Err(other) => panic!("{foreign}: the upgrade ended with {other}, not a 403"),
+            Ok(_) => panic!("{foreign}: the upgrade was accepted"),
+        }
+    }
+
+    // A certificate the client was not told about is not trusted: the pin is what secures it.
+    let stranger = client_pinning(&["00"; 32].join(":"));
+    let tcp = TcpStream::connect(addr).await.unwrap();
+    let name = ServerName::try_from("127.0.0.1").unwrap();
+    assert!(
+        TlsConnector::from(stranger)
+            .connect(name, tcp)
+            .await
+            .is_err()
+    );
     let _ = std::fs::remove_dir_all(&data_dir);
 }

@@ -5,6 +5,7 @@
 //! records to.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+#![allow(clippy::disallowed_methods)] // test code: reads the source tree's README
 
 use std::path::Path;
 use std::process::Command;

@@ -2,6 +2,8 @@
 //! and fails with the right exit code and report, `info` and `export` describe and convert, and a
 //! bad file gets a clear error and a non-zero exit, not a panic.
 
+// Test code, synchronous: reads the files the commands wrote and the source tree's recordings.
+#![allow(clippy::disallowed_methods)]
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::path::{Path, PathBuf};

@@ -54,6 +54,7 @@ fn a_sigkilled_server_leaves_a_recording_that_recovers_its_ticks() {
             break ticks;
         }
         assert!(Instant::now() < give_up, "no chunk written: {ticks} ticks");
+        #[allow(clippy::disallowed_methods)] // test code: polls a file on the test's own thread
         std::thread::sleep(Duration::from_millis(20));
     };
     child.kill().expect("SIGKILL delivered");

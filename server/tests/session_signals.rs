@@ -2,6 +2,8 @@
 //! SIGTERM (a service manager), SIGHUP (the terminal or SSH session closed) and SIGQUIT each
 //! make the real `softhaptic` binary exit 0 with a complete recording.
 
+// Test code, synchronous: polls the server it started and its recording.
+#![allow(clippy::disallowed_methods)]
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::io::{BufRead, BufReader};

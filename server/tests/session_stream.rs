@@ -60,6 +60,7 @@ fn end_of_first_chunk(bytes: &[u8]) -> usize {
 #[test]
 fn a_recording_with_64_mib_of_damage_is_read_in_a_few_mib() {
     let sessions = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/sessions");
+    #[allow(clippy::disallowed_methods)] // test code: a recording of the source tree
     let original = std::fs::read(sessions.join("slide.mcap")).unwrap();
     let whole = Recording::from_bytes(Path::new("slide.mcap"), &original).unwrap();
 

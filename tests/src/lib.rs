@@ -7,6 +7,8 @@
 //! - this library: the helpers those tests share ([`start_default`], [`Viewer`] with
 //!   [`Viewer::connect_with`] for the access tests' Origin, Host and token, [`http_get`] and
 //!   [`http_request`], [`scratch_dir`], [`repo_scenes`]).
+//! - [`softhaptic_binary`]: the built `softhaptic`, for the tests that run it as a user does
+//!   (`tests/spacemouse.rs`'s `softhaptic check`, `tests/openhaptics_cli.rs`).
 //! - [`standin`] and `tests/hd_standin.rs`: the HD API stand-in (`standin/hd_standin.c`, built by
 //!   `build.rs` into a `libHD.so` the OpenHaptics backend loads in place of the vendor's), its
 //!   path and a handle on its test controls; the test file checks the stand-in keeps the HD
@@ -440,6 +442,38 @@ pub fn scratch_dir(name: &str) -> std::path::PathBuf {
         panic!("could not create {}: {e}", dir.display());
     }
     dir
+}
+
+/// The `softhaptic` binary of this build, for the tests that run it as a user does (its signals,
+/// its exit status, its log); `SOFTHAPTIC_BIN` names another build.
+///
+/// It is looked for beside the test executable's own directory: a test runs as
+/// `target/<profile>/deps/<test>-<hash>`, and cargo puts the workspace's binaries in
+/// `target/<profile>/`, so the binary found there is the one built with the tests' profile (by
+/// `cargo test --workspace`, before any test runs). Cargo cannot be asked for it instead:
+/// `CARGO_BIN_EXE_*` names only the binaries of the test's own package, and `softhaptic` is the
+/// server's.
+pub fn softhaptic_binary() -> std::path::PathBuf {
+    if let Some(bin) = std::env::var_os("SOFTHAPTIC_BIN") {
+        return std::path::PathBuf::from(bin);
+    }
+    let exe = std::env::current_exe()
+        .unwrap_or_else(|e| panic!("could not find the running test's executable: {e}"));
+    // target/<profile>/deps/<test>-<hash> → target/<profile>
+    let Some(profile_dir) = exe.parent().and_then(std::path::Path::parent) else {
+        panic!(
+            "the test executable {} is not in target/<profile>/deps/: set SOFTHAPTIC_BIN",
+            exe.display()
+        );
+    };
+    let bin = profile_dir.join("softhaptic");
+    assert!(
+        bin.is_file(),
+        "{} is not built: run `cargo build -p softhaptic-server --bin softhaptic` (with the same \
+         profile as the tests), or set SOFTHAPTIC_BIN",
+        bin.display()
+    );
+    bin
 }
 
 /// The repository's `scenes/` directory.

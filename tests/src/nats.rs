@@ -1,5 +1,6 @@
 //! A real `nats-server` for the lab's tests: started on a free loopback port with JetStream and
-//! a store in a scratch directory, stopped (killed) when dropped, restartable on the same port.
+//! a store in a scratch directory (and, for the tests that ask NATS what it holds, its HTTP
+//! monitoring port), stopped (killed) when dropped, restartable on the same ports.
 //! The test command installs Debian's `nats-server` (see the Makefile); without it the tests say
 //! how to get it.
 
@@ -12,6 +13,9 @@ use std::time::{Duration, Instant};
 pub struct NatsServer {
     child: Option<Child>,
     pub port: u16,
+    /// The HTTP monitoring port (`/connz`, `/subsz`, …), when started with one: what a test reads
+    /// to see the connections and subscriptions the server itself holds.
+    pub monitor_port: Option<u16>,
     store: PathBuf,
     auth: Option<Auth>,
 }
@@ -67,6 +71,20 @@ impl NatsServer {
     /// Starts a server that takes anyone.
     pub fn start(name: &str) -> NatsServer {
         Self::start_with(name, None)
+    }
+
+    /// Starts a server that takes anyone and serves its monitoring endpoints over HTTP on
+    /// [`NatsServer::monitor_port`].
+    pub fn start_monitored(name: &str) -> NatsServer {
+        let mut server = NatsServer {
+            child: None,
+            port: free_port(),
+            monitor_port: Some(free_port()),
+            store: crate::scratch_dir(&format!("nats-{name}")),
+            auth: None,
+        };
+        server.restart();
+        server
     }
 
     /// Starts a server that takes only `user` with `password`.
@@ -165,13 +183,10 @@ impl NatsServer {
     }
 
     fn start_with(name: &str, auth: Option<Auth>) -> NatsServer {
-        let port = TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .map(|a| a.port())
-            .expect("a free port");
         let mut server = NatsServer {
             child: None,
-            port,
+            port: free_port(),
+            monitor_port: None,
             store: crate::scratch_dir(&format!("nats-{name}")),
             auth,
         };
@@ -208,6 +223,9 @@ impl NatsServer {
             .arg(&self.store)
             .stdout(Stdio::null())
             .stderr(Stdio::null());
+        if let Some(monitor_port) = self.monitor_port {
+            command.args(["-m", &monitor_port.to_string()]);
+        }
         match &self.auth {
             Some(Auth::User { user, password }) => {
                 command.args(["--user", user, "--pass", password]);
@@ -250,14 +268,38 @@ impl NatsServer {
         });
         self.child = Some(child);
         let addr = SocketAddr::from(([127, 0, 0, 1], self.port));
-        let deadline = Instant::now() + Duration::from_secs(30);
-        while std::net::TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_err() {
-            assert!(
-                Instant::now() < deadline,
-                "nats-server did not listen on {addr}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
+        wait_for_listener(addr);
+        if let Some(monitor_port) = self.monitor_port {
+            wait_for_listener(SocketAddr::from(([127, 0, 0, 1], monitor_port)));
         }
+    }
+
+    /// The monitoring endpoint's address; panics for a server started without one.
+    pub fn monitor_addr(&self) -> SocketAddr {
+        let port = self
+            .monitor_port
+            .expect("a server started with a monitoring port (NatsServer::start_monitored)");
+        SocketAddr::from(([127, 0, 0, 1], port))
+    }
+}
+
+/// A port free on loopback now (the server binds it a moment later).
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free port")
+}
+
+/// Returns once `addr` accepts connections; panics after 30 s.
+fn wait_for_listener(addr: SocketAddr) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while std::net::TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "nats-server did not listen on {addr}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 

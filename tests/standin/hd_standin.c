@@ -1,7 +1,7 @@
 /*
  * A stand-in for OpenHaptics' HD API library (libHD.so), for tests without a PHANTOM.
  *
- * One file of 1400 lines because it is one library: the device, the hand, the scheduler and the
+ * One file of 1500 lines because it is one library: the device, the hand, the scheduler and the
  * error stack are static state that every HD function shares under the locks described below, and
  * one file keeps that state private; the last 200 lines are the test controls.
  *
@@ -21,7 +21,8 @@
  * The position comes from a simulated hand closed through the force the stand-in sent (the model
  * of device/src/sim.rs), or from a hand the test installs. Extra functions named hdStandin* let a
  * test drive the device (faults, unplugging, calibration, late ticks) and read back what the
- * motors were sent; the backend never calls them.
+ * motors were sent; the backend never calls them. A test that runs the server as a program, in
+ * another process, reads the stop instead from the lines HD_STANDIN_REPORT asks for (see report).
  *
  * The vendor's headers are not used: the few types and constants are declared below with the
  * values of OpenHaptics 3.0 (shared/devices.md).
@@ -233,6 +234,16 @@ typedef struct {
      * first MAX_INIT_TIMES of them. */
     int inits;
     struct timespec init_times[MAX_INIT_TIMES];
+
+    /* Frames ended (hdEndFrame) since the last reset, and the last of them that drove the
+     * motors with a force other than zero: its number and the force's magnitude (N).
+     * HD_STANDIN_REPORT gives them, so that a zero force at the stop can be told from a hand
+     * that had already let go. Counted in frames, not servo ticks: a stopping application may
+     * be preempted for many ticks between its last frames, but not between frames it did not
+     * send. */
+    unsigned long long frames;
+    unsigned long long last_nonzero_frame;
+    double last_nonzero_force_n;
 } State;
 
 static pthread_mutex_t g_mu = PTHREAD_MUTEX_INITIALIZER;
@@ -356,6 +367,51 @@ static void push_error(HDerror code, HHD device) {
     pthread_mutex_unlock(&g_err_mu);
 }
 
+/* HD_STANDIN_REPORT=path: what a test in another process (the server run as a program) cannot
+ * ask through the hdStandin* controls. One line is appended to the file at each hdStopScheduler
+ * that stops a running scheduler, at each hdDisableDevice of an open device, and when the library
+ * is unloaded (at the process' normal exit: a process killed outright writes no "unload" line):
+ *
+ *   event=hdStopScheduler tick=5210 motor_force_n=0,0,0 frames=5170 last_nonzero_frame=5169
+ *   last_nonzero_force_n=2.31 scheduler=stopped device=open force_output=off callbacks=0
+ *
+ * (one line in the file). `motor_force_n` is the force the motors were driven with when the call
+ * came, before the call itself zeroes it (stopping the servo loop and releasing the device both
+ * do, as on the real library): the last force the application commanded. `tick` is the servo
+ * tick count since load, `frames` and `last_nonzero_frame` count frames since the last reset
+ * (see State); the other fields are the state once the call is done. */
+static void report(const char *event, const double motor_force_n[3]) {
+    const char *path = getenv("HD_STANDIN_REPORT");
+    if (path == NULL || path[0] == '\0') return;
+    pthread_mutex_lock(&g_mu);
+    unsigned long long frames = g.frames;
+    unsigned long long last_nonzero_frame = g.last_nonzero_frame;
+    double last_nonzero_force_n = g.last_nonzero_force_n;
+    int open = g.open;
+    int force_output = g.open && g.force_output;
+    pthread_mutex_unlock(&g_mu);
+    pthread_mutex_lock(&g_sched_mu);
+    int callbacks = g_entry_count;
+    const char *scheduler = g_sched_state == SCHED_RUNNING    ? "running"
+                            : g_sched_state == SCHED_STOPPING ? "stopping"
+                                                              : "stopped";
+    pthread_mutex_unlock(&g_sched_mu);
+    FILE *file = fopen(path, "a");
+    if (file == NULL) {
+        fprintf(stderr, "hd_standin: cannot append to HD_STANDIN_REPORT=\"%s\": %s\n", path,
+                strerror(errno));
+        return;
+    }
+    fprintf(file,
+            "event=%s tick=%llu motor_force_n=%.17g,%.17g,%.17g frames=%llu "
+            "last_nonzero_frame=%llu last_nonzero_force_n=%.17g scheduler=%s device=%s "
+            "force_output=%s callbacks=%d\n",
+            event, (unsigned long long)atomic_load(&g_ticks), motor_force_n[0], motor_force_n[1],
+            motor_force_n[2], frames, last_nonzero_frame, last_nonzero_force_n, scheduler,
+            open ? "open" : "closed", force_output ? "on" : "off", callbacks);
+    fclose(file);
+}
+
 static int frame_active(void) {
     return t_frame.active && t_frame.epoch == atomic_load(&g_epoch);
 }
@@ -415,13 +471,31 @@ static void read_press(double press[5]) {
     memcpy(press, v, sizeof(v));
 }
 
+/* Reads HD_STANDIN_MAX_FORCE_N, the nominal maximum force the device reports and enforces (N),
+ * for a test that runs the server as a program and cannot call hdStandinSetNominalMaxForce; a
+ * value that is not a positive number is said on stderr and the PHANTOM Desktop's used. */
+static double read_max_force(void) {
+    const char *text = getenv("HD_STANDIN_MAX_FORCE_N");
+    if (text == NULL || text[0] == '\0') return NOMINAL_MAX_FORCE_N;
+    double v;
+    char tail;
+    if (sscanf(text, " %lf %c", &v, &tail) != 1 || !isfinite(v) || !(v > 0.0)) {
+        fprintf(stderr,
+                "hd_standin: HD_STANDIN_MAX_FORCE_N=\"%s\" is not a positive number of newtons; "
+                "using %g\n",
+                text, NOMINAL_MAX_FORCE_N);
+        return NOMINAL_MAX_FORCE_N;
+    }
+    return v;
+}
+
 /* Back to a freshly loaded library's state. Called with `g_mu` held (or before any thread). */
 static void reset_state_locked(void) {
     memset(&g, 0, sizeof(g));
     g.current = HD_INVALID_HANDLE;
     g.force_output = 1;
     g.software_force_limit = 1;
-    g.nominal_max_force_n = NOMINAL_MAX_FORCE_N;
+    g.nominal_max_force_n = read_max_force();
     g.calibration = HD_CALIBRATION_OK;
     g.rotation[0] = g.rotation[4] = g.rotation[8] = 1.0;
     read_press(g.press);
@@ -440,6 +514,15 @@ __attribute__((constructor)) static void standin_load(void) {
     pthread_mutex_lock(&g_mu);
     reset_state_locked();
     pthread_mutex_unlock(&g_mu);
+}
+
+/* Runs when the library is unmapped, which with -z nodelete is at the process' normal exit. */
+__attribute__((destructor)) static void standin_unload(void) {
+    double motor_force_n[3];
+    pthread_mutex_lock(&g_mu);
+    memcpy(motor_force_n, g.motor_force_n, sizeof(motor_force_n));
+    pthread_mutex_unlock(&g_mu);
+    report("unload", motor_force_n);
 }
 
 /* Is `name` one of the configuration names in HD_STANDIN_DEVICES (comma-separated)? */
@@ -506,9 +589,12 @@ API void hdDisableDevice(HHD hHD) {
     g.open = 0;
     g.stale = 0;
     g.current = HD_INVALID_HANDLE;
+    double motor_force_n[3];
+    memcpy(motor_force_n, g.motor_force_n, sizeof(motor_force_n));
     /* A released device's amplifiers are off. */
     memset(g.motor_force_n, 0, sizeof(g.motor_force_n));
     pthread_mutex_unlock(&g_mu);
+    report("hdDisableDevice", motor_force_n);
 }
 
 API void hdMakeCurrentDevice(HHD hHD) {
@@ -844,7 +930,9 @@ API void hdStopScheduler(void) {
     pthread_join(thread, NULL);
 
     /* Without the servo loop nothing drives the motors. */
+    double motor_force_n[3];
     pthread_mutex_lock(&g_mu);
+    memcpy(motor_force_n, g.motor_force_n, sizeof(motor_force_n));
     memset(g.motor_force_n, 0, sizeof(g.motor_force_n));
     pthread_mutex_unlock(&g_mu);
 
@@ -856,6 +944,7 @@ API void hdStopScheduler(void) {
     g_sched_state = SCHED_STOPPED;
     pthread_cond_broadcast(&g_sched_cv);
     pthread_mutex_unlock(&g_sched_mu);
+    report("hdStopScheduler", motor_force_n);
 }
 
 /* Adds a callback; returns its handle, or 0 with `*err` set. Called with `g_sched_mu` held. */
@@ -1025,6 +1114,14 @@ API void hdEndFrame(HHD hHD) {
     int drive = g.open && !g.unplugged && !g.stale && !failed && !t_frame.force_refused &&
                 t_frame.force_set && g.force_output && atomic_load(&g_servo_running);
     for (int i = 0; i < 3; i++) g.motor_force_n[i] = drive ? t_frame.force_n[i] : 0.0;
+    double sent_n = sqrt(g.motor_force_n[0] * g.motor_force_n[0] +
+                         g.motor_force_n[1] * g.motor_force_n[1] +
+                         g.motor_force_n[2] * g.motor_force_n[2]);
+    g.frames += 1;
+    if (sent_n > 0.0) {
+        g.last_nonzero_frame = g.frames;
+        g.last_nonzero_force_n = sent_n;
+    }
     record_latency_locked(seconds_between(&t_frame.latched, &now) * 1e6);
     pthread_mutex_unlock(&g_mu);
 }

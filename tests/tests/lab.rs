@@ -1,12 +1,18 @@
 //! The teaching lab with a real `nats-server`: two simulated stations publish, a hub lists them
-//! and relays the one a viewer picks, frame for frame as the station's own viewers get it; NATS
-//! refusing a station's credentials stops its start; a hub's viewer without a token is refused
-//! as a station's is; NATS killed mid-session leaves the station and its viewers running, and
-//! the relay comes back when NATS does.
+//! and relays the one a viewer picks, frame for frame as the station's own viewers get it and at
+//! the station's 50 Hz (in the station's device time, not the test's clock); NATS refusing a
+//! station's credentials stops its start; a hub's viewer without a token is refused as a
+//! station's is; NATS killed mid-session leaves the station, its viewers and its recording
+//! running without a tick lost, and the relay comes back when NATS does; a hub holds one NATS
+//! subscription per station however many of its viewers watch it (as NATS itself reports); a hub
+//! served over TLS streams to a wss viewer and refuses plain ws.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use softhaptic_proto::wire::{ContactFrame, Role, ServerMessage};
@@ -15,8 +21,13 @@ use softhaptic_server::lab::NatsOptions;
 use softhaptic_server::lab::hub::{self};
 use softhaptic_server::lab::station::StationOptions;
 use softhaptic_server::scene::Scene;
+use softhaptic_server::session::reader::Recording;
 use softhaptic_tests::nats::{NatsServer, start_hub as hub};
-use softhaptic_tests::{Viewer, scratch_dir, test_options, wait_until};
+use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options, wait_until};
+use tokio_rustls::TlsConnector;
+use tokio_rustls::rustls::pki_types::pem::PemObject;
+use tokio_rustls::rustls::pki_types::{CertificateDer, ServerName};
+use tokio_rustls::rustls::{self, ClientConfig, RootCertStore};
 
 const O: &str = softhaptic_tests::OBSERVER_TOKEN;
 
@@ -50,8 +61,55 @@ async fn frames(viewer: &mut Viewer, count: usize) -> BTreeMap<u64, ContactFrame
     out
 }
 
+/// The stream's frame period, 20 ms: the server's 50 Hz.
+const FRAME_PERIOD_NS: u64 = 20_000_000;
+
+/// Asserts `frames` came at the station's 50 ± 1 Hz, measured in the station's device time (the
+/// `time_ns` the frames carry) and counted by their `seq`, so that neither the test machine's
+/// scheduling nor the network's buffering can make a stream look on time that is not: the frames
+/// received per second of device time, the gaps in `seq` (frames the viewer never got), and the
+/// median device time between two consecutive frames.
+fn assert_50_hz(frames: &BTreeMap<u64, ContactFrame>, what: &str) {
+    let f: Vec<&ContactFrame> = frames.values().collect();
+    assert!(f.len() >= 150, "{what}: only {} frames", f.len());
+    for w in f.windows(2) {
+        assert!(
+            w[1].time_ns > w[0].time_ns,
+            "{what}: frame {} is not later in device time than frame {}",
+            w[1].seq,
+            w[0].seq
+        );
+    }
+    let (first, last) = (f[0], f[f.len() - 1]);
+    let span_s = (last.time_ns - first.time_ns) as f64 * 1e-9;
+    let rate_hz = (f.len() - 1) as f64 / span_s;
+    let gaps = f.windows(2).filter(|w| w[1].seq != w[0].seq + 1).count();
+    let mut spacing_ns: Vec<u64> = f
+        .windows(2)
+        .filter(|w| w[1].seq == w[0].seq + 1)
+        .map(|w| w[1].time_ns - w[0].time_ns)
+        .collect();
+    spacing_ns.sort_unstable();
+    let median_spacing_ns = spacing_ns[spacing_ns.len() / 2];
+    let summary = format!(
+        "{what}: {} frames (seq {} to {}) over {span_s:.3} s of device time: {rate_hz:.2} Hz, \
+         {gaps} gaps, median spacing {:.1} ms",
+        f.len(),
+        first.seq,
+        last.seq,
+        median_spacing_ns as f64 * 1e-6
+    );
+    assert!((49.0..=51.0).contains(&rate_hz), "{summary}");
+    assert!(gaps <= 2, "{summary}");
+    // One tick (1 ms) either way: the frame task samples the loop's latest tick.
+    assert!(
+        median_spacing_ns.abs_diff(FRAME_PERIOD_NS) <= 1_000_000,
+        "{summary}"
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_hub_lists_two_stations_and_relays_the_one_picked_frame_for_frame() {
+async fn a_hub_lists_two_stations_and_relays_the_one_picked_frame_for_frame_at_50_hz() {
     let server = NatsServer::start("two-stations");
     let a = station("desk-a", nats(server.url(), None)).await.unwrap();
     let b = station("desk-b", nats(server.url(), None)).await.unwrap();
@@ -92,21 +150,21 @@ async fn a_hub_lists_two_stations_and_relays_the_one_picked_frame_for_frame() {
         }
         other => panic!("expected scene, got {other:?}"),
     }
-    let from_station = frames(&mut direct, 150).await;
-    let from_hub = frames(&mut relayed, 150).await;
-    // Every frame both saw is the same frame; the hub's are consecutive (none lost on the way).
+    // Both read at once, so neither stream waits in a socket buffer while the other is read.
+    let (from_station, from_hub) =
+        tokio::join!(frames(&mut direct, 160), frames(&mut relayed, 160));
+    assert_50_hz(&from_station, "a viewer on the station");
+    assert_50_hz(&from_hub, "a viewer on the hub");
+    // Every frame both saw is the same frame.
     let common: Vec<u64> = from_hub
         .keys()
         .filter(|seq| from_station.contains_key(seq))
         .copied()
         .collect();
-    assert!(common.len() >= 50, "{} frames in common", common.len());
+    assert!(common.len() >= 100, "{} frames in common", common.len());
     for seq in &common {
         assert_eq!(from_hub[seq], from_station[seq], "frame {seq}");
     }
-    let seqs: Vec<u64> = from_hub.keys().copied().collect();
-    let gaps = seqs.windows(2).filter(|w| w[1] != w[0] + 1).count();
-    assert!(gaps <= 2, "{gaps} gaps in {seqs:?}");
 
     // The mesh through the hub is the station's.
     let (status, relayed_mesh) =
@@ -176,9 +234,16 @@ async fn nats_refusing_the_credentials_stops_a_station_and_a_hub_wants_its_token
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn with_nats_gone_the_station_serves_its_viewers_and_the_relay_resumes_when_it_is_back() {
+async fn with_nats_gone_the_station_serves_its_viewers_records_every_tick_and_the_relay_resumes() {
     let mut server = NatsServer::start("outage");
-    let a = station("desk-a", nats(server.url(), None)).await.unwrap();
+    let dir = scratch_dir("lab-outage-recording");
+    let mut o = test_options();
+    o.lab = Some(StationOptions {
+        nats: nats(server.url(), None),
+        name: "desk-a".into(),
+    });
+    let live = start_recorded(Scene::builtin_default().unwrap(), &dir, o).await;
+    let a = &live.server;
     let hub = hub(nats(server.url(), None), false).await;
     wait_until("the station listed", || hub.stations().len() == 1).await;
     let mut relayed =
@@ -187,17 +252,14 @@ async fn with_nats_gone_the_station_serves_its_viewers_and_the_relay_resumes_whe
     let mut direct = Viewer::connect(a.local_addr()).await;
 
     server.kill();
-    // The station's own viewer carries on: frames keep coming, consecutive.
-    let during = frames(&mut direct, 100).await;
-    let seqs: Vec<u64> = during.keys().copied().collect();
-    assert!(
-        seqs.windows(2).filter(|w| w[1] != w[0] + 1).count() <= 2,
-        "{seqs:?}"
-    );
+    // The station's own viewer carries on at 50 Hz.
+    let during = frames(&mut direct, 160).await;
+    assert_50_hz(&during, "the station's own viewer with NATS down");
     wait_until("the hub to show the station offline", || {
         hub.stations().first().is_some_and(|s| s.state == "offline")
     })
     .await;
+    let seqs: Vec<u64> = during.keys().copied().collect();
 
     server.restart();
     wait_until("the station back on the hub", || {
@@ -222,7 +284,70 @@ async fn with_nats_gone_the_station_serves_its_viewers_and_the_relay_resumes_whe
         hub.stations()
     );
     hub.shutdown().await;
-    a.shutdown().await;
+    drop((direct, relayed));
+
+    // The recording went on through the outage: the station stopped, its file holds every tick
+    // the loop ran but those the loop itself reported it could not hand to the recorder, one
+    // device period apart, and every contact frame its viewer got while NATS was down.
+    let (loop_stats, _, path, recorded) = live.finish().await;
+    let r = Recording::open(&path).unwrap();
+    assert!(r.is_complete(), "{}", r.recovery());
+    assert_eq!(
+        r.missing_ticks(),
+        loop_stats.dropped_tick_records,
+        "ticks missing from the recording beyond the loop's own count of dropped records"
+    );
+    assert_eq!(recorded.ticks_dropped, loop_stats.dropped_tick_records);
+    assert_eq!(
+        r.device.len() as u64 + loop_stats.dropped_tick_records,
+        loop_stats.ticks,
+        "ticks the loop ran that are neither in the recording nor counted as dropped"
+    );
+    let (first, last) = (&r.device[0], &r.device[r.device.len() - 1]);
+    assert_eq!(first.tick, 0);
+    // The simulated device's clock advances one period per tick: the device time the file spans
+    // is its ticks' count, whatever the wall clock did meanwhile.
+    assert_eq!(
+        last.time_ns - first.time_ns,
+        (last.tick - first.tick) * 1_000_000,
+        "the device time the recording spans disagrees with its ticks ({} ticks)",
+        r.device.len()
+    );
+    let outage = (
+        during.values().next().unwrap().time_ns,
+        during.values().last().unwrap().time_ns,
+    );
+    assert!(
+        first.time_ns <= outage.0 && outage.1 <= last.time_ns,
+        "the recording ({} to {} ns) does not cover the outage ({outage:?})",
+        first.time_ns,
+        last.time_ns
+    );
+    let in_outage = r
+        .device
+        .iter()
+        .filter(|d| (outage.0..=outage.1).contains(&d.time_ns))
+        .count() as u64;
+    if loop_stats.dropped_tick_records == 0 {
+        assert_eq!(in_outage, (outage.1 - outage.0) / 1_000_000 + 1);
+    }
+    let recorded_frames: BTreeMap<u64, ContactFrame> = r
+        .contacts
+        .iter()
+        .map(|m| match ServerMessage::decode(&m.json).unwrap() {
+            ServerMessage::Contact(c) => (c.seq, ContactFrame { dropped: 0, ..c }),
+            other => panic!("a contact frame in /contact, got {other:?}"),
+        })
+        .collect();
+    let recorded_seqs: Vec<u64> = recorded_frames.keys().copied().collect();
+    let skipped: u64 = recorded_seqs.windows(2).map(|w| w[1] - w[0] - 1).sum();
+    assert_eq!(skipped, recorded.contact_frames_dropped);
+    if recorded.contact_frames_dropped == 0 {
+        for (seq, frame) in &during {
+            assert_eq!(recorded_frames.get(seq), Some(frame), "frame {seq}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -431,6 +556,201 @@ async fn a_station_signs_in_with_a_creds_file_to_a_nats_in_operator_mode() {
     let mut viewer =
         Viewer::connect_url(&format!("ws://{}/ws?station=desk-c", hub.local_addr())).await;
     assert_eq!(frames(&mut viewer, 10).await.len(), 10);
+    hub.shutdown().await;
+    a.shutdown().await;
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hub_subscribes_once_per_station_however_many_of_its_viewers_watch_it() {
+    let server = NatsServer::start_monitored("one-subscription");
+    let a = station("desk-a", nats(server.url(), None)).await.unwrap();
+    let b = station("desk-b", nats(server.url(), None)).await.unwrap();
+    let hub = hub(nats(server.url(), None), false).await;
+    wait_until("both stations listed", || hub.stations().len() == 2).await;
+
+    // Five viewers of desk-a, each streaming before the next connects.
+    let mut viewers = Vec::new();
+    for _ in 0..5 {
+        let mut viewer =
+            Viewer::connect_url(&format!("ws://{}/ws?station=desk-a", hub.local_addr())).await;
+        assert_eq!(frames(&mut viewer, 5).await.len(), 5);
+        viewers.push(viewer);
+    }
+    wait_until("the hub to count its five viewers", || {
+        hub.stations()
+            .iter()
+            .any(|s| s.name == "desk-a" && s.hub_viewers == 5)
+    })
+    .await;
+
+    // What NATS itself holds for the hub's connection: one subscription per subject of desk-a's
+    // stream, none for desk-b, which nobody watches.
+    let (status, body) =
+        softhaptic_tests::http_get(server.monitor_addr(), "/connz?subs=1&limit=1024").await;
+    assert_eq!(status, 200, "{}", String::from_utf8_lossy(&body));
+    let connz: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let connections = connz["connections"].as_array().unwrap();
+    let hubs: Vec<&serde_json::Value> = connections
+        .iter()
+        .filter(|c| c["name"] == "softhaptic hub")
+        .collect();
+    assert_eq!(hubs.len(), 1, "{connz:#}");
+    let subjects: Vec<&str> = hubs[0]["subscriptions_list"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no subscriptions listed: {connz:#}"))
+        .iter()
+        .map(|s| s.as_str().unwrap())
+        .collect();
+    for kind in ["contact", "stats"] {
+        let subject = format!("softhaptic.station.desk-a.{kind}");
+        assert_eq!(
+            subjects.iter().filter(|s| **s == subject).count(),
+            1,
+            "{subject} in {subjects:?}"
+        );
+    }
+    assert_eq!(
+        subjects
+            .iter()
+            .filter(|s| s.starts_with("softhaptic.station."))
+            .count(),
+        2,
+        "{subjects:?}"
+    );
+    // And all five still stream from that one subscription.
+    for viewer in &mut viewers {
+        assert_eq!(frames(viewer, 5).await.len(), 5);
+    }
+    drop(viewers);
+    hub.shutdown().await;
+    a.shutdown().await;
+    b.shutdown().await;
+}
+
+/// A wss client for the test, made with rustls: the TLS connection to `target` trusts only the
+/// certificate in `certificate_path` (no system roots) and requires it to name `target`'s IP
+/// address, as a browser given `https://127.0.0.1:…` would. The suite's [`Viewer`] takes a plain
+/// socket (the tests crate's WebSocket client is built without TLS), so the viewer connects to a
+/// loopback port whose first connection is carried over that TLS connection.
+struct TlsBridge {
+    addr: SocketAddr,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl TlsBridge {
+    async fn start(target: SocketAddr, certificate_path: &Path) -> TlsBridge {
+        let certificate = CertificateDer::from_pem_file(certificate_path).unwrap_or_else(|e| {
+            panic!("the hub's certificate {}: {e}", certificate_path.display())
+        });
+        let mut roots = RootCertStore::empty();
+        roots.add(certificate).unwrap();
+        let config =
+            ClientConfig::builder_with_provider(Arc::new(rustls::crypto::ring::default_provider()))
+                .with_safe_default_protocol_versions()
+                .unwrap()
+                .with_root_certificates(roots)
+                .with_no_client_auth();
+        let tcp = tokio::net::TcpStream::connect(target).await.unwrap();
+        // An IP-address name: the certificate must carry 127.0.0.1 itself, not only `localhost`.
+        let name = ServerName::IpAddress(target.ip().into());
+        let mut tls = TlsConnector::from(Arc::new(config))
+            .connect(name, tcp)
+            .await
+            .unwrap_or_else(|e| {
+                panic!(
+                    "TLS with the hub at {target}, trusting only {}: {e}",
+                    certificate_path.display()
+                )
+            });
+        let listener = tokio::net::TcpListener::bind((std::net::Ipv4Addr::LOCALHOST, 0))
+            .await
+            .unwrap();
+        let addr = listener.local_addr().unwrap();
+        let task = tokio::spawn(async move {
+            if let Ok((mut plain, _)) = listener.accept().await {
+                // Ends when either side closes; an error is the connection ending, nothing more.
+                let _ = tokio::io::copy_bidirectional(&mut plain, &mut tls).await;
+            }
+        });
+        TlsBridge { addr, task }
+    }
+}
+
+impl Drop for TlsBridge {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_hub_over_tls_streams_to_a_wss_viewer_and_refuses_plain_ws() {
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    let server = NatsServer::start("tls");
+    let a = station("desk-a", nats(server.url(), None)).await.unwrap();
+    let dir = scratch_dir("lab-tls");
+    let tls = softhaptic_server::tls::server_config(
+        &softhaptic_server::tls::TlsArgs {
+            tls_self_signed: true,
+            data_dir: Some(dir.clone()),
+            ..Default::default()
+        },
+        std::net::Ipv4Addr::LOCALHOST.into(),
+    )
+    .unwrap()
+    .expect("a self-signed certificate");
+    let hub = hub::start(hub::HubOptions {
+        nats: nats(server.url(), None),
+        addr: ([127, 0, 0, 1], 0).into(),
+        web_dir: app::default_web_dir(),
+        access: Default::default(),
+        tls: Some(tls.config),
+        viewer_limits: Default::default(),
+    })
+    .await
+    .unwrap();
+    assert!(
+        hub.viewer_url().starts_with("https://"),
+        "{}",
+        hub.viewer_url()
+    );
+    wait_until("the station listed", || hub.stations().len() == 1).await;
+
+    // wss, trusting exactly the hub's certificate: hello, scene, frames.
+    let bridge = TlsBridge::start(hub.local_addr(), &tls.certificate_path).await;
+    let request = format!("wss://{}/ws?station=desk-a", hub.local_addr())
+        .into_client_request()
+        .unwrap();
+    let tcp = tokio::net::TcpStream::connect(bridge.addr).await.unwrap();
+    let (socket, _) =
+        tokio_tungstenite::client_async(request, tokio_tungstenite::MaybeTlsStream::Plain(tcp))
+            .await
+            .expect("the wss handshake through TLS");
+    let mut viewer = Viewer { socket };
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Hello(h) => assert_eq!(h.role, Role::Instructor),
+        other => panic!("expected hello, got {other:?}"),
+    }
+    match viewer.expect_message(Duration::from_secs(10)).await {
+        ServerMessage::Scene(s) => {
+            assert_eq!(s.render_meshes[0].url, "/stations/desk-a/meshes/liver.bin")
+        }
+        other => panic!("expected scene, got {other:?}"),
+    }
+    assert_eq!(frames(&mut viewer, 10).await.len(), 10);
+
+    // Plain ws to the same port: a 400 before any WebSocket, and the wss viewer streams on.
+    match tokio_tungstenite::connect_async(format!("ws://{}/ws?station=desk-a", hub.local_addr()))
+        .await
+    {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status().as_u16(), 400)
+        }
+        Err(e) => panic!("expected a 400 refusal, got {e}"),
+        Ok(_) => panic!("a plain ws viewer was served by a TLS hub"),
+    }
+    assert_eq!(frames(&mut viewer, 10).await.len(), 10);
+    drop((viewer, bridge));
     hub.shutdown().await;
     a.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);

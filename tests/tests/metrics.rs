@@ -2,7 +2,8 @@
 //! server closes it the loop's final ones, which are recorded, and are what the recording gives
 //! when computed again from its ticks (`info`, `export`), what the replay check's world computes
 //! replaying them, and what a replay sends (after a seek, those of the new position). A scene's
-//! safe force is read from a recording whether written `1` or `1.0`.
+//! safe force is read from a recording whether written `1` or `1.0`, and a replay marks on its
+//! timeline exactly the stretches of recorded ticks that pushed harder than it.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -40,7 +41,7 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     assert!(live.peak_force_n > 0.1 && live.ticks > 500, "{live:?}");
     assert_eq!(live.safe_force_n, 2.0);
 
-    let (_, final_live, path, stats) = session.finish().await;
+    let (loop_stats, final_live, path, stats) = session.finish().await;
     let r = Recording::open(&path).unwrap();
     let recorded = recording_metrics(&r);
 
@@ -53,9 +54,28 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
     let report = check(&r, CheckOverrides::default()).unwrap();
     assert!(report.passed(), "{report}");
     assert_eq!(report.metrics, recorded);
-    // The live loop's, when the recording holds every tick it ran (a loaded machine may make the
-    // recorder drop some; then the recording's are of the ticks it holds).
-    if stats.ticks_dropped == 0 && r.missing_ticks() == 0 {
+    // Every tick the loop ran is in the recording or counted as dropped by the loop itself (the
+    // ring to the recorder had no room): the loop's count covers a loss at the end too, which
+    // the writer, seeing no later tick, cannot count.
+    let dropped = loop_stats.dropped_tick_records;
+    assert_eq!(
+        recorded.ticks + dropped,
+        final_live.ticks,
+        "recorded {} ticks, the loop ran {} and dropped {dropped}",
+        recorded.ticks,
+        final_live.ticks
+    );
+    // The writer counts the gaps it saw in the tick counter, which are the file's gaps.
+    assert_eq!(stats.ticks_dropped, r.missing_ticks());
+    assert!(
+        stats.ticks_dropped <= dropped,
+        "the writer counted {} dropped, the loop {dropped}",
+        stats.ticks_dropped
+    );
+    // The live loop's, to the bit, whenever the recording holds every tick it ran. A loaded
+    // machine may make the ring overflow; then the recording's metrics are of a subset of the
+    // ticks, and only what a subset cannot exceed is held against the live ones.
+    if dropped == 0 {
         assert_eq!(recorded, final_live);
         assert!(matches!(Info::of(&r).recorded_metrics, Some((_, true))));
         assert!(report.metrics_compared);
@@ -76,7 +96,9 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
             Some((_, false))
         ));
     } else {
-        assert!(recorded.ticks < final_live.ticks);
+        assert!(recorded.peak_force_n <= final_live.peak_force_n);
+        assert!(recorded.device_fault_ticks <= final_live.device_fault_ticks);
+        assert_eq!(recorded.safe_force_n, final_live.safe_force_n);
     }
     assert!(final_live.ticks >= live.ticks);
 
@@ -141,12 +163,9 @@ fn shipped(name: &str) -> Recording {
     Recording::open(&path).unwrap()
 }
 
-#[test]
-fn a_whole_number_safe_force_in_a_recorded_scene_is_the_one_counted_against() {
-    let mut r = shipped("sphere-press.mcap");
-    let default = recording_metrics(&r);
-    assert_eq!(default.safe_force_n, 2.0);
-    // The recorded scene says `safe_force_n = 1`, as a person writes it: a TOML integer.
+/// Makes the recording's scene say `[haptics] safe_force_n = <value>` (TOML text, as written),
+/// which is where `info`, `export` and `replay` read the safe force from.
+fn set_recorded_safe_force(r: &mut Recording, value: &str) {
     let others: Vec<&str> = r
         .scene
         .scene_toml
@@ -154,12 +173,22 @@ fn a_whole_number_safe_force_in_a_recorded_scene_is_the_one_counted_against() {
         .filter(|l| !l.trim_start().starts_with("safe_force_n"))
         .collect();
     let mut text = others.join("\n");
+    let line = format!("safe_force_n = {value}");
     if text.contains("[haptics]") {
-        text = text.replacen("[haptics]", "[haptics]\nsafe_force_n = 1", 1);
+        text = text.replacen("[haptics]", &format!("[haptics]\n{line}"), 1);
     } else {
-        text.push_str("\n[haptics]\nsafe_force_n = 1\n");
+        text.push_str(&format!("\n[haptics]\n{line}\n"));
     }
     r.scene.scene_toml = text;
+}
+
+#[test]
+fn a_whole_number_safe_force_in_a_recorded_scene_is_the_one_counted_against() {
+    let mut r = shipped("sphere-press.mcap");
+    let default = recording_metrics(&r);
+    assert_eq!(default.safe_force_n, 2.0);
+    // The recorded scene says `safe_force_n = 1`, as a person writes it: a TOML integer.
+    set_recorded_safe_force(&mut r, "1");
     assert_eq!(recorded_safe_force_n(&r), 1.0);
     let m = recording_metrics(&r);
     assert_eq!(m.safe_force_n, 1.0);
@@ -279,4 +308,87 @@ async fn a_seek_sends_the_metrics_of_the_new_position() {
         }
     }
     replay.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_replay_marks_where_the_recorded_ticks_pushed_harder_than_the_safe_force() {
+    // A 1 N safe force, which the recorded press exceeds for most of its hold.
+    let mut r = shipped("sphere-press.mcap");
+    set_recorded_safe_force(&mut r, "1.0");
+    let safe_force_n = 1.0;
+    assert_eq!(recorded_safe_force_n(&r), safe_force_n);
+
+    // The stretches from the recorded 1 kHz ticks: each run of consecutive records with
+    // |F| > 1 N, from its first tick to its last, in seconds from the first contact frame
+    // (replay time 0).
+    let start_ns = r.contacts[0].time_ns;
+    let seconds = |t: u64| t.saturating_sub(start_ns) as f64 * 1e-9;
+    let mut expected: Vec<(f64, f64)> = Vec::new();
+    // And the time above the safe force the metrics count over those runs: each tick above it
+    // counts the device time since the tick before.
+    let mut time_above_s = 0.0;
+    let mut run: Option<(u64, u64)> = None;
+    for (i, d) in r.device.iter().enumerate() {
+        let above = glam::DVec3::from_array(d.force_n).length() > safe_force_n;
+        if above {
+            run = Some((run.map_or(d.time_ns, |(first, _)| first), d.time_ns));
+            if i > 0 {
+                time_above_s += (d.time_ns - r.device[i - 1].time_ns) as f64 * 1e-9;
+            }
+        } else if let Some((first, last)) = run.take() {
+            expected.push((seconds(first), seconds(last)));
+        }
+    }
+    if let Some((first, last)) = run {
+        expected.push((seconds(first), seconds(last)));
+    }
+    // The press holds above 1 N for more than a second (and crosses it twice on the way up,
+    // a one-tick stretch first: a single tick is marked too).
+    assert!(
+        expected.iter().any(|(a, b)| b - a > 1.0),
+        "the recording should push above 1 N for more than a second: {expected:?}"
+    );
+    let metrics = recording_metrics(&r);
+    assert!(
+        (metrics.time_above_safe_s - time_above_s).abs() < 1e-9,
+        "the metrics count {} s above the safe force, the ticks {time_above_s} s",
+        metrics.time_above_safe_s
+    );
+
+    // What a viewer of the replay is told to mark on its timeline.
+    let replay = replay::start(r.clone(), softhaptic_tests::replay_options(1.0, true))
+        .await
+        .unwrap();
+    let mut watcher = Viewer::connect(replay.local_addr()).await;
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        assert!(Instant::now() < deadline, "no replay status");
+        if let Some(Ok(ServerMessage::Replay(s))) = watcher.next(Duration::from_secs(10)).await {
+            break s;
+        }
+    };
+    replay.shutdown().await;
+    let marked: Vec<(f64, f64)> = status
+        .above_safe
+        .iter()
+        .map(|s| (s.start_s, s.end_s))
+        .collect();
+    // To the nanosecond (the ticks are a millisecond apart; the JSON number may round).
+    assert_eq!(
+        marked.len(),
+        expected.len(),
+        "marked {marked:?}, ticks {expected:?}"
+    );
+    for (m, e) in marked.iter().zip(&expected) {
+        assert!(
+            (m.0 - e.0).abs() < 1e-9 && (m.1 - e.1).abs() < 1e-9,
+            "marked {marked:?}, ticks {expected:?}"
+        );
+    }
+    // Within the recording's timeline.
+    assert!(
+        marked
+            .iter()
+            .all(|(a, b)| 0.0 <= *a && a <= b && *b <= status.duration_s + 1e-9)
+    );
 }

@@ -1,11 +1,12 @@
 //! Who may connect, against the real server (the library's `start` on 127.0.0.1:0 with the real
 //! loop and simulated device, or a recording's replay) and real WebSocket and HTTP clients:
 //! tokens and roles, refusals on an open connection, the Origin and Host rules, the connection
-//! limits and the message rate, the security headers. The real binary's refusals (no tokens
-//! beyond loopback, token sources) and the absence of tokens from its logs and recordings are in
-//! `server/tests/access_cli.rs`.
+//! limits and the message rate, the security headers; and a well-behaved viewer that keeps its
+//! 50 Hz through a flood and through a storm of every refusal at once. The real binary's
+//! refusals (no tokens beyond loopback, token sources), their log lines, and the absence of
+//! tokens from its logs and recordings are in `server/tests/access_cli.rs`.
 //!
-//! Long because each of its 11 tests starts a real server; they share its token and viewer helpers.
+//! Long because each of its 12 tests starts a real server; they share its token and viewer helpers.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -494,50 +495,119 @@ async fn flood(mut viewer: Viewer, message: Message, count: usize) -> Option<(u1
     viewer.until_closed(WAIT * 3).await.0
 }
 
+/// A well-behaved viewer reading every frame in a task of its own while others misbehave: it
+/// keeps each contact frame's `seq` and device time, and [`FrameWatch::check_window`] says
+/// whether it kept up, by those alone (no wall-clock rate).
+struct FrameWatch {
+    frames: Arc<Mutex<Vec<(u64, u64)>>>,
+    stop: Arc<AtomicBool>,
+    reader: tokio::task::JoinHandle<()>,
+}
+
+impl FrameWatch {
+    /// Connects as an observer with `token` and returns once it has received 10 frames.
+    async fn start(addr: SocketAddr, token: &str) -> FrameWatch {
+        let mut watcher = Viewer::connect_with(addr, None, None, Some(token))
+            .await
+            .unwrap();
+        greeting(&mut watcher).await;
+        let frames: Arc<Mutex<Vec<(u64, u64)>>> = Arc::default();
+        let stop = Arc::new(AtomicBool::new(false));
+        let reader = {
+            let frames = Arc::clone(&frames);
+            let stop = Arc::clone(&stop);
+            tokio::spawn(async move {
+                while !stop.load(Ordering::Relaxed) {
+                    if let ServerMessage::Contact(f) = watcher.expect_message(WAIT).await {
+                        frames.lock().unwrap().push((f.seq, f.time_ns));
+                    }
+                }
+            })
+        };
+        let watch = FrameWatch {
+            frames,
+            stop,
+            reader,
+        };
+        let deadline = tokio::time::Instant::now() + WAIT;
+        while watch.seen() < 10 {
+            assert!(tokio::time::Instant::now() < deadline, "no frames");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        watch
+    }
+
+    /// How many frames it has received so far: the index of the next one, where a window of
+    /// [`FrameWatch::check_window`] starts.
+    fn seen(&self) -> usize {
+        self.frames.lock().unwrap().len()
+    }
+
+    /// Waits for the frame made 100 frames (2 s of device time) after the window's first, stops
+    /// watching, and checks the window: frames were still made every 20 ms of device time
+    /// (10–30 ms allowed), and this viewer received at least 80 % of those made (it may skip
+    /// ahead when it falls behind, never stall). Prints the figures with `what`.
+    async fn check_window(self, window_start: usize, what: &str) {
+        let first_seq = {
+            let frames = self.frames.lock().unwrap();
+            assert!(frames.len() > window_start, "no frame {what}");
+            frames[window_start].0
+        };
+        let deadline = tokio::time::Instant::now() + WAIT * 2;
+        while self.frames.lock().unwrap().last().unwrap().0 < first_seq + 100 {
+            assert!(tokio::time::Instant::now() < deadline, "frames stopped");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        self.stop.store(true, Ordering::Relaxed);
+        self.reader.await.unwrap();
+        let frames = std::mem::take(&mut *self.frames.lock().unwrap());
+        let window = &frames[window_start..];
+        let (s0, t0) = window[0];
+        let (s1, t1) = window[window.len() - 1];
+        let produced = s1 - s0 + 1;
+        let received = window.len() as u64;
+        // Produced at 50 Hz: the device clock advanced about 20 ms per frame the server made...
+        let period_ms = (t1 - t0) as f64 * 1e-6 / (s1 - s0) as f64;
+        eprintln!(
+            "{what}: received {received} of {produced} frames, one per {period_ms:.1} ms of device time"
+        );
+        assert!(
+            (10.0..=30.0).contains(&period_ms),
+            "{what}: frames were made every {period_ms} ms of device time"
+        );
+        // ...and the well-behaved viewer got at least 80 % of them.
+        assert!(
+            received * 5 >= produced * 4,
+            "{what}: received {received} of {produced} frames"
+        );
+    }
+}
+
+/// An authenticated connection's flood: refused controls padded to 8 KiB (each would be
+/// answered), as fast as the socket takes them.
+fn padded_control() -> Message {
+    Message::text(format!(
+        r#"{{"type":"replay_control","action":"pause","pad":"{}"}}"#,
+        "x".repeat(8 * 1024)
+    ))
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_flooding_connection_is_closed_with_1008_while_a_well_behaved_viewer_keeps_50_hz() {
     let server = start_default(with_tokens()).await;
     let addr = server.local_addr();
+    let watch = FrameWatch::start(addr, O).await;
 
-    // The well-behaved viewer records every frame's seq and device time.
-    let mut watcher = Viewer::connect_with(addr, None, None, Some(O))
-        .await
-        .unwrap();
-    greeting(&mut watcher).await;
-    let frames: Arc<Mutex<Vec<(u64, u64)>>> = Arc::default();
-    let stop = Arc::new(AtomicBool::new(false));
-    let reader = {
-        let frames = Arc::clone(&frames);
-        let stop = Arc::clone(&stop);
-        tokio::spawn(async move {
-            while !stop.load(Ordering::Relaxed) {
-                if let ServerMessage::Contact(f) = watcher.expect_message(WAIT).await {
-                    frames.lock().unwrap().push((f.seq, f.time_ns));
-                }
-            }
-        })
-    };
-    let seen = || frames.lock().unwrap().len();
-    let deadline = tokio::time::Instant::now() + WAIT;
-    while seen() < 10 {
-        assert!(tokio::time::Instant::now() < deadline, "no frames");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-
-    // The flood: authenticated connections sending refused controls padded to 8 KiB (each
-    // would be answered), and connections sending pings before presenting any token.
-    let window_start = seen();
-    let padded = Message::text(format!(
-        r#"{{"type":"replay_control","action":"pause","pad":"{}"}}"#,
-        "x".repeat(8 * 1024)
-    ));
+    // The flood: authenticated connections sending refused controls, and connections sending
+    // pings before presenting any token.
+    let window_start = watch.seen();
     let mut flooders = Vec::new();
     for _ in 0..6 {
         let mut viewer = Viewer::connect_with(addr, None, None, Some(O))
             .await
             .unwrap();
         greeting(&mut viewer).await;
-        flooders.push(tokio::spawn(flood(viewer, padded.clone(), 2_000)));
+        flooders.push(tokio::spawn(flood(viewer, padded_control(), 2_000)));
     }
     for _ in 0..2 {
         let viewer = Viewer::connect_with(addr, None, None, None).await.unwrap();
@@ -554,36 +624,121 @@ async fn a_flooding_connection_is_closed_with_1008_while_a_well_behaved_viewer_k
         );
     }
     assert_eq!(server.counters().flood_closes.load(Ordering::Relaxed), 8);
+    watch.check_window(window_start, "during the flood").await;
+    server.shutdown().await;
+}
 
-    // The window: from the first frame after the flood began to 100 frames (2 s) later.
-    let first_seq = frames.lock().unwrap()[window_start].0;
-    let deadline = tokio::time::Instant::now() + WAIT * 2;
-    while frames.lock().unwrap().last().unwrap().0 < first_seq + 100 {
-        assert!(tokio::time::Instant::now() < deadline, "frames stopped");
-        tokio::time::sleep(Duration::from_millis(20)).await;
+/// How many times each kind of refusal is tried in the storm below.
+const STORM_ROUNDS: usize = 20;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_storm_of_every_refusal_at_once_leaves_a_well_behaved_viewer_its_50_hz() {
+    let mut options = with_tokens();
+    options.access.limits.max_per_address = 2;
+    let server = start_default(options).await;
+    let addr = server.local_addr();
+    // The watcher is 127.0.0.1's; the storm comes from other client addresses.
+    let watch = FrameWatch::start(addr, O).await;
+    let window_start = watch.seen();
+
+    // 127.0.0.9's two places, taken and held through the storm.
+    let mut held = Vec::new();
+    for _ in 0..2 {
+        let (refused, mut viewer) = try_admit(addr, [127, 0, 0, 9], Some(I)).await;
+        assert_eq!(refused, None);
+        // Its `hello` was read; the scene comes next.
+        let scene = viewer.expect_message(WAIT).await;
+        assert!(
+            matches!(scene, ServerMessage::Scene(_)),
+            "the scene after hello"
+        );
+        held.push(viewer);
     }
-    stop.store(true, Ordering::Relaxed);
-    reader.await.unwrap();
-    let frames = std::mem::take(&mut *frames.lock().unwrap());
-    let window = &frames[window_start..];
-    let (s0, t0) = window[0];
-    let (s1, t1) = window[window.len() - 1];
-    let produced = s1 - s0 + 1;
-    let received = window.len() as u64;
-    // Produced at 50 Hz: the device clock advanced about 20 ms per frame the server made...
-    let period_ms = (t1 - t0) as f64 * 1e-6 / (s1 - s0) as f64;
-    eprintln!(
-        "during the flood: received {received} of {produced} frames, one per {period_ms:.1} ms of device time"
+    let evil_host = format!("evil.example:{}", addr.port());
+    let wrong_token: String = I.chars().rev().collect();
+    let mut storm: Vec<tokio::task::JoinHandle<&'static str>> = Vec::new();
+    for round in 0..STORM_ROUNDS {
+        let evil_host = evil_host.clone();
+        storm.push(tokio::spawn(async move {
+            let refused = Viewer::connect_with(addr, Some("http://evil.example"), None, Some(I))
+                .await
+                .err();
+            assert_eq!(refused, Some(403), "a foreign Origin");
+            "403"
+        }));
+        storm.push(tokio::spawn(async move {
+            let refused = Viewer::connect_with(addr, None, Some(&evil_host), Some(I))
+                .await
+                .err();
+            assert_eq!(refused, Some(421), "a wrong Host");
+            let page = http_request(addr, "/api/scene", &[("Host", &evil_host)]).await;
+            assert_eq!(page.status, 421, "a wrong Host over HTTP");
+            "421"
+        }));
+        let wrong_token = wrong_token.clone();
+        storm.push(tokio::spawn(async move {
+            // Each from an address of its own: the per-address cap is another refusal.
+            let from = IpAddr::from([127, 0, 2, u8::try_from(round).unwrap()]);
+            let mut viewer = Viewer::connect_from(addr, Some(from), None, None, Some(&wrong_token))
+                .await
+                .unwrap();
+            let (close, texts) = viewer.until_closed(WAIT).await;
+            assert_eq!(
+                close,
+                Some((4401, "token not valid for this server".to_owned()))
+            );
+            assert!(texts.is_empty(), "{texts:?}");
+            let api = http_request(addr, "/api/scene", &[]).await;
+            assert_eq!(api.status, 401, "session data without a token");
+            "4401"
+        }));
+        storm.push(tokio::spawn(async move {
+            let (refused, _) = try_admit(addr, [127, 0, 0, 9], None).await;
+            assert_eq!(
+                refused,
+                Some((4429, "too many viewers from this address".to_owned()))
+            );
+            "4429"
+        }));
+        if round % 5 == 0 {
+            // A flood from an address of its own, so that its place is not the cap's.
+            let from = IpAddr::from([127, 0, 1, u8::try_from(round).unwrap()]);
+            storm.push(tokio::spawn(async move {
+                let mut viewer = Viewer::connect_from(addr, Some(from), None, None, Some(O))
+                    .await
+                    .unwrap();
+                greeting(&mut viewer).await;
+                let close = flood(viewer, padded_control(), 2_000).await;
+                assert_eq!(close, Some((1008, "too many messages".to_owned())));
+                "1008"
+            }));
+        }
+    }
+    let mut answered = std::collections::BTreeMap::new();
+    for refusal in storm {
+        *answered.entry(refusal.await.unwrap()).or_insert(0) += 1;
+    }
+    eprintln!("refusals answered during the storm: {answered:?}");
+    let counters = server.counters();
+    assert_eq!(
+        counters.unauthorized_closes.load(Ordering::Relaxed),
+        STORM_ROUNDS as u64
     );
-    assert!(
-        (10.0..=30.0).contains(&period_ms),
-        "frames were made every {period_ms} ms of device time"
+    assert_eq!(
+        counters.limit_refusals.load(Ordering::Relaxed),
+        STORM_ROUNDS as u64
     );
-    // ...and the well-behaved viewer got at least 80 % of them.
-    assert!(
-        received * 5 >= produced * 4,
-        "received {received} of {produced} frames"
+    assert_eq!(
+        counters.flood_closes.load(Ordering::Relaxed),
+        STORM_ROUNDS.div_ceil(5) as u64
     );
+    // The held viewers were never disturbed: each still reads its stream.
+    for viewer in &mut held {
+        next_seq(viewer).await;
+    }
+    watch
+        .check_window(window_start, "during the refusal storm")
+        .await;
     server.shutdown().await;
 }
 

@@ -6,9 +6,13 @@
 //! unplugged and starts again from rest, and the recorded session replays bit for bit. A
 //! SpaceMouse Compact's combined reports turn a cone (and the session replays) but not a sphere,
 //! and a scene's box far larger than the preset's workspace is driven to without a device fault.
+//! Each recorded session is checked twice: through the library call, and by the built
+//! `softhaptic check`, whose exit status a script would read.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
+use std::path::Path;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use glam::{DQuat, DVec3};
@@ -24,7 +28,9 @@ use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
 use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
-use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options, wait_until};
+use softhaptic_tests::{
+    Viewer, scratch_dir, softhaptic_binary, start_recorded, test_options, wait_until,
+};
 
 /// A report every 16 ms, as a wired SpaceMouse sends them while its puck is off centre.
 const REPORT_EVERY_S: f64 = 0.016;
@@ -148,8 +154,36 @@ async fn a_scripted_spacemouse_presses_the_liver_through_the_whole_server() {
     let report = check(&recorded, CheckOverrides::default()).unwrap();
     assert!(report.passed(), "{report}");
     assert_eq!(report.ticks_compared, recorded.device.len() as u64);
+    assert_softhaptic_check_passes(&path, recorded.device.len());
 
     assert_path(&recorded.device, &RateControl::new(rate));
+}
+
+/// Runs the built `softhaptic check` on `recording` and asserts it passes: exit status 0 and
+/// the report on stdout.
+fn assert_softhaptic_check_passes(recording: &Path, ticks: usize) {
+    let out = Command::new(softhaptic_binary())
+        .arg("check")
+        .arg(recording)
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .unwrap();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "softhaptic check {}:\n{stdout}\n{stderr}",
+        recording.display()
+    );
+    assert!(
+        stdout.contains(&format!(
+            "{ticks} ticks replayed, every force identical bit for bit"
+        )),
+        "{stdout}"
+    );
 }
 
 fn position(d: &DeviceRecord) -> Option<DVec3> {
@@ -490,6 +524,7 @@ async fn a_compact_s_twist_turns_the_cone_and_the_session_replays_bit_for_bit() 
     let report = check(&recorded, CheckOverrides::default()).unwrap();
     assert!(report.passed(), "{report}");
     assert_eq!(report.ticks_compared, recorded.device.len() as u64);
+    assert_softhaptic_check_passes(&path, recorded.device.len());
 }
 
 #[test]

@@ -233,9 +233,12 @@ function sessionStorageOrNull() {
   }
 }
 
-/** A token from the prompt or a new link: kept, presented on a fresh connection at once. */
-function useToken(token) {
-  keeper.set(token);
+/**
+ * A token from the prompt or a new link (with the role the link names, when it does): kept,
+ * presented on a fresh connection at once.
+ */
+function useToken(token, role) {
+  keeper.set(token, role);
   connection.setToken(token);
   connection.reconnectNow();
   loadSceneOverHttp();
@@ -243,15 +246,18 @@ function useToken(token) {
 
 /**
  * The server wants a token the viewer has not got (`needs_token`) or refused the one it
- * presented (`token_refused`): a refused token is forgotten, the connection stays closed, and
- * the prompt asks for the link.
+ * presented (`token_refused`, or `token_expired` when it greeted this tab with it before): a
+ * refused token is forgotten, the connection stays closed, and the prompt asks for the link.
  */
 function requireToken(reason) {
+  const linkRole = keeper.role;
+  let why = reason;
   if (reason === 'token_refused') {
+    why = keeper.refusal();
     keeper.forget();
     connection.setToken(null);
   }
-  prompt.show(reason);
+  prompt.show(why, { linkRole });
 }
 
 function onConnectionState(s, detail) {
@@ -401,7 +407,8 @@ function onMessage(message, receivedAtMs) {
           setMode(true);
         }
       }
-      prompt.hide();
+      // The prompt goes, unless the link was given for another role than the server grants.
+      prompt.greeted(keeper.greeted(accessOf(message).role));
       state.sessionId = message.session_id;
       break;
     case 'refused':

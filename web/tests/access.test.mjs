@@ -1,15 +1,21 @@
-// The viewer's token: read from the page's fragment (with and without `token=`, empty, junk),
-// from what someone pastes into the prompt, kept in sessionStorage and off the address bar; the
-// prompt driven through stand-ins of its field and button.
+// The viewer's token: read from the page's fragment (with and without `token=`, empty, junk, with
+// and without the link's role hint), from what someone pastes into the prompt, kept in
+// sessionStorage and off the address bar; a refused token said to have expired only when this tab
+// was greeted with it; a link granted another role than it names said to be so; the prompt driven
+// through stand-ins of its field and button.
 import { test } from 'node:test';
 import assert from 'node:assert/strict';
 
 import {
   AccessPrompt,
+  GREETED_STORAGE_KEY,
   PROMPT_DETAILS,
+  ROLE_STORAGE_KEY,
   TOKEN_STORAGE_KEY,
   TokenKeeper,
   isToken,
+  promptDetail,
+  roleNotice,
   tokenFromFragment,
   tokenFromInput,
 } from '../src/access.js';
@@ -19,31 +25,39 @@ const TOKEN = '0123456789abcdef0123456789abcdef';
 const OTHER = 'fedcba9876543210fedcba9876543210';
 
 test('a fragment with token= gives its token, among other pairs and percent-encoded', () => {
-  assert.deepEqual(tokenFromFragment(`#token=${TOKEN}`), { token: TOKEN, holdsToken: true });
-  assert.deepEqual(tokenFromFragment(`token=${TOKEN}`), { token: TOKEN, holdsToken: true }, 'without the #');
-  assert.deepEqual(tokenFromFragment(`#view=top&token=${TOKEN}&x=1`), { token: TOKEN, holdsToken: true });
+  assert.deepEqual(tokenFromFragment(`#token=${TOKEN}`), { token: TOKEN, holdsToken: true, role: null });
+  assert.deepEqual(
+    tokenFromFragment(`token=${TOKEN}`),
+    { token: TOKEN, holdsToken: true, role: null },
+    'without the #',
+  );
+  assert.deepEqual(tokenFromFragment(`#view=top&token=${TOKEN}&x=1`), { token: TOKEN, holdsToken: true, role: null });
   // A lab's own token may be base64 (RFC 6750 b64token): `+`, `/` and `=` padding survive.
   assert.equal(tokenFromFragment('#token=ab%2Bcd/ef%3D%3D').token, 'ab+cd/ef==');
   assert.equal(tokenFromFragment('#token=ab+cd/ef==').token, 'ab+cd/ef==');
 });
 
 test('a bare fragment is a token only when it looks like one the server prints', () => {
-  assert.deepEqual(tokenFromFragment(`#${TOKEN}`), { token: TOKEN, holdsToken: true });
-  assert.deepEqual(tokenFromFragment(`#${TOKEN.toUpperCase()}`), { token: TOKEN.toUpperCase(), holdsToken: true });
+  assert.deepEqual(tokenFromFragment(`#${TOKEN}`), { token: TOKEN, holdsToken: true, role: null });
+  assert.deepEqual(tokenFromFragment(`#${TOKEN.toUpperCase()}`), {
+    token: TOKEN.toUpperCase(),
+    holdsToken: true,
+    role: null,
+  });
   // A page anchor or a short hex word is not a token, and stays in the address bar.
   for (const hash of ['#replay-panel', '#deadbeef', `#${TOKEN.slice(1)}`, `#${TOKEN}g`, '#token']) {
-    assert.deepEqual(tokenFromFragment(hash), { token: null, holdsToken: false }, hash);
+    assert.deepEqual(tokenFromFragment(hash), { token: null, holdsToken: false, role: null }, hash);
   }
 });
 
 test('an empty fragment has no token; a junk token= is no token but still leaves the address bar', () => {
   for (const hash of ['', '#', undefined, null]) {
-    assert.deepEqual(tokenFromFragment(hash), { token: null, holdsToken: false }, String(hash));
+    assert.deepEqual(tokenFromFragment(hash), { token: null, holdsToken: false, role: null }, String(hash));
   }
   for (const hash of ['#token=', '#token=has space', '#token=%E0%A4%A', '#token=<script>', '#token=a"b', '#token=é']) {
-    assert.deepEqual(tokenFromFragment(hash), { token: null, holdsToken: true }, hash);
+    assert.deepEqual(tokenFromFragment(hash), { token: null, holdsToken: true, role: null }, hash);
   }
-  assert.deepEqual(tokenFromFragment('#view=top&x=1'), { token: null, holdsToken: false });
+  assert.deepEqual(tokenFromFragment('#view=top&x=1'), { token: null, holdsToken: false, role: null });
   assert.equal(isToken('x'.repeat(1024)), true);
   assert.equal(isToken('x'.repeat(1025)), false, 'a bounded length');
   assert.equal(isToken(''), false);
@@ -59,10 +73,10 @@ test('the prompt takes a whole link (whatever its host), a fragment or a bare to
     `token=${TOKEN}`,
     TOKEN,
   ]) {
-    assert.deepEqual(tokenFromInput(input), { token: TOKEN, error: null }, input);
+    assert.deepEqual(tokenFromInput(input), { token: TOKEN, role: null, error: null }, input);
   }
   // Any well-formed token pasted alone is tried: the server says whether it takes it.
-  assert.deepEqual(tokenFromInput('bGFiLXRva2Vu'), { token: 'bGFiLXRva2Vu', error: null });
+  assert.deepEqual(tokenFromInput('bGFiLXRva2Vu'), { token: 'bGFiLXRva2Vu', role: null, error: null });
 });
 
 test('the prompt says what is wrong with what was pasted, without repeating it', () => {
@@ -226,8 +240,15 @@ function prompt() {
     button: new FakeElement(),
     note: new FakeElement(),
   };
-  const p = new AccessPrompt({ ...el, onToken: (t) => tokens.push(t) });
-  return { p, el, tokens };
+  const roles = [];
+  const p = new AccessPrompt({
+    ...el,
+    onToken: (t, role) => {
+      tokens.push(t);
+      roles.push(role);
+    },
+  });
+  return { p, el, tokens, roles };
 }
 
 test('the prompt says why it asks, and hands over a pasted link’s token on a click or Enter', () => {
@@ -245,9 +266,9 @@ test('the prompt says why it asks, and hands over a pasted link’s token on a c
   assert.equal(el.input.value, '', 'the token does not stay in the page');
   assert.equal(el.note.textContent, 'connecting…');
 
-  // The server refused it: the prompt says so.
+  // The server refused it: the prompt says so, and why a link stops working.
   p.show('token_refused');
-  assert.match(el.detail.textContent, /not valid for this server, or has expired/);
+  assert.match(el.detail.textContent, /^This link is not valid for this server\. .*each time it starts/);
   assert.equal(el.note.textContent, '');
 
   el.input.value = OTHER;
@@ -270,4 +291,152 @@ test('the prompt keeps what cannot be a token out of the connection and says why
   assert.deepEqual(tokens, []);
   assert.match(el.note.textContent, /holds no token/);
   assert.equal(el.input.value, 'http://127.0.0.1:8080/', 'left to correct');
+});
+
+test('a link’s role hint comes with its token; without a valid token, or naming no role, there is none', () => {
+  assert.deepEqual(tokenFromFragment(`#token=${TOKEN}&role=observer`), {
+    token: TOKEN,
+    holdsToken: true,
+    role: 'observer',
+  });
+  assert.deepEqual(tokenFromFragment(`#role=instructor&token=${TOKEN}`), {
+    token: TOKEN,
+    holdsToken: true,
+    role: 'instructor',
+  });
+  // An old link, a bare token: no hint, and the token works as before.
+  assert.deepEqual(tokenFromFragment(`#token=${TOKEN}`), { token: TOKEN, holdsToken: true, role: null });
+  assert.deepEqual(tokenFromFragment(`#${TOKEN}`), { token: TOKEN, holdsToken: true, role: null });
+  for (const hint of ['admin', 'Observer', '', 'observer%00', 'instructor&role=observer']) {
+    assert.equal(
+      tokenFromFragment(`#token=${TOKEN}&role=${hint}`).role,
+      hint.startsWith('instructor&') ? 'instructor' : null,
+      hint,
+    );
+  }
+  // The first of a repeated key counts, for the token as for the hint.
+  assert.deepEqual(tokenFromFragment(`#token=${TOKEN}&token=${OTHER}&role=observer&role=instructor`), {
+    token: TOKEN,
+    holdsToken: true,
+    role: 'observer',
+  });
+  // A hint alone is no token, and a junk token carries no hint.
+  assert.deepEqual(tokenFromFragment('#role=instructor'), { token: null, holdsToken: false, role: null });
+  assert.deepEqual(tokenFromFragment('#token=bad%20one&role=instructor'), {
+    token: null,
+    holdsToken: true,
+    role: null,
+  });
+  // Pasted: the link's hint comes along; a bare token has none.
+  assert.deepEqual(tokenFromInput(`https://lab:8443/#token=${TOKEN}&role=observer`), {
+    token: TOKEN,
+    role: 'observer',
+    error: null,
+  });
+  assert.deepEqual(tokenFromInput(TOKEN), { token: TOKEN, role: null, error: null });
+});
+
+test('a link granted another role than it names says so; agreeing or unhinted ones say nothing', () => {
+  assert.match(
+    roleNotice('instructor', 'observer'),
+    /^This is an observer link: .*read-only.*paste the instructor’s link/,
+  );
+  assert.match(roleNotice('observer', 'instructor'), /^This is an instructor link: .*control the replay/);
+  for (const [hint, granted] of [
+    ['instructor', 'instructor'],
+    ['observer', 'observer'],
+    [null, 'observer'],
+    [null, 'instructor'],
+    ['observer', null],
+    ['admin', 'observer'],
+  ]) {
+    assert.equal(roleNotice(hint, granted), null, `${hint} → ${granted}`);
+  }
+});
+
+test('the keeper keeps the link’s role with its token, across a reload and the same token handed on again', () => {
+  const storage = new FakeStorage();
+  const keeper = new TokenKeeper({ storage });
+  const p = page(`#token=${TOKEN}&role=instructor`);
+  assert.equal(keeper.adopt(p.location, p.history), 'fragment');
+  assert.deepEqual([keeper.token, keeper.role, keeper.wasGreeted], [TOKEN, 'instructor', false]);
+  assert.equal(p.location.hash, '', 'the hint leaves the address bar with the token');
+  assert.equal(storage.getItem(ROLE_STORAGE_KEY), 'instructor');
+  // The page hands a link's token on without its role: what is known of it stays.
+  keeper.set(TOKEN);
+  assert.equal(keeper.role, 'instructor');
+  assert.equal(keeper.greeted('instructor'), null);
+  assert.equal(storage.getItem(GREETED_STORAGE_KEY), '1');
+
+  const reload = new TokenKeeper({ storage });
+  assert.equal(reload.adopt(page('').location, page('').history), 'storage');
+  assert.deepEqual([reload.token, reload.role, reload.wasGreeted], [TOKEN, 'instructor', true]);
+
+  // Another token starts afresh: its own hint or none, not greeted yet.
+  reload.set(OTHER);
+  assert.deepEqual([reload.role, reload.wasGreeted], [null, false]);
+  assert.equal(storage.getItem(ROLE_STORAGE_KEY), null);
+  assert.equal(storage.getItem(GREETED_STORAGE_KEY), null);
+  reload.set(TOKEN, 'observer');
+  assert.equal(reload.role, 'observer');
+  // A hint in storage that names no role is none.
+  storage.setItem(ROLE_STORAGE_KEY, 'admin');
+  const odd = new TokenKeeper({ storage });
+  odd.adopt(page('').location, page('').history);
+  assert.equal(odd.role, null);
+});
+
+test('a refused token is called expired only when this tab was greeted with it before', () => {
+  const storage = new FakeStorage();
+  const keeper = new TokenKeeper({ storage });
+  keeper.set(TOKEN, 'observer');
+  // Never greeted: not valid here, or from an earlier start than this tab knows.
+  assert.equal(keeper.refusal(), 'token_refused');
+  assert.equal(keeper.greeted('observer'), null);
+  // Greeted, then refused: the server has restarted with new tokens since.
+  assert.equal(keeper.refusal(), 'token_expired');
+  keeper.forget();
+  assert.deepEqual([keeper.token, keeper.role, keeper.wasGreeted], [null, null, false]);
+  for (const key of [TOKEN_STORAGE_KEY, ROLE_STORAGE_KEY, GREETED_STORAGE_KEY])
+    assert.equal(storage.getItem(key), null, key);
+  // Greeted without a token (a server without tokens): nothing to expire.
+  assert.equal(keeper.greeted('instructor'), null);
+  assert.equal(keeper.refusal(), 'token_refused');
+});
+
+test('the prompt says expired, not valid, or wrong role precisely, naming the link’s role when known', () => {
+  assert.equal(promptDetail('needs_token'), PROMPT_DETAILS.needs_token);
+  assert.match(
+    promptDetail('token_refused'),
+    /^This link is not valid for this server\. .*earlier start no longer works/,
+  );
+  assert.match(promptDetail('token_refused', 'observer'), /^This observer link is not valid for this server\./);
+  assert.match(
+    promptDetail('token_expired'),
+    /^This link has expired: it worked in this tab until the server restarted/,
+  );
+  assert.match(promptDetail('token_expired', 'instructor'), /^This instructor link has expired/);
+  assert.equal(promptDetail('token_refused', 'admin'), promptDetail('token_refused'));
+  for (const reason of ['needs_token', 'token_refused', 'token_expired']) {
+    assert.ok(!promptDetail(reason).includes('{link}'), reason);
+  }
+
+  const { p, el, tokens, roles } = prompt();
+  p.show('token_expired', { linkRole: 'instructor' });
+  assert.equal(p.reason, 'token_expired');
+  assert.match(el.detail.textContent, /^This instructor link has expired/);
+  // Greeted as the link's role: the prompt goes.
+  p.greeted(null);
+  assert.equal(p.shown, false);
+  assert.equal(el.panel.hidden, true);
+  // Greeted as another: it stays to say so, and takes the right link with its hint.
+  const notice = roleNotice('instructor', 'observer');
+  p.greeted(notice);
+  assert.equal(p.shown, true);
+  assert.equal(p.reason, 'wrong_role');
+  assert.equal(el.detail.textContent, notice);
+  el.input.value = `http://127.0.0.1:8080/#token=${OTHER}&role=instructor`;
+  el.button.fire('click');
+  assert.deepEqual(tokens, [OTHER]);
+  assert.deepEqual(roles, ['instructor']);
 });

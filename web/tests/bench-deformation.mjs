@@ -1,7 +1,9 @@
 // Measures the viewer's deformation update in Chromium, beside the paper's Table 1.
 //
 //   npm run bench   (builds and starts the server, debug profile; BENCH_RELEASE=1 for release,
-//                    SOFTHAPTIC_URL to use a server that is already running)
+//                    SOFTHAPTIC_URL to use a server that is already running; BENCH_SCENE=FILE
+//                    to start it with a scene file, e.g. scenes/cone.toml, instead of the
+//                    built-in default)
 //
 // For flat square grids of the paper's sizes (40² … 100² vertices) and for the scene's render
 // mesh, times MeshDeformer.apply (restore the previous dimple, move the new one, analytic
@@ -56,6 +58,12 @@ function surfaceErrorsMm(tool) {
   return errors;
 }
 const LIVE_SECONDS = Number(process.env.BENCH_LIVE_SECONDS ?? 8);
+/**
+ * The scene file the server is started with (a path from the repository's root, as `--scene`
+ * takes it); unset: the built-in default scene (the 10 mm sphere). The tool, the calibration
+ * table and the render mesh timed are the scene's.
+ */
+const SCENE = process.env.BENCH_SCENE || null;
 const DRAWS = Number(process.env.BENCH_DRAWS ?? 15);
 
 /** Runs inside the page: times `updates` deformation updates on a grid or the render mesh. */
@@ -224,9 +232,13 @@ async function timeGpuInPage({ profile, depthM, deformedRadiusM, updates, draws 
   return { updateMs: means[means.length >> 1], bentMs, restMs, reachMm: table.reachM * 1000 };
 }
 
+if (SCENE !== null && process.env.SOFTHAPTIC_URL) {
+  // A running server has its own scene; timing it under another scene's name would mislead.
+  throw new Error('BENCH_SCENE starts a server with that scene; unset SOFTHAPTIC_URL to use it');
+}
 const server = await startServer({
   release: Boolean(process.env.BENCH_RELEASE),
-  extraArgs: ['--no-realtime', '--no-record'],
+  extraArgs: ['--no-realtime', '--no-record', ...(SCENE === null ? [] : ['--scene', SCENE])],
 });
 const browser = await launchBrowser();
 try {
@@ -241,8 +253,14 @@ try {
     .map((x) => x.toFixed(1))
     .join(' ');
   console.log(`Host: ${os.cpus().length} CPUs (${os.cpus()[0]?.model ?? 'unknown'}), load average ${load}`);
+  const sceneTool = await page.evaluate(async () => (await (await fetch('/api/scene')).json()).tool);
+  const toolWords =
+    sceneTool.shape === 'cone'
+      ? `${((sceneTool.half_angle_rad * 180) / Math.PI).toFixed(0)}° cone, base radius ${(sceneTool.radius_m * 1000).toFixed(0)} mm`
+      : `${(sceneTool.radius_m * 1000).toFixed(0)} mm ${sceneTool.shape}`;
+  console.log(`Scene: ${SCENE ?? 'the built-in default'} (tool: ${toolWords})`);
   console.log(
-    `Deformation update in Chromium on the CPU path, MeshDeformer (${UPDATES} updates each; 4 mm sphere press, R_d = 20 mm)`,
+    `Deformation update in Chromium on the CPU path, MeshDeformer (${UPDATES} updates each; 4 mm press, R_d = 20 mm)`,
   );
   console.log('');
   console.log('| vertices | moved | median ms | mean ms | paper Table 1 mean ms (SD) |');
@@ -262,7 +280,9 @@ try {
   const r = await page.evaluate(timeInPage, { kind: 'render', side: 0, updates: UPDATES });
   console.log(`| ${r.vertices} (render mesh) | ${r.moved} | ${r.medianMs.toFixed(3)} | ${r.meanMs.toFixed(3)} | — |`);
   console.log('');
-  console.log('Each profile on the 100 000-vertex grid (100 mm square, press at its centre), R_d from the');
+  console.log(
+    "Each profile on the 100 000-vertex grid (100 mm square, the scene's tool pressing its centre), R_d from the",
+  );
   console.log("scene's table; `fem` draws the tabulated FEM surface (each point sunk and slid sideways as");
   console.log("the FEM's moved) out to where it settles, the block's side plus its 10 mm ramp at depth, so");
   console.log('it moves more vertices than R_d holds:');

@@ -3,13 +3,14 @@
 //
 //   npm run test:e2e    (builds the server with cargo; SOFTHAPTIC_BIN to reuse a built one)
 //
-// Checks: the server prints an instructor's and an observer's link, each with its own token in
-// the fragment; the page opened from the instructor's link takes the token off the address bar,
-// keeps it for a reload, shows the role, loads the scene and draws a press exactly as the profile
-// says; opened without the fragment it shows the prompt, and the observer's link pasted there
-// connects as an observer; a link whose token the server does not know says so, and the right
-// link then opened in the same tab (only the fragment changes) connects; Chromium reports no
-// CSP violation on any of these pages.
+// Checks: the server prints an instructor's and an observer's link, each with its own token and
+// the role it is for in the fragment; the page opened from the instructor's link takes the token
+// off the address bar, keeps it for a reload, shows the role, loads the scene and draws a press
+// exactly as the profile says; opened without the fragment it shows the prompt, and the
+// observer's link pasted there connects as an observer; a link whose token the server does not
+// know says it is not valid here (or from an earlier start), and the right token then opened in
+// the same tab as a link without the role (only the fragment changes) connects; Chromium reports
+// no CSP violation on any of these pages.
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
 
@@ -18,7 +19,8 @@ import { assertPressBendsMesh, freezeOnPress, watchCsp } from './e2e-checks.mjs'
 import { startServer } from './server.mjs';
 
 const SERVER_ARGS = ['--no-realtime', '--no-record', '--tokens'];
-const TOKEN_IN_LINK = /#token=([0-9a-f]{32})$/;
+/** The token of a printed link, and the role the link names after it. */
+const TOKEN_IN_LINK = /#token=([0-9a-f]{32})&role=(instructor|observer)$/;
 const WAIT = { timeout: 30000 };
 
 let server;
@@ -50,9 +52,11 @@ after(async () => {
   await server?.stop();
 });
 
-test('the server prints an instructor’s and an observer’s link, each with its token in the fragment', () => {
+test('the server prints an instructor’s and an observer’s link, each with its token and role in the fragment', () => {
   assert.match(server.url, TOKEN_IN_LINK, server.url);
   assert.match(server.observerUrl ?? '', TOKEN_IN_LINK, String(server.observerUrl));
+  assert.equal(TOKEN_IN_LINK.exec(server.url)[2], 'instructor');
+  assert.equal(TOKEN_IN_LINK.exec(server.observerUrl)[2], 'observer');
   assert.notEqual(TOKEN_IN_LINK.exec(server.url)[1], TOKEN_IN_LINK.exec(server.observerUrl)[1]);
   assert.equal(server.observerUrl.split('#')[0], server.baseUrl);
 });
@@ -128,7 +132,10 @@ test('a link whose token this server does not know says so and is not kept; the 
   await page.waitForFunction(() => window.__softhaptic?.prompt().shown, null, { timeout: 30000 });
   const prompt = await hook(page, () => window.__softhaptic.prompt());
   assert.equal(prompt.reason, 'token_refused');
-  assert.match(prompt.detail, /not valid for this server, or has expired/);
+  assert.match(
+    prompt.detail,
+    /^This link is not valid for this server\. .*a link from an earlier start no longer works/,
+  );
   assert.equal(page.url(), server.baseUrl);
   assert.equal(await hook(page, () => sessionStorage.getItem('softhaptic.token')), null);
   assert.equal(await hook(page, () => window.__softhaptic.hasToken()), false);
@@ -144,6 +151,37 @@ test('a link whose token this server does not know says so and is not kept; the 
   assert.equal(page.url(), server.baseUrl, 'taken off the address bar again');
   assert.equal(await hook(page, () => window.__softhaptic.prompt().shown), false);
   assert.equal(await hook(page, () => sessionStorage.getItem('softhaptic.token')), token);
+});
+
+test('an observer’s token in a link that names the instructor says this is an observer link', async () => {
+  const page = await openPage();
+  const observer = TOKEN_IN_LINK.exec(server.observerUrl)[1];
+  await page.goto(`${server.baseUrl}#token=${observer}&role=instructor`);
+  await page.waitForFunction(() => window.__softhaptic?.role() === 'observer', null, { timeout: 120000 });
+  await page.waitForFunction(() => window.__softhaptic.prompt().shown, null, WAIT);
+  const prompt = await hook(page, () => window.__softhaptic.prompt());
+  assert.equal(prompt.reason, 'wrong_role');
+  assert.match(prompt.detail, /^This is an observer link: .*read-only/);
+  // The instructor's link pasted there: greeted as the instructor, the prompt goes.
+  await page.fill('#token-input', server.url);
+  await page.click('#token-connect');
+  await page.waitForFunction(() => window.__softhaptic.role() === 'instructor', null, WAIT);
+  await page.waitForFunction(() => !window.__softhaptic.prompt().shown, null, WAIT);
+});
+
+test('after the server restarts, the link this tab was greeted with is said to have expired', async () => {
+  const page = await openPage();
+  await page.goto(server.url);
+  await page.waitForFunction(() => window.__softhaptic?.role() === 'instructor', null, { timeout: 120000 });
+  const addr = new URL(server.baseUrl).host;
+  await server.stop();
+  // The same address, new tokens: the tab reconnects with its old one and is refused.
+  server = await startServer({ extraArgs: SERVER_ARGS, external: false, addr });
+  await page.waitForFunction(() => window.__softhaptic.prompt().shown, null, { timeout: 60000 });
+  const prompt = await hook(page, () => window.__softhaptic.prompt());
+  assert.equal(prompt.reason, 'token_expired');
+  assert.match(prompt.detail, /^This instructor link has expired: it worked in this tab until the server restarted/);
+  assert.equal(await hook(page, () => window.__softhaptic.hasToken()), false);
 });
 
 test('Chromium reports no CSP violation and no page error on any of the pages', async () => {

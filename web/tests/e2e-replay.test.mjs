@@ -9,17 +9,21 @@
 // (the server's answer confirms the position) and the force plot keeps what was played before
 // the new position; pause holds the position and stops the frames;
 // a seek while paused shows the recorded frame at the new position. Saves a screenshot to
-// web/test-results/replay.png.
+// web/test-results/replay.png. Then, replaying a recording whose press went above the scene's
+// safe force, the timeline marks the very stretches where the exported 1 kHz ticks did.
 //
 // The machine may be slow (software WebGL, two cores): the checks read the statuses the page
 // logged rather than racing the replay's clock.
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
-import { mkdirSync } from 'node:fs';
+import { spawnSync } from 'node:child_process';
+import { mkdirSync, mkdtempSync, readFileSync, rmSync } from 'node:fs';
+import { tmpdir } from 'node:os';
+import { join } from 'node:path';
 import { fileURLToPath } from 'node:url';
 
 import { launchBrowser } from './browser.mjs';
-import { startServer } from './server.mjs';
+import { REPO, buildServer, startServer } from './server.mjs';
 
 const RESULTS = fileURLToPath(new URL('../test-results/', import.meta.url));
 const RECORDING = 'tests/sessions/sphere-press.mcap';
@@ -269,4 +273,84 @@ test('the replay viewer counted no malformed or unknown message and raised no pa
   assert.deepEqual(actions.slice(0, 3), ['pause', 'play', 'seek'], actions.join(', '));
   assert.deepEqual(actions.slice(-2), ['pause', 'seek'], actions.join(', '));
   assert.deepEqual(pageErrors, []);
+});
+
+/**
+ * The stretches of a recording's 1 kHz ticks where |F| was above its scene's safe force, in
+ * seconds from its first contact frame (replay time 0), read from what `softhaptic export`
+ * writes (device.csv, contact.csv, metrics.json): each run of consecutive ticks above, from its
+ * first tick to its last.
+ */
+function aboveSafeFromExport(recording) {
+  const out = mkdtempSync(join(tmpdir(), 'softhaptic-export-'));
+  try {
+    const result = spawnSync(buildServer(), ['export', recording, '--out', out], { cwd: REPO, encoding: 'utf8' });
+    assert.equal(result.status, 0, `softhaptic export failed: ${result.stderr}`);
+    const rows = (name) => {
+      const [header, ...lines] = readFileSync(join(out, name), 'utf8').trim().split('\n');
+      const column = Object.fromEntries(header.split(',').map((h, i) => [h, i]));
+      return lines.map((line) => {
+        const cells = line.split(',');
+        return (name) => cells[column[name]];
+      });
+    };
+    const safeForceN = JSON.parse(readFileSync(join(out, 'metrics.json'), 'utf8')).safe_force_n;
+    const startNs = BigInt(rows('contact.csv')[0]('time_ns'));
+    const seconds = (ns) => Number(ns - startNs) * 1e-9;
+    const spans = [];
+    let open = null;
+    for (const tick of rows('device.csv')) {
+      const force = Math.hypot(...['force_x_n', 'force_y_n', 'force_z_n'].map((c) => Number(tick(c))));
+      const timeNs = BigInt(tick('time_ns'));
+      if (force > safeForceN) open = { start: open?.start ?? timeNs, end: timeNs };
+      else if (open) {
+        spans.push({ startS: seconds(open.start), endS: seconds(open.end) });
+        open = null;
+      }
+    }
+    if (open) spans.push({ startS: seconds(open.start), endS: seconds(open.end) });
+    return { safeForceN, spans };
+  } finally {
+    rmSync(out, { recursive: true, force: true });
+  }
+}
+
+test('the timeline marks where the recorded ticks pushed harder than the safe force', async () => {
+  // The press of this recording peaks just above the default scene's 2 N.
+  const recording = 'tests/sessions/fault-mid-press.mcap';
+  const expected = aboveSafeFromExport(recording);
+  assert.ok(expected.spans.length >= 1, `no tick above ${expected.safeForceN} N in ${recording}`);
+  const other = await startServer({ command: ['replay', recording, '--paused'], external: false });
+  const p = await browser.newPage({ viewport: { width: 1280, height: 800 } });
+  const errors = [];
+  p.on('pageerror', (e) => errors.push(e.message));
+  try {
+    await p.goto(other.url);
+    await p.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
+    await p.waitForFunction(() => window.__softhaptic.replay().known, null, WAIT);
+    const r = await p.evaluate(() => window.__softhaptic.replay());
+    // The server's status, to the nanosecond (ticks are a millisecond apart).
+    const sent = r.lastStatus.above_safe ?? [];
+    assert.equal(sent.length, expected.spans.length, JSON.stringify({ sent, expected }));
+    sent.forEach((s, i) => {
+      const e = expected.spans[i];
+      assert.ok(
+        Math.abs(s.start_s - e.startS) < 1e-9 && Math.abs(s.end_s - e.endS) < 1e-9,
+        JSON.stringify({ sent, expected }),
+      );
+    });
+    // The track: one mark per stretch, where it starts, saying how long it lasted.
+    const marks = r.gaps.filter((g) => g.cause === 'above_safe');
+    assert.equal(marks.length, expected.spans.length, JSON.stringify(r.gaps));
+    marks.forEach((m, i) => {
+      const e = expected.spans[i];
+      assert.ok(Math.abs(m.leftPct - (100 * e.startS) / r.durationS) < 1e-3, `mark at ${m.leftPct} %`);
+      const lastedS = sent[i].end_s - sent[i].start_s;
+      assert.match(m.title, new RegExp(`^above the safe force for ${lastedS.toFixed(2)} s at `));
+    });
+    assert.deepEqual(errors, []);
+  } finally {
+    await p.close();
+    await other.stop();
+  }
 });

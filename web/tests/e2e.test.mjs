@@ -6,8 +6,10 @@
 // Checks, on the frame the page drew during a press: the render vertices moved exactly as the
 // JavaScript profile the scene names says for the contact the page rendered (so the vertex
 // under the tool sank by about δ, and nothing beyond the profile's reach moved); the force plot
-// shows the press; the connection
-// counted no malformed message. Then stops the server and starts it again on the same port:
+// shows the press; the depression map and the section view, turned on and off with the page's
+// own checkboxes, colour and cut the press; the trainee panel writes every figure of the
+// server's metrics message; the connection counted no malformed message. Then stops the server
+// and starts it again on the same port:
 // the page must notice, reconnect by itself and draw the new session. Saves a screenshot to
 // web/test-results/e2e.png.
 import { after, before, test } from 'node:test';
@@ -191,8 +193,10 @@ test('a press bends the render mesh exactly as the profile says, and only within
   await page.evaluate(() => window.__softhaptic.pause(false));
 });
 
-test('the depression map colours the vertices that moved, and only while it is on', async () => {
-  await page.evaluate(() => window.__softhaptic.depressionMap(true));
+test('the depression map colours the vertices that moved, and only while its checkbox is ticked', async () => {
+  // The page's own checkbox, as a person ticks it: its listener turns the map on.
+  await page.check('#map-toggle');
+  assert.ok(await page.locator('#map-scale').isVisible(), 'the map shows its scale');
   await freezeOnPress(page, 2e-3);
   const on = await page.evaluate(() => {
     const h = window.__softhaptic;
@@ -214,7 +218,9 @@ test('the depression map colours the vertices that moved, and only while it is o
   if (on.farMoved === 0) assert.deepEqual(on.far, [1, 1, 1]);
   else assert.ok(on.farMoved < 1e-4 && on.far.every((x) => x > 0.98), `far: ${on.far}, moved ${on.farMoved} m`);
   assert.equal(on.scale, 'white 0 … blue 5 mm');
-  await page.evaluate(() => window.__softhaptic.depressionMap(false));
+  // Still frozen on the same press: unticked, the same vertex is drawn white again.
+  await page.uncheck('#map-toggle');
+  assert.equal(await page.locator('#map-scale').isVisible(), false, 'the scale goes with the map');
   const off = await page.evaluate(() => {
     const h = window.__softhaptic;
     return h.vertexColor(h.findVertexNear(...h.contact().point).index);
@@ -226,9 +232,11 @@ test('the depression map colours the vertices that moved, and only while it is o
 test('the section view cuts the object through the contact, along its normal, away from the camera', async () => {
   await freezeOnPress(page, 2e-3);
   // Still frozen on the press: the plane is placed from the contact the page holds, which a
-  // slow machine's next frames cannot end before it is read.
-  const cut = await page.evaluate(() => window.__softhaptic.section(true));
-  assert.equal(cut.on, true);
+  // slow machine's next frames cannot end before it is read. Turned on with the page's own
+  // checkbox, as a person does.
+  await page.check('#section-toggle');
+  assert.ok(await page.locator('#section-key').isVisible(), 'the key to the undeformed line shows');
+  assert.equal((await page.evaluate(() => window.__softhaptic.section())).on, true);
   // Placed on the next drawn frame (drawn while paused too).
   await page.waitForFunction(() => window.__softhaptic.section().constant !== 0, null, { timeout: 30000 });
   const c = await page.evaluate(() => window.__softhaptic.contact());
@@ -269,26 +277,84 @@ test('the section view cuts the object through the contact, along its normal, aw
   const nearest = Math.min(...on.map(([x, y]) => Math.hypot(x - centre, y - centre)));
   assert.ok(nearest <= 8, `the line passes ${nearest.toFixed(1)} px from the contact point`);
 
-  assert.equal((await page.evaluate(() => window.__softhaptic.section(false))).on, false);
+  await page.uncheck('#section-toggle');
+  assert.equal((await page.evaluate(() => window.__softhaptic.section())).on, false);
   assert.equal((await page.evaluate(() => window.__softhaptic.sectionReference())).visible, false);
+  assert.equal(await page.locator('#section-key').isVisible(), false);
   await page.evaluate(() => {
     window.__softhaptic.resetCamera();
     window.__softhaptic.pause(false);
   });
 });
 
-test("the trainee's metrics panel shows the server's metrics of the press", async () => {
-  await page.waitForFunction(
-    () => {
-      const m = window.__softhaptic.metrics();
-      return m.last !== null && m.last.pushes >= 1 && m.peakShown.endsWith(' s');
-    },
-    null,
-    { timeout: 60000 },
+/**
+ * The trainee panel's rows as the panel must write them for metrics message `m` (the text a
+ * person reads, spelled out here rather than taken from the page's code).
+ */
+function panelTextOf(m) {
+  const flagsRaised = Object.values(m.flags_raised).reduce((a, b) => a + b, 0);
+  return {
+    peak: `${m.peak_force_n.toFixed(2)} N at ${m.peak_force_time_s.toFixed(1)} s`,
+    above: `${m.time_above_safe_s.toFixed(2)} s over ${m.safe_force_n} N`,
+    // Red once the trainee has pushed harder than the scene's safe force at all.
+    aboveClass: m.time_above_safe_s > 0 ? 'severe' : '',
+    contact: `${m.time_in_contact_s.toFixed(1)} s`,
+    path: `${(m.path_length_in_contact_m * 1e3).toFixed(1)} mm`,
+    pushes: String(m.pushes),
+    jerk: `${m.mean_squared_jerk_m2_s6.toExponential(2)} m²/s⁶`,
+    flags: `${m.device_fault_ticks} / ${flagsRaised}`,
+  };
+}
+
+test("the trainee's metrics panel shows every figure of the server's metrics of the press", async () => {
+  // The last message received and the panel's rows, read in one page task. The panel is
+  // rewritten four times a second and a message comes once a second, so a read may catch the
+  // rows of the message before; a later read (of a later message) shows the one it holds.
+  const read = async (afterTicks) =>
+    (
+      await page.waitForFunction(
+        (after) => {
+          const m = window.__softhaptic.metrics().last;
+          if (m === null || m.pushes < 1 || m.time_in_contact_s < 0.2 || m.ticks <= after) return null;
+          const row = (id) => document.getElementById(id);
+          return {
+            sent: m,
+            shown: {
+              peak: row('t-peak').textContent,
+              above: row('t-above').textContent,
+              aboveClass: row('t-above').className,
+              contact: row('t-contact').textContent,
+              path: row('t-path').textContent,
+              pushes: row('t-pushes').textContent,
+              jerk: row('t-jerk').textContent,
+              flags: row('t-flags').textContent,
+            },
+          };
+        },
+        afterTicks,
+        { timeout: 60000 },
+      )
+    ).jsonValue();
+  const reads = [];
+  let afterTicks = -1;
+  for (let attempt = 0; attempt < 10; attempt++) {
+    const r = await read(afterTicks);
+    reads.push(r);
+    if (JSON.stringify(r.shown) === JSON.stringify(panelTextOf(r.sent))) break;
+    afterTicks = r.sent.ticks;
+  }
+  const { sent, shown } = reads.at(-1);
+  assert.deepEqual(
+    shown,
+    panelTextOf(sent),
+    `the panel never showed the message it had received, in ${reads.length} reads: ${JSON.stringify(reads)}`,
   );
-  const m = await page.evaluate(() => window.__softhaptic.metrics());
-  assert.ok(m.last.peak_force_n > 0.1, JSON.stringify(m.last));
-  assert.equal(m.peakShown, `${m.last.peak_force_n.toFixed(2)} N at ${m.last.peak_force_time_s.toFixed(1)} s`);
+  // The simulated hand has pressed for a while: a path and a jerk; the default scene's 2 N safe
+  // force; no device fault.
+  assert.ok(sent.peak_force_n > 0.1, JSON.stringify(sent));
+  assert.ok(sent.path_length_in_contact_m > 0 && sent.mean_squared_jerk_m2_s6 > 0, JSON.stringify(sent));
+  assert.equal(sent.safe_force_n, 2);
+  assert.equal(sent.device_fault_ticks, 0);
 });
 
 test("the trainee's metrics panel follows the server's metrics as they change", async () => {

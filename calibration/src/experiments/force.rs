@@ -12,6 +12,7 @@ use softhaptic_device::model::{LocalGeometry, hyperelastic_fit as in_use};
 use softhaptic_proto::{ModelSpec, ToolShape};
 
 use super::rd::RdStudy;
+use super::verification::{SneddonMesh, contact_scaled_run, sneddon_meshes};
 use super::{
     ExperimentError, FORCE_BLOCK_M, IndentationRun, JND_PERCENT, MATERIAL, MM, Mode, Resolution,
     RunCache, RunSpec, block_body, depths, first_crossing, spec,
@@ -105,13 +106,60 @@ pub const FORCE_LAWS: [LawKind; 3] = [
     LawKind::NeoHookean,
 ];
 
-/// The runs of the force study: both tools, every formulation, on the finest mesh.
+/// The runs of the force study: both tools, every formulation, on the finest mesh; the
+/// small-deformation runs of the bonded-layer check at small depths on meshes scaled to the
+/// contact.
 pub fn force_runs(mode: Mode) -> Vec<RunSpec> {
     let res = force_resolutions(mode)[2];
     let mut out = Vec::new();
     for (name, tool) in force_tools() {
         for law in FORCE_LAWS {
             out.push(force_run(mode, name, &tool, law, res));
+        }
+    }
+    out.extend(layer_refined_runs(mode));
+    out
+}
+
+/// Depths of the bonded-layer check that get a mesh of their own. The §4.3 mesh has 1.5 mm cells
+/// under the tool, wider than the cone's contact radius below 2.4 mm (0.64 mm at δ = 1 mm): there
+/// the contact spans one or two cells and the force is off by 10% either way, which no layer
+/// factor can be told from.
+pub fn layer_small_depths(mode: Mode) -> Vec<f64> {
+    match mode {
+        Mode::Quick => vec![1.0 * MM, 2.0 * MM],
+        Mode::Full => depths(0.5, 2.0, 0.5),
+    }
+}
+
+/// The mesh of those depths: the finest of the deep-block check (cells of a/4 over 1.5 a,
+/// verified there within 0.4% of Sneddon), scaled to each depth's contact radius.
+pub fn layer_refined_mesh(mode: Mode) -> SneddonMesh {
+    let meshes = sneddon_meshes(mode);
+    meshes[meshes.len() - 1]
+}
+
+/// The small-deformation run of `tool` at `depth_m` on the §4.3 block, meshed for that depth.
+pub fn layer_refined_run(name: &str, tool: &ToolShape, depth_m: f64, mesh: SneddonMesh) -> RunSpec {
+    contact_scaled_run(
+        format!("block 100×100×30 {name}"),
+        FORCE_BLOCK_M,
+        tool,
+        depth_m,
+        mesh,
+        LawKind::LinearSmallDeformation,
+        &MATERIAL,
+        1,
+    )
+}
+
+/// The refined runs of the bonded-layer check: both tools at every small depth.
+pub fn layer_refined_runs(mode: Mode) -> Vec<RunSpec> {
+    let mesh = layer_refined_mesh(mode);
+    let mut out = Vec::new();
+    for (name, tool) in force_tools() {
+        for d in layer_small_depths(mode) {
+            out.push(layer_refined_run(name, &tool, d, mesh));
         }
     }
     out
@@ -179,14 +227,31 @@ pub struct LayerCheck {
     pub half_space_n: Vec<f64>,
     /// The runtime's closed form on the bonded layer (exact sphere or cone, bonded layer 30 mm).
     pub layer_closed_form_n: Vec<f64>,
-    /// The small-deformation FEM, N.
+    /// The small-deformation FEM on the §4.3 mesh, N, and that mesh's cell under the tool.
     pub fem_n: Vec<f64>,
+    pub fem_cell_m: f64,
+    /// The small-deformation FEM on a mesh scaled to the contact at the small depths
+    /// ([`layer_small_depths`]), N; `None` at the other depths.
+    pub refined_fem_n: Vec<Option<f64>>,
+    /// That mesh ("a/4": cells of a quarter contact radius) and its unknowns per depth.
+    pub refined_mesh: String,
+    pub refined_dofs: Vec<Option<usize>>,
 }
 
 impl LayerCheck {
-    /// FEM / half-space, the measured layer factor.
+    /// The best FEM force at depth `i`: the refined mesh's where there is one.
+    pub fn best_fem_n(&self, i: usize) -> f64 {
+        self.refined_fem_n[i].unwrap_or(self.fem_n[i])
+    }
+
+    /// FEM / half-space, the measured layer factor (best FEM).
     pub fn measured_factor(&self, i: usize) -> f64 {
-        self.fem_n[i] / self.half_space_n[i]
+        self.best_fem_n(i) / self.half_space_n[i]
+    }
+
+    /// FEM / (half-space × predicted factor) − 1, percent (best FEM).
+    pub fn error_percent(&self, i: usize) -> f64 {
+        100.0 * (self.best_fem_n(i) / self.layer_closed_form_n[i] - 1.0)
     }
 
     /// Closed form on the layer / half-space, the predicted layer factor.
@@ -194,11 +259,12 @@ impl LayerCheck {
         self.layer_closed_form_n[i] / self.half_space_n[i]
     }
 
-    /// Largest |FEM / closed form on the layer − 1| over the depths from `from_m`, percent.
+    /// Largest |FEM / closed form on the layer − 1| over the depths from `from_m`, percent (best
+    /// FEM).
     pub fn worst_error_percent(&self, from_m: f64) -> f64 {
         (0..self.depths_m.len())
             .filter(|&i| self.depths_m[i] >= from_m - 1e-12)
-            .map(|i| 100.0 * (self.fem_n[i] / self.layer_closed_form_n[i] - 1.0).abs())
+            .map(|i| self.error_percent(i).abs())
             .fold(0.0, f64::max)
     }
 }
@@ -220,7 +286,7 @@ pub fn force_depth(mode: Mode, cache: &RunCache) -> Result<Vec<ForceDepthStudy>,
         for law_kind in FORCE_LAWS {
             let run = fine_run("force-depth", mode, cache, name, &tool, law_kind)?.clone();
             if law_kind == LawKind::LinearSmallDeformation {
-                layer_check = Some(layer_check_of(name, &tool, &run)?);
+                layer_check = Some(layer_check_of(mode, cache, name, &tool, &run)?);
             }
             let err: Vec<f64> = ErrorCurve::new(&analytic_n, &run.normal_forces_n())
                 .eq9_percent
@@ -245,12 +311,13 @@ pub fn force_depth(mode: Mode, cache: &RunCache) -> Result<Vec<ForceDepthStudy>,
     Ok(out)
 }
 
-/// The bonded-layer check of one tool's small-deformation run.
-fn layer_check_of(
+/// The runtime's closed form on the §4.3 bonded layer (Sneddon's exact sphere or cone times the
+/// bonded-layer factor and its FEM residual) for `tool` (named `name` in errors) at `depths_m`.
+pub fn layer_closed_form_n(
     name: &str,
     tool: &ToolShape,
-    run: &IndentationRun,
-) -> Result<LayerCheck, ExperimentError> {
+    depths_m: &[f64],
+) -> Result<Vec<f64>, ExperimentError> {
     let spec = ModelSpec {
         exact_sphere: matches!(tool, ToolShape::Sphere { .. }),
         thickness: layer(FORCE_LAYER_M, true),
@@ -261,6 +328,33 @@ fn layer_check_of(
             run: format!("force-depth layer check {name}"),
             source,
         })?;
+    Ok(closed.forces_n(depths_m, &LocalGeometry::FLAT))
+}
+
+/// The bonded-layer check of one tool's small-deformation run, with the refined runs at the
+/// small depths.
+pub fn layer_check_of(
+    mode: Mode,
+    cache: &RunCache,
+    name: &str,
+    tool: &ToolShape,
+    run: &IndentationRun,
+) -> Result<LayerCheck, ExperimentError> {
+    let layer_closed_form_n = layer_closed_form_n(name, tool, &run.depths_m)?;
+    let mesh = layer_refined_mesh(mode);
+    let small = layer_small_depths(mode);
+    let mut refined_fem_n = Vec::new();
+    let mut refined_dofs = Vec::new();
+    for &d in &run.depths_m {
+        if small.iter().any(|s| (s - d).abs() < 1e-9) {
+            let refined = cache.get("force-depth", &layer_refined_run(name, tool, d, mesh))?;
+            refined_fem_n.push(Some(refined.normal_force_at_n(d)));
+            refined_dofs.push(Some(refined.dofs));
+        } else {
+            refined_fem_n.push(None);
+            refined_dofs.push(None);
+        }
+    }
     Ok(LayerCheck {
         depths_m: run.depths_m.clone(),
         half_space_n: run
@@ -268,8 +362,12 @@ fn layer_check_of(
             .iter()
             .map(|&d| super::verification::sneddon_force_n(tool, &MATERIAL, d))
             .collect(),
-        layer_closed_form_n: closed.forces_n(&run.depths_m, &LocalGeometry::FLAT),
+        layer_closed_form_n,
         fem_n: run.normal_forces_n(),
+        fem_cell_m: run.resolution.fine_cell_m,
+        refined_fem_n,
+        refined_mesh: mesh.name.to_owned(),
+        refined_dofs,
     })
 }
 

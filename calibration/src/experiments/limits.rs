@@ -231,7 +231,8 @@ pub fn model_limits(
 
 /// The limits of the flat-object models at every ν of the sweep but the paper's, against the
 /// neo-Hookean FEM of that ν on the §4.3 block; the inclination limit is the paper's-ν one of
-/// the inclination study when it ran, none otherwise.
+/// the inclination study when it ran (copied, since the tilted runs are made at the paper's ν
+/// only, and the reference says so), none otherwise.
 pub fn poisson_limits(
     poisson: Option<&PoissonStudy>,
     inclination: Option<&[InclinationStudy]>,
@@ -277,6 +278,7 @@ pub fn poisson_limits(
                 for model in variants {
                     let (valid_inclination_rad, note) =
                         inclination_limit(inclination, &tool, &model);
+                    let note = copied_inclination_note(&note);
                     limits.push(MeasuredLimit {
                         tool: ToolKind::of(&tool),
                         model,
@@ -332,6 +334,20 @@ pub fn refresh_inclination_limits(
     merge_poisson_limits(file, at_other_poisson)
 }
 
+/// The inclination part of an entry measured at another ν than the paper's: the tilted runs are
+/// made at the paper's ν only, so its angle is copied from there, and the reference says so
+/// (`"; inclination (…): …"` becomes `"; inclination as measured at ν = 0.33, copied: not
+/// measured at this ν (…): …"`). Empty when `note` is.
+fn copied_inclination_note(note: &str) -> String {
+    match note.strip_prefix("; inclination") {
+        Some(rest) => format!(
+            "; inclination as measured at ν = {:.2}, copied: not measured at this ν{rest}",
+            MATERIAL.poisson_ratio()
+        ),
+        None => note.to_owned(),
+    }
+}
+
 /// `reference` without its part from `marker` on (unchanged when it has none).
 fn cut_from(reference: &mut String, marker: &str) {
     if let Some(at) = reference.find(marker) {
@@ -355,11 +371,10 @@ pub fn merge_poisson_limits(
             .and_then(|o| o.valid_inclination_rad);
         if let (None, Some(a)) = (l.valid_inclination_rad, paper) {
             l.valid_inclination_rad = Some(a);
-            l.reference.push_str(&format!(
-                "; inclination as measured at ν = {:.2}: {:.1}°",
-                MATERIAL.poisson_ratio(),
+            l.reference.push_str(&copied_inclination_note(&format!(
+                "; inclination: {:.1}°",
                 a.to_degrees()
-            ));
+            )));
         }
         file.limits.push(l);
     }

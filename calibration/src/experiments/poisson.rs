@@ -25,6 +25,7 @@ use super::force::{
     fit_two_term_ratio, force_depths, force_resolutions, force_run, force_tools,
 };
 use super::rd::{rd_run, rd_setup};
+use super::surface::DrawnProfile;
 use super::verification::{material_with_poisson, poisson_tag, sneddon_force_n};
 use super::{
     ExperimentError, FORCE_BLOCK_M, MATERIAL, MM, Mode, RD_BLOCK_M, RD_BREAKPOINT_M,
@@ -221,6 +222,48 @@ pub struct PoissonPoint {
     pub rd_m: Vec<Vec<f64>>,
     /// The scene tables of this ν (50 kPa; the displacement field does not depend on E).
     pub tables: Vec<(String, CalibrationTable)>,
+    /// The drawn surface against the FEM surface of this ν's runs, per tool of radius 10 mm
+    /// (sphere, cone): what a scene of this ν draws with its table.
+    pub surface: Vec<TableSurfaceError>,
+}
+
+/// The drawn profiles of one table against the top surface of the FEM run it is made from, at
+/// every depth of the run to δ = R (`experiments::surface`'s comparison): the largest |error|
+/// over those depths and the depth where it sits, `(depth_m, error_m)`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TableSurfaceError {
+    /// The table's name (`sphere10_50kpa_nu49`); the paper's ν names the rd-table one.
+    pub table: String,
+    /// The paper's Bézier, drawn with the table's R_d and the streamed contact radius.
+    pub paper: Option<(f64, f64)>,
+    /// The `fem` profile with the scored depth's row held out (as a depth between rows is
+    /// drawn).
+    pub fem_held_out: Option<(f64, f64)>,
+    /// The `fem` profile as tabulated.
+    pub fem: Option<(f64, f64)>,
+    /// Depths scored.
+    pub depths: usize,
+}
+
+/// The surface errors of `table`, made from `run`.
+fn table_surface_error(
+    name: &str,
+    tool: &ToolShape,
+    table: &CalibrationTable,
+    run: &super::IndentationRun,
+) -> TableSurfaceError {
+    let comparisons =
+        super::surface::compare_runs(tool, std::slice::from_ref(run), RD_BLOCK_M[2], |d| {
+            table.deformed_radius_m(d)
+        });
+    let worst = |profile| super::surface::worst_error(&comparisons, run.law, profile);
+    TableSurfaceError {
+        table: name.to_owned(),
+        paper: worst(DrawnProfile::Paper),
+        fem_held_out: worst(DrawnProfile::FemHeldOut),
+        fem: worst(DrawnProfile::Fem),
+        depths: comparisons.len(),
+    }
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -355,6 +398,7 @@ pub fn poisson_study(mode: Mode, cache: &RunCache) -> Result<PoissonStudy, Exper
         let mut out_of_sample_runtime_percent = [0.0; 2];
         let mut rd_m = Vec::new();
         let mut tables = Vec::new();
+        let mut surface = Vec::new();
         for (k, (name, tool)) in paper_tools_10mm().into_iter().enumerate() {
             let run = cache.get(study, &block_run(mode, name, &tool, &material))?;
             let reference = run.normal_forces_n();
@@ -371,9 +415,15 @@ pub fn poisson_study(mode: Mode, cache: &RunCache) -> Result<PoissonStudy, Exper
                 Some(&factor(&runtime, &tool, &run.depths_m)),
             );
             rd_m.push(run.deformed_radius_m.clone());
+            let file = if material == MATERIAL {
+                format!("{name}_50kpa")
+            } else {
+                format!("{name}_50kpa_nu{:02.0}", 100.0 * nu)
+            };
+            let table = rd_table_of(&file, &tool, &material, run, rd_res.fine_cell_m, mode)?;
+            surface.push(table_surface_error(&file, &tool, &table, run));
+            // The paper's ν's tables are rd-table's, written with the other formulations beside.
             if material != MATERIAL {
-                let file = format!("{name}_50kpa_nu{:02.0}", 100.0 * nu);
-                let table = rd_table_of(&file, &tool, &material, run, rd_res.fine_cell_m, mode)?;
                 tables.push((file, table));
             }
         }
@@ -402,6 +452,7 @@ pub fn poisson_study(mode: Mode, cache: &RunCache) -> Result<PoissonStudy, Exper
             layer: layer_fits,
             rd_m,
             tables,
+            surface,
         });
     }
     Ok(PoissonStudy {

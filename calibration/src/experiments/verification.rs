@@ -44,6 +44,120 @@ pub struct VerificationStudy {
     pub patch_test: Vec<PatchTest>,
     /// The small-deformation formulation against Sneddon on a deep block, per tool.
     pub sneddon: Vec<SneddonCheck>,
+    /// The neo-Hookean law against Sneddon's exact sphere at small depths on the deep block, at
+    /// ν = 0.33 and 0.49.
+    pub neo_hookean: Vec<NeoHookeanPoint>,
+}
+
+/// The neo-Hookean FEM at one small depth of the 6 mm sphere on the deep block, beside the
+/// small-deformation FEM of the same mesh and Sneddon's exact sphere: where the strain is small
+/// the hyperelastic law must reduce to linear elasticity, at ν = 0.49 as at 0.33, so a locking or
+/// otherwise wrong nearly incompressible neo-Hookean element would show here as a departure
+/// beyond the law's own small stiffening (Lin et al.'s incompressible ratio beside it).
+#[derive(Debug, Clone, Serialize)]
+pub struct NeoHookeanPoint {
+    pub poisson_ratio: f64,
+    pub depth_m: f64,
+    pub mesh: SneddonMesh,
+    pub dofs: usize,
+    pub sneddon_n: f64,
+    pub small_deformation_n: f64,
+    pub neo_hookean_n: f64,
+    /// Lin et al.'s incompressible neo-Hookean sphere over Hertz at this depth.
+    pub lin_et_al_over_hertz: f64,
+}
+
+impl NeoHookeanPoint {
+    /// Neo-Hookean FEM / Sneddon − 1, percent.
+    pub fn error_percent(&self) -> f64 {
+        100.0 * (self.neo_hookean_n / self.sneddon_n - 1.0)
+    }
+
+    /// Neo-Hookean / small-deformation FEM on the same mesh − 1, percent: the hyperelastic
+    /// law's own departure, the mesh's error cancelled.
+    pub fn over_linear_percent(&self) -> f64 {
+        100.0 * (self.neo_hookean_n / self.small_deformation_n - 1.0)
+    }
+}
+
+/// Depths of the neo-Hookean deep-block check, where δ/R ≤ 1/6 keeps the sphere's strain small.
+pub fn neo_hookean_depths(mode: Mode) -> Vec<f64> {
+    match mode {
+        Mode::Quick => vec![1.0 * MM],
+        Mode::Full => vec![0.5 * MM, 1.0 * MM],
+    }
+}
+
+/// The mesh of the neo-Hookean deep-block check: the middle one of the convergence table (its
+/// tangent is factorised every Newton iteration, so the finest would cost as much as the rest
+/// of the verification); the small-deformation run of the same mesh cancels its error.
+pub fn neo_hookean_mesh(mode: Mode) -> SneddonMesh {
+    let meshes = sneddon_meshes(mode);
+    meshes[meshes.len() / 2]
+}
+
+/// The neo-Hookean run and the small-deformation run of the 6 mm sphere at `depth_m` on the deep
+/// block; the neo-Hookean one in two load steps (Newton's starting point).
+pub fn neo_hookean_runs_at(depth_m: f64, mesh: SneddonMesh, material: &Material) -> [RunSpec; 2] {
+    let [(name, tool), _] = force_tools();
+    let size = SNEDDON_BLOCK_OVER_CONTACT_RADIUS * max_contact_radius_m(&tool, depth_m);
+    [
+        sneddon_run(name, &tool, depth_m, mesh, material),
+        contact_scaled_run(
+            format!("deep block {name}"),
+            [size, size, size],
+            &tool,
+            depth_m,
+            mesh,
+            LawKind::NeoHookean,
+            material,
+            2,
+        ),
+    ]
+}
+
+/// The materials of the neo-Hookean check: the paper's and the nearly incompressible one.
+fn neo_hookean_materials() -> Vec<Material> {
+    let mut out = vec![MATERIAL];
+    out.extend(material_with_poisson(NEARLY_INCOMPRESSIBLE_POISSON).ok());
+    out
+}
+
+/// Every run of the neo-Hookean deep-block check.
+pub fn neo_hookean_runs(mode: Mode) -> Vec<RunSpec> {
+    let mut out = Vec::new();
+    for material in neo_hookean_materials() {
+        for d in neo_hookean_depths(mode) {
+            out.extend(neo_hookean_runs_at(d, neo_hookean_mesh(mode), &material));
+        }
+    }
+    out
+}
+
+/// The neo-Hookean deep-block check of one depth and material, from the finished runs.
+pub fn neo_hookean_point(
+    cache: &RunCache,
+    depth_m: f64,
+    mesh: SneddonMesh,
+    material: &Material,
+) -> Result<NeoHookeanPoint, ExperimentError> {
+    let study = "verify (neo-Hookean)";
+    let [(_, tool), _] = force_tools();
+    let [linear, neo_hookean] = neo_hookean_runs_at(depth_m, mesh, material);
+    let linear = cache.get(study, &linear)?;
+    let neo_hookean = cache.get(study, &neo_hookean)?;
+    let radius_m = tool.radius_m();
+    Ok(NeoHookeanPoint {
+        poisson_ratio: material.poisson_ratio(),
+        depth_m,
+        mesh,
+        dofs: neo_hookean.dofs,
+        sneddon_n: sneddon_force_n(&tool, material, depth_m),
+        small_deformation_n: linear.normal_force_at_n(depth_m),
+        neo_hookean_n: neo_hookean.normal_force_at_n(depth_m),
+        lin_et_al_over_hertz: analytic::lin_neo_hookean_sphere_force_n(material, radius_m, depth_m)
+            / law::hertz_force_n(material, radius_m, depth_m),
+    })
 }
 
 /// One patch test: the largest nodal error relative to the largest displacement.
@@ -149,32 +263,67 @@ pub fn sneddon_run(
     mesh: SneddonMesh,
     material: &Material,
 ) -> RunSpec {
+    let size = SNEDDON_BLOCK_OVER_CONTACT_RADIUS * max_contact_radius_m(tool, depth_m);
+    contact_scaled_run(
+        format!("deep block {name}"),
+        [size, size, size],
+        tool,
+        depth_m,
+        mesh,
+        LawKind::LinearSmallDeformation,
+        material,
+        1,
+    )
+}
+
+/// `tool` pressed to `depth_m` in `steps` equal load steps into a block of `size_m` (quarter
+/// model, bottom clamped, sides free) meshed with `mesh` scaled to that depth's contact radius;
+/// labelled `label` followed by the depth, the mesh, the law when it is not the
+/// small-deformation one and ν when it is not the paper's.
+#[allow(clippy::too_many_arguments)] // each is one independent property of the run
+pub fn contact_scaled_run(
+    label: String,
+    size_m: [f64; 3],
+    tool: &ToolShape,
+    depth_m: f64,
+    mesh: SneddonMesh,
+    law: LawKind,
+    material: &Material,
+    steps: usize,
+) -> RunSpec {
     let a = max_contact_radius_m(tool, depth_m);
-    let size = SNEDDON_BLOCK_OVER_CONTACT_RADIUS * a;
     let cell = a / mesh.cells_per_contact_radius;
+    let steps = steps.max(1);
+    let law_tag = if law == LawKind::LinearSmallDeformation {
+        String::new()
+    } else {
+        format!(", {}", law.name())
+    };
     RunSpec {
         label: format!(
-            "deep block {name} δ = {:.1} mm, cells {}{}",
+            "{label} δ = {:.1} mm, cells {}{law_tag}{}",
             depth_m / MM,
             mesh.name,
             poisson_tag(material)
         ),
         body: Body::Block(BlockSpec::graded(
-            [size, size, size],
+            size_m,
             a,
             cell,
             mesh.coarse_cells,
             Symmetry::Quarter,
         )),
         indenter: IndenterShape::from(tool),
-        law: LawKind::LinearSmallDeformation,
+        law,
         material: *material,
         resolution: Resolution {
             name: mesh.name,
             fine_cell_m: cell,
             coarse_cells: mesh.coarse_cells,
         },
-        depths_m: vec![depth_m],
+        depths_m: (1..=steps)
+            .map(|k| depth_m * k as f64 / steps as f64)
+            .collect(),
         tilt_rad: 0.0,
     }
 }
@@ -336,6 +485,7 @@ pub fn verification_runs(mode: Mode) -> Vec<RunSpec> {
             &nearly_incompressible,
         ));
     }
+    out.extend(neo_hookean_runs(mode));
     out
 }
 
@@ -418,12 +568,24 @@ pub fn verification(mode: Mode, cache: &RunCache) -> Result<VerificationStudy, E
             &material,
         )?);
     }
+    let mut neo_hookean = Vec::new();
+    for material in neo_hookean_materials() {
+        for d in neo_hookean_depths(mode) {
+            neo_hookean.push(neo_hookean_point(
+                cache,
+                d,
+                neo_hookean_mesh(mode),
+                &material,
+            )?);
+        }
+    }
     Ok(VerificationStudy {
         depth_over_radius: DEPTH_OVER_RADIUS,
         block_over_radius: BLOCK_OVER_RADIUS,
         checks,
         patch_test,
         sneddon,
+        neo_hookean,
     })
 }
 

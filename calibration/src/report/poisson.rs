@@ -188,5 +188,68 @@ pub(super) fn poisson_section(
     }
     csv(&dir.join("poisson_rd.csv"), &header, &rd_rows)?;
     md.push('\n');
+    surface_table(dir, study, md)?;
     Ok(())
+}
+
+/// The drawn surface against the FEM surface for the table of each ν (the measure of 'The drawn
+/// surface against the FEM surface', summed up per table).
+fn surface_table(dir: &Path, study: &PoissonStudy, md: &mut String) -> Result<(), ReportError> {
+    let _ = writeln!(
+        md,
+        "The drawn surface of each ν's table against the top surface of the neo-Hookean run it \
+         is made from, at every depth of the run to δ = R, measured as in 'The drawn surface \
+         against the FEM surface' (depression at the same undeformed radius along y = 0): the \
+         `paper` profile (the paper's Bézier with the table's R_d and the streamed contact \
+         radius), the `fem` profile with the scored depth's row held out (how a depth between \
+         rows is drawn) and as tabulated; the largest |error| over the depths and the depth \
+         where it sits. The ν = 0.33 tables are rd-table's.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| ν | table | depths | paper: max error (mm) | at δ (mm) | fem, row held out: max error (mm) | at δ (mm) | fem as tabulated: max error (mm) | at δ (mm) |\n|---|---|---|---|---|---|---|---|---|"
+    );
+    let cell = |e: Option<(f64, f64)>| {
+        e.map_or("— | —".to_owned(), |(d, err)| {
+            format!("{:.3} | {:.1}", err / MM, d / MM)
+        })
+    };
+    let mut rows = Vec::new();
+    for p in &study.points {
+        for (k, t) in p.surface.iter().enumerate() {
+            let _ = writeln!(
+                md,
+                "| {:.2} | `{}.json` | {} | {} | {} | {} |",
+                p.poisson_ratio,
+                t.table,
+                t.depths,
+                cell(t.paper),
+                cell(t.fem_held_out),
+                cell(t.fem)
+            );
+            let pair =
+                |e: Option<(f64, f64)>| e.map_or([f64::NAN; 2], |(d, err)| [d / MM, err / MM]);
+            let mut row = vec![p.poisson_ratio, k as f64];
+            for e in [t.paper, t.fem_held_out, t.fem] {
+                row.extend(pair(e));
+            }
+            rows.push(row);
+        }
+    }
+    md.push('\n');
+    csv(
+        &dir.join("poisson_surface.csv"),
+        &[
+            "poisson_ratio",
+            "tool_0_sphere10_1_cone10_45",
+            "paper_depth_mm",
+            "paper_max_error_mm",
+            "fem_held_out_depth_mm",
+            "fem_held_out_max_error_mm",
+            "fem_depth_mm",
+            "fem_max_error_mm",
+        ]
+        .map(String::from),
+        &rows,
+    )
 }

@@ -599,6 +599,36 @@ fn print_late_wakes(total: u64, late: &[LateWake], witnesses: &[WitnessReport], 
 mod tests {
     use super::*;
 
+    #[test]
+    fn a_run_length_or_a_period_no_one_means_is_refused_naming_the_option_and_its_range() {
+        for (args, says) in [
+            (&["--seconds", "1e12"][..], "outside 0.1 to 86 400 s"),
+            (&["--seconds", "0"][..], "outside 0.1 to 86 400 s"),
+            (&["--seconds", "NaN"][..], "outside 0.1 to 86 400 s"),
+            (&["--seconds", "ten"][..], "is not a number of seconds"),
+            (&["--period-us", "1"][..], "100..=100000"),
+            (&["--period-us", "1000000"][..], "100..=100000"),
+        ] {
+            let argv = std::iter::once("loop-timing").chain(args.iter().copied());
+            let error = Args::try_parse_from(argv).expect_err(&format!("{args:?} accepted"));
+            let text = error.to_string();
+            assert_eq!(error.exit_code(), 2, "{args:?}: {text}");
+            assert!(
+                text.contains(args[0]) && text.contains(says),
+                "{args:?}: {text}"
+            );
+        }
+        // The limits themselves are runs a person may ask for.
+        let args =
+            Args::try_parse_from(["loop-timing", "--seconds", "86400", "--period-us", "100"])
+                .expect("the limits are accepted");
+        assert_eq!((args.seconds, args.period_us), (86_400.0, 100));
+        let args =
+            Args::try_parse_from(["loop-timing", "--seconds", "0.1", "--period-us", "100000"])
+                .expect("the limits are accepted");
+        assert_eq!((args.seconds, args.period_us), (0.1, 100_000));
+    }
+
     fn witness(cpu: usize, stalls: &[(u64, u64)]) -> WitnessReport {
         WitnessReport {
             cpu,

@@ -5,11 +5,9 @@
 //! `/dev/hidraw*` needs read access, which a udev rule gives to the desk's user and to the
 //! `plugdev` group a service runs in ([`UDEV_RULE`]).
 
-use std::path::Path;
-
 use hidapi::{DeviceInfo, HidApi, HidDevice};
 
-use super::report::{Model, find_model, is_3dconnexion_vendor};
+use super::report::{Model, VENDOR_LOGITECH, find_model, is_3dconnexion_vendor};
 use super::{Connector, Transport, TransportError};
 
 /// Where the udev rule goes, and the rule: read access to the hidraw nodes of 3Dconnexion
@@ -45,10 +43,72 @@ impl HidConnector {
     }
 }
 
-/// The multi-axis controller interface of a device (generic desktop page, usage 8); a receiver
-/// also exposes keyboard-like interfaces that send nothing useful.
-fn is_multi_axis(d: &DeviceInfo) -> bool {
-    (d.usage_page() == 1 && d.usage() == 8) || d.usage_page() == 0
+/// What hidapi tells of one HID interface that the choice of a device depends on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Interface<'a> {
+    pub vendor_id: u16,
+    pub product_id: u16,
+    /// The top-level usage page and usage of the interface's report descriptor (0 and 0 when
+    /// the kernel did not give the descriptor to hidapi).
+    pub usage_page: u16,
+    pub usage: u16,
+    pub serial: Option<&'a str>,
+}
+
+impl<'a> Interface<'a> {
+    fn of(d: &'a DeviceInfo) -> Self {
+        Self {
+            vendor_id: d.vendor_id(),
+            product_id: d.product_id(),
+            usage_page: d.usage_page(),
+            usage: d.usage(),
+            serial: d.serial_number(),
+        }
+    }
+}
+
+/// What to do with one HID interface.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Choice {
+    /// Not a SpaceMouse's multi-axis interface: another vendor's device, a Logitech mouse or
+    /// keyboard, or a receiver's keyboard-like interface. Passed over without a word.
+    NotSpaceMouse,
+    /// A 3Dconnexion multi-axis interface of a product not in [`super::report::MODELS`]:
+    /// listed by its ids, never opened (its axes' scale is not known).
+    UnknownProduct,
+    /// A listed model, but not the one asked for by serial number.
+    OtherSerial(&'static Model),
+    /// Open it, and normalise its reports with this model's full scale.
+    Open(&'static Model),
+}
+
+/// Chooses what to do with one HID interface, given the serial number asked for (if any).
+/// Pure: [`HidConnector`] opens the first interface this says to open, and [`list`] lists
+/// every one that is not [`Choice::NotSpaceMouse`].
+pub fn choose(interface: &Interface<'_>, wanted_serial: Option<&str>) -> Choice {
+    if !is_3dconnexion_vendor(interface.vendor_id) {
+        return Choice::NotSpaceMouse;
+    }
+    // The Logitech vendor id is shared with mice and keyboards: only its c6xx products are
+    // 3Dconnexion's.
+    if interface.vendor_id == VENDOR_LOGITECH && interface.product_id >> 8 != 0xc6 {
+        return Choice::NotSpaceMouse;
+    }
+    // The multi-axis controller (generic desktop page, usage 8); a receiver also exposes
+    // keyboard-like interfaces that send nothing useful. Page 0: the kernel gave hidapi no
+    // descriptor, so the interface is tried rather than passed over.
+    let multi_axis =
+        (interface.usage_page == 1 && interface.usage == 8) || interface.usage_page == 0;
+    if !multi_axis {
+        return Choice::NotSpaceMouse;
+    }
+    let Some(model) = find_model(interface.vendor_id, interface.product_id) else {
+        return Choice::UnknownProduct;
+    };
+    match wanted_serial {
+        Some(wanted) if interface.serial != Some(wanted) => Choice::OtherSerial(model),
+        _ => Choice::Open(model),
+    }
 }
 
 impl Connector for HidConnector {
@@ -64,18 +124,16 @@ impl Connector for HidConnector {
             ),
         };
         let mut refused = Vec::new();
+        let mut unknown = Vec::new();
         for d in api.device_list() {
-            let Some(model) = find_model(d.vendor_id(), d.product_id()) else {
-                continue;
+            let model = match choose(&Interface::of(d), self.serial.as_deref()) {
+                Choice::Open(model) => model,
+                Choice::UnknownProduct => {
+                    unknown.push(format!("{:04x}:{:04x}", d.vendor_id(), d.product_id()));
+                    continue;
+                }
+                Choice::NotSpaceMouse | Choice::OtherSerial(_) => continue,
             };
-            if !is_multi_axis(d) {
-                continue;
-            }
-            if let Some(serial) = &self.serial
-                && d.serial_number() != Some(serial.as_str())
-            {
-                continue;
-            }
             match d.open_device(api) {
                 Ok(device) => return Ok((Box::new(HidTransport { device }), model)),
                 Err(e) => refused.push(format!(
@@ -86,8 +144,16 @@ impl Connector for HidConnector {
             }
         }
         if refused.is_empty() {
+            let unknown = if unknown.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    " (3Dconnexion products this backend has no model for: {})",
+                    unknown.join(", ")
+                )
+            };
             Err(TransportError::NotFound(format!(
-                "no 3Dconnexion device among the HID devices{}",
+                "no 3Dconnexion device among the HID devices{}{unknown}",
                 self.serial
                     .as_deref()
                     .map(|s| format!(" with serial {s:?}"))
@@ -128,82 +194,186 @@ pub struct Found {
     pub opens: Result<(), String>,
 }
 
-/// What hidapi sees of SpaceMice, and whether hidraw is readable at all.
+/// What hidapi sees of SpaceMice, and whether their nodes are readable.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Listing {
     pub found: Vec<Found>,
     /// hidapi could not start (the reason).
     pub error: Option<String>,
-    /// `/dev/hidraw*` nodes exist and none is readable by this user.
+    /// SpaceMouse nodes were found and none of them opens: what the udev rule fixes. Other
+    /// HID devices' nodes (keyboards, mice, security keys) do not count: that they are closed
+    /// to this user is as it should be.
     pub hidraw_unreadable: bool,
 }
 
 /// Lists the 3Dconnexion devices present.
 pub fn list() -> Listing {
-    let hidraw_unreadable = hidraw_unreadable(Path::new("/dev"));
     let api = match HidApi::new() {
         Ok(api) => api,
         Err(e) => {
             return Listing {
                 found: Vec::new(),
                 error: Some(e.to_string()),
-                hidraw_unreadable,
+                hidraw_unreadable: false,
             };
         }
     };
-    let found = api
+    let found: Vec<Found> = api
         .device_list()
-        .filter(|d| is_3dconnexion_vendor(d.vendor_id()) && is_multi_axis(d))
-        .filter(|d| {
-            // The Logitech vendor id is shared with mice and keyboards: only its c6xx products
-            // are 3Dconnexion's.
-            d.vendor_id() != super::report::VENDOR_LOGITECH || d.product_id() >> 8 == 0xc6
-        })
-        .map(|d| Found {
-            vendor_id: d.vendor_id(),
-            product_id: d.product_id(),
-            model: find_model(d.vendor_id(), d.product_id()).map(|m| m.name),
-            path: d.path().to_string_lossy().into_owned(),
-            serial: d.serial_number().map(str::to_owned),
-            opens: d.open_device(&api).map(|_| ()).map_err(|e| e.to_string()),
+        .filter_map(|d| {
+            let model = match choose(&Interface::of(d), None) {
+                Choice::NotSpaceMouse => return None,
+                Choice::UnknownProduct => None,
+                Choice::Open(model) | Choice::OtherSerial(model) => Some(model.name),
+            };
+            Some(Found {
+                vendor_id: d.vendor_id(),
+                product_id: d.product_id(),
+                model,
+                path: d.path().to_string_lossy().into_owned(),
+                serial: d.serial_number().map(str::to_owned),
+                opens: d.open_device(&api).map(|_| ()).map_err(|e| e.to_string()),
+            })
         })
         .collect();
     Listing {
+        hidraw_unreadable: hidraw_unreadable(&found),
         found,
         error: None,
-        hidraw_unreadable,
     }
 }
 
-/// True when `dir` holds `hidraw*` nodes and none of them can be opened for reading.
-pub fn hidraw_unreadable(dir: &Path) -> bool {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return false;
-    };
-    let nodes: Vec<_> = entries
-        .flatten()
-        .filter(|e| e.file_name().to_string_lossy().starts_with("hidraw"))
-        .collect();
-    !nodes.is_empty() && nodes.iter().all(|e| std::fs::File::open(e.path()).is_err())
+/// True when SpaceMouse nodes were found and none of them opened.
+pub fn hidraw_unreadable(found: &[Found]) -> bool {
+    !found.is_empty() && found.iter().all(|f| f.opens.is_err())
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::report::VENDOR_3DCONNEXION;
     use super::*;
 
+    fn found(product_id: u16, opens: Result<(), String>) -> Found {
+        Found {
+            vendor_id: VENDOR_3DCONNEXION,
+            product_id,
+            model: find_model(VENDOR_3DCONNEXION, product_id).map(|m| m.name),
+            path: format!("/dev/hidraw{}", product_id & 0xf),
+            serial: None,
+            opens,
+        }
+    }
+
     #[test]
-    fn hidraw_is_unreadable_only_when_nodes_exist_and_none_opens() {
-        let dir = std::env::temp_dir().join(format!("softhaptic-hidraw-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("scratch directory");
-        assert!(!hidraw_unreadable(&dir), "no nodes at all");
-        // A node that cannot be opened (whoever runs the test, root included).
-        std::os::unix::fs::symlink(dir.join("gone"), dir.join("hidraw0")).expect("symlink");
-        std::fs::write(dir.join("other"), b"").expect("file");
-        assert!(hidraw_unreadable(&dir));
-        std::fs::write(dir.join("hidraw1"), b"").expect("file");
-        assert!(!hidraw_unreadable(&dir), "one node opens");
-        let _ = std::fs::remove_dir_all(&dir);
+    fn the_udev_hint_follows_the_spacemouse_nodes_alone() {
+        let denied = || Err("Permission denied".to_owned());
+        // No SpaceMouse: whatever other HID nodes there are, and however closed, no hint.
+        assert!(!hidraw_unreadable(&[]));
+        assert!(hidraw_unreadable(&[found(0xc635, denied())]));
+        // Two SpaceMice, one of which opens: the desk works, no rule is missing.
+        assert!(!hidraw_unreadable(&[
+            found(0xc635, denied()),
+            found(0xc631, Ok(()))
+        ]));
+        assert!(hidraw_unreadable(&[
+            found(0xc635, denied()),
+            found(0xc6ff, denied())
+        ]));
+    }
+
+    fn interface(vendor_id: u16, product_id: u16) -> Interface<'static> {
+        Interface {
+            vendor_id,
+            product_id,
+            usage_page: 1,
+            usage: 8,
+            serial: Some("A1"),
+        }
+    }
+
+    #[test]
+    fn a_listed_models_multi_axis_interface_is_opened_with_its_own_scale() {
+        let navigator = interface(VENDOR_LOGITECH, 0xc626);
+        let Choice::Open(model) = choose(&navigator, None) else {
+            panic!("{:?}", choose(&navigator, None));
+        };
+        assert_eq!((model.name, model.full_scale), ("SpaceNavigator", 350));
+        let Choice::Open(model) = choose(&interface(VENDOR_LOGITECH, 0xc621), None) else {
+            panic!("the SpaceBall 5000 is listed");
+        };
+        assert_eq!(model.full_scale, 512, "each model's own normaliser");
+        // Every listed model is chosen, as itself.
+        for m in super::super::report::MODELS {
+            assert_eq!(
+                choose(&interface(m.vendor_id, m.product_id), None),
+                Choice::Open(m)
+            );
+        }
+        // A descriptor the kernel did not give (page 0): tried, not passed over.
+        let bare = Interface {
+            usage_page: 0,
+            usage: 0,
+            ..navigator
+        };
+        assert!(matches!(choose(&bare, None), Choice::Open(_)));
+    }
+
+    #[test]
+    fn other_interfaces_and_vendors_products_are_passed_over() {
+        let compact = interface(VENDOR_3DCONNEXION, 0xc635);
+        // A receiver's keyboard-like interface (generic desktop, keyboard) and a consumer
+        // control interface.
+        for (usage_page, usage) in [(1, 6), (1, 2), (0x0c, 1), (0xff00, 1)] {
+            let other = Interface {
+                usage_page,
+                usage,
+                ..compact
+            };
+            assert_eq!(choose(&other, None), Choice::NotSpaceMouse, "{other:?}");
+        }
+        // A Logitech mouse, and another vendor's device with a SpaceMouse's product id.
+        assert_eq!(
+            choose(&interface(VENDOR_LOGITECH, 0xc077), None),
+            Choice::NotSpaceMouse
+        );
+        assert_eq!(
+            choose(&interface(0x1234, 0xc626), None),
+            Choice::NotSpaceMouse
+        );
+    }
+
+    #[test]
+    fn an_unknown_3dconnexion_product_is_listed_but_never_opened() {
+        for (vendor, product) in [(VENDOR_3DCONNEXION, 0xc6ff), (VENDOR_LOGITECH, 0xc6aa)] {
+            assert_eq!(
+                choose(&interface(vendor, product), None),
+                Choice::UnknownProduct
+            );
+            assert_eq!(
+                choose(&interface(vendor, product), Some("A1")),
+                Choice::UnknownProduct
+            );
+        }
+    }
+
+    #[test]
+    fn a_serial_asked_for_passes_over_every_other_device() {
+        let compact = interface(VENDOR_3DCONNEXION, 0xc635);
+        assert!(matches!(choose(&compact, Some("A1")), Choice::Open(_)));
+        assert!(matches!(
+            choose(&compact, Some("B2")),
+            Choice::OtherSerial(m) if m.name == "SpaceMouse Compact"
+        ));
+        // A device that reports no serial is not the one asked for.
+        let anonymous = Interface {
+            serial: None,
+            ..compact
+        };
+        assert!(matches!(
+            choose(&anonymous, Some("A1")),
+            Choice::OtherSerial(_)
+        ));
+        assert!(matches!(choose(&anonymous, None), Choice::Open(_)));
     }
 
     #[test]

@@ -29,11 +29,22 @@ pub struct Model {
 
 /// The products the backend opens, as spacenavd's device table lists them for USB. A product
 /// not listed is refused by name and id rather than guessed at.
+///
+/// Where each full scale comes from:
+/// - 350, every model but one: `../shared/devices.md` ("values reach about ±350 (some models
+///   more): normalise per model"), the same divisor OpenSCAD's hidapi driver applies to both
+///   layouts of every model it opens (`src/input/HidApiInputDriver.cc`, `hidapi_sm_decode_axis`).
+///   A unit that exceeds it is clamped to ±1 ([`Parser`]), so a model that reaches a little
+///   further loses only the last part of its travel.
+/// - 512, the SpaceBall 5000 (USB): the "some models more" of devices.md, a figure no
+///   published table gives; 512 is an assumption, chosen so that its larger travel is not
+///   clamped away. The raw reports of a full push on one (`sudo hexdump -C /dev/hidrawN`, the
+///   little-endian `i16` after each report id) would settle it.
 pub const MODELS: &[Model] = &[
     model(VENDOR_LOGITECH, 0xc603, "SpaceMouse Plus XT", 350),
     model(VENDOR_LOGITECH, 0xc605, "CadMan", 350),
     model(VENDOR_LOGITECH, 0xc606, "SpaceMouse Classic", 350),
-    // The SpaceBall 5000's strain gauges report up to ±512.
+    // The one model with another scale: see above.
     model(VENDOR_LOGITECH, 0xc621, "SpaceBall 5000", 512),
     model(VENDOR_LOGITECH, 0xc623, "SpaceTraveler", 350),
     model(VENDOR_LOGITECH, 0xc625, "SpacePilot", 350),

@@ -7,6 +7,8 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
+use softhaptic_proto::wire::Role;
+
 use super::tokens::tokens_from_environment;
 use super::{
     AccessError, INSTRUCTOR_TOKEN_ENV, OBSERVER_TOKEN_ENV, Origin, Token, Tokens, read_token_file,
@@ -167,11 +169,23 @@ impl AccessConfig {
     }
 
     /// The links to print: the instructor's and the observer's, the token in the fragment (a
-    /// fragment never reaches a server's log or a proxy). `None` without tokens.
+    /// fragment never reaches a server's log or a proxy), then the role the link is for. The
+    /// role is a hint for the viewer's words only (it says "this is an observer link" when the
+    /// server grants another role than the link names); the server never sees it and decides
+    /// the role from the token alone. `None` without tokens.
     pub fn links(&self, base_url: &str) -> Option<(String, String)> {
         let tokens = self.tokens.as_ref()?;
-        let link = |t: &Token| format!("{base_url}#token={}", t.expose_secret());
-        Some((link(tokens.instructor()), link(tokens.observer())))
+        let link = |t: &Token, role: Role| {
+            format!(
+                "{base_url}#token={}&role={}",
+                t.expose_secret(),
+                role.as_str()
+            )
+        };
+        Some((
+            link(tokens.instructor(), Role::Instructor),
+            link(tokens.observer(), Role::Observer),
+        ))
     }
 
     /// Prints on stdout (never in a log: the token is in the link) the links to open for a server
@@ -316,7 +330,6 @@ mod tests {
     use super::*;
     use crate::access::TokenSource;
     use crate::access::testing::{I, O, tokens};
-    use softhaptic_proto::wire::Role;
 
     #[test]
     fn links_name_the_host_name_when_the_server_listens_on_every_interface() {
@@ -443,8 +456,14 @@ mod tests {
             .check_bind("0.0.0.0:8080".parse().unwrap())
             .unwrap();
         let (viewer, observer) = with_tokens.links("http://lab:8080/").unwrap();
-        assert_eq!(viewer, format!("http://lab:8080/#token={I}"));
-        assert_eq!(observer, format!("http://lab:8080/#token={O}"));
+        assert_eq!(
+            viewer,
+            format!("http://lab:8080/#token={I}&role=instructor")
+        );
+        assert_eq!(
+            observer,
+            format!("http://lab:8080/#token={O}&role=observer")
+        );
     }
 
     #[test]

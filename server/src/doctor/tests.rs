@@ -1,6 +1,11 @@
 //! The doctor's verdicts and fixes on fixture trees: fragments of `/proc` and `/sys` as a stock
 //! distribution kernel, a PREEMPT_RT kernel with an isolated CPU, and a container without
 //! real-time permissions show them.
+//!
+//! # Why one file
+//! About 800 lines: three fixtures and the tests that read them. Each test asserts one check's
+//! verdicts and fix texts on the same fixtures, so a fixture and all that is predicted of it
+//! are read in one place; split by check, every file would need the fixtures too.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -9,6 +14,10 @@ use softhaptic_device::spacemouse::hid;
 
 use super::checks::*;
 use super::*;
+
+#[path = "stock_verdicts.rs"]
+mod stock_verdicts;
+use stock_verdicts::{STOCK_PREEMPTION_NAMES, STOCK_VERDICTS};
 
 /// A fake root directory.
 struct Fixture {
@@ -714,4 +723,91 @@ fn a_ready_host_reads_ready() {
     let report = Report::new(checks, None);
     assert_eq!(report.exit_code, 0);
     assert!(render(&report, &rt.tree()).contains("verdict: ready for the 1 kHz loop (exit 0)"));
+}
+
+#[test]
+fn the_stock_fixture_gives_the_verdicts_its_table_predicts() {
+    // The table the end-to-end test holds this machine to: it must say what the stock fixture
+    // gives, item by item, in the report's order and spelling.
+    let checks = inspect_fixture(&Fixture::stock(), LoopPlan::default());
+    let given: Vec<(&str, String)> = checks
+        .iter()
+        .map(|c| {
+            (
+                c.id,
+                serde_json::to_value(c.verdict)
+                    .unwrap()
+                    .as_str()
+                    .unwrap()
+                    .to_owned(),
+            )
+        })
+        .collect();
+    let predicted: Vec<(&str, String)> = STOCK_VERDICTS
+        .iter()
+        .map(|v| (v.id, v.verdict.to_owned()))
+        .collect();
+    assert_eq!(given, predicted);
+
+    // The names by which that test knows a stock kernel are the preemption item's own.
+    assert_eq!(
+        STOCK_PREEMPTION_NAMES,
+        [
+            Preemption::None.name(),
+            Preemption::Voluntary.name(),
+            Preemption::NoneOrVoluntary.name()
+        ]
+    );
+    let found = &check(&checks, "preemption").found;
+    assert!(found.contains(STOCK_PREEMPTION_NAMES[1]), "{found}");
+
+    // The rows said to hold on any stock host do not move with what differs between hosts: as
+    // root with every capability, swap off, no cpufreq, a hypervisor and a HID node.
+    let other = Fixture::stock();
+    other
+        .file(
+            "/proc/self/status",
+            "Uid:\t0\t0\t0\t0\nCapEff:\t000001ffffffffff\nCpus_allowed_list:\t0-1\n",
+        )
+        .file("/sys/devices/system/cpu/online", "0-1\n")
+        .file(
+            "/proc/swaps",
+            "Filename\t\t\t\tType\t\tSize\t\tUsed\t\tPriority\n",
+        )
+        .file(
+            "/proc/cpuinfo",
+            "processor\t: 0\nflags\t\t: fpu hypervisor\n",
+        )
+        .file("/dev/hidraw0", "");
+    for cpu in 0..4 {
+        other.remove(&format!(
+            "/sys/devices/system/cpu/cpu{cpu}/cpufreq/scaling_governor"
+        ));
+    }
+    let checks = inspect_fixture(&other, LoopPlan::default());
+    let moved: Vec<&str> = STOCK_VERDICTS
+        .iter()
+        .filter(|v| serde_json::to_value(check(&checks, v.id).verdict).unwrap() != v.verdict)
+        .map(|v| v.id)
+        .collect();
+    assert_eq!(
+        moved,
+        [
+            "virtualisation",
+            "sched_fifo",
+            "memory_lock",
+            "swap",
+            "cpu_governor",
+            "hidraw"
+        ],
+        "the other host differs where the table says hosts differ"
+    );
+    for row in STOCK_VERDICTS.iter().filter(|v| v.depends_on.is_none()) {
+        let c = check(&checks, row.id);
+        assert_eq!(
+            serde_json::to_value(c.verdict).unwrap(),
+            row.verdict,
+            "{c:?}"
+        );
+    }
 }

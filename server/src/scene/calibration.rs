@@ -188,9 +188,80 @@ pub(super) fn calibration_table(
                 tool
             )));
         }
+        check_poisson_ratio(&table, material, &file.calibration.table, files, path)?;
         table
     };
     Ok(table)
+}
+
+/// How far the scene's Poisson ratio may sit from its table's: the tables are written at
+/// ν = 0.30, 0.33, 0.40, 0.45, 0.49, and R_d moves by several percent between neighbours, so
+/// anything beyond rounding means the scene names a table made for another material.
+pub const POISSON_TOLERANCE: f64 = 0.005;
+
+/// Refuses a table made at another Poisson ratio than the scene's: the drawn depression would be
+/// that of another material while nothing says so. The error names the table the calibration
+/// writes for the scene's ν (`<tool>_<E>_nu<100ν>.json`, the paper's 0.33 without the suffix)
+/// when there is one.
+fn check_poisson_ratio(
+    table: &CalibrationTable,
+    material: Material,
+    table_name: &str,
+    files: FileBase<'_>,
+    path: &Path,
+) -> Result<(), SceneError> {
+    let scene_nu = material.poisson_ratio();
+    let table_nu = table.material().poisson_ratio();
+    if (scene_nu - table_nu).abs() <= POISSON_TOLERANCE {
+        return Ok(());
+    }
+    let suggestion = match table_for_poisson(table_name, scene_nu) {
+        Some(name) if table_exists(&name, files) => format!("use table = {name:?}"),
+        Some(name) => format!(
+            "there is no {name:?}: write one with `softhaptic-calibrate poisson` at that ν, or use \
+             table = \"half_space\""
+        ),
+        None => "use a table made at the scene's ν, or table = \"half_space\"".to_owned(),
+    };
+    Err(SceneError::Field {
+        path: path.to_owned(),
+        field: "material.poisson_ratio".to_owned(),
+        reason: format!(
+            "{scene_nu} differs from the ν = {table_nu} of calibration.table {table_name:?} (more \
+             than {POISSON_TOLERANCE}): {suggestion}"
+        ),
+    })
+}
+
+/// The name the calibration gives the table of `table_name`'s tool and stiffness at
+/// `poisson_ratio` (`calibration/sphere10_50kpa_nu49.json`), `None` when `table_name` does not
+/// follow that pattern or ν is not a whole hundredth.
+fn table_for_poisson(table_name: &str, poisson_ratio: f64) -> Option<String> {
+    let stem = table_name.strip_suffix(".json")?;
+    let base = match stem.rsplit_once("_nu") {
+        Some((base, digits))
+            if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) =>
+        {
+            base
+        }
+        _ => stem,
+    };
+    let hundredths = (poisson_ratio * 100.0).round();
+    if (poisson_ratio * 100.0 - hundredths).abs() > 1e-6 {
+        return None;
+    }
+    if hundredths as i64 == 33 {
+        Some(format!("{base}.json"))
+    } else {
+        Some(format!("{base}_nu{}.json", hundredths as i64))
+    }
+}
+
+fn table_exists(name: &str, files: FileBase<'_>) -> bool {
+    match files {
+        FileBase::Dir(_) => files.resolve(Path::new(name)).is_file(),
+        FileBase::BuiltIn => EMBEDDED_TABLES.iter().any(|(n, _)| *n == name),
+    }
 }
 
 #[cfg(test)]
@@ -281,6 +352,57 @@ mod tests {
         record.message.calibration = table.clone();
         let replay = Scene::from_recording(&record, Path::new("<test>")).unwrap();
         assert_eq!(replay.calibration, table);
+    }
+
+    #[test]
+    fn a_table_made_at_another_poisson_ratio_is_refused_with_the_one_to_use() {
+        let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+        // The ν = 0.49 scene with its own table loads.
+        let scene_path = scenes.join("incompressible.toml");
+        let text = crate::files::read_text(&scene_path, crate::files::FileKind::Scene).unwrap();
+        Scene::from_toml(&text, &scene_path, Some(&scenes)).unwrap();
+        // At ν = 0.45 it names the ν = 0.49 table: refused, naming the scene, the field, both
+        // values and the ν = 0.45 table that exists beside it.
+        let at_045 = text.replace("poisson_ratio = 0.49", "poisson_ratio = 0.45");
+        assert_ne!(at_045, text, "the scene's ν line moved");
+        let err = Scene::from_toml(&at_045, &scene_path, Some(&scenes))
+            .unwrap_err()
+            .to_string();
+        for part in [
+            "incompressible.toml",
+            "material.poisson_ratio",
+            "0.45",
+            "0.49",
+            "calibration/sphere10_50kpa_nu49.json",
+            "use table = \"calibration/sphere10_50kpa_nu45.json\"",
+        ] {
+            assert!(err.contains(part), "{part:?} missing from: {err}");
+        }
+        // Within the tolerance (a ν written with more digits) it loads.
+        let near = text.replace("poisson_ratio = 0.49", "poisson_ratio = 0.4925");
+        Scene::from_toml(&near, &scene_path, Some(&scenes)).unwrap();
+        // The paper's ν asks for the table without a suffix.
+        assert_eq!(
+            table_for_poisson("calibration/cone10_45_50kpa_nu45.json", 0.33).as_deref(),
+            Some("calibration/cone10_45_50kpa.json")
+        );
+        assert_eq!(
+            table_for_poisson("calibration/cone10_45_50kpa.json", 0.4),
+            Some("calibration/cone10_45_50kpa_nu40.json".to_owned())
+        );
+        assert_eq!(table_for_poisson("mine.json", 0.437), None);
+        // The built-in scene at ν = 0.45: no such table inside the binary, and the error says
+        // how to get one.
+        let built_in = include_str!("../../../scenes/default.toml")
+            .replace("poisson_ratio = 0.33", "poisson_ratio = 0.45");
+        let err = Scene::from_toml(&built_in, Path::new("<test>"), None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("material.poisson_ratio")
+                && err.contains("there is no \"calibration/sphere10_50kpa_nu45.json\""),
+            "{err}"
+        );
     }
 
     #[test]

@@ -429,8 +429,9 @@ mod tests {
             softhaptic_proto::CalibrationSource::FemNeoHookean
         );
         let on_disk: CalibrationTable = serde_json::from_str(
-            &std::fs::read_to_string(
-                source_tree_scenes_dir().join("calibration/sphere10_50kpa.json"),
+            &files::read_text(
+                &source_tree_scenes_dir().join("calibration/sphere10_50kpa.json"),
+                FileKind::Table,
             )
             .unwrap(),
         )
@@ -450,9 +451,12 @@ mod tests {
         assert_eq!(s.contact_model.tool(), &s.tool);
         // The limits: measured when the source tree's limits file has them, the paper's
         // otherwise; the renderer uses the same.
-        let file = std::fs::read_to_string(source_tree_scenes_dir().join(DEFAULT_LIMITS_FILE))
-            .ok()
-            .map(|t| serde_json::from_str::<ModelLimitsFile>(&t).unwrap());
+        let file = files::read_text(
+            &source_tree_scenes_dir().join(DEFAULT_LIMITS_FILE),
+            FileKind::Table,
+        )
+        .ok()
+        .map(|t| serde_json::from_str::<ModelLimitsFile>(&t).unwrap());
         assert_eq!(
             s.validity,
             ValidityLimits::of(file.as_ref(), &s.tool, &spec)

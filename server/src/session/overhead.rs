@@ -87,6 +87,8 @@ fn run_once(
         },
     )?;
     let granted = haptic.realtime().granted();
+    // The measurement runs on the main thread with no async runtime: nothing else waits for it.
+    #[allow(clippy::disallowed_methods)]
     std::thread::sleep(Duration::from_secs_f64(seconds));
     let stats = haptic.stop();
     let (file_bytes, ticks_recorded, ticks_dropped) = match (recorder, record_to) {

@@ -6,6 +6,12 @@
 //! At the server's shutdown a viewer first sends what is already queued for it on the stats
 //! and marks channels (for [`SHUTDOWN_DRAIN`] at most): the session's final `metrics`, sent
 //! just before the shutdown, are the last thing a viewer is told before the close.
+//!
+//! # Why one file
+//! About 750 lines, all of them one connection's life in the order it happens (role, greeting,
+//! stream, what the viewer sends, refusals, close) and how it ended ([`ViewerEnd`]). Every step shares the connection's
+//! deadlines and its close rule; split into files, a reader checking that no path skips the
+//! send deadline or the close handshake would have to follow the socket across them.
 
 use std::fmt;
 use std::sync::Arc;

@@ -1,0 +1,267 @@
+//! The real `softhaptic` binary driving its OpenHaptics device, with the HD API stand-in
+//! ([`standin_path`], built by `build.rs`) as the library it loads: the log says which limits the
+//! device reported and which are in use, and SIGTERM or SIGINT send zero force, stop the driver's
+//! scheduler and close the device before the process exits, with the recording complete.
+//!
+//! The binary loads the stand-in in its own process, so what the stand-in saw is read from the
+//! report it writes there (`HD_STANDIN_REPORT`), not through [`softhaptic_tests::standin`]'s
+//! controls; each test runs its own server and they need not take turns.
+
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use softhaptic_server::session::reader::Recording;
+use softhaptic_tests::standin::standin_path;
+use softhaptic_tests::{repo_scenes, scratch_dir, softhaptic_binary};
+
+const LIBRARY_ENV: &str = "SOFTHAPTIC_HD_LIBRARY";
+
+/// What one run of the server against the stand-in left behind.
+struct StandinRun {
+    status: ExitStatus,
+    /// The server's log (stderr, `RUST_LOG=info`).
+    log: String,
+    /// The stand-in's `HD_STANDIN_REPORT` lines, each as its `key=value` fields.
+    report: Vec<HashMap<String, String>>,
+    recording: PathBuf,
+    /// The run's scratch directory (log, report, recordings), removed by a test that passes.
+    dir: PathBuf,
+}
+
+/// Runs `softhaptic --scene scenes/phantom.toml` with the stand-in as its OpenHaptics library
+/// (and `env` for the stand-in), waits until it serves viewers and has recorded the hand
+/// pressing the liver with more than 1 N, then sends it `signal` and waits for it to exit.
+fn run_standin_until_pressing_then(name: &str, signal: &str, env: &[(&str, &str)]) -> StandinRun {
+    let dir = scratch_dir(name);
+    let report_path = dir.join("standin-report.txt");
+    let log_path = dir.join("server.log");
+    let mut command = Command::new(softhaptic_binary());
+    command
+        .arg("--scene")
+        .arg(repo_scenes().join("phantom.toml"))
+        .args(["--addr", "127.0.0.1:0"])
+        .arg("--record-dir")
+        .arg(dir.join("sessions"))
+        .env_remove("RUST_BACKTRACE")
+        .env(LIBRARY_ENV, standin_path())
+        .env("HD_STANDIN_REPORT", &report_path)
+        // The stand-in's hand presses the liver along the device's −y through its origin (the
+        // surface): its target goes from 5 to 25 mm below the surface and back, so the tool is
+        // pressed in at every moment a signal may come, and a zero force at the stop is the
+        // server's.
+        .env("HD_STANDIN_PRESS", "0,-25,0,0,3")
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(std::fs::File::create(&log_path).unwrap());
+    for (key, value) in env {
+        command.env(key, value);
+    }
+    let mut child = command.spawn().expect("softhaptic runs");
+    let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
+    let mut recording = None;
+    for line in BufReader::new(child.stdout.take().unwrap()).lines() {
+        let line = line.unwrap();
+        if let Some(p) = line.strip_prefix("recording: ") {
+            recording = Some(PathBuf::from(p));
+        }
+        if line.starts_with("viewer: ") {
+            break;
+        }
+    }
+    let Some(recording) = recording else {
+        let _ = child.kill();
+        panic!("the server did not start recording:\n{}", log());
+    };
+    // Serving and ticking: the recording holds ticks of the hand pressing in.
+    let give_up = Instant::now() + Duration::from_secs(60);
+    loop {
+        let pressing = Recording::open(&recording).is_ok_and(|r| {
+            r.device.iter().any(|d| {
+                let [x, y, z] = d.force_n;
+                (x * x + y * y + z * z).sqrt() > 1.0
+            })
+        });
+        if pressing {
+            break;
+        }
+        if Instant::now() > give_up {
+            let _ = child.kill();
+            panic!("no press above 1 N recorded within 60 s:\n{}", log());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let sent = Command::new("kill")
+        .args([format!("-{signal}"), child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let give_up = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if Instant::now() > give_up {
+            let _ = child.kill();
+            panic!("SIG{signal} did not stop the server:\n{}", log());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let report = std::fs::read_to_string(&report_path)
+        .unwrap_or_default()
+        .lines()
+        .map(|line| {
+            line.split_whitespace()
+                .filter_map(|field| field.split_once('='))
+                .map(|(k, v)| (k.to_owned(), v.to_owned()))
+                .collect()
+        })
+        .collect();
+    StandinRun {
+        status,
+        log: log(),
+        report,
+        recording,
+        dir,
+    }
+}
+
+/// A report field as a number.
+fn number(line: &HashMap<String, String>, key: &str) -> f64 {
+    line[key]
+        .parse()
+        .unwrap_or_else(|e| panic!("{key}={}: {e}", line[key]))
+}
+
+#[test]
+fn sigterm_and_sigint_send_zero_force_then_stop_the_scheduler_and_close_the_device() {
+    for signal in ["TERM", "INT"] {
+        let run =
+            run_standin_until_pressing_then(&format!("openhaptics-cli-stop-{signal}"), signal, &[]);
+        let log = &run.log;
+        assert!(run.status.success(), "SIG{signal}: {}:\n{log}", run.status);
+        assert!(
+            log.contains(&format!("shutting down signal=\"SIG{signal}\"")),
+            "SIG{signal} is logged:\n{log}"
+        );
+        let events: Vec<&str> = run.report.iter().map(|l| l["event"].as_str()).collect();
+        // Stopped once and closed once, in that order, and the process ended normally (the
+        // library is unloaded only by an orderly exit).
+        assert_eq!(
+            events,
+            ["hdStopScheduler", "hdDisableDevice", "unload"],
+            "SIG{signal}: {:?}",
+            run.report
+        );
+        let stop = &run.report[0];
+        assert_eq!(
+            stop["motor_force_n"], "0,0,0",
+            "SIG{signal}: the last force sent before the scheduler stopped: {stop:?}"
+        );
+        // The hand was pressing until the stop: the last force other than zero was a real one,
+        // and went out at most a few frames before the stop (the server's zero frame; a fault
+        // tick or two of a loaded machine's late servo thread). The hand never lets go (its
+        // target stays 5 mm below the surface), so a stop that left the force to the hand
+        // would leave it there.
+        assert!(
+            number(stop, "last_nonzero_force_n") > 0.5,
+            "SIG{signal}: {stop:?}"
+        );
+        assert!(
+            number(stop, "frames") - number(stop, "last_nonzero_frame") <= 50.0,
+            "SIG{signal}: the force was already zero long before the stop: {stop:?}"
+        );
+        assert_eq!(stop["callbacks"], "0", "SIG{signal}: {stop:?}");
+        assert_eq!(stop["force_output"], "off", "SIG{signal}: {stop:?}");
+        let disable = &run.report[1];
+        assert_eq!(
+            (disable["scheduler"].as_str(), disable["device"].as_str()),
+            ("stopped", "closed"),
+            "SIG{signal}: the device is closed after its scheduler stopped: {disable:?}"
+        );
+        let unload = &run.report[2];
+        assert_eq!(unload["motor_force_n"], "0,0,0");
+        assert_eq!(
+            (unload["scheduler"].as_str(), unload["device"].as_str()),
+            ("stopped", "closed"),
+            "SIG{signal}: {unload:?}"
+        );
+        // The recording was closed: `softhaptic info` says so.
+        let info = Command::new(softhaptic_binary())
+            .arg("info")
+            .arg(&run.recording)
+            .env_remove("RUST_BACKTRACE")
+            .env_remove(LIBRARY_ENV)
+            .output()
+            .expect("softhaptic info runs");
+        let text = String::from_utf8_lossy(&info.stdout);
+        assert!(
+            info.status.success(),
+            "{text}{}",
+            String::from_utf8_lossy(&info.stderr)
+        );
+        for expected in ["status:            complete", "OpenHaptics"] {
+            assert!(
+                text.contains(expected),
+                "SIG{signal}: {expected:?} missing from:\n{text}"
+            );
+        }
+        let _ = std::fs::remove_dir_all(&run.dir);
+    }
+}
+
+/// The `key=value` fields of the first log line that contains `message`.
+fn log_line<'a>(log: &'a str, message: &str) -> &'a str {
+    log.lines()
+        .find(|l| l.contains(message))
+        .unwrap_or_else(|| panic!("no {message:?} in the log:\n{log}"))
+}
+
+#[test]
+fn the_log_says_which_limits_the_device_reported_and_which_are_in_use() {
+    // A device that reports less force than the scene's PHANTOM Desktop preset (7.9 N) and more
+    // stiffness (1.86 N/mm against the preset's 1000 N/m): each limit in use is the tighter.
+    let run = run_standin_until_pressing_then(
+        "openhaptics-cli-limits",
+        "TERM",
+        &[("HD_STANDIN_MAX_FORCE_N", "5.5")],
+    );
+    assert!(run.status.success(), "{}:\n{}", run.status, run.log);
+    let library = standin_path().display().to_string();
+    let reported = log_line(&run.log, "haptic device opened");
+    for expected in [
+        "device=Default Device",
+        "model=PHANTOM Desktop",
+        "serial=STANDIN-0001",
+        &format!("library={library}"),
+        "max_force_n=5.5",
+        "continuous_force_n=1.75",
+        "max_stiffness_n_per_m=1860.0",
+        "max_damping_n_s_per_m=5.0",
+        "usable_workspace_mm=[DVec3(-80.0, -60.0, -60.0), DVec3(80.0, 60.0, 60.0)]",
+    ] {
+        assert!(
+            reported.contains(expected),
+            "{expected:?} missing from:\n{reported}"
+        );
+    }
+    let in_use = log_line(&run.log, "haptic device limits in use");
+    for expected in [
+        "the tighter of the device's and the preset's",
+        "peak_force_n=5.5",
+        "continuous_force_n=1.75",
+        "max_stiffness_n_per_m=1000.0",
+        "damping_n_s_per_m=5.0",
+        "preset=\"PHANTOM Desktop\"",
+    ] {
+        assert!(
+            in_use.contains(expected),
+            "{expected:?} missing from:\n{in_use}"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&run.dir);
+}
