@@ -6,10 +6,11 @@
 #![allow(clippy::disallowed_methods)]
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
+mod support;
+
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
 
 /// The escape that starts every ANSI colour or style code.
 const ESC: char = '\u{1b}';
@@ -42,19 +43,7 @@ fn the_log_written_to_a_file_has_no_colour_codes() {
         .map_while(Result::ok)
         .any(|line| line.starts_with("viewer: "));
     assert!(started, "the server never printed its URL");
-    let sent = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(sent.success());
-    let give_up = Instant::now() + Duration::from_secs(60);
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        assert!(Instant::now() < give_up, "SIGTERM did not stop the server");
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = support::stop_with_signal(&mut child, "TERM");
     assert!(status.success(), "{status}");
 
     let log = std::fs::read_to_string(&log_path).unwrap();

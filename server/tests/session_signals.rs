@@ -6,6 +6,8 @@
 #![allow(clippy::disallowed_methods)]
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
+mod support;
+
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
@@ -44,22 +46,7 @@ fn every_stop_signal_closes_the_recording() {
             assert!(Instant::now() < give_up, "SIG{signal}: nothing recorded");
             std::thread::sleep(Duration::from_millis(20));
         }
-        let sent = Command::new("kill")
-            .args([format!("-{signal}"), child.id().to_string()])
-            .status()
-            .unwrap();
-        assert!(sent.success());
-        let give_up = Instant::now() + Duration::from_secs(60);
-        let status = loop {
-            if let Some(status) = child.try_wait().unwrap() {
-                break status;
-            }
-            assert!(
-                Instant::now() < give_up,
-                "SIG{signal} did not stop the server"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        };
+        let status = support::stop_with_signal(&mut child, signal);
         assert!(status.success(), "SIG{signal}: {status}");
         let r = Recording::open(&path).unwrap();
         assert!(r.is_complete(), "SIG{signal}: {}", r.recovery());

@@ -9,6 +9,8 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
+mod support;
+
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
@@ -24,10 +26,9 @@ use clap::Parser;
 use futures_util::{SinkExt, StreamExt};
 use http_body_util::{BodyExt, Empty};
 use hyper_util::rt::{TokioExecutor, TokioIo};
-use rustls::client::danger::{HandshakeSignatureValid, ServerCertVerified, ServerCertVerifier};
 use rustls::pki_types::pem::PemObject;
-use rustls::pki_types::{CertificateDer, ServerName, UnixTime};
-use rustls::{ClientConfig, DigitallySignedStruct, RootCertStore, SignatureScheme};
+use rustls::pki_types::{CertificateDer, ServerName};
+use rustls::{ClientConfig, RootCertStore};
 use softhaptic_server::tls::{
     self, SELF_SIGNED_CERT_FILE, SELF_SIGNED_KEY_FILE, TlsArgs, TlsError, TlsSetup,
 };
@@ -38,6 +39,8 @@ use tokio::task::JoinHandle;
 use tokio_rustls::TlsConnector;
 use tokio_rustls::client::TlsStream;
 use tokio_tungstenite::tungstenite;
+
+use support::{client_pinning, provider};
 
 const LOOPBACK: IpAddr = IpAddr::V4(Ipv4Addr::LOCALHOST);
 /// A guard against a hang, never a measured time: every wait in these tests ends far sooner.
@@ -116,10 +119,6 @@ fn self_signed_args(data_dir: &Path, names: &[&str]) -> TlsArgs {
         data_dir: Some(data_dir.to_owned()),
         ..TlsArgs::default()
     }
-}
-
-fn provider() -> Arc<rustls::crypto::CryptoProvider> {
-    Arc::new(rustls::crypto::ring::default_provider())
 }
 
 /// A client that trusts exactly the certificates given (a self-signed certificate, or a CA).
@@ -805,74 +804,4 @@ fn options_that_do_not_go_together_are_refused_by_server_config_and_by_the_comma
     assert_eq!(cli.tls.tls_names, ["lab-pc.local", "10.1.2.3"]);
     assert_eq!(cli.tls.data_dir, Some(PathBuf::from("/srv/softhaptic")));
     assert_eq!(parse(&[]).unwrap().tls, TlsArgs::default());
-}
-
-/// A client that accepts the server's certificate exactly when its SHA-256 fingerprint is the
-/// printed one (what a lab can do without distributing the certificate file), and still checks
-/// the handshake's signatures with the certificate's key.
-fn client_pinning(fingerprint: &str) -> Arc<ClientConfig> {
-    #[derive(Debug)]
-    struct Pinned {
-        fingerprint: String,
-        provider: Arc<rustls::crypto::CryptoProvider>,
-    }
-    impl ServerCertVerifier for Pinned {
-        fn verify_server_cert(
-            &self,
-            end_entity: &CertificateDer<'_>,
-            _intermediates: &[CertificateDer<'_>],
-            _server_name: &ServerName<'_>,
-            _ocsp_response: &[u8],
-            _now: UnixTime,
-        ) -> Result<ServerCertVerified, rustls::Error> {
-            if tls::fingerprint_sha256(end_entity.as_ref()) == self.fingerprint {
-                Ok(ServerCertVerified::assertion())
-            } else {
-                Err(rustls::Error::InvalidCertificate(
-                    rustls::CertificateError::ApplicationVerificationFailure,
-                ))
-            }
-        }
-        fn verify_tls12_signature(
-            &self,
-            message: &[u8],
-            cert: &CertificateDer<'_>,
-            dss: &DigitallySignedStruct,
-        ) -> Result<HandshakeSignatureValid, rustls::Error> {
-            rustls::crypto::verify_tls12_signature(
-                message,
-                cert,
-                dss,
-                &self.provider.signature_verification_algorithms,
-            )
-        }
-        fn verify_tls13_signature(
-            &self,
-            message: &[u8],
-            cert: &CertificateDer<'_>,
-            dss: &DigitallySignedStruct,
-        ) -> Result<HandshakeSignatureValid, rustls::Error> {
-            rustls::crypto::verify_tls13_signature(
-                message,
-                cert,
-                dss,
-                &self.provider.signature_verification_algorithms,
-            )
-        }
-        fn supported_verify_schemes(&self) -> Vec<SignatureScheme> {
-            self.provider
-                .signature_verification_algorithms
-                .supported_schemes()
-        }
-    }
-    let config = ClientConfig::builder_with_provider(provider())
-        .with_safe_default_protocol_versions()
-        .unwrap()
-        .dangerous()
-        .with_custom_certificate_verifier(Arc::new(Pinned {
-            fingerprint: fingerprint.to_owned(),
-            provider: provider(),
-        }))
-        .with_no_client_auth();
-    Arc::new(config)
 }

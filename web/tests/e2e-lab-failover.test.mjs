@@ -9,45 +9,12 @@
 //                        needs nats-server, which `make test` installs)
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
-import { spawn } from 'node:child_process';
-import { existsSync, mkdtempSync, rmSync } from 'node:fs';
+import { mkdtempSync, rmSync } from 'node:fs';
 import { createServer, connect } from 'node:net';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
-import { launchBrowser } from './browser.mjs';
-import { startServer } from './server.mjs';
-
-const WAIT = { timeout: 60000 };
-
-/** A free loopback port. */
-function freePort() {
-  return new Promise((resolve, reject) => {
-    const s = createServer();
-    s.once('error', reject);
-    s.listen(0, '127.0.0.1', () => {
-      const { port } = s.address();
-      s.close(() => resolve(port));
-    });
-  });
-}
-
-/** Resolves once `port` accepts a connection (polling, generous deadline). */
-async function listening(port) {
-  const deadline = Date.now() + 30000;
-  for (;;) {
-    const ok = await new Promise((resolve) => {
-      const c = connect(port, '127.0.0.1', () => {
-        c.destroy();
-        resolve(true);
-      });
-      c.once('error', () => resolve(false));
-    });
-    if (ok) return;
-    if (Date.now() > deadline) throw new Error(`nats-server did not listen on ${port}`);
-    await new Promise((r) => setTimeout(r, 50));
-  }
-}
+import { logTail, openPage, startLab, waitOnPage } from './e2e-fixtures.mjs';
 
 /**
  * A TCP balancer on a free loopback port: each connection goes to the first of `backends`
@@ -108,52 +75,28 @@ function startBalancer(backends) {
   });
 }
 
-let dir;
-let nats;
-let station;
-const hubs = [];
+const dir = mkdtempSync(join(tmpdir(), 'softhaptic-e2e-lab-failover-'));
+let lab;
 let balancer;
-let browser;
+let view;
 let page;
-const pageErrors = [];
 
 before(async () => {
-  dir = mkdtempSync(join(tmpdir(), 'softhaptic-e2e-lab-failover-'));
-  const port = await freePort();
-  const program = existsSync('/usr/sbin/nats-server') ? '/usr/sbin/nats-server' : 'nats-server';
-  nats = spawn(program, ['-a', '127.0.0.1', '-p', String(port), '-js', '-sd', join(dir, 'nats')], {
-    stdio: 'ignore',
-  });
-  await listening(port);
-  const url = `nats://127.0.0.1:${port}`;
-  station = await startServer({
-    extraArgs: ['--no-record', '--nats', url, '--station', 'desk-1'],
-    external: false,
-  });
-  for (let i = 0; i < 2; i++) hubs.push(await startServer({ command: ['hub', '--nats', url], external: false }));
-  balancer = await startBalancer(hubs.map((h) => Number(new URL(h.url).port)));
-  browser = await launchBrowser();
-  page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
-  page.on('pageerror', (e) => pageErrors.push(e.message));
+  lab = await startLab(dir, { stations: [['--no-record', '--station', 'desk-1']], hubs: 2 });
+  balancer = await startBalancer(lab.hubs.map((h) => Number(new URL(h.url).port)));
+  view = await openPage();
+  page = view.page;
 });
 
 after(async () => {
-  await browser?.close();
+  await view?.close();
   await balancer?.close();
-  for (const h of hubs) await h.stop();
-  await station?.stop();
-  nats?.kill();
-  if (dir) rmSync(dir, { recursive: true, force: true });
+  await lab?.stop();
+  rmSync(dir, { recursive: true, force: true });
 });
 
-async function waitFor(what, predicate, arg = null) {
-  try {
-    await page.waitForFunction(predicate, arg, WAIT);
-  } catch (e) {
-    const logs = hubs.map((h, i) => `hub ${i + 1} log (end):\n${h.output().split('\n').slice(-10).join('\n')}`);
-    throw new Error(`${what}: ${e.message}\n${logs.join('\n')}`, { cause: e });
-  }
-}
+const waitFor = (what, predicate, arg = null) =>
+  waitOnPage(page, what, predicate, arg, () => lab.hubs.map((h, i) => logTail(`hub ${i + 1}`, h, 10)).join('\n'));
 
 const shown = () =>
   page.evaluate(() => ({
@@ -173,7 +116,7 @@ test("a hub's viewer carries on live through another hub when the first is kille
   assert.ok(session, JSON.stringify(before));
 
   // A crash, not a shutdown: the page learns of it only from its socket closing.
-  hubs[0].child.kill('SIGKILL');
+  lab.hubs[0].child.kill('SIGKILL');
   await waitFor(
     'the page reconnected',
     (connects) => window.__softhaptic.connection().stats.connects > connects,
@@ -189,5 +132,5 @@ test("a hub's viewer carries on live through another hub when the first is kille
   assert.equal(afterwards.connection.sessionId, session, 'the same session, through the other hub');
   assert.ok(afterwards.seq > before.seq + 20, `seq ${before.seq} then ${afterwards.seq}`);
   assert.ok(balancer.served[1] >= 1, 'the second hub served the reconnection');
-  assert.deepEqual(pageErrors, []);
+  assert.deepEqual(view.pageErrors, []);
 });

@@ -10,96 +10,37 @@
 //                        needs nats-server, which `make test` installs)
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
-import { spawn } from 'node:child_process';
-import { existsSync, mkdtempSync, rmSync } from 'node:fs';
-import { createServer, connect } from 'node:net';
+import { mkdtempSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
-import { launchBrowser } from './browser.mjs';
-import { startServer } from './server.mjs';
+import { logTail, openPage, startLab, waitOnPage } from './e2e-fixtures.mjs';
 
-const WAIT = { timeout: 60000 };
-
-/** A free loopback port. */
-function freePort() {
-  return new Promise((resolve, reject) => {
-    const s = createServer();
-    s.once('error', reject);
-    s.listen(0, '127.0.0.1', () => {
-      const { port } = s.address();
-      s.close(() => resolve(port));
-    });
-  });
-}
-
-/** Resolves once `port` accepts a connection (polling, generous deadline). */
-async function listening(port) {
-  const deadline = Date.now() + 30000;
-  for (;;) {
-    const ok = await new Promise((resolve) => {
-      const c = connect(port, '127.0.0.1', () => {
-        c.destroy();
-        resolve(true);
-      });
-      c.once('error', () => resolve(false));
-    });
-    if (ok) return;
-    if (Date.now() > deadline) throw new Error(`nats-server did not listen on ${port}`);
-    await new Promise((r) => setTimeout(r, 50));
-  }
-}
-
-let dir;
-let nats;
-const servers = [];
-let hub;
-let browser;
+const dir = mkdtempSync(join(tmpdir(), 'softhaptic-e2e-lab-'));
+let lab;
+let view;
 let page;
-const pageErrors = [];
 
 before(async () => {
-  dir = mkdtempSync(join(tmpdir(), 'softhaptic-e2e-lab-'));
-  const port = await freePort();
-  const program = existsSync('/usr/sbin/nats-server') ? '/usr/sbin/nats-server' : 'nats-server';
-  nats = spawn(program, ['-a', '127.0.0.1', '-p', String(port), '-js', '-sd', join(dir, 'nats')], {
-    stdio: 'ignore',
+  lab = await startLab(dir, {
+    stations: [
+      ['--record-dir', join(dir, 'recordings'), '--station', 'desk-1'],
+      ['--no-record', '--station', 'desk-2', '--scene', 'scenes/cone.toml'],
+    ],
   });
-  await listening(port);
-  const url = `nats://127.0.0.1:${port}`;
-  servers.push(
-    await startServer({
-      extraArgs: ['--record-dir', join(dir, 'recordings'), '--nats', url, '--station', 'desk-1'],
-      external: false,
-    }),
-    await startServer({
-      extraArgs: ['--no-record', '--nats', url, '--station', 'desk-2', '--scene', 'scenes/cone.toml'],
-      external: false,
-    }),
-  );
-  hub = await startServer({ command: ['hub', '--nats', url], external: false });
-  browser = await launchBrowser();
-  page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
-  page.on('pageerror', (e) => pageErrors.push(e.message));
-  await page.goto(hub.url);
+  view = await openPage();
+  page = view.page;
+  await page.goto(lab.hubs[0].url);
 });
 
 after(async () => {
-  await browser?.close();
-  await hub?.stop();
-  for (const s of servers) await s.stop();
-  nats?.kill();
-  if (dir) rmSync(dir, { recursive: true, force: true });
+  await view?.close();
+  await lab?.stop();
+  rmSync(dir, { recursive: true, force: true });
 });
 
-async function waitFor(what, predicate, arg = null) {
-  try {
-    await page.waitForFunction(predicate, arg, WAIT);
-  } catch (e) {
-    const log = hub.output().split('\n').slice(-20).join('\n');
-    throw new Error(`${what}: ${e.message}\nhub log (end):\n${log}`, { cause: e });
-  }
-}
+const waitFor = (what, predicate, arg = null) =>
+  waitOnPage(page, what, predicate, arg, () => logTail('hub', lab.hubs[0]));
 
 test('the hub lists both stations as links', async () => {
   await waitFor('two stations listed', () => window.__softhaptic?.stations().listed.length === 2);
@@ -140,13 +81,13 @@ test('picking a station shows its stream, and switching shows the other', async 
     assert.equal(shown.connection, 'open');
     assert.ok(shown.scene.render_meshes[0].url.startsWith(`/stations/${name}/`));
   }
-  assert.deepEqual(pageErrors, []);
+  assert.deepEqual(view.pageErrors, []);
 });
 
 test('a stopped station archives its recording, and the hub replays it', async () => {
   // Stopping desk-1 closes its recording and uploads it before the process ends.
-  await servers[0].stop();
-  assert.match(servers[0].output(), /recording archived in the lab \(verified\)/);
+  await lab.stations[0].stop();
+  assert.match(lab.stations[0].output(), /recording archived in the lab \(verified\)/);
   await waitFor('the archived recording listed', () =>
     window.__softhaptic.stations().listed.some((s) => s.name === 'desk-1' && s.archived.length === 1),
   );
@@ -165,5 +106,5 @@ test('a stopped station archives its recording, and the hub replays it', async (
   assert.equal(shown.replay.file, archived.file);
   assert.ok(shown.replay.durationS > 0.5, JSON.stringify(shown.replay));
   assert.equal(shown.stations.archive, archived.file);
-  assert.deepEqual(pageErrors, []);
+  assert.deepEqual(view.pageErrors, []);
 });

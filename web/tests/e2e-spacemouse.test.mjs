@@ -18,10 +18,8 @@ import { mkdtempSync, readFileSync, rmSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
-import { launchBrowser } from './browser.mjs';
+import { logTail, openPage, waitOnPage } from './e2e-fixtures.mjs';
 import { REPO, startServer } from './server.mjs';
-
-const WAIT = { timeout: 60000 };
 
 /** A three-axis report of raw values, as hex bytes (id first). */
 function axisReport(id, [x, y, z]) {
@@ -64,14 +62,12 @@ function scene(scriptPath) {
   );
 }
 
-let dir;
+const dir = mkdtempSync(join(tmpdir(), 'softhaptic-e2e-spacemouse-'));
 let server;
-let browser;
+let view;
 let page;
-const pageErrors = [];
 
 before(async () => {
-  dir = mkdtempSync(join(tmpdir(), 'softhaptic-e2e-spacemouse-'));
   const scriptPath = join(dir, 'puck.hid');
   writeFileSync(scriptPath, script());
   writeFileSync(join(dir, 'scene.toml'), scene(scriptPath));
@@ -79,27 +75,20 @@ before(async () => {
     extraArgs: ['--scene', join(dir, 'scene.toml'), '--no-record'],
     external: false,
   });
-  browser = await launchBrowser();
-  page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
-  page.on('pageerror', (e) => pageErrors.push(e.message));
+  view = await openPage();
+  page = view.page;
   await page.goto(server.url);
   await page.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
 });
 
 after(async () => {
-  await browser?.close();
+  await view?.close();
   await server?.stop();
-  if (dir) rmSync(dir, { recursive: true, force: true });
+  rmSync(dir, { recursive: true, force: true });
 });
 
-async function waitFor(what, predicate, arg = null) {
-  try {
-    await page.waitForFunction(predicate, arg, WAIT);
-  } catch (e) {
-    const log = server.output().split('\n').slice(-20).join('\n');
-    throw new Error(`${what}: ${e.message}\nserver log (end):\n${log}`, { cause: e });
-  }
-}
+const waitFor = (what, predicate, arg = null) =>
+  waitOnPage(page, what, predicate, arg, () => logTail('server', server));
 
 test('the page says the force is not felt and names the SpaceMouse', async () => {
   await waitFor('the hello', () => window.__softhaptic.role() !== null);
@@ -123,5 +112,5 @@ test('an unplug reads "input device disconnected"', async () => {
   await waitFor('the unplug in the panel', () => window.__softhaptic.device().shown === 'input device disconnected');
   const device = await page.evaluate(() => window.__softhaptic.device());
   assert.equal(device.status, 'disconnected');
-  assert.deepEqual(pageErrors, []);
+  assert.deepEqual(view.pageErrors, []);
 });

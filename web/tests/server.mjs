@@ -10,6 +10,7 @@
 // a server of their own, such as a replay, say `external: false`); SOFTHAPTIC_BIN at a binary
 // that is already built. `hdStandinPath()` gives the stand-in for OpenHaptics' libHD that plays
 // a PHANTOM in tests (tests/standin/), for `env: { SOFTHAPTIC_HD_LIBRARY: ... }`.
+// `stopProcess()` ends any child process the tests start, the same way the server is stopped.
 import { spawn, spawnSync } from 'node:child_process';
 import { existsSync } from 'node:fs';
 import path from 'node:path';
@@ -120,12 +121,19 @@ export async function startServer({
       reject(new Error(`server exited (code ${code}, signal ${signal}) before printing its URL:\n${output}`));
     });
   });
-  const stop = () =>
-    new Promise((resolve) => {
-      if (child.exitCode !== null || child.signalCode !== null) return resolve();
-      child.once('exit', () => resolve());
-      child.kill('SIGTERM');
-      setTimeout(() => child.kill('SIGKILL'), 5000).unref();
-    });
+  const stop = () => stopProcess(child);
   return { url, observerUrl, baseUrl: url.split('#')[0], stop, output: () => output, child };
+}
+
+/**
+ * Ends a child process: SIGTERM, then SIGKILL if it is still running 5 s later. Resolves once it
+ * has exited (at once if it already had).
+ */
+export function stopProcess(child) {
+  return new Promise((resolve) => {
+    if (child.exitCode !== null || child.signalCode !== null) return resolve();
+    child.once('exit', () => resolve());
+    child.kill('SIGTERM');
+    setTimeout(() => child.kill('SIGKILL'), 5000).unref();
+  });
 }
