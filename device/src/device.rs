@@ -5,8 +5,11 @@
 //! [`HapticDevice::command_force`] once per tick, so both must return within a few microseconds
 //! and must not allocate, lock or log: they run on the 1 kHz thread.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use glam::DVec3;
-use softhaptic_proto::Pose;
+use softhaptic_proto::{ContactFlags, Pose};
 
 /// What a device can do safely. Every limit the force renderer enforces comes from here.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -85,6 +88,12 @@ pub struct DeviceSample {
     pub tip_velocity_m_s: DVec3,
     /// Button bits, bit 0 the primary stylus button.
     pub buttons: u32,
+    /// What the device reports about this reading beside the numbers, as the contact flags the
+    /// tick carries: [`ContactFlags::MOTORS_WARM`] (the driver asks for less force; the world
+    /// limits it to the continuous force) and [`ContactFlags::OUTSIDE_WORKSPACE`] (the tip is
+    /// outside the device's usable box, where its readings are less accurate). Empty for most
+    /// devices.
+    pub flags: ContactFlags,
 }
 
 impl DeviceSample {
@@ -120,6 +129,26 @@ pub enum DeviceError {
     /// zero force instead of a stale one.
     #[error("haptic device servo tick overran its period")]
     Overrun,
+    /// The driver's force cut-out tripped more often than it may be re-armed automatically: the
+    /// force output stays off until an instructor re-arms it ([`RearmHandle`]) or the server
+    /// restarts.
+    #[error(
+        "haptic device force output latched off after repeated force trips: an instructor must          re-arm it"
+    )]
+    ForceLatched,
+    /// The backend's servo tick failed (a bug caught in the driver's callback): zero force was
+    /// sent and the device renders none until the server restarts.
+    #[error("haptic device servo tick failed: no force until the server restarts")]
+    Fatal,
+    /// The device's encoders must be reset: the operator holds the stylus at its reset position
+    /// and presses its button; no force until then.
+    #[error(
+        "haptic device needs calibration: hold the stylus at its reset position and press its          button"
+    )]
+    NeedsCalibrationReset,
+    /// The driver is updating the device's calibration by itself; no force until it is done.
+    #[error("haptic device is updating its calibration: force resumes when it is done")]
+    CalibrationUpdating,
 }
 
 impl DeviceError {
@@ -132,6 +161,10 @@ impl DeviceError {
             DeviceError::ForceDisabled => 3,
             DeviceError::NeedsCalibration => 4,
             DeviceError::Overrun => 5,
+            DeviceError::ForceLatched => 7,
+            DeviceError::Fatal => 8,
+            DeviceError::NeedsCalibrationReset => 9,
+            DeviceError::CalibrationUpdating => 10,
             // The code's 32 bits above the kind.
             DeviceError::Driver(code) => 6 | (u64::from(code as u32) << 8),
         }
@@ -147,8 +180,36 @@ impl DeviceError {
             4 => DeviceError::NeedsCalibration,
             5 => DeviceError::Overrun,
             6 => DeviceError::Driver((word >> 8) as u32 as i32),
+            7 => DeviceError::ForceLatched,
+            8 => DeviceError::Fatal,
+            9 => DeviceError::NeedsCalibrationReset,
+            10 => DeviceError::CalibrationUpdating,
             _ => return None,
         })
+    }
+}
+
+/// Why a driver's servo clock did not start: the driver's own error and what to do about it, in
+/// words for the operator (the start is not on the 1 kHz path, so it may allocate).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ServoStartError(pub String);
+
+/// A request, from any thread, to re-arm a device whose force output latched off after repeated
+/// force trips ([`DeviceError::ForceLatched`]). The device takes it on its next tick (one atomic
+/// swap, wait-free); a request while nothing is latched is dropped.
+#[derive(Debug, Clone, Default)]
+pub struct RearmHandle(Arc<AtomicBool>);
+
+impl RearmHandle {
+    /// Asks the device to re-arm its force output on its next tick.
+    pub fn request(&self) {
+        self.0.store(true, Ordering::Release);
+    }
+
+    /// Takes a pending request (the device's side).
+    pub fn take(&self) -> bool {
+        self.0.swap(false, Ordering::AcqRel)
     }
 }
 
@@ -162,7 +223,7 @@ pub trait ServoClock: Send {
     /// Starts calling `tick` from the driver's servo thread, once per servo period, with the
     /// CLOCK_MONOTONIC time at which that servo tick began. `tick` must return within the period
     /// and must not block.
-    fn start(&mut self, tick: Box<dyn FnMut(u64) + Send>) -> Result<(), DeviceError>;
+    fn start(&mut self, tick: Box<dyn FnMut(u64) + Send>) -> Result<(), ServoStartError>;
     /// Sends zero force, disables force output and stops the servo thread; `tick` is not called
     /// after this returns. Idempotent.
     fn stop(&mut self);
@@ -191,6 +252,11 @@ pub trait HapticDevice: Send {
     fn renders_force(&self) -> bool {
         true
     }
+    /// The handle an instructor's re-arm goes through, for a device whose force output can latch
+    /// off ([`DeviceError::ForceLatched`]); `None` (the default) for one that cannot.
+    fn rearm_handle(&self) -> Option<RearmHandle> {
+        None
+    }
 }
 
 impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {
@@ -209,6 +275,9 @@ impl<D: HapticDevice + ?Sized> HapticDevice for Box<D> {
     fn renders_force(&self) -> bool {
         (**self).renders_force()
     }
+    fn rearm_handle(&self) -> Option<RearmHandle> {
+        (**self).rearm_handle()
+    }
 }
 
 #[cfg(test)]
@@ -223,6 +292,7 @@ mod tests {
             tip_in_world: Pose::IDENTITY,
             tip_velocity_m_s: DVec3::ZERO,
             buttons: 0,
+            flags: ContactFlags::empty(),
         };
         assert!(s.is_finite());
         s.tip_velocity_m_s.y = f64::INFINITY;
@@ -240,6 +310,10 @@ mod tests {
             DeviceError::ForceDisabled,
             DeviceError::NeedsCalibration,
             DeviceError::Overrun,
+            DeviceError::ForceLatched,
+            DeviceError::Fatal,
+            DeviceError::NeedsCalibrationReset,
+            DeviceError::CalibrationUpdating,
             DeviceError::Driver(0x302),
             DeviceError::Driver(-7),
         ] {

@@ -174,7 +174,14 @@ pub struct ForceRenderer {
     thermal: Option<ContinuousForceLimiter>,
     /// Device time of the last tick the heating model booked.
     thermal_time_ns: Option<u64>,
+    /// Device time of the last tick whose device reported its motors warm, while the limit they
+    /// set is in force or releasing ([`ForceRenderer::set_motors_warm`]).
+    warm_last_ns: Option<u64>,
 }
+
+/// Time the warm-motors limit takes to rise back from the continuous force to the peak once the
+/// device no longer reports its motors warm: a release, not a step, of up to the peak force.
+pub const WARM_RELEASE_NS: u64 = 500_000_000;
 
 impl ForceRenderer {
     /// A renderer of the paper's law for `tool` on `material`.
@@ -229,6 +236,7 @@ impl ForceRenderer {
                 None
             },
             thermal_time_ns: None,
+            warm_last_ns: None,
         }
     }
 
@@ -418,8 +426,38 @@ impl ForceRenderer {
                 rendered.flags |= ContactFlags::CONTINUOUS_FORCE_LIMITED;
             }
         }
+        if let Some(cap_n) = self.warm_cap_n(time_ns) {
+            let size = rendered.force_n.length();
+            if size > cap_n {
+                rendered.force_n *= cap_n / size;
+                rendered.flags |= ContactFlags::CONTINUOUS_FORCE_LIMITED;
+            }
+        }
         self.previous_force_n = rendered.force_n;
         rendered
+    }
+
+    /// The device reports (on this tick) whether its motors are warm. The driver keeps rendering
+    /// while they are, and asks for less force: the force is held to the device's continuous
+    /// rating from that tick on, and released back to the peak over [`WARM_RELEASE_NS`] once the
+    /// reports stop. Call it before [`ForceRenderer::render`].
+    pub fn set_motors_warm(&mut self, warm: bool, time_ns: u64) {
+        if warm {
+            self.warm_last_ns = Some(time_ns);
+        }
+    }
+
+    /// The warm-motors limit at `time_ns`, `None` when none applies.
+    fn warm_cap_n(&mut self, time_ns: u64) -> Option<f64> {
+        let last = self.warm_last_ns?;
+        let continuous = self.limits.continuous_force_n.min(self.limits.peak_force_n);
+        let since = time_ns.saturating_sub(last);
+        if since >= WARM_RELEASE_NS {
+            self.warm_last_ns = None;
+            return None;
+        }
+        let released = since as f64 / WARM_RELEASE_NS as f64;
+        Some(continuous + (self.limits.peak_force_n - continuous).max(0.0) * released)
     }
 
     fn render_force(

@@ -104,8 +104,8 @@ pub enum LoopError {
     Spawn(#[source] std::io::Error),
     #[error("the haptic loop thread ended before reporting its start")]
     StartLost,
-    #[error("the haptic device's servo clock did not start: {0}")]
-    ServoClock(DeviceError),
+    #[error("{0}")]
+    ServoClock(crate::device::ServoStartError),
 }
 
 /// Bounds of the spin before each deadline ([`rt::SpinBudget`]): at least 20 µs, at most 200 µs
@@ -308,17 +308,22 @@ impl Shared {
 /// Where a latched error word keeps its severity: above every bit of [`DeviceError::to_word`].
 const SEVERITY_SHIFT: u32 = 56;
 
-/// How severe a device error is for the operator: a lost or silent device first, then a force
-/// the driver stopped, a force sent late, the driver's other errors, and last a device waiting
-/// for its calibration (which renders no force, but is not a fault of the moment).
+/// How severe a device error is for the operator: a failed servo tick (no force until a
+/// restart) first, then a lost or silent device, a force output latched off, a force the driver
+/// stopped, a force sent late, the driver's other errors, and last a device waiting for its
+/// calibration (which renders no force, but is not a fault of the moment).
 fn severity(error: DeviceError) -> u64 {
     match error {
-        DeviceError::Disconnected => 6,
-        DeviceError::Timeout => 5,
+        DeviceError::Fatal => 8,
+        DeviceError::Disconnected => 7,
+        DeviceError::Timeout => 6,
+        DeviceError::ForceLatched => 5,
         DeviceError::ForceDisabled => 4,
         DeviceError::Overrun => 3,
         DeviceError::Driver(_) => 2,
-        DeviceError::NeedsCalibration => 1,
+        DeviceError::NeedsCalibration
+        | DeviceError::NeedsCalibrationReset
+        | DeviceError::CalibrationUpdating => 1,
     }
 }
 
@@ -627,7 +632,13 @@ impl HapticLoop {
                 })
                 .map_err(LoopError::Spawn)?
         };
-        let realtime = status_rx.recv().map_err(|_| LoopError::StartLost)?;
+        let mut realtime = status_rx.recv().map_err(|_| LoopError::StartLost)?;
+        if config.realtime {
+            // The ticks run on the driver's thread, which no setting here reaches; the memory
+            // they touch is locked as for a self-clocked loop (its state is allocated above).
+            realtime.requested = true;
+            (realtime.memory_locked, realtime.mlock_errno) = rt::lock_memory();
+        }
 
         let tick_shared = Arc::clone(&shared);
         let tick_baton = Arc::clone(&baton);

@@ -11,8 +11,8 @@
 //! exact (every f64 is copied, never recomputed), which is what makes replay bit-identical.
 
 use glam::{DQuat, DVec3};
-use softhaptic_proto::Pose;
 use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord, SampleRecord};
+use softhaptic_proto::{ContactFlags, Pose};
 
 use softhaptic_proto::ContactState;
 
@@ -151,6 +151,7 @@ pub fn sample_record(s: &DeviceSample) -> SampleRecord {
         tip_orientation: s.tip_in_world.orientation.to_array(),
         tip_velocity_m_s: s.tip_velocity_m_s.to_array(),
         buttons: s.buttons,
+        flags: s.flags.bits(),
     }
 }
 
@@ -164,6 +165,7 @@ pub fn device_sample(r: &SampleRecord) -> DeviceSample {
         },
         tip_velocity_m_s: DVec3::from_array(r.tip_velocity_m_s),
         buttons: r.buttons,
+        flags: ContactFlags::from_bits_retain(r.flags),
     }
 }
 
@@ -176,6 +178,10 @@ pub fn error_record(e: &DeviceError) -> DeviceErrorRecord {
         DeviceError::Driver(code) => DeviceErrorRecord::Driver { code },
         DeviceError::NeedsCalibration => DeviceErrorRecord::NeedsCalibration,
         DeviceError::Overrun => DeviceErrorRecord::Overrun,
+        DeviceError::ForceLatched => DeviceErrorRecord::ForceLatched,
+        DeviceError::Fatal => DeviceErrorRecord::Fatal,
+        DeviceError::NeedsCalibrationReset => DeviceErrorRecord::NeedsCalibrationReset,
+        DeviceError::CalibrationUpdating => DeviceErrorRecord::CalibrationUpdating,
     }
 }
 
@@ -188,6 +194,10 @@ pub fn device_error(r: &DeviceErrorRecord) -> DeviceError {
         DeviceErrorRecord::Driver { code } => DeviceError::Driver(code),
         DeviceErrorRecord::NeedsCalibration => DeviceError::NeedsCalibration,
         DeviceErrorRecord::Overrun => DeviceError::Overrun,
+        DeviceErrorRecord::ForceLatched => DeviceError::ForceLatched,
+        DeviceErrorRecord::Fatal => DeviceError::Fatal,
+        DeviceErrorRecord::NeedsCalibrationReset => DeviceError::NeedsCalibrationReset,
+        DeviceErrorRecord::CalibrationUpdating => DeviceError::CalibrationUpdating,
     }
 }
 
@@ -215,6 +225,7 @@ mod tests {
             },
             tip_velocity_m_s: DVec3::new(f64::NAN, 1.0, -0.0),
             buttons: 3,
+            flags: ContactFlags::MOTORS_WARM,
         }
     }
 

@@ -400,6 +400,14 @@ pub fn request_realtime(requested: bool, priority: i32, cpu: CpuChoice) -> Realt
     } else {
         status.fifo_errno = Some(rc);
     }
+    (status.memory_locked, status.mlock_errno) = lock_memory();
+    status
+}
+
+/// Locks the process' memory (`mlockall`): `(true, None)` when granted, `(false, Some(errno))`
+/// when refused. A device-clocked loop (the driver's servo thread runs the ticks) asks for it
+/// as the self-clocked one does: a page fault on the servo thread is a late force either way.
+pub fn lock_memory() -> (bool, Option<i32>) {
     // MCL_FUTURE makes every later mapping of the process count against RLIMIT_MEMLOCK; with a
     // finite limit that could make an unrelated allocation in the server fail, so it is only
     // asked for when the limit is unlimited. The loop needs only MCL_CURRENT: everything it
@@ -418,11 +426,10 @@ pub fn request_realtime(requested: bool, priority: i32, cpu: CpuChoice) -> Realt
     };
     // SAFETY: mlockall has no memory-safety preconditions.
     if unsafe { libc::mlockall(flags) } == 0 {
-        status.memory_locked = true;
+        (true, None)
     } else {
-        status.mlock_errno = Some(errno());
+        (false, Some(errno()))
     }
-    status
 }
 
 #[cfg(test)]

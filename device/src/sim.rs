@@ -312,6 +312,7 @@ impl HapticDevice for SimulatedPhantom {
             },
             tip_velocity_m_s: self.reported_velocity_m_s,
             buttons: 0,
+            flags: softhaptic_proto::ContactFlags::empty(),
         };
         if let Some((from, until, fault)) = self.fault
             && (from..until).contains(&self.time_ns)

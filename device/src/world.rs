@@ -196,6 +196,10 @@ impl HapticWorld {
             curvature_1_per_m: g.curvature_1_per_m,
         });
         let tool_axis = sample.tip_in_world.orientation * DVec3::Y;
+        self.renderer.set_motors_warm(
+            sample.flags.contains(ContactFlags::MOTORS_WARM),
+            sample.time_ns,
+        );
         let rendered = self.renderer.render(
             contact.as_ref(),
             sample.tip_in_world.position_m,
@@ -211,7 +215,9 @@ impl HapticWorld {
             tip_velocity_m_s: sample.tip_velocity_m_s,
             buttons: sample.buttons,
             force_n: rendered.force_n,
-            flags: rendered.flags,
+            // The device's own words about the reading travel with the tick.
+            flags: rendered.flags
+                | (sample.flags & (ContactFlags::MOTORS_WARM | ContactFlags::OUTSIDE_WORKSPACE)),
             ..ContactState::IDLE
         };
         if tracked.is_some_and(|t| t.pushed_through) {
@@ -320,6 +326,7 @@ mod tests {
             tip_in_world: Pose::from_position(position_m),
             tip_velocity_m_s: DVec3::ZERO,
             buttons: 1,
+            flags: ContactFlags::empty(),
         }
     }
 

@@ -67,6 +67,7 @@ fn slide(world: &mut HapticWorld, step_m: f64) -> Vec<(f64, f64, f64, f64)> {
                 },
                 tip_velocity_m_s: DVec3::ZERO,
                 buttons: 0,
+                flags: softhaptic_proto::ContactFlags::empty(),
             };
             let state = world.step(Ok(sample));
             assert!(state.in_contact, "the slide stays in contact at s = {s}");
@@ -179,6 +180,7 @@ fn the_contact_radius_follows_the_curvature() {
         },
         tip_velocity_m_s: DVec3::ZERO,
         buttons: 0,
+        flags: softhaptic_proto::ContactFlags::empty(),
     };
     let p = paper.step(Ok(sample));
     let c = curved.step(Ok(sample));

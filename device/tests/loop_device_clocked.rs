@@ -67,7 +67,10 @@ impl ServoClock for ThreadClock {
         1_000_000
     }
 
-    fn start(&mut self, mut tick: Box<dyn FnMut(u64) + Send>) -> Result<(), DeviceError> {
+    fn start(
+        &mut self,
+        mut tick: Box<dyn FnMut(u64) + Send>,
+    ) -> Result<(), softhaptic_device::device::ServoStartError> {
         let probe = Arc::clone(&self.probe);
         let running = Arc::clone(&self.running);
         running.store(true, Ordering::Release);

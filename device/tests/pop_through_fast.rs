@@ -208,6 +208,7 @@ fn run(target: &Target, mode: CollisionMode, tool: ToolShape, path: &[Waypoint])
                 },
                 tip_velocity_m_s: -n * speed_in_m_s,
                 buttons: 0,
+                flags: ContactFlags::empty(),
             };
             let state = world.step(if w.readable {
                 Ok(sample)
@@ -435,6 +436,7 @@ fn a_jump_that_ends_outside_the_object_is_not_held() {
                 tip_in_world: Pose::from_position(*p),
                 tip_velocity_m_s: DVec3::ZERO,
                 buttons: 0,
+                flags: ContactFlags::empty(),
             }));
             assert!(
                 !state.in_contact && state.force_n == DVec3::ZERO,

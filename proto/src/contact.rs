@@ -69,6 +69,12 @@ bitflags::bitflags! {
         /// surface on the side the tool entered, its depth measured along that side's normal,
         /// until the tool comes back out on that side.
         const PUSHED_THROUGH = 1 << 9;
+        /// The device's motors are warm: the driver asks for less force, and the force is held
+        /// to the device's continuous rating until they have cooled.
+        const MOTORS_WARM = 1 << 10;
+        /// The tip is outside the device's usable workspace (inside the box it can reach, where
+        /// its readings are less accurate).
+        const OUTSIDE_WORKSPACE = 1 << 11;
     }
 }
 

@@ -105,6 +105,14 @@ pub struct SampleRecord {
     pub tip_velocity_m_s: [f64; 3],
     /// Device button bits.
     pub buttons: u32,
+    /// `ContactFlags` bits the device reported with the sample (`motors_warm`,
+    /// `outside_workspace`); absent when none, and in recordings made before they existed.
+    #[serde(default, skip_serializing_if = "is_zero_u32")]
+    pub flags: u32,
+}
+
+fn is_zero_u32(n: &u32) -> bool {
+    *n == 0
 }
 
 /// One haptic tick: what the device reported and what the loop commanded.
@@ -157,6 +165,10 @@ pub enum DeviceErrorRecord {
     Driver { code: i32 },
     NeedsCalibration,
     Overrun,
+    ForceLatched,
+    Fatal,
+    NeedsCalibrationReset,
+    CalibrationUpdating,
 }
 
 /// The scene of the session: the `scene` wire message the viewers got, and the scene definition
@@ -376,22 +388,23 @@ pub mod schema {
         "tip_position_m": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "world frame, metres"},
         "tip_orientation": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 4, "maxItems": 4, "description": "quaternion [x,y,z,w], world frame"},
         "tip_velocity_m_s": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "world frame, m/s"},
-        "buttons": {"type": "integer", "minimum": 0}
+        "buttons": {"type": "integer", "minimum": 0},
+        "flags": {"type": "integer", "minimum": 0, "description": "contact flags the device reported with the sample (1024 motors_warm, 2048 outside_workspace); absent when none"}
       },
       "required": ["time_ns", "tip_position_m", "tip_orientation", "tip_velocity_m_s", "buttons"]
     },
     "device_fault": {"type": "boolean"},
     "device_error": {"type": "object", "description": "why the read failed", "properties": {
-      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun"]},
+      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun", "force_latched", "fatal", "needs_calibration_reset", "calibration_updating"]},
       "code": {"type": "integer"}}, "required": ["kind"]},
     "lost_before": {"type": "integer", "minimum": 0, "description": "ticks the loop lost right before this one (absent: none)"},
     "command_error": {"type": "object", "description": "why the device refused the force command (it output zero)", "properties": {
-      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun"]},
+      "kind": {"type": "string", "enum": ["disconnected", "timeout", "force_disabled", "driver", "needs_calibration", "overrun", "force_latched", "fatal", "needs_calibration_reset", "calibration_updating"]},
       "code": {"type": "integer"}}, "required": ["kind"]},
     "in_contact": {"type": "boolean"},
     "depth_m": {"type": ["number", "string"], "description": "indentation depth, metres"},
     "force_n": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "commanded force, world frame, newtons"},
-    "flags": {"type": "integer", "minimum": 0, "description": "ContactFlags bits: 1 beyond_valid_depth, 2 beyond_valid_inclination, 4 saturated, 8 stiffness_capped, 16 device_fault, 32 ramping, 64 passivity_damping, 128 degenerate_normal, 256 continuous_force_limited, 512 pushed_through"}
+    "flags": {"type": "integer", "minimum": 0, "description": "ContactFlags bits: 1 beyond_valid_depth, 2 beyond_valid_inclination, 4 saturated, 8 stiffness_capped, 16 device_fault, 32 ramping, 64 passivity_damping, 128 degenerate_normal, 256 continuous_force_limited, 512 pushed_through, 1024 motors_warm, 2048 outside_workspace"}
   },
   "required": ["tick", "time_ns", "sample", "device_fault", "in_contact", "depth_m", "force_n", "flags"]
 }"##;
@@ -492,7 +505,7 @@ pub mod schema {
       "p50": {"type": "number"}, "p99": {"type": "number"}, "max": {"type": "number"}}},
     "viewers": {"type": "integer", "minimum": 0},
     "dropped_frames": {"type": "integer", "minimum": 0},
-    "device": {"type": "string", "enum": ["ok", "disconnected", "not_answering", "force_disabled", "needs_calibration", "overrun", "driver_error"], "description": "the haptic device's state on the last tick"}
+    "device": {"type": "string", "enum": ["ok", "disconnected", "not_answering", "force_disabled", "needs_calibration", "overrun", "driver_error", "force_latched", "failed", "needs_calibration_reset", "calibration_updating"], "description": "the haptic device's state on the last tick"}
   },
   "required": ["type", "loop_rate_hz", "period_error_us", "overruns", "compute_us"]
 }"##;
@@ -570,6 +583,7 @@ mod tests {
                 tip_orientation: [0.0, 0.0, 0.0, 1.0],
                 tip_velocity_m_s: [f64::NAN, f64::INFINITY, f64::NEG_INFINITY],
                 buttons: 1,
+                flags: 1 << 10,
             }),
             device_fault: false,
             device_error: None,

@@ -283,6 +283,7 @@ pub async fn start(
         None => crate::devices::open(&mut scene)?,
     };
     scene.device_renders_force = device.renders_force();
+    let rearm = device.rearm_handle();
     let message = scene.message();
     let encode = |what: &'static str, m: ServerMessage| {
         m.encode()
@@ -348,7 +349,8 @@ pub async fn start(
         .map_err(|source| ServerError::Encode {
             what: "hello",
             source,
-        })?,
+        })?
+        .with_rearm(rearm),
     );
     let meshes = Arc::new(meshes);
     let mut tasks = vec![

@@ -87,6 +87,7 @@ fn sample(k: u64) -> DeviceSample {
         tip_in_world: Pose::from_position(DVec3::new(0.01, 0.07 - 1e-6 * k as f64, 1.0 / 3.0)),
         tip_velocity_m_s: DVec3::new(0.0, -1e-3, 0.0),
         buttons: 1,
+        flags: ContactFlags::empty(),
     }
 }
 

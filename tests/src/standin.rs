@@ -8,8 +8,10 @@
 //!
 //! [`StandIn`] opens the same path. `dlopen` of a path already loaded returns the object already
 //! loaded, so the test's handle and the backend's share one stand-in: one device, one scheduler,
-//! one error stack. The controls act on the device the backend is driving. The library is linked
-//! with `-z nodelete`, so dropping the last handle never unmaps code the scheduler thread runs.
+//! one error stack. The controls act on the device the backend is driving. Like the vendor's
+//! library, the stand-in is unmapped when its last handle is closed (it is not linked with
+//! `-z nodelete`); the handle [`StandIn::load`] opens is never closed, so the library stays mapped
+//! while its scheduler thread may run, whatever the backend does.
 //!
 //! The stand-in's state is process-wide: tests that use it in one process must take turns (a
 //! `static` mutex held for the whole test) and start with [`StandIn::reset`].
@@ -30,63 +32,9 @@ pub fn missing_symbol_path() -> &'static Path {
     Path::new(env!("SOFTHAPTIC_HD_STANDIN_MISSING_SYMBOL"))
 }
 
-/// The HD API codes the controls take and the tests compare with (OpenHaptics 3.0 values).
-pub mod hd {
-    pub const HD_INVALID_HANDLE: u32 = 0xFFFF_FFFF;
-    pub const HD_CALLBACK_DONE: u32 = 0;
-    pub const HD_CALLBACK_CONTINUE: u32 = 1;
-    pub const HD_DEFAULT_SCHEDULER_PRIORITY: u16 = u16::MAX / 2;
-    pub const HD_MAX_SCHEDULER_PRIORITY: u16 = u16::MAX;
-    pub const HD_MIN_SCHEDULER_PRIORITY: u16 = 0;
-
-    pub const HD_SUCCESS: u32 = 0x0000;
-    pub const HD_INVALID_ENUM: u32 = 0x0100;
-    pub const HD_INVALID_VALUE: u32 = 0x0101;
-    pub const HD_INVALID_OPERATION: u32 = 0x0102;
-    pub const HD_BAD_HANDLE: u32 = 0x0104;
-    pub const HD_EXCEEDED_MAX_FORCE: u32 = 0x0201;
-    pub const HD_FORCE_ERROR: u32 = 0x0204;
-    pub const HD_DEVICE_FAULT: u32 = 0x0300;
-    pub const HD_DEVICE_ALREADY_INITIATED: u32 = 0x0301;
-    pub const HD_COMM_ERROR: u32 = 0x0302;
-    pub const HD_COMM_CONFIG_ERROR: u32 = 0x0303;
-    pub const HD_TIMER_ERROR: u32 = 0x0304;
-    pub const HD_ILLEGAL_BEGIN: u32 = 0x0400;
-    pub const HD_ILLEGAL_END: u32 = 0x0401;
-    pub const HD_FRAME_ERROR: u32 = 0x0402;
-    pub const HD_SCHEDULER_FULL: u32 = 0x0501;
-
-    pub const HD_CURRENT_BUTTONS: u32 = 0x2000;
-    pub const HD_CURRENT_POSITION: u32 = 0x2050;
-    pub const HD_CURRENT_VELOCITY: u32 = 0x2051;
-    pub const HD_CURRENT_TRANSFORM: u32 = 0x2052;
-    pub const HD_DEVICE_MODEL_TYPE: u32 = 0x2501;
-    pub const HD_DEVICE_VENDOR: u32 = 0x2503;
-    pub const HD_DEVICE_SERIAL_NUMBER: u32 = 0x2504;
-    pub const HD_MAX_WORKSPACE_DIMENSIONS: u32 = 0x2550;
-    pub const HD_USABLE_WORKSPACE_DIMENSIONS: u32 = 0x2551;
-    pub const HD_INPUT_DOF: u32 = 0x2553;
-    pub const HD_OUTPUT_DOF: u32 = 0x2554;
-    pub const HD_CALIBRATION_STYLE: u32 = 0x2555;
-    pub const HD_UPDATE_RATE: u32 = 0x2600;
-    pub const HD_INSTANTANEOUS_UPDATE_RATE: u32 = 0x2601;
-    pub const HD_NOMINAL_MAX_STIFFNESS: u32 = 0x2602;
-    pub const HD_NOMINAL_MAX_FORCE: u32 = 0x2603;
-    pub const HD_NOMINAL_MAX_CONTINUOUS_FORCE: u32 = 0x2604;
-    pub const HD_NOMINAL_MAX_DAMPING: u32 = 0x2609;
-    pub const HD_CURRENT_FORCE: u32 = 0x2700;
-    pub const HD_LAST_FORCE: u32 = 0x2800;
-
-    pub const HD_FORCE_OUTPUT: u32 = 0x4000;
-    pub const HD_MAX_FORCE_CLAMPING: u32 = 0x4001;
-
-    pub const HD_CALIBRATION_OK: u32 = 0x5000;
-    pub const HD_CALIBRATION_NEEDS_UPDATE: u32 = 0x5001;
-    pub const HD_CALIBRATION_NEEDS_MANUAL_INPUT: u32 = 0x5002;
-    pub const HD_CALIBRATION_ENCODER_RESET: u32 = 1;
-    pub const HD_CALIBRATION_AUTO: u32 = 2;
-    pub const HD_CALIBRATION_INKWELL: u32 = 4;
-}
+/// The HD API codes the controls take and the tests compare with: the backend's own definition
+/// (from which the stand-in's C header is generated too).
+pub use softhaptic_device::openhaptics::hd;
 
 /// What the stand-in measured of the frames since its statistics were last reset: from the
 /// moment `hdBeginFrame` latched the state to the moment `hdEndFrame` sent the force.
@@ -148,9 +96,15 @@ unsafe extern "C" fn hand_trampoline(
 /// A handle on the stand-in's test controls (the `hdStandin*` functions, which the backend never
 /// calls). Every method is thread-safe, as the functions are.
 pub struct StandIn {
-    /// Keeps the function pointers below valid (the library is never unloaded anyway).
-    _library: libloading::Library,
     reset: unsafe extern "C" fn(),
+    frames_from_any_thread: unsafe extern "C" fn(c_int),
+    unapplied_frames: unsafe extern "C" fn() -> c_ulonglong,
+    force_output_enables: unsafe extern "C" fn() -> c_ulonglong,
+    fail_scheduler_start: unsafe extern "C" fn(c_int),
+    stall_callbacks: unsafe extern "C" fn(c_int),
+    late_ticks: unsafe extern "C" fn(c_int, c_double),
+    set_calibration_styles: unsafe extern "C" fn(c_int),
+    set_workspace: unsafe extern "C" fn(*const c_double, *const c_double),
     inject_error: unsafe extern "C" fn(c_uint, c_int),
     unplug: unsafe extern "C" fn(),
     replug: unsafe extern "C" fn(),
@@ -193,8 +147,19 @@ impl StandIn {
         // SAFETY: loading runs the stand-in's constructor, which only initialises its own
         // globals (a mutex and the device's default state).
         let library = unsafe { libloading::Library::new(standin_path()) }?;
+        // Never closed: the function pointers below stay valid, and the stand-in stays mapped
+        // while its scheduler thread may be running its code.
+        let library: &'static libloading::Library = Box::leak(Box::new(library));
         Ok(StandIn {
             reset: control!(library, "hdStandinReset"),
+            frames_from_any_thread: control!(library, "hdStandinFramesFromAnyThread"),
+            unapplied_frames: control!(library, "hdStandinUnappliedFrames"),
+            force_output_enables: control!(library, "hdStandinForceOutputEnables"),
+            fail_scheduler_start: control!(library, "hdStandinFailSchedulerStart"),
+            stall_callbacks: control!(library, "hdStandinStallCallbacks"),
+            late_ticks: control!(library, "hdStandinLateTicks"),
+            set_calibration_styles: control!(library, "hdStandinSetCalibrationStyles"),
+            set_workspace: control!(library, "hdStandinSetWorkspace"),
             inject_error: control!(library, "hdStandinInjectError"),
             unplug: control!(library, "hdStandinUnplug"),
             replug: control!(library, "hdStandinReplug"),
@@ -214,7 +179,6 @@ impl StandIn {
             set_hand: control!(library, "hdStandinSetHand"),
             set_buttons: control!(library, "hdStandinSetButtons"),
             set_rotation: control!(library, "hdStandinSetRotation"),
-            _library: library,
         })
     }
 
@@ -229,12 +193,73 @@ impl StandIn {
         HAND.lock().unwrap_or_else(PoisonError::into_inner).take();
     }
 
-    /// For the next `ticks` servo ticks, the first current-state get of every frame pushes `code`
-    /// (e.g. [`hd::HD_COMM_ERROR`]), the frame's gets read zeros and its force is not sent. A
-    /// force error (0x02xx) also switches force output off, as a real one does.
+    /// For the next `ticks` servo ticks, every frame reports `code`. A device error (e.g.
+    /// [`hd::HD_COMM_ERROR`]) is pushed by the frame's first current-state get, the frame's gets
+    /// read zeros and its force is not sent. [`hd::HD_WARM_MOTORS`] is a warning pushed at
+    /// `hdBeginFrame`: the frame works and its force is sent. A force error (0x0201–0x0204) is
+    /// the driver's cut-out tripping: pushed at `hdBeginFrame` with force output switched off
+    /// until the application enables it again; the readings stay good.
     pub fn inject_error(&self, code: u32, ticks: u32) {
         // SAFETY: plain values.
         unsafe { (self.inject_error)(code, c_ticks(ticks)) };
+    }
+
+    /// Lets frames be begun off the scheduler thread (`true`) or not (`false`, as after
+    /// [`reset`](Self::reset)): only for tests of the stand-in's own frame state, which read
+    /// better from the test thread. A backend's tests never relax it.
+    pub fn frames_from_any_thread(&self, on: bool) {
+        // SAFETY: a plain value.
+        unsafe { (self.frames_from_any_thread)(c_int::from(on)) };
+    }
+
+    /// Frames since the last reset that set a force other than zero which the driver dropped
+    /// silently because the device needed calibration: a force the viewers were shown and the
+    /// hand never felt.
+    pub fn unapplied_frames(&self) -> u64 {
+        // SAFETY: no arguments.
+        unsafe { (self.unapplied_frames)() }
+    }
+
+    /// `hdEnable(HD_FORCE_OUTPUT)` calls since the last reset.
+    pub fn force_output_enables(&self) -> u64 {
+        // SAFETY: no arguments.
+        unsafe { (self.force_output_enables)() }
+    }
+
+    /// The next `times` `hdStartScheduler` calls fail with `HD_TIMER_ERROR` (the OS refused the
+    /// servo timer) and start nothing.
+    pub fn fail_scheduler_start(&self, times: u32) {
+        // SAFETY: a plain value.
+        unsafe { (self.fail_scheduler_start)(c_ticks(times)) };
+    }
+
+    /// For the next `ticks` servo ticks the driver calls no callback (its thread runs on, the
+    /// hand moves on).
+    pub fn stall_callbacks(&self, ticks: u32) {
+        // SAFETY: a plain value.
+        unsafe { (self.stall_callbacks)(c_ticks(ticks)) };
+    }
+
+    /// The next `ticks` servo ticks each last `tick_s` instead of one period: the callbacks run
+    /// that late and the hand moves that much further between two of them.
+    pub fn late_ticks(&self, ticks: u32, tick_s: f64) {
+        // SAFETY: plain values.
+        unsafe { (self.late_ticks)(c_ticks(ticks), tick_s) };
+    }
+
+    /// The calibration styles the device reports and accepts ([`hd::HD_CALIBRATION_AUTO`], ...).
+    pub fn set_calibration_styles(&self, styles: u32) {
+        // SAFETY: a plain value.
+        unsafe { (self.set_calibration_styles)(styles as c_int) };
+    }
+
+    /// The usable and maximum workspace boxes the device reports (min x y z, max x y z, mm);
+    /// `None` keeps that box.
+    pub fn set_workspace(&self, usable_mm: Option<[f64; 6]>, max_mm: Option<[f64; 6]>) {
+        let usable = usable_mm.as_ref().map_or(std::ptr::null(), |b| b.as_ptr());
+        let max = max_mm.as_ref().map_or(std::ptr::null(), |b| b.as_ptr());
+        // SAFETY: NULL or six readable doubles each, alive for the call.
+        unsafe { (self.set_workspace)(usable, max) };
     }
 
     /// Pulls the cable: every frame pushes `HD_COMM_ERROR` and sends nothing, `hdInitDevice`

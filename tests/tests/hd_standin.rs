@@ -129,6 +129,14 @@ impl Hd {
         unsafe { (self.init_device)(pointer) }
     }
 
+    /// Opens the default device and enables its force output, as every application does (it is
+    /// off after `hdInitDevice`).
+    fn open(&self) -> c_uint {
+        let h = self.init(None);
+        self.enable(HD_FORCE_OUTPUT);
+        h
+    }
+
     fn disable_device(&self, h: c_uint) {
         // SAFETY: plain values (as are all the calls below without a further comment).
         unsafe { (self.disable_device)(h) }
@@ -313,6 +321,9 @@ fn setup() -> (MutexGuard<'static, ()>, &'static Hd, &'static StandIn) {
     let guard = LOCK.lock().unwrap_or_else(PoisonError::into_inner);
     let s = standin();
     s.reset();
+    // Most tests here look at one frame's state from the test thread; the rule that frames
+    // belong to the scheduler thread has its own test, which sets this back.
+    s.frames_from_any_thread(true);
     (guard, hd(), s)
 }
 
@@ -462,26 +473,87 @@ fn hd_schedule_synchronous_runs_once_on_the_scheduler_thread_and_returns_after_i
 }
 
 #[test]
-fn hd_schedule_synchronous_without_a_running_scheduler_pushes_a_timer_error_and_calls_nothing() {
-    let (_turn, hd, _s) = setup();
-    let calls = AtomicU64::new(0);
-    let callback = || {
-        calls.fetch_add(1, Ordering::SeqCst);
-        HD_CALLBACK_DONE
-    };
-    hd.schedule_sync(&callback, HD_DEFAULT_SCHEDULER_PRIORITY);
-    assert_eq!(hd.errors(), [HD_TIMER_ERROR]);
-    hd.start_scheduler();
-    hd.stop_scheduler();
-    hd.schedule_sync(&callback, HD_DEFAULT_SCHEDULER_PRIORITY);
-    assert_eq!(hd.errors(), [HD_TIMER_ERROR]);
+fn hd_schedule_synchronous_on_a_stopped_scheduler_never_returns_and_calls_nothing() {
+    let (_turn, hd, s) = setup();
+    let calls = leak(AtomicU64::new(0));
+    let returned = leak(AtomicBool::new(false));
+    // On the vendor's library the call waits for a tick that never comes: a caller that makes it
+    // hangs. The hang is seen from another thread, within a deadline.
+    let caller = std::thread::spawn(move || {
+        let callback = || {
+            calls.fetch_add(1, Ordering::SeqCst);
+            HD_CALLBACK_DONE
+        };
+        hd.schedule_sync(&callback, HD_DEFAULT_SCHEDULER_PRIORITY);
+        returned.store(true, Ordering::SeqCst);
+    });
+    wait_until("the call is queued", || s.scheduled_callbacks() == 1);
+    // Not a count after a sleep: nothing may happen however long one waits; a quarter second
+    // is far beyond a servo tick.
+    std::thread::sleep(Duration::from_millis(250));
+    assert!(
+        !returned.load(Ordering::SeqCst),
+        "returned without a scheduler"
+    );
     assert_eq!(calls.load(Ordering::SeqCst), 0);
+    // A stop does not release it either.
+    hd.stop_scheduler();
+    assert!(!returned.load(Ordering::SeqCst));
+    // Only the test control lets it go (the vendor's library would never).
+    s.reset();
+    caller.join().unwrap();
+    assert!(returned.load(Ordering::SeqCst));
+    assert_eq!(calls.load(Ordering::SeqCst), 0);
+}
+
+#[test]
+fn frames_belong_to_the_scheduler_thread_one_per_tick_and_force_output_starts_off() {
+    let (_turn, hd, s) = setup();
+    s.frames_from_any_thread(false);
+    let h = hd.init(None);
+    assert!(!s.force_output_enabled(), "off after hdInitDevice");
+    hd.begin(h);
+    assert_eq!(
+        hd.errors(),
+        [HD_ILLEGAL_BEGIN],
+        "a frame off the servo thread"
+    );
+    hd.enable(HD_FORCE_OUTPUT);
+    let second_begin = leak(Mutex::new(Vec::<c_uint>::new()));
+    let ran = leak(AtomicU64::new(0));
+    hd.schedule_async(
+        leak(move || {
+            hd.send(h, [0.0, 0.5, 0.0]);
+            // A second frame in the same servo tick is refused (HD_ONE_FRAME_LIMIT).
+            hd.begin(h);
+            let e = hd.error().code;
+            if e != HD_SUCCESS {
+                second_begin.lock().unwrap().push(e);
+            }
+            ran.fetch_add(1, Ordering::SeqCst);
+            HD_CALLBACK_CONTINUE
+        }),
+        HD_DEFAULT_SCHEDULER_PRIORITY,
+    );
+    hd.start_scheduler();
+    wait_until("five ticks", || ran.load(Ordering::SeqCst) >= 5);
+    hd.stop_scheduler();
+    let refused = second_begin.lock().unwrap().clone();
+    assert!(
+        refused.len() >= 5 && refused.iter().all(|e| *e == HD_ILLEGAL_BEGIN),
+        "{refused:?}"
+    );
+    // The first frame of each tick worked: its force reached the motors.
+    assert!(
+        s.last_force_n() == [0.0; 3],
+        "a stopped scheduler drives nothing"
+    );
 }
 
 #[test]
 fn hd_stop_scheduler_joins_the_servo_thread_so_no_callback_runs_after_it_returns() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     let inside = leak(AtomicBool::new(false));
     let calls = leak(AtomicU64::new(0));
     hd.schedule_async(
@@ -567,7 +639,7 @@ fn a_callback_may_unschedule_itself_and_unschedule_waits_for_a_running_callback(
 #[test]
 fn current_state_gets_and_sets_outside_a_frame_push_frame_error_and_leave_the_output_untouched() {
     let (_turn, hd, _s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     assert_ne!(h, HD_INVALID_HANDLE);
     for pname in [
         HD_CURRENT_POSITION,
@@ -604,7 +676,7 @@ fn current_state_gets_and_sets_outside_a_frame_push_frame_error_and_leave_the_ou
 #[test]
 fn a_begin_inside_a_frame_pushes_illegal_begin_and_an_end_without_a_begin_pushes_illegal_end() {
     let (_turn, hd, _s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     hd.end(h);
     assert_eq!(
         hd.error(),
@@ -673,7 +745,7 @@ fn the_error_stack_pops_the_most_recent_error_first_and_reads_success_when_empty
 #[test]
 fn a_force_beyond_the_nominal_maximum_is_refused_sends_zero_and_switches_force_output_off() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     hd.start_scheduler();
     assert!(hd.is_enabled(HD_FORCE_OUTPUT), "on after init");
     hd.send(h, [0.0, 1.0, 0.0]);
@@ -760,7 +832,7 @@ fn schedule_probe(hd: &'static Hd, h: c_uint) -> (&'static Mutex<Vec<Seen>>, u64
 #[test]
 fn an_injected_error_fails_the_first_get_of_every_frame_for_that_many_ticks() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     let (seen, probe) = schedule_probe(hd, h);
     hd.start_scheduler();
     for (code, ticks) in [(HD_COMM_ERROR, 5), (HD_DEVICE_FAULT, 3)] {
@@ -805,7 +877,7 @@ fn an_injected_error_fails_the_first_get_of_every_frame_for_that_many_ticks() {
 #[test]
 fn unplugging_fails_frames_and_init_with_comm_error_until_replugged_and_reinitialised() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     hd.start_scheduler();
     hd.send(h, [0.0, 1.0, 0.0]);
     assert_eq!(s.last_force_n(), [0.0, 1.0, 0.0]);
@@ -844,7 +916,7 @@ fn unplugging_fails_frames_and_init_with_comm_error_until_replugged_and_reinitia
     assert_eq!(hd.init(None), HD_INVALID_HANDLE);
     assert_eq!(hd.errors(), [HD_COMM_ERROR]);
     s.replug();
-    let h = hd.init(None);
+    let h = hd.open();
     assert_ne!(h, HD_INVALID_HANDLE);
     assert_eq!(hd.errors(), NO_ERRORS);
     assert!(hd.position(h)[1] > 1.0);
@@ -858,7 +930,7 @@ fn calibration_states_offset_the_position_until_the_right_step_clears_them() {
     let (_turn, hd, s) = setup();
     assert_eq!(hd.check_calibration(), 0, "no device");
     assert_eq!(hd.errors(), [HD_BAD_HANDLE]);
-    let h = hd.init(None);
+    let h = hd.open();
     assert_eq!(hd.get_integerv(HD_CALIBRATION_STYLE)[0], 4);
     assert_eq!(hd.check_calibration(), HD_CALIBRATION_OK);
     assert_eq!(hd.position(h), START_MM);
@@ -900,7 +972,7 @@ fn device_properties_are_readable_outside_frames_and_unknown_enums_are_refused()
     assert_eq!(hd.get_string(HD_DEVICE_MODEL_TYPE), None);
     assert_eq!(hd.errors(), [HD_BAD_HANDLE, HD_BAD_HANDLE], "no device yet");
 
-    let h = hd.init(None);
+    let h = hd.open();
     assert_eq!(
         hd.get_string(HD_DEVICE_MODEL_TYPE).unwrap(),
         "PHANTOM Desktop"
@@ -993,7 +1065,7 @@ fn init_opens_the_default_device_and_configured_names_only() {
         }
     );
 
-    let h = hd.init(None);
+    let h = hd.open();
     assert_ne!(h, HD_INVALID_HANDLE);
     assert!(s.device_open());
     assert_eq!(hd.current_device(), h, "opening makes it current");
@@ -1021,7 +1093,7 @@ fn init_opens_the_default_device_and_configured_names_only() {
 #[test]
 fn the_built_in_hand_follows_its_press_and_is_pushed_back_by_the_force_it_is_sent() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     let at_rest = s.hand_state();
     assert_eq!(at_rest.position_mm, START_MM);
     assert_eq!(at_rest.velocity_mm_s, [0.0; 3]);
@@ -1045,7 +1117,7 @@ fn the_built_in_hand_follows_its_press_and_is_pushed_back_by_the_force_it_is_sen
 
     // Pushed: 3 N upward every tick holds the hand F/k = 10 mm above its target.
     s.reset();
-    let h = hd.init(None);
+    let h = hd.open();
     hd.schedule_async(
         leak(move || {
             hd.send(h, [0.0, 3.0, 0.0]);
@@ -1075,7 +1147,7 @@ fn an_installed_hand_feels_the_force_sent_and_sets_the_reported_state() {
         *position_mm = [1.0, 2.0, 3.0];
         *velocity_mm_s = [4.0, 5.0, 6.0];
     });
-    let h = hd.init(None);
+    let h = hd.open();
     hd.schedule_async(
         leak(move || {
             hd.send(h, [0.5, 0.0, 0.0]);
@@ -1113,7 +1185,7 @@ fn an_installed_hand_feels_the_force_sent_and_sets_the_reported_state() {
 #[test]
 fn buttons_and_rotation_are_latched_at_begin_frame() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     s.set_buttons(3);
     // 90° about y, column-major: x → −z, z → x.
     s.set_rotation(Some([0.0, 0.0, -1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0]));
@@ -1205,7 +1277,7 @@ fn the_missing_symbol_variant_lacks_only_the_timestamp() {
 #[test]
 fn frame_latency_is_measured_from_begin_to_end_until_reset() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     for _ in 0..10 {
         hd.position(h);
     }
@@ -1232,7 +1304,7 @@ fn frame_latency_is_measured_from_begin_to_end_until_reset() {
 #[test]
 fn misuse_is_reported_on_the_error_stack_not_crashed() {
     let (_turn, hd, s) = setup();
-    let h = hd.init(None);
+    let h = hd.open();
     // SAFETY: NULL pointers are what is tested; the stand-in must refuse them.
     unsafe {
         (hd.get_doublev)(HD_NOMINAL_MAX_FORCE, std::ptr::null_mut());
@@ -1301,11 +1373,11 @@ fn the_stand_in_counts_inits_scheduler_starts_and_calls_from_outside_a_frame() {
     assert_eq!(unsafe { (c.scheduler_starts)() }, 0);
     assert_eq!(unsafe { (c.outside_frame_calls)() }, 0);
 
-    let h = hd.init(None);
+    let h = hd.open();
     hd.disable_device(h);
     // A refused init is not counted.
     hd.init(Some("No Such Device"));
-    let h = hd.init(None);
+    let h = hd.open();
     let mut times = [0.0; 4];
     assert_eq!(inits(&mut times), 2);
     assert!(times[0] > 0.0 && times[1] >= times[0], "{times:?}");

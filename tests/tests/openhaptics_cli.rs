@@ -149,15 +149,15 @@ fn sigterm_and_sigint_send_zero_force_then_stop_the_scheduler_and_close_the_devi
             "SIG{signal} is logged:\n{log}"
         );
         let events: Vec<&str> = run.report.iter().map(|l| l["event"].as_str()).collect();
-        // Stopped once and closed once, in that order, and the process ended normally (the
-        // library is unloaded only by an orderly exit).
+        // Loaded once, stopped once and closed once, in that order, and the process ended
+        // normally (the library is unloaded only by an orderly exit).
         assert_eq!(
             events,
-            ["hdStopScheduler", "hdDisableDevice", "unload"],
+            ["load", "hdStopScheduler", "hdDisableDevice", "unload"],
             "SIG{signal}: {:?}",
             run.report
         );
-        let stop = &run.report[0];
+        let stop = &run.report[1];
         assert_eq!(
             stop["motor_force_n"], "0,0,0",
             "SIG{signal}: the last force sent before the scheduler stopped: {stop:?}"
@@ -177,13 +177,13 @@ fn sigterm_and_sigint_send_zero_force_then_stop_the_scheduler_and_close_the_devi
         );
         assert_eq!(stop["callbacks"], "0", "SIG{signal}: {stop:?}");
         assert_eq!(stop["force_output"], "off", "SIG{signal}: {stop:?}");
-        let disable = &run.report[1];
+        let disable = &run.report[2];
         assert_eq!(
             (disable["scheduler"].as_str(), disable["device"].as_str()),
             ("stopped", "closed"),
             "SIG{signal}: the device is closed after its scheduler stopped: {disable:?}"
         );
-        let unload = &run.report[2];
+        let unload = &run.report[3];
         assert_eq!(unload["motor_force_n"], "0,0,0");
         assert_eq!(
             (unload["scheduler"].as_str(), unload["device"].as_str()),
@@ -264,4 +264,107 @@ fn the_log_says_which_limits_the_device_reported_and_which_are_in_use() {
         );
     }
     let _ = std::fs::remove_dir_all(&run.dir);
+}
+
+/// Runs the binary with `args`, the stand-in as its library and `env` for it, and waits for it
+/// at most `deadline` (a hang is killed and fails the test): its status, stdout and stderr.
+fn run_bounded(
+    args: &[&str],
+    env: &[(&str, &str)],
+    deadline: Duration,
+) -> (ExitStatus, String, String, Duration) {
+    let mut command = Command::new(softhaptic_binary());
+    command
+        .args(args)
+        .env(LIBRARY_ENV, standin_path())
+        .env_remove("RUST_BACKTRACE")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    for (k, v) in env {
+        command.env(k, v);
+    }
+    let started = Instant::now();
+    let mut child = command.spawn().unwrap();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            let took = started.elapsed();
+            let output = child.wait_with_output().unwrap();
+            return (
+                status,
+                String::from_utf8_lossy(&output.stdout).into_owned(),
+                String::from_utf8_lossy(&output.stderr).into_owned(),
+                took,
+            );
+        }
+        if started.elapsed() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("softhaptic {args:?} hangs: still running after {deadline:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn devices_loads_the_library_once_and_never_unloads_it_while_running() {
+    let dir = scratch_dir("openhaptics-cli-devices-once");
+    let report = dir.join("standin-report.txt");
+    let report_text = report.display().to_string();
+    let (status, stdout, stderr, _) = run_bounded(
+        &["devices"],
+        &[("HD_STANDIN_REPORT", &report_text)],
+        Duration::from_secs(60),
+    );
+    assert!(status.success(), "{status}: {stdout}{stderr}");
+    let events: Vec<String> = std::fs::read_to_string(&report)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.split_whitespace().next().map(str::to_owned))
+        .collect();
+    let loads = events.iter().filter(|e| *e == "event=load").count();
+    let unloads = events.iter().filter(|e| *e == "event=unload").count();
+    assert_eq!(loads, 1, "{events:?}");
+    // At most the process' own exit, last.
+    assert!(
+        unloads <= 1 && (unloads == 0 || events.last().unwrap() == "event=unload"),
+        "{events:?}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn a_scheduler_that_does_not_start_ends_run_and_devices_at_once_with_the_cause() {
+    let scene = repo_scenes().join("phantom.toml");
+    let scene = scene.display().to_string();
+    let dir = scratch_dir("openhaptics-cli-timer");
+    let record = dir.join("sessions").display().to_string();
+    for args in [
+        vec![
+            "--scene",
+            &scene,
+            "--addr",
+            "127.0.0.1:0",
+            "--record-dir",
+            &record,
+        ],
+        vec!["devices"],
+    ] {
+        let (status, stdout, stderr, took) = run_bounded(
+            &args,
+            &[("HD_STANDIN_FAIL_START", "1000")],
+            Duration::from_secs(60),
+        );
+        let said = format!("{stdout}{stderr}");
+        assert!(said.contains("HD_TIMER_ERROR"), "{args:?}: {said}");
+        assert!(said.contains("real-time"), "{args:?}: what to do: {said}");
+        assert!(
+            !said.contains("disconnected"),
+            "{args:?}: not the cause: {said}"
+        );
+        if args[0] != "devices" {
+            assert!(!status.success(), "{args:?}: {status}");
+        }
+        println!("softhaptic {}: the driver's error after {took:?}", args[0]);
+    }
+    let _ = std::fs::remove_dir_all(dir);
 }

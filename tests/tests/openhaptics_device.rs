@@ -563,12 +563,17 @@ fn assert_holds_on_the_side_it_entered(recording: &Recording, scene: &Scene, col
     };
     let mut pushed_through = 0;
     let mut deepest_m = 0.0_f64;
+    // A tick whose command the device refused (a tick that overran on a loaded machine) is a
+    // fault: the force ramps in again from zero on the next.
+    let mut after_refusal = false;
     for d in device {
         assert!(
             d.device_error.is_none(),
             "{collision}: tick {}: {d:?}",
             d.tick
         );
+        let ramp_start = std::mem::replace(&mut after_refusal, d.command_error.is_some())
+            && ContactFlags::from_bits_retain(d.flags).contains(ContactFlags::RAMPING);
         let sample = d.sample.as_ref().expect("every tick read the device");
         let tip = DVec3::from_array(sample.tip_position_m);
         let below_m = surface
@@ -592,10 +597,14 @@ fn assert_holds_on_the_side_it_entered(recording: &Recording, scene: &Scene, col
             );
             // Zero only on the way out, where the damping may cancel the spring (paper Fig. 9b).
             assert!(
-                f.length() > 0.0 || moving_out,
-                "{collision}: tick {}: no force {} mm below the surface, pressing in",
+                f.length() > 0.0 || moving_out || ramp_start || d.command_error.is_some(),
+                "{collision}: tick {}: no force {} mm below the surface, pressing in ({:?}, {:?}, \
+                 flags {:?})",
                 d.tick,
-                below_m * 1e3
+                below_m * 1e3,
+                d.device_error,
+                d.command_error,
+                ContactFlags::from_bits_retain(d.flags)
             );
         }
     }
@@ -827,8 +836,12 @@ async fn a_device_that_needs_calibration_renders_no_force_until_it_is_calibrated
         .position(|d| d.device_error.is_none())
         .unwrap();
     assert!(calibrated >= 1_000, "{calibrated} uncalibrated ticks");
+    // Waiting for the stylus in its inkwell, then (once it is there) for the driver's update.
     assert!(device[..calibrated].iter().all(|d| {
-        d.device_error == Some(DeviceErrorRecord::NeedsCalibration) && d.force_n == [0.0; 3]
+        matches!(
+            d.device_error,
+            Some(DeviceErrorRecord::NeedsCalibration | DeviceErrorRecord::CalibrationUpdating)
+        ) && d.force_n == [0.0; 3]
     }));
     assert!(device[calibrated..].iter().any(|d| force(d) > 0.5));
     assert_replays(&recording);
@@ -1053,4 +1066,494 @@ async fn a_fault_of_three_ticks_reaches_the_viewers() {
         .filter(|d| d.device_error.is_some())
         .count();
     assert_eq!(faulted, 3);
+}
+
+// What a real driver does that the backend must survive: a scheduler that does not start, warm
+// motors, calibration lost mid-session, force trips, the nominal limit after the frame rotation,
+// a device's own data, a driver that stops calling back, a failed tick, late servo ticks.
+
+/// The stand-in's built-in hand pressing 25 mm below the liver's surface (down and back over
+/// 6 s), well past the Desktop's continuous force, instead of its default 8 mm.
+fn deep_press(s: &StandIn) {
+    // SAFETY: set and removed while the test holds `STANDIN`, before any thread of its own
+    // starts; the stand-in reads it in the reset.
+    unsafe { std::env::set_var("HD_STANDIN_PRESS", "0,0,0,25,6") };
+    s.reset();
+    // SAFETY: as above.
+    unsafe { std::env::remove_var("HD_STANDIN_PRESS") };
+    s.set_rotation(Some(stylus_rotation(DQuat::IDENTITY)));
+}
+
+/// Runs `f` on a thread of its own and waits for it at most `deadline`: a call that hangs (as a
+/// synchronous scheduler call on a stopped scheduler does on the vendor's library) fails the
+/// test instead of holding it.
+fn within<T: Send + 'static>(
+    deadline: Duration,
+    what: &str,
+    f: impl FnOnce() -> T + Send + 'static,
+) -> T {
+    let (tx, rx) = std::sync::mpsc::sync_channel(1);
+    std::thread::spawn(move || {
+        let _ = tx.send(f());
+    });
+    rx.recv_timeout(deadline)
+        .unwrap_or_else(|_| panic!("{what} did not return within {deadline:?}: it hangs"))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scheduler_that_does_not_start_is_reported_at_once_with_the_drivers_error() {
+    let (_guard, s) = standin().await;
+    // The loop's start, as `softhaptic run` makes it.
+    s.fail_scheduler_start(1);
+    let scene = liver_scene();
+    let config = devices::openhaptics_config(&scene);
+    let started = Instant::now();
+    let error = within(Duration::from_secs(20), "the loop's start", move || {
+        let device = OpenHapticsDevice::open(&config).unwrap();
+        let world = scene.haptic_world();
+        let config = softhaptic_device::haptic_loop::LoopConfig {
+            realtime: false,
+            standby: false,
+            ..Default::default()
+        };
+        softhaptic_device::haptic_loop::HapticLoop::spawn(Box::new(device), world, config)
+            .err()
+            .expect("the loop did not start")
+            .to_string()
+    });
+    let took = started.elapsed();
+    assert!(error.contains("HD_TIMER_ERROR"), "{error}");
+    assert!(error.contains("real-time"), "what to do: {error}");
+    assert!(!error.contains("disconnected"), "not the cause: {error}");
+    assert!(!s.device_open(), "the device is released");
+    assert_eq!(s.scheduled_callbacks(), 0);
+    assert!(!s.scheduler_running());
+    println!("loop start: the clear error after {took:?}");
+
+    // `softhaptic devices` (the same probe the doctor makes).
+    s.reset();
+    s.fail_scheduler_start(1);
+    let started = Instant::now();
+    let discovery = within(Duration::from_secs(20), "the device listing", || {
+        openhaptics::discover(&[])
+    });
+    let took = started.elapsed();
+    let openhaptics::Discovery::Library { devices, .. } = discovery else {
+        panic!("the stand-in did not load");
+    };
+    let text = devices[0].1.as_ref().expect_err("reported").to_string();
+    assert!(
+        text.contains("HD_TIMER_ERROR") && text.contains("real-time"),
+        "{text}"
+    );
+    assert!(!s.device_open());
+    println!("device listing: the clear error after {took:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn warm_motors_keep_rendering_limited_to_the_continuous_force() {
+    let (_guard, s) = standin().await;
+    // A press to 25 mm: well above the Desktop's continuous 1.75 N.
+    deep_press(&s);
+    let live = start(liver_scene(), "openhaptics-warm").await;
+    let mut viewer = Viewer::connect(live.server.local_addr()).await;
+    wait_pressing(&s, 2.0).await;
+    s.inject_error(hd::HD_WARM_MOTORS, 2_000);
+    // The hand feels a force all along: sampled while the motors are warm (from the tick after
+    // the first warning on).
+    wait_ticks(&s, 5).await;
+    let mut felt = Vec::new();
+    let end = s.ticks() + 1_900;
+    while s.ticks() < end {
+        felt.push(DVec3::from_array(s.last_force_n()).length());
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    // The flag reaches the viewers by name.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        assert!(Instant::now() < deadline, "no frame flagged motors_warm");
+        if let Some(Ok(ServerMessage::Contact(c))) = viewer.next(Duration::from_secs(5)).await
+            && c.flags.contains(ContactFlags::MOTORS_WARM)
+        {
+            break;
+        }
+    }
+    wait_ticks(&s, 1_000).await;
+    let (_, recording) = finish(live).await;
+    let limits = recording_limits(&recording, &liver_scene());
+    let warm: Vec<&DeviceRecord> = recording
+        .device
+        .iter()
+        .filter(|d| flags(d).contains(ContactFlags::MOTORS_WARM))
+        .collect();
+    assert!(warm.len() >= 2_000, "{} ticks flagged warm", warm.len());
+    for d in &warm {
+        assert!(!d.device_fault, "tick {}: a warning is no fault", d.tick);
+        assert!(
+            force(d) <= limits.continuous_force_n + 1e-9,
+            "tick {}: {} N",
+            d.tick,
+            force(d)
+        );
+    }
+    let mean_n = warm.iter().map(|d| force(d)).sum::<f64>() / warm.len() as f64;
+    assert!(mean_n > 0.5, "{mean_n} N rendered on average while warm");
+    let felt_mean = felt.iter().sum::<f64>() / felt.len() as f64;
+    assert!(felt.iter().all(|f| *f <= limits.continuous_force_n + 1e-9));
+    assert!(felt_mean > 0.5, "the stylus went limp: {felt_mean} N felt");
+    println!(
+        "warm motors: {} ticks, {mean_n:.2} N commanded and {felt_mean:.2} N felt on average (limit {} N)",
+        warm.len(),
+        limits.continuous_force_n
+    );
+    // Once they cool, the force is released back without a step.
+    let last_warm = recording
+        .device
+        .iter()
+        .rposition(|d| flags(d).contains(ContactFlags::MOTORS_WARM))
+        .unwrap();
+    for w in recording.device[last_warm..].windows(2) {
+        assert!(
+            force(&w[1]) - force(&w[0]) < 0.1,
+            "a step of {} N at tick {}",
+            force(&w[1]) - force(&w[0]),
+            w[1].tick
+        );
+    }
+    let info = Info::of(&recording).to_string();
+    assert!(info.contains("motors_warm"), "{info}");
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calibration_lost_mid_session_is_caught_before_any_force_goes_unapplied() {
+    let (_guard, s) = standin().await;
+    s.set_calibration_styles(hd::HD_CALIBRATION_AUTO | hd::HD_CALIBRATION_INKWELL);
+    let live = start(liver_scene(), "openhaptics-calibration-lost").await;
+    let mut viewer = Viewer::connect(live.server.local_addr()).await;
+    wait_pressing(&s, 1.0).await;
+    // Lost where the driver can update it by itself: updated, and the force ramps in again.
+    s.require_calibration(hd::HD_CALIBRATION_NEEDS_UPDATE);
+    wait_ticks(&s, 500).await;
+    wait_pressing(&s, 1.0).await;
+    // Lost so that the operator must act: no force, and the viewers are told what to do.
+    s.require_calibration(hd::HD_CALIBRATION_NEEDS_MANUAL_INPUT);
+    wait_for_device_state(&mut viewer, DeviceStatus::NeedsCalibration).await;
+    wait_ticks(&s, 300).await;
+    assert_eq!(s.last_force_n(), [0.0; 3]);
+    s.complete_manual_calibration();
+    wait_for_device_state(&mut viewer, DeviceStatus::Ok).await;
+    wait_pressing(&s, 1.0).await;
+    let unapplied = s.unapplied_frames();
+    let (_, recording) = finish(live).await;
+    assert_eq!(
+        unapplied, 0,
+        "ticks of force commanded and silently not applied"
+    );
+    let updating = recording
+        .device
+        .iter()
+        .filter(|d| d.device_error == Some(DeviceErrorRecord::CalibrationUpdating))
+        .count();
+    let waiting = recording
+        .device
+        .iter()
+        .filter(|d| d.device_error == Some(DeviceErrorRecord::NeedsCalibration))
+        .count();
+    assert!(
+        updating >= 1 && waiting >= 300,
+        "{updating} updating, {waiting} waiting"
+    );
+    for d in recording
+        .device
+        .iter()
+        .filter(|d| d.device_error.is_some() || d.command_error.is_some())
+    {
+        assert_eq!(d.force_n, [0.0; 3], "tick {}", d.tick);
+    }
+    println!(
+        "calibration: {updating} ticks updating, {waiting} waiting for the inkwell, {unapplied} unapplied"
+    );
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn force_trips_are_rearmed_a_few_times_then_latched_until_an_instructor_rearms() {
+    let (_guard, s) = standin().await;
+    let mut options = test_options();
+    options.access.tokens = Some(softhaptic_tests::test_tokens());
+    let mut scene = liver_scene();
+    let config = devices::openhaptics_config(&scene);
+    let opened = OpenHapticsDevice::open(&config).unwrap();
+    scene.device_limits = opened.limits();
+    options.device = Some(Box::new(opened));
+    let live = start_recorded(scene, &scratch_dir("openhaptics-trips"), options).await;
+    let addr = live.server.local_addr();
+    let mut instructor = Viewer::connect(addr).await;
+    instructor
+        .authenticate(softhaptic_tests::INSTRUCTOR_TOKEN)
+        .await;
+    let mut observer = Viewer::connect(addr).await;
+    observer
+        .authenticate(softhaptic_tests::OBSERVER_TOKEN)
+        .await;
+    wait_pressing(&s, 1.0).await;
+    let enables_before = s.force_output_enables();
+    // The driver's cut-out trips on an impulse, again and again.
+    for _ in 0..6 {
+        s.inject_error(hd::HD_EXCEEDED_MAX_FORCE_IMPULSE, 1);
+        wait_ticks(&s, 150).await;
+    }
+    wait_for_device_state(&mut instructor, DeviceStatus::ForceLatched).await;
+    let rearms = s.force_output_enables() - enables_before;
+    assert_eq!(
+        rearms,
+        openhaptics::servo::MAX_AUTO_REARMS as u64,
+        "automatic re-arms in the window"
+    );
+    wait_ticks(&s, 300).await;
+    assert!(!s.force_output_enabled(), "latched off");
+    assert_eq!(s.last_force_n(), [0.0; 3]);
+    // An observer may not re-arm it; an instructor may.
+    observer.send_text(r#"{"type":"rearm_device"}"#).await;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "the observer's re-arm was not refused"
+        );
+        if let Some(Ok(ServerMessage::Refused(r))) = observer.next(Duration::from_secs(5)).await {
+            assert_eq!(r.request, "rearm_device");
+            break;
+        }
+    }
+    wait_ticks(&s, 100).await;
+    assert!(!s.force_output_enabled(), "an observer re-armed it");
+    instructor.send_text(r#"{"type":"rearm_device"}"#).await;
+    wait_until("force output re-armed", || s.force_output_enabled()).await;
+    wait_pressing(&s, 1.0).await;
+    let (_, recording) = finish(live).await;
+    let latched = recording
+        .device
+        .iter()
+        .filter(|d| d.command_error == Some(DeviceErrorRecord::ForceLatched))
+        .count();
+    assert!(latched >= 300, "{latched} latched ticks");
+    let first_latched = recording
+        .device
+        .iter()
+        .position(|d| d.command_error == Some(DeviceErrorRecord::ForceLatched))
+        .unwrap();
+    assert_ramps_in_after(&recording.device, first_latched, 1.0);
+    println!(
+        "force trips: {rearms} re-armed automatically, then {latched} ticks latched until the instructor's re-arm"
+    );
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_force_sent_stays_below_the_nominal_maximum_in_the_devices_axes() {
+    let (_guard, s) = standin().await;
+    s.set_nominal_max_force(3.3);
+    let mut scene = liver_scene();
+    // The device turned on the table: every force is rotated into its axes.
+    scene.world_from_device.orientation = DQuat::from_rotation_y(0.7) * DQuat::from_rotation_x(0.3);
+    let (point, normal) = scene.press_site_in_object;
+    let n = scene.object_in_world.orientation * normal;
+    let mut script = HandScript::press(scene.object_in_world.transform_point(point), n, 0.03);
+    script.repeat = false;
+    s.set_rotation(Some(stylus_rotation(
+        scene.world_from_device.orientation.inverse() * script.tool_orientation(),
+    )));
+    let params = SimParams {
+        limits: DeviceLimits::PHANTOM_DESKTOP,
+        hand_stiffness_n_per_m: STRONG_GRIP_N_PER_M,
+        ..SimParams::default()
+    };
+    let mut hand = SimulatedPhantom::with_params(script, params);
+    let world_from_device = scene.world_from_device;
+    let largest = Arc::new(Mutex::new(0.0_f64));
+    let seen = Arc::clone(&largest);
+    let mut first = true;
+    s.set_hand(move |force_n, position_mm, velocity_mm_s| {
+        let f = DVec3::from_array(force_n);
+        let mut l = seen.lock().unwrap_or_else(PoisonError::into_inner);
+        *l = l.max(f.length());
+        drop(l);
+        if !std::mem::replace(&mut first, false) {
+            hand.command_force(world_from_device.orientation * f)
+                .unwrap();
+        }
+        let sample = hand.read().unwrap();
+        *position_mm = (world_from_device.inverse_transform_point(sample.tip_in_world.position_m)
+            * 1e3)
+            .to_array();
+        *velocity_mm_s =
+            (world_from_device.orientation.inverse() * sample.tip_velocity_m_s * 1e3).to_array();
+    });
+    let live = start(scene, "openhaptics-nominal").await;
+    wait_until("the hand saturating the device", || {
+        *largest.lock().unwrap_or_else(PoisonError::into_inner) > 3.0
+    })
+    .await;
+    wait_ticks(&s, 1_000).await;
+    let (_, recording) = finish(live).await;
+    s.builtin_hand();
+    let largest = *largest.lock().unwrap_or_else(PoisonError::into_inner);
+    assert!(
+        largest <= 3.3 * (1.0 - openhaptics::servo::FORCE_MARGIN) + 1e-12,
+        "{largest} N sent"
+    );
+    assert!(
+        recording
+            .device
+            .iter()
+            .any(|d| flags(d).contains(ContactFlags::SATURATED))
+    );
+    assert!(
+        recording.device.iter().all(|d| d.command_error.is_none()),
+        "the driver refused a force"
+    );
+    println!("nominal limit: the largest force sent was {largest:.6} N of 3.3 N");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_devices_own_data_are_checked_and_a_tip_outside_the_usable_box_is_flagged_not_pinned() {
+    let (_guard, s) = standin().await;
+    let config = devices::openhaptics_config(&liver_scene());
+    s.set_workspace(Some([0.0; 6]), None);
+    let error = OpenHapticsDevice::open(&config)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        error.contains("HD_USABLE_WORKSPACE_DIMENSIONS") && error.contains("empty"),
+        "{error}"
+    );
+    assert!(!s.device_open(), "released after the refusal");
+    // A usable box only 5 mm high: the hand's press (20 mm above to 8 mm below) leaves it.
+    s.set_workspace(
+        Some([-80.0, -5.0, -60.0, 80.0, 5.0, 60.0]),
+        Some([-100.0, -80.0, -80.0, 100.0, 80.0, 80.0]),
+    );
+    let live = start(liver_scene(), "openhaptics-workspace").await;
+    wait_pressing(&s, 1.0).await;
+    wait_ticks(&s, 3_000).await;
+    let (_, recording) = finish(live).await;
+    let origin = liver_scene().world_from_device.position_m;
+    let heights_mm: Vec<(f64, bool)> = recording
+        .device
+        .iter()
+        .filter_map(|d| {
+            let p = DVec3::from_array(d.sample.as_ref()?.tip_position_m);
+            Some((
+                (p - origin).y * 1e3,
+                flags(d).contains(ContactFlags::OUTSIDE_WORKSPACE),
+            ))
+        })
+        .collect();
+    assert!(
+        heights_mm.iter().any(|(y, _)| *y > 10.0),
+        "the tip followed the hand above the box"
+    );
+    for (y, flagged) in &heights_mm {
+        assert_eq!(*flagged, y.abs() > 5.0 + 1e-6, "at {y} mm");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_driver_that_stops_calling_back_is_reconnected() {
+    let (_guard, s) = standin().await;
+    let counters = Counters::load();
+    let live = start(liver_scene(), "openhaptics-silent").await;
+    let mut viewer = Viewer::connect(live.server.local_addr()).await;
+    wait_pressing(&s, 1.0).await;
+    assert_eq!(counters.init_times_s().len(), 1);
+    // The driver's thread runs on, but calls nothing for 3 s: no error tick ever comes.
+    s.stall_callbacks(3_000);
+    wait_for_device_state(&mut viewer, DeviceStatus::NotAnswering).await;
+    wait_until("the device reopened", || counters.init_times_s().len() >= 2).await;
+    wait_for_device_state(&mut viewer, DeviceStatus::Ok).await;
+    let (stats, recording) = finish(live).await;
+    assert!(stats.watchdog_ticks > 0);
+    assert_replays(&recording);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tick_that_panics_sends_zero_in_its_frame_and_raises_a_fatal_flag() {
+    let (_guard, s) = standin().await;
+    let config = devices::openhaptics_config(&liver_scene());
+    let mut device = OpenHapticsDevice::open(&config).unwrap();
+    let mut clock = device.servo_clock().unwrap();
+    let device = Arc::new(Mutex::new(device));
+    let in_tick = Arc::clone(&device);
+    let ticks = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let counted = Arc::clone(&ticks);
+    clock
+        .start(Box::new(move |_| {
+            let mut d = in_tick.lock().unwrap_or_else(PoisonError::into_inner);
+            let _ = d.read();
+            let _ = d.command_force(DVec3::new(0.0, 1.5, 0.0));
+            drop(d);
+            if counted.fetch_add(1, Ordering::SeqCst) == 200 {
+                panic!("a bug in the tick, after it set its force");
+            }
+        }))
+        .unwrap();
+    wait_until("the panic", || ticks.load(Ordering::SeqCst) > 200).await;
+    wait_ticks(&s, 20).await;
+    assert_eq!(
+        s.last_force_n(),
+        [0.0; 3],
+        "the force set before the panic went out"
+    );
+    let mut d = device.lock().unwrap_or_else(PoisonError::into_inner);
+    assert_eq!(d.read().err(), Some(DeviceError::Fatal));
+    drop(d);
+    clock.stop();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn late_servo_ticks_do_not_make_a_held_press_chatter() {
+    for tick_s in [3e-3, 10e-3] {
+        let (_guard, s) = standin().await;
+        // Near the bottom of a press 25 mm down.
+        deep_press(&s);
+        let live = start(liver_scene(), "openhaptics-late").await;
+        wait_pressing(&s, 2.0).await;
+        wait_ticks(&s, 200).await;
+        s.late_ticks(50, tick_s);
+        wait_ticks(&s, 600).await;
+        let (_, recording) = finish(live).await;
+        let device = &recording.device;
+        // The late ticks: those more than 2 ms after the one before.
+        let late: Vec<usize> = (1..device.len())
+            .filter(|&i| device[i].time_ns - device[i - 1].time_ns > 2_000_000)
+            .collect();
+        assert!(late.len() >= 45, "{} late ticks", late.len());
+        let (first, last) = (late[0], *late.last().unwrap());
+        let mut largest = 0.0_f64;
+        for i in first..(last + 50).min(device.len()) {
+            let step = (DVec3::from_array(device[i].force_n)
+                - DVec3::from_array(device[i - 1].force_n))
+            .length();
+            largest = largest.max(step);
+            let onset = !device[i - 1].in_contact && device[i].in_contact;
+            assert!(
+                step <= 1.0 || onset,
+                "{tick_s} s ticks: a step of {step} N at tick {}",
+                device[i].tick
+            );
+        }
+        let saturated = device[first..=last]
+            .iter()
+            .filter(|d| flags(d).contains(ContactFlags::SATURATED))
+            .count();
+        assert_eq!(saturated, 0, "{tick_s} s ticks: saturated during the stall");
+        println!(
+            "late ticks of {} ms: the largest step {largest:.3} N",
+            tick_s * 1e3
+        );
+        assert_replays(&recording);
+    }
 }

@@ -20,7 +20,15 @@ import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ForcePlot } from './forceplot.js';
 import { parseRenderMesh } from './mesh.js';
 import { ViewerConnection, webSocketUrl } from './connection.js';
-import { encodeMark, forceFeedbackOf, accessOf, contactModelOf, marksAcceptedOf, validateMessage } from './protocol.js';
+import {
+  encodeMark,
+  encodeRearm,
+  forceFeedbackOf,
+  accessOf,
+  contactModelOf,
+  marksAcceptedOf,
+  validateMessage,
+} from './protocol.js';
 import {
   bindPanels,
   flagNames,
@@ -190,6 +198,7 @@ function init() {
       dom['mark-note'].setCustomValidity('');
     }
   });
+  dom['rearm-device'].addEventListener('click', () => connection.send(encodeRearm()));
   setInterval(() => updatePanels({ connection, timeline }), 250);
 }
 

@@ -7,9 +7,10 @@ import { PLAYOUT_DELAY_MS, buffer, dom, frameTimes, rendered, state, timings, vi
 /**
  * Flags that mean the force is not what the model says (shown in red rather than amber);
  * `pushed_through`: a hand has pushed the tool past what the collision measures and the contact
- * is held on the side it entered, which an instructor should see at once.
+ * is held on the side it entered, which an instructor should see at once; `motors_warm`: the
+ * device's motors are hot and the force is held to its continuous rating.
  */
-const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal', 'pushed_through']);
+const SEVERE_FLAGS = new Set(['device_fault', 'saturated', 'degenerate_normal', 'pushed_through', 'motors_warm']);
 
 /** The elements the page's modules use, by id. */
 const DOM_IDS = [
@@ -52,6 +53,7 @@ const DOM_IDS = [
   'section-key',
   'mark-form',
   'mark-note',
+  'rearm-device',
   'mark-list',
   't-peak',
   't-above',
@@ -228,6 +230,9 @@ export function updatePanels({ connection, timeline }) {
     setText(dom['s-device'], deviceStatusMessage(device, state.forceFeedback));
     const deviceClass = device === 'ok' ? '' : 'severe';
     if (dom['s-device'].className !== deviceClass) dom['s-device'].className = deviceClass;
+    // Only an instructor of a live session may re-arm a latched force output.
+    const rearmable = device === 'force_latched' && state.role === 'instructor' && state.mode === 'live';
+    if (dom['rearm-device'].hidden === rearmable) dom['rearm-device'].hidden = !rearmable;
   }
   const m = state.lastMetrics;
   if (m) {

@@ -24,6 +24,8 @@ export const CONTACT_FLAGS = Object.freeze([
   'degenerate_normal',
   'continuous_force_limited',
   'pushed_through',
+  'motors_warm',
+  'outside_workspace',
 ]);
 
 /**
@@ -38,6 +40,11 @@ export const DEVICE_STATUS_MESSAGES = Object.freeze({
   needs_calibration: 'device needs calibration: put the stylus in its inkwell',
   overrun: 'device tick overran: force skipped',
   driver_error: 'device driver error',
+  force_latched:
+    'device force output latched off after repeated force trips: an instructor must re-arm it (or restart the server)',
+  failed: 'device servo tick failed: no force until the server restarts',
+  needs_calibration_reset: 'device needs calibration: hold the stylus at its reset position and press its button',
+  calibration_updating: 'device updating its calibration: force resumes when it is done',
 });
 
 /**
@@ -417,6 +424,14 @@ export function encodeMark(note, pointM = null) {
     m.point_m = [...pointM];
   }
   return JSON.stringify(m);
+}
+
+/**
+ * The `rearm_device` an instructor sends to re-arm a device whose force output latched off after
+ * repeated force trips (`stats.device` `force_latched`).
+ */
+export function encodeRearm() {
+  return JSON.stringify({ type: 'rearm_device' });
 }
 
 /** `metrics`: the trainee's metrics, computed by the server from every 1 kHz tick. */

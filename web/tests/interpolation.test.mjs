@@ -188,5 +188,7 @@ test('flag names map to bits in contract order', () => {
   assert.equal(flagBits(['saturated']), 1);
   assert.equal(flagBits(['continuous_force_limited']), 1 << 8);
   assert.equal(flagBits(['pushed_through']), 1 << 9);
+  assert.equal(flagBits(['motors_warm']), 1 << 10);
+  assert.equal(flagBits(['outside_workspace']), 1 << 11);
   assert.equal(flagBits([...CONTACT_FLAGS]), (1 << CONTACT_FLAGS.length) - 1);
 });

@@ -156,6 +156,10 @@ test('every device state has words for the trainee, and a stats without one read
     'needs_calibration',
     'overrun',
     'driver_error',
+    'force_latched',
+    'failed',
+    'needs_calibration_reset',
+    'calibration_updating',
   ];
   assert.deepEqual(Object.keys(DEVICE_STATUS_MESSAGES), states);
   for (const state of states) {

@@ -200,6 +200,7 @@ fn model_report(tool: ToolShape, material: Material) {
             },
             tip_velocity_m_s: DVec3::ZERO,
             buttons: 0,
+            flags: softhaptic_proto::ContactFlags::empty(),
         }
     };
     let tick = |spec: ModelSpec| {

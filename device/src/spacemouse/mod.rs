@@ -248,6 +248,7 @@ impl HapticDevice for SpaceMouseDevice {
             tip_in_world: self.rate.pose(),
             tip_velocity_m_s: self.rate.velocity_m_s(),
             buttons: puck.buttons,
+            flags: softhaptic_proto::ContactFlags::empty(),
         })
     }
 

@@ -42,7 +42,7 @@ pub const SERVER_MESSAGE_TYPES: [&str; 8] = [
 
 /// The `type` names of every viewer → server message: [`Auth`], [`ReplayControl`] and
 /// [`MarkRequest`].
-pub const CLIENT_MESSAGE_TYPES: [&str; 3] = ["auth", "replay_control", "add_mark"];
+pub const CLIENT_MESSAGE_TYPES: [&str; 4] = ["auth", "replay_control", "add_mark", "rearm_device"];
 
 /// A message from the server to a viewer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -469,6 +469,13 @@ pub struct MarkRequest {
     pub point_m: Option<[f64; 3]>,
 }
 
+/// `rearm_device` (viewer → server): an instructor re-arms a device whose force output latched
+/// off after repeated force trips (`stats.device` `force_latched`). Instructors only, on a live
+/// session; logged with the instructor's address.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "type", rename = "rearm_device")]
+pub struct RearmRequest {}
+
 /// Longest note of a mark, characters.
 pub const MARK_NOTE_MAX_CHARS: usize = 280;
 
@@ -548,6 +555,15 @@ pub enum DeviceStatus {
     Overrun,
     /// Another error of the device's driver.
     DriverError,
+    /// The driver's force cut-out tripped more often than it is re-armed automatically: no force
+    /// until an instructor re-arms it (`rearm_device`) or the server restarts.
+    ForceLatched,
+    /// The backend's servo tick failed: no force until the server restarts.
+    Failed,
+    /// The device's encoders must be reset at the stylus' reset position.
+    NeedsCalibrationReset,
+    /// The driver is updating the device's calibration by itself.
+    CalibrationUpdating,
 }
 
 impl DeviceStatus {
@@ -563,6 +579,18 @@ impl DeviceStatus {
             }
             DeviceStatus::Overrun => "device tick overran: force skipped",
             DeviceStatus::DriverError => "device driver error",
+            DeviceStatus::ForceLatched => {
+                "device force output latched off after repeated force trips: an instructor must \
+                 re-arm it (or restart the server)"
+            }
+            DeviceStatus::Failed => "device servo tick failed: no force until the server restarts",
+            DeviceStatus::NeedsCalibrationReset => {
+                "device needs calibration: hold the stylus at its reset position and press its \
+                 button"
+            }
+            DeviceStatus::CalibrationUpdating => {
+                "device updating its calibration: force resumes when it is done"
+            }
         }
     }
 }
@@ -576,7 +604,7 @@ pub fn flag_name(flag: ContactFlags) -> Option<&'static str> {
 }
 
 /// Every flag with its wire name, in the order proto/WIRE.md lists them.
-pub const FLAG_NAMES: [(ContactFlags, &str); 10] = [
+pub const FLAG_NAMES: [(ContactFlags, &str); 12] = [
     (ContactFlags::SATURATED, "saturated"),
     (ContactFlags::STIFFNESS_CAPPED, "stiffness_capped"),
     (ContactFlags::BEYOND_VALID_DEPTH, "beyond_valid_depth"),
@@ -593,6 +621,8 @@ pub const FLAG_NAMES: [(ContactFlags, &str); 10] = [
         "continuous_force_limited",
     ),
     (ContactFlags::PUSHED_THROUGH, "pushed_through"),
+    (ContactFlags::MOTORS_WARM, "motors_warm"),
+    (ContactFlags::OUTSIDE_WORKSPACE, "outside_workspace"),
 ];
 
 /// The snake_case names of the set flags, in [`FLAG_NAMES`] order.

@@ -50,7 +50,8 @@ pub use tasks::{
 };
 pub use viewer::{
     REASON_FLOOD, REFUSED_LIVE, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY,
-    REFUSED_MARKS_FULL, REFUSED_OBSERVER, ViewerEnd, refuse_connection, serve_viewer,
+    REFUSED_MARKS_FULL, REFUSED_OBSERVER, REFUSED_REARM_NONE, REFUSED_REARM_OBSERVER, ViewerEnd,
+    refuse_connection, serve_viewer,
 };
 
 /// Frames a viewer may fall behind before it skips to the newest (80 ms at 50 Hz): enough to
@@ -163,6 +164,9 @@ pub struct StreamHub {
     /// draws the tool where the recording has it rather than nowhere; `None` on a live session,
     /// whose next frame is 20 ms away. A lock held only to swap or clone an `Arc`.
     held_frame: std::sync::Mutex<Option<Arc<EncodedFrame>>>,
+    /// Where an instructor's `rearm_device` goes: the live device's handle, `None` on a replay,
+    /// a lab hub's relay, and a device whose force output cannot latch off.
+    rearm: Option<softhaptic_device::device::RearmHandle>,
 }
 
 impl StreamHub {
@@ -201,7 +205,25 @@ impl StreamHub {
             accepts_marks: hello.accepts_marks,
             latest_time_ns: AtomicU64::new(0),
             held_frame: std::sync::Mutex::new(None),
+            rearm: None,
         })
+    }
+
+    /// The hub of a live session whose device an instructor may re-arm through `handle`.
+    pub fn with_rearm(mut self, handle: Option<softhaptic_device::device::RearmHandle>) -> Self {
+        self.rearm = handle;
+        self
+    }
+
+    /// Re-arms the device's force output; false when this stream has no device to re-arm.
+    pub fn rearm_device(&self) -> bool {
+        match &self.rearm {
+            Some(handle) => {
+                handle.request();
+                true
+            }
+            None => false,
+        }
     }
 
     /// Every mark so far, encoded.

@@ -102,6 +102,10 @@ pub fn device_status(error: Option<DeviceError>) -> DeviceStatus {
         Some(DeviceError::NeedsCalibration) => DeviceStatus::NeedsCalibration,
         Some(DeviceError::Overrun) => DeviceStatus::Overrun,
         Some(DeviceError::Driver(_)) => DeviceStatus::DriverError,
+        Some(DeviceError::ForceLatched) => DeviceStatus::ForceLatched,
+        Some(DeviceError::Fatal) => DeviceStatus::Failed,
+        Some(DeviceError::NeedsCalibrationReset) => DeviceStatus::NeedsCalibrationReset,
+        Some(DeviceError::CalibrationUpdating) => DeviceStatus::CalibrationUpdating,
     }
 }
 

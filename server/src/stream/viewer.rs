@@ -116,6 +116,12 @@ pub const REFUSED_MARK_HUB: &str =
     "marks are not taken through the lab hub: mark the session on its station's own page";
 /// The `refused` reason of an `add_mark` once the session has all the marks it keeps.
 pub const REFUSED_MARKS_FULL: &str = "this session has all the marks it can keep (1000)";
+/// The `refused` reason of a `rearm_device` from an observer.
+pub const REFUSED_REARM_OBSERVER: &str = "only an instructor re-arms the device";
+/// The `refused` reason of a `rearm_device` where there is no device to re-arm (a replay, a lab
+/// hub's relay, a device whose force output cannot latch off).
+pub const REFUSED_REARM_NONE: &str =
+    "there is no haptic device here whose force output can be re-armed";
 /// The `refused` reason of a `replay_control` sent to a live session.
 pub const REFUSED_LIVE: &str = "this is a live session: there is no replay to control";
 
@@ -610,6 +616,20 @@ async fn handle_incoming(
                 },
                 Err(reason) => return refuse(socket, hub, connection, &kind, &reason).await,
             }
+        }
+        Ok(kind) if kind == "rearm_device" => {
+            if role == Role::Observer {
+                return refuse(socket, hub, connection, &kind, REFUSED_REARM_OBSERVER).await;
+            }
+            if !hub.rearm_device() {
+                return refuse(socket, hub, connection, &kind, REFUSED_REARM_NONE).await;
+            }
+            // The audit line: who re-armed the force output of a device that tripped.
+            tracing::warn!(
+                client = %connection.peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+                role = role.as_str(),
+                "an instructor re-armed the haptic device's force output"
+            );
         }
         // The connection has its role already (or the server has no tokens): a later `auth`
         // changes nothing and is ignored.

@@ -86,6 +86,14 @@ fn fault_cause(d: &DeviceRecord) -> String {
         DeviceErrorRecord::Driver { code } => format!("driver error {code:#x}"),
         DeviceErrorRecord::NeedsCalibration => "device needs calibration".to_owned(),
         DeviceErrorRecord::Overrun => "tick overran its servo period".to_owned(),
+        DeviceErrorRecord::ForceLatched => {
+            "force output latched off after repeated force trips".to_owned()
+        }
+        DeviceErrorRecord::Fatal => "servo tick failed".to_owned(),
+        DeviceErrorRecord::NeedsCalibrationReset => {
+            "device needs calibration at its reset position".to_owned()
+        }
+        DeviceErrorRecord::CalibrationUpdating => "device updating its calibration".to_owned(),
     };
     match (&d.device_error, &d.command_error, &d.sample) {
         (Some(e), _, _) => name(e),
