@@ -1,5 +1,5 @@
 //! Closed-form references that are not runtime models: what the FEM and the runtime's own
-//! corrections are checked against (physics.md, "Corrections that go past the paper").
+//! corrections are checked against (docs/physics.md, "Corrections that go past the paper").
 //!
 //! The paper's laws (Hertz, Sneddon's cone) live in `softhaptic_device::law` and every runtime
 //! correction in `softhaptic_device::model`; the calibration evaluates those, never a copy.
@@ -37,8 +37,8 @@ pub fn exact_sphere_force_n(material: &Material, radius_m: f64, depth_m: f64) ->
 /// Lin, Shreiber, Dimitriadis & Horkay (2009, Biomech. Model. Mechanobiol. 8:345): a sphere on
 /// an incompressible neo-Hookean half-space, F = (20/9) E* a² (λ⁻² − λ), λ = 1 − 0.2 a/R, with
 /// Hertz's contact radius a = √(Rδ). It tends to Hertz as a/R → 0. The literature's
-/// hyperelastic correction, shown beside the project's fit (physics.md says why it is not used:
-/// it was derived for ν = 0.5).
+/// hyperelastic correction, shown beside the project's fit (docs/physics.md says why it is not
+/// used: it was derived for ν = 0.5).
 pub fn lin_neo_hookean_sphere_force_n(material: &Material, radius_m: f64, depth_m: f64) -> f64 {
     if depth_m.is_nan() || depth_m <= 0.0 {
         return 0.0;
@@ -53,7 +53,7 @@ pub fn lin_neo_hookean_sphere_force_n(material: &Material, radius_m: f64, depth_
 mod tests {
     use super::*;
 
-    /// physics.md reference column "exact sphere, Sneddon" (R = 6 mm, E = 50 kPa, ν = 0.33).
+    /// docs/physics.md reference column "exact sphere, Sneddon" (R = 6 mm, E = 50 kPa, ν = 0.33).
     #[test]
     fn exact_sphere_matches_reference_table() {
         let m = Material::PAPER_SOFT;
@@ -63,8 +63,8 @@ mod tests {
         }
     }
 
-    /// physics.md: Lin et al.'s law exceeds Hertz by 7% already at δ ≈ 0.6 mm (R = 6 mm), and it
-    /// tends to Hertz at small depth.
+    /// docs/physics.md: Lin et al.'s law exceeds Hertz by 7% already at δ ≈ 0.6 mm (R = 6 mm), and
+    /// it tends to Hertz at small depth.
     #[test]
     fn lin_et_al_departs_from_hertz_by_seven_percent_near_0_6_mm() {
         let m = Material::PAPER_SOFT;

@@ -135,7 +135,7 @@ fn displacement_field_is_independent_of_youngs_modulus() {
 
 /// Hertz at δ = 0.2 R on a block 20 R wide and deep. The sphere's FEM force must be within 3%
 /// of F = (4/3) E* √R δ^{3/2}. Hertz's own shape, the paraboloid, removes the sphere's
-/// deviation (−2% at this depth, physics.md): its force must be within 3% of Hertz corrected
+/// deviation (−2% at this depth, docs/physics.md): its force must be within 3% of Hertz corrected
 /// for the block's finite depth (Dimitriadis' bonded factor, +2%), and the surface outside the
 /// contact must follow Johnson's half-space profile.
 #[test]
@@ -198,7 +198,7 @@ fn indentation_matches_hertz_and_half_space_profile() {
         hertz * layer,
         100.0 * err
     );
-    // Profile between 1.5 a and 4 a against Johnson's formula (physics.md).
+    // Profile between 1.5 a and 4 a against Johnson's formula (docs/physics.md).
     let tool = softhaptic_proto::ToolShape::Sphere { radius_m: r };
     let profile = model.surface_profile();
     let mut checked = 0;

@@ -1,5 +1,5 @@
 //! The local curvature of the haptic mesh, per vertex, for the curvature correction of the
-//! contact model ([`crate::model`]; physics.md, "Curvature of the object").
+//! contact model ([`crate::model`]; docs/physics.md, "Curvature of the object").
 //!
 //! Computed once, when a [`Collider`](crate::collision::Collider) is asked for it (only scenes
 //! whose model uses curvature do), and read by every collision query afterwards: the query

@@ -58,8 +58,8 @@ pub struct ForceConfig {
     /// Virtual damping b along the contact normal, N·s/m. Bounded by the device's
     /// `damping_n_s_per_m` at render time.
     pub damping_n_s_per_m: f64,
-    /// Replace the law beyond δ* by its tangent of slope K_max (physics.md, "Haptic stability").
-    /// Off only to study what happens without it.
+    /// Replace the law beyond δ* by its tangent of slope K_max (docs/physics.md, "Haptic
+    /// stability"). Off only to study what happens without it.
     pub stiffness_cap: bool,
     /// Length of the force ramp after a fault or a jumping contact onset, nanoseconds.
     pub ramp_ns: u64,

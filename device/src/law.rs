@@ -81,7 +81,7 @@ pub fn contact_radius_m(tool: &ToolShape, depth_m: f64) -> f64 {
     }
 }
 
-/// Depth δ* at which the law's stiffness reaches `max_stiffness_n_per_m` (physics.md,
+/// Depth δ* at which the law's stiffness reaches `max_stiffness_n_per_m` (docs/physics.md,
 /// "Haptic stability"): K²/(4E*²R) for a sphere, πK/(4E* tanα) for a cone.
 #[inline]
 pub fn depth_at_stiffness_m(
@@ -107,7 +107,7 @@ mod tests {
 
     const MM: f64 = 1e-3;
 
-    /// physics.md, "Reference values": E = 50 kPa, ν = 0.33, sphere R = 6 mm, cone 45°.
+    /// docs/physics.md, "Reference values": E = 50 kPa, ν = 0.33, sphere R = 6 mm, cone 45°.
     const REFERENCE: [(f64, f64, f64, f64, f64); 6] = [
         // δ mm, Hertz F, Hertz dF/dδ, cone F, cone dF/dδ
         (1.0, 0.1833, 275.0, 0.0357, 71.0),

@@ -1,7 +1,7 @@
 //! The part of the simulator that runs at 1 kHz next to the haptic device.
 //!
 //! This crate cannot name tokio or any networking crate: whatever happens on the network, nothing
-//! here can wait for it (design.md, invariant 1).
+//! here can wait for it (docs/design.md, invariant 1).
 //!
 //! # Layout
 //! - [`law`]: the closed-form contact laws (Hertz sphere, Sneddon cone), contact radius and

@@ -1,5 +1,5 @@
 //! The runtime contact model: the paper's law of the tool times the corrections a scene turns on
-//! (physics.md, "Corrections that go past the paper").
+//! (docs/physics.md, "Corrections that go past the paper").
 //!
 //! Long because its last 450 lines are the tests that pin each correction to its closed form; the
 //! model itself is about 680 lines: five corrections, each with how it is kept safe at the extremes.
@@ -55,7 +55,7 @@ impl LocalGeometry {
 /// (1.2% and 0.9% out of sample, on the 10 mm tools and the 50 mm block). Against the linear FEM the same data would
 /// give F_nH/F_lin up to 1.31 at δ = R (c1 = −0.171, c2 = 0.472; cone 1.20), but that ratio is
 /// mostly the linear FEM's own softening below the closed form at large strain (−23% at δ = R),
-/// so it must not multiply the closed form. Lin et al.'s incompressible formula (physics.md)
+/// so it must not multiply the closed form. Lin et al.'s incompressible formula (docs/physics.md)
 /// would give 1.27 at δ = R. Refit and compare with
 /// `cargo run --release -p softhaptic-calibration --bin softhaptic-calibrate -- speed-accuracy`
 /// (calibration report, "Hyperelastic fit"), which prints the refit beside these constants.
@@ -568,8 +568,8 @@ impl ForceModel {
     }
 
     /// The depth δ* at which the model's stiffness first reaches `max_stiffness_n_per_m`, for the
-    /// stiffness cap (physics.md, "Haptic stability"). Closed form for the paper's law; otherwise
-    /// bisection on the (monotone) stiffness, 48 halvings of [0, 1 m].
+    /// stiffness cap (docs/physics.md, "Haptic stability"). Closed form for the paper's law;
+    /// otherwise bisection on the (monotone) stiffness, 48 halvings of [0, 1 m].
     pub fn depth_at_stiffness_m(
         &self,
         max_stiffness_n_per_m: f64,
@@ -621,7 +621,7 @@ impl ForceModel {
     }
 }
 
-/// Sneddon's exact sphere over Hertz's paraboloid, as the series of physics.md in x = δ/R:
+/// Sneddon's exact sphere over Hertz's paraboloid, as the series of docs/physics.md in x = δ/R:
 /// 1 − x/10 − x²/840 + 11x³/15120 + 1357x⁴/6652800 (within 1e-4 of the exact closed form up to
 /// x = 1), held constant beyond x = 1.
 #[inline]
@@ -707,7 +707,7 @@ mod tests {
         }
     }
 
-    /// Sneddon's closed form, solved for a by bisection (the reference of physics.md's table).
+    /// Sneddon's closed form, solved for a by bisection (the reference of docs/physics.md's table).
     fn exact_sphere_closed_form(m: &Material, r: f64, depth: f64) -> f64 {
         let depth_of = |a: f64| 0.5 * a * ((r + a) / (r - a)).ln();
         let (mut lo, mut hi) = (0.0, r * (1.0 - 1e-15));
@@ -779,7 +779,7 @@ mod tests {
 
     #[test]
     fn exact_sphere_matches_the_reference_table() {
-        // physics.md, "Reference values", column "exact sphere, Sneddon".
+        // docs/physics.md, "Reference values", column "exact sphere, Sneddon".
         let table = [
             (1.0, 0.1802),
             (2.0, 0.5010),
@@ -1070,7 +1070,7 @@ mod tests {
     }
 
     proptest! {
-        /// design.md invariant 4 for every combination of corrections: finite, non-negative,
+        /// docs/design.md invariant 4 for every combination of corrections: finite, non-negative,
         /// zero at zero depth, non-decreasing and continuous in depth, for any geometry input.
         #[test]
         fn every_model_is_safe_at_the_extremes(

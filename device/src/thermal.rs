@@ -1,7 +1,7 @@
 //! The continuous-force limit: a model of the motors' heating that holds the RMS force at the
 //! device's continuous rating, while short peaks up to the peak force still pass.
 //!
-//! A PHANTOM Desktop exerts 7.9 N briefly but only 1.75 N continuously (physics.md, "Haptic
+//! A PHANTOM Desktop exerts 7.9 N briefly but only 1.75 N continuously (docs/physics.md, "Haptic
 //! stability"): holding more heats the motor windings until the device's own protection turns
 //! the force output off (a device fault in the middle of a session), or damages them.
 //! [`ContinuousForceLimiter`] keeps below that.

@@ -35,7 +35,8 @@ fn depth(collider: &mut Collider, tool: &ToolShape, tip_m: DVec3) -> f64 {
 
 #[test]
 fn grid_sizes_match_table_1() {
-    // physics.md Table 1: vertices, edges, triangles of the paper's N × N surfaces.
+    // The paper's Table 1 (`docs/physics.md`, "The paper's numbers and ours"): vertices, edges
+    // and triangles of its N × N surfaces.
     let table = [
         (40, 1600, 4641, 3042),
         (50, 2500, 7301, 4802),

@@ -1,4 +1,4 @@
-//! The extremes of design.md invariant 4, for both collision modes: tool far away, grazing
+//! The extremes of docs/design.md invariant 4, for both collision modes: tool far away, grazing
 //! contact, tip exactly on a vertex or an edge, normals that cancel, depth past the tool radius,
 //! and poses or tools that are not valid.
 

@@ -209,7 +209,7 @@ fn sliding_over_a_coarse_curved_organ_has_no_jumps_in_continuous_mode() {
 
 #[test]
 fn independent_builds_answer_bit_for_bit_alike() {
-    // Deterministic replay (design.md invariant 5) needs the tree, and so the tie-breaks
+    // Deterministic replay (docs/design.md invariant 5) needs the tree, and so the tie-breaks
     // between equally close triangles, to be the same in every process.
     let tool = ToolShape::cone(0.6, 0.008).unwrap();
     for mode in [CollisionMode::Continuous, CollisionMode::PaperVertices] {

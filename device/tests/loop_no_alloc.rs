@@ -1,4 +1,4 @@
-//! The 1 kHz path never allocates (design.md, invariant 1): counted with a global allocator,
+//! The 1 kHz path never allocates (docs/design.md, invariant 1): counted with a global allocator,
 //! once for the synchronous tick and once for the running loop thread. One test per binary, so
 //! no other test's allocations are counted.
 

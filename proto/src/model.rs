@@ -2,11 +2,11 @@
 //!
 //! The paper's laws (Hertz for a sphere, Sneddon for a cone) assume a flat elastic half-space
 //! pressed perpendicularly by a paraboloid, in small strain. A [`ModelSpec`] switches on the
-//! corrections of physics.md ("Corrections that go past the paper") one by one, so a scene pays
-//! only for what its objects need (design.md, invariant 6). The runtime evaluates them in
-//! `softhaptic_device::model`; the offline calibration measures each against the FEM and writes
-//! a [`ModelLimitsFile`] of the depths where each combination stays within 7 % of it, which a
-//! scene turns into the [`ValidityLimits`] its flags use (the paper's where nothing was measured).
+//! corrections of docs/physics.md ("Corrections that go past the paper") one by one, so a scene
+//! pays only for what its objects need (`docs/design.md`, invariant 7). The runtime evaluates them
+//! in `softhaptic_device::model`; the offline calibration measures each against the FEM and writes
+//! a [`ModelLimitsFile`] of the depths where each combination stays within 7 % of it, which a scene
+//! turns into the [`ValidityLimits`] its flags use (the paper's where nothing was measured).
 
 use serde::{Deserialize, Serialize};
 

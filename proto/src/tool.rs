@@ -27,7 +27,7 @@ pub enum ToolShape {
     /// base, where it joins the shaft, so the conical part is `radius_m / tan(half_angle_rad)` long.
     ///
     /// The paper's eq. (5) measures its α between the flank and the surface instead; the two agree
-    /// at 45° only (physics.md).
+    /// at 45° only (docs/physics.md).
     Cone { half_angle_rad: f64, radius_m: f64 },
 }
 

@@ -1,30 +1,34 @@
-//! The README's systemd unit for a device host: its command line is one this build accepts, its
-//! limits let the loop get what it asks for, its state directory is where the recordings go, it
-//! names the host for viewers that reach it by name, and (where `systemd-analyze` is installed)
-//! systemd itself accepts the unit; the README's doctor command measures the disk the unit
-//! records to.
+//! The systemd unit for a device host in `docs/operating.md`: its command line is one this build
+//! accepts, its limits let the loop get what it asks for, its state directory is where the
+//! recordings go, it names the host for viewers that reach it by name, and (where `systemd-analyze`
+//! is installed) systemd itself accepts the unit; that page's doctor command measures the disk the
+//! unit records to.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
-#![allow(clippy::disallowed_methods)] // test code: reads the source tree's README
+#![allow(clippy::disallowed_methods)] // test code: reads the source tree's docs
 
 use std::path::Path;
 use std::process::Command;
 
 const UNIT_HEADER: &str = "# /etc/systemd/system/softhaptic.service";
-/// The binary's path in the README's unit.
+/// The binary's path in the documented unit.
 const UNIT_BINARY: &str = "/opt/softhaptic/softhaptic";
 
-/// The unit as the README gives it, from its header comment to the end of the code block.
-fn readme_unit() -> String {
-    let readme =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
-            .unwrap();
-    let start = readme
+/// The unit as `docs/operating.md` gives it, from its header comment to the end of the code block.
+fn documented_unit() -> String {
+    let page = operating_page();
+    let start = page
         .find(UNIT_HEADER)
-        .expect("the README gives the device host's systemd unit");
-    let body = &readme[start + UNIT_HEADER.len()..];
+        .expect("docs/operating.md gives the device host's systemd unit");
+    let body = &page[start + UNIT_HEADER.len()..];
     let end = body.find("\n```").expect("the unit's code block ends");
     body[..end].trim_start_matches('\n').to_owned()
+}
+
+/// The page that documents operating a station.
+fn operating_page() -> String {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/operating.md"))
+        .unwrap()
 }
 
 /// Each `key=value` of the unit, continuation lines joined, comments dropped.
@@ -48,8 +52,8 @@ fn value<'a>(directives: &'a [(String, String)], key: &str) -> &'a str {
 }
 
 #[test]
-fn the_readme_unit_runs_this_build_with_the_limits_the_loop_needs() {
-    let unit = readme_unit();
+fn the_documented_unit_runs_this_build_with_the_limits_the_loop_needs() {
+    let unit = documented_unit();
     let d = directives(&unit);
 
     // The command line: the binary, then arguments this build's `run` accepts (clap reads them
@@ -97,15 +101,13 @@ fn the_readme_unit_runs_this_build_with_the_limits_the_loop_needs() {
         "{exec:?}"
     );
 
-    // The README's doctor command, run as the service runs, writes its disk run where the
+    // The page's doctor command, run as the service runs, writes its disk run where the
     // service records.
-    let readme =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
-            .unwrap();
-    let confirm = readme
+    let page = operating_page();
+    let confirm = page
         .split("```")
         .find(|block| block.contains("systemd-run") && block.contains("doctor"))
-        .expect("the README confirms the host with the doctor under systemd-run");
+        .expect("docs/operating.md confirms the host with the doctor under systemd-run");
     let confirm = confirm.replace("\\\n", " ");
     let confirm: Vec<&str> = confirm.split_whitespace().collect();
     let doctor_record_dir = confirm
@@ -116,15 +118,15 @@ fn the_readme_unit_runs_this_build_with_the_limits_the_loop_needs() {
 }
 
 #[test]
-fn systemd_accepts_the_readme_unit() {
+fn systemd_accepts_the_documented_unit() {
     let Ok(version) = Command::new("systemd-analyze").arg("--version").output() else {
         eprintln!("systemd-analyze is not installed: the unit's syntax is not checked here");
         return;
     };
     assert!(version.status.success());
     let dir = tempfile::tempdir().unwrap();
-    // The unit as installed, with this build's binary where the README puts its own.
-    let unit = readme_unit().replace(UNIT_BINARY, env!("CARGO_BIN_EXE_softhaptic"));
+    // The unit as installed, with this build's binary where the page puts its own.
+    let unit = documented_unit().replace(UNIT_BINARY, env!("CARGO_BIN_EXE_softhaptic"));
     let path = dir.path().join("softhaptic.service");
     std::fs::write(&path, unit).unwrap();
     let out = Command::new("systemd-analyze")

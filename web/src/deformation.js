@@ -279,7 +279,7 @@ export function surfaceFamilyFromJson(json) {
 }
 
 /**
- * A row's `radial_displacement_m` (WIRE.md, `fem`): absent or empty is no sideways motion
+ * A row's `radial_displacement_m` (proto/WIRE.md, `fem`): absent or empty is no sideways motion
  * (zeros); otherwise as many finite samples as the row's depression, the first and the last 0,
  * and the drawn radius j·Δ + U[j] strictly increasing (the surface does not fold over itself).
  */
@@ -323,7 +323,7 @@ function surfaceTerm(family, index, weight, d, term) {
 }
 
 /**
- * The `fem` profile of `tool` (from `toolShape`) pressed `depthM` deep (WIRE.md, steps 1–2):
+ * The `fem` profile of `tool` (from `toolShape`) pressed `depthM` deep (proto/WIRE.md, steps 1–2):
  * the one or two rows to blend, each with its amplitude (weight·δ/δ_k) and its samples per metre
  * ((δ_k/δ)^p / Δ), the tool's footprint (inside it the drawn surface is never above the tool)
  * and the reach beyond which nothing moves; `lateral` is whether a row used moves the surface
@@ -383,7 +383,7 @@ function surfaceTermAt(t, samples, r) {
 }
 
 /**
- * Depression z(r), 0 ≤ z ≤ δ, for a profile prepared by `surfaceSetup` (WIRE.md, step 3): the
+ * Depression z(r), 0 ≤ z ≤ δ, for a profile prepared by `surfaceSetup` (proto/WIRE.md, step 3): the
  * rows' blend, never above the tool where the point drawn for r lies, at radius ρ = max(0, r +
  * u(r)) (between the FEM's nodes the rows are straight chords, which the curved tool would
  * otherwise poke through).
@@ -402,7 +402,7 @@ export function surfaceDepressionAt(p, rRaw) {
 
 /**
  * Sideways displacement u(r) (m, away from the axis; negative: towards it) of the surface point
- * at undeformed radius r, for a profile prepared by `surfaceSetup` (WIRE.md, step 3): the rows'
+ * at undeformed radius r, for a profile prepared by `surfaceSetup` (proto/WIRE.md, step 3): the rows'
  * blend, not clamped. 0 when nothing is pressed, at and beyond the rows' reach, and for rows
  * without `radial_displacement_m`.
  */

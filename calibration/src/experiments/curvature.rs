@@ -125,7 +125,7 @@ pub struct CurvatureLawStudy {
     pub error_percent: Vec<Vec<f64>>,
     pub crossing_m: Vec<Option<f64>>,
     /// The runtime's curvature law relative to its flat law, normalised the same way (what
-    /// physics.md predicts for eq. 6).
+    /// docs/physics.md predicts for eq. 6).
     pub predicted_percent: Vec<Vec<f64>>,
     /// The runtime models against the balls.
     pub models: Vec<CurvatureModelScore>,

@@ -18,7 +18,7 @@ pub struct RdStudy {
     pub tool_name: String,
     pub tool: ToolShape,
     pub runs: Vec<IndentationRun>,
-    /// R_d of the elastic half-space at the same depths (physics.md).
+    /// R_d of the elastic half-space at the same depths (docs/physics.md).
     pub half_space_m: Vec<f64>,
     /// The tables written for the scenes (one per material).
     pub tables: Vec<(String, CalibrationTable)>,

@@ -16,7 +16,7 @@ pub(super) fn curvature_section(
          not name the law of its curvature FEM; the reproduction below is the small-deformation \
          linear FEM, the textbook problem the paper's closed forms solve (the crossings of the \
          deformed-contact linear FEM, earlier reports' 'linear', and of the neo-Hookean FEM are \
-         listed beside it). physics.md's Hertz-on-sphere law (F/F_flat = \
+         listed beside it). The Hertz-on-sphere law of docs/physics.md (F/F_flat = \
          √(R0/(R+R0))) predicts more than the paper reports; the 'predicted' column applies the \
          runtime's curvature law normalised the same way. The block is not a half-space: its \
          clamped bottom 50 mm down stiffens it (Dimitriadis' bonded-layer factor is 1.05–1.2 \

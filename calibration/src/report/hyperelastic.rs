@@ -55,7 +55,7 @@ pub(super) fn hyperelastic_section(
          neo-Hookean FEM at ν = 0.33 is {:.3} and {:.3} × the closed form of its geometry. On \
          this block Lin's excess happens to stand in for the layer's stiffening (see its row in \
          the speed-accuracy table), but on top of the layer correction it would overshoot by \
-         {:.0}% at δ = R; physics.md warned that it over-predicts at ν = 0.33.\n",
+         {:.0}% at δ = R; docs/physics.md warns that it over-predicts at ν = 0.33.\n",
         nh_lin(last),
         lin_closed(last),
         nh_closed(last),

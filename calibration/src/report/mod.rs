@@ -281,8 +281,8 @@ fn corrections_intro(md: &mut String) {
     let _ = writeln!(
         md,
         "The runtime (`softhaptic_device::model::ForceModel`) multiplies the paper's law by the \
-         corrections a scene turns on (physics.md): the exact sphere (Sneddon), a layer of finite \
-         thickness on a rigid base (Dimitriadis; Garcia & Garcia for the cone; bonded, times a \
+         corrections a scene turns on (docs/physics.md): the exact sphere (Sneddon), a layer of \
+         finite thickness on a rigid base (Dimitriadis; Garcia & Garcia for the cone; bonded, times a \
          residual fitted here to the small-deformation FEM over ν), the object's curvature (Johnson), the tool's inclination, and a hyperelastic factor fitted here. \
          Every model below is that very `ForceModel`, built from its `ModelSpec` and evaluated \
          as the 1 kHz loop evaluates it; the reference is the neo-Hookean FEM unless stated.\n"

@@ -1,7 +1,7 @@
 //! Rate control: the puck's deflection as the tool's velocity.
 //!
 //! A SpaceMouse springs back to centre, so its deflection commands a velocity, not a position
-//! (devices.md). Each tick [`RateControl::step`] shapes the deflection (dead band, then gain,
+//! (docs/devices.md). Each tick [`RateControl::step`] shapes the deflection (dead band, then gain,
 //! then the speed limit), lets the velocity follow that target through a first-order filter of
 //! time constant `smoothing_s` (the ~60 Hz reports arrive as steps; the filter turns each into
 //! a ramp the 1 kHz loop samples smoothly), integrates the position and holds it inside the

@@ -1,7 +1,7 @@
 //! The SpaceMouse family's HID reports: which products there are, how each lays out its axes,
 //! and how a report's bytes become normalised puck deflections.
 //!
-//! Two layouts exist (devices.md). Older devices send three reports: id 1 with the translation
+//! Two layouts exist (docs/devices.md). Older devices send three reports: id 1 with the translation
 //! x, y, z, id 2 with the rotation rx, ry, rz (each six bytes: three little-endian `i16`), and
 //! id 3 with the button bitmap. Newer and wireless devices send all six axes in one report id 1
 //! twelve bytes long, and the buttons in id 3 as before. Raw values reach about ±350 (a model's
@@ -31,12 +31,12 @@ pub struct Model {
 /// not listed is refused by name and id rather than guessed at.
 ///
 /// Where each full scale comes from:
-/// - 350, every model but one: `../shared/devices.md` ("values reach about ±350 (some models
-///   more): normalise per model"), the same divisor OpenSCAD's hidapi driver applies to both
+/// - 350, every model but one: `docs/devices.md` (SpaceMouse, "Scale": raw values reach about
+///   ±350), the same divisor OpenSCAD's hidapi driver applies to both
 ///   layouts of every model it opens (`src/input/HidApiInputDriver.cc`, `hidapi_sm_decode_axis`).
 ///   A unit that exceeds it is clamped to ±1 ([`Parser`]), so a model that reaches a little
 ///   further loses only the last part of its travel.
-/// - 512, the SpaceBall 5000 (USB): the "some models more" of devices.md, a figure no
+/// - 512, the SpaceBall 5000 (USB): the one exception `docs/devices.md` names, a figure no
 ///   published table gives; 512 is an assumption, chosen so that its larger travel is not
 ///   clamped away. The raw reports of a full push on one (`sudo hexdump -C /dev/hidrawN`, the
 ///   little-endian `i16` after each report id) would settle it.

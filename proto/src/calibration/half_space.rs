@@ -1,6 +1,6 @@
 //! The analytical surface profiles a table can be built from when no FEM table exists: the
 //! elastic half-space (Johnson for the sphere, Sneddon for the cone) and the same profile with
-//! its far field cut by a rigid base at the object's thickness (physics.md, "Surface shape
+//! its far field cut by a rigid base at the object's thickness (docs/physics.md, "Surface shape
 //! outside the contact").
 
 use super::{
@@ -12,8 +12,8 @@ use crate::tool::ToolShape;
 impl CalibrationTable {
     /// The analytical table of an elastic half-space indented by `tool`: R_d is the radius where
     /// the surface depression exceeds `threshold_m` (Johnson's solution for the sphere,
-    /// Sneddon's for the cone, physics.md), sampled at the paper's depths 0.5 … 10 mm in 0.5 mm
-    /// steps and fitted with the paper's 7 mm breakpoint.
+    /// Sneddon's for the cone, docs/physics.md), sampled at the paper's depths 0.5 … 10 mm in
+    /// 0.5 mm steps and fitted with the paper's 7 mm breakpoint.
     ///
     /// The half-space has no bottom, so R_d is larger than on the paper's block; the table's
     /// source says so, and the viewer shows it.
@@ -122,7 +122,7 @@ impl CalibrationTable {
 }
 
 /// Surface depression u_z(r) of an elastic half-space indented by `depth_m` with `tool`, at
-/// distance `r_m` from the axis (physics.md, "Surface shape outside the contact").
+/// distance `r_m` from the axis (docs/physics.md, "Surface shape outside the contact").
 ///
 /// Sphere (Johnson, paraboloid approximation), a = √(Rδ): inside, δ − r²/(2R); outside,
 /// (δ/π)[(2 − r²/a²) asin(a/r) + √(r²/a² − 1)]. Cone (Sneddon), a = 2δ tanα/π: inside,
@@ -303,7 +303,8 @@ mod tests {
 
     #[test]
     fn half_space_sphere_matches_physics_reference() {
-        // physics.md: R = 10 mm, δ = 1, 2, 4, 6, 8, 10 mm → R_d ≈ 3.2, 7.9, 21.7, 39.6, 60.9, 85.0.
+        // docs/physics.md, "Surface shape outside the contact": R = 10 mm,
+        // δ = 1, 2, 4, 6, 8, 10 mm → R_d ≈ 3.2, 7.9, 21.7, 39.6, 60.9, 85.0.
         let tool = ToolShape::sphere(10.0 * MM).unwrap();
         for (d_mm, rd_mm) in [
             (1.0, 3.2),

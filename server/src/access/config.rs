@@ -487,7 +487,7 @@ mod tests {
         )
         .resolve_with_env(loopback, &none)
         .unwrap();
-        // The README's proxy setup without tokens: refused, naming what made it remote.
+        // The proxy setup of docs/operating.md without tokens: refused, naming what made it remote.
         let err = args(&["https://lab-pc.example"], &["lab-pc.example"])
             .resolve_with_env(loopback, &none)
             .unwrap_err()

@@ -1,5 +1,5 @@
 //! The replay check: do the recorded device readings, fed through this build's haptic world, give
-//! the recorded forces bit for bit? (design.md, invariant 5.)
+//! the recorded forces bit for bit? (docs/design.md, invariant 5.)
 //!
 //! The world is rebuilt from the scene file stored in the recording, the readings are played by a
 //! [`ReplayDevice`] (recorded errors included) through [`HapticWorld::step`] with no thread and no

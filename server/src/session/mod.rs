@@ -12,7 +12,7 @@
 //! - [`reader`]: [`Recording`](reader::Recording), a file read back, with recovery of truncated
 //!   files and clear refusals of files it cannot trust.
 //! - [`check`]: replays a recording's device readings through a freshly built haptic world and
-//!   compares the forces bit for bit (the CI replay check, design.md invariant 5).
+//!   compares the forces bit for bit (the CI replay check, docs/design.md invariant 5).
 //! - [`tools`]: `info` and `export` (CSV).
 //! - [`script`]: scripted sessions with the simulated device, recorded without a wall clock
 //!   (the test recordings under `tests/sessions/`).

@@ -234,7 +234,7 @@ pub fn cpu_isolation_check(layout: &CpuLayout) -> Check {
                 "keep CPU {cpu} for the loop: boot with `isolcpus=managed_irq,domain,{cpu} \
                  nohz_full={cpu} rcu_nocbs={cpu} irqaffinity={others}` ({GRUB_STEPS}), then run \
                  the server with --loop-cpu {cpu} (a service: CPUAffinity={others}, which keeps \
-                 the rest of the server off it, README \"A device host\")"
+                 the rest of the server off it, docs/operating.md \"A device host\")"
             )),
         ),
     }

@@ -82,13 +82,14 @@ pub fn haptic_device_check(facts: &DeviceFacts) -> Check {
         return Check::new("haptic_device", title, Verdict::Good, found, why, None);
     }
     let fix = if refused.is_empty() {
-        "install the device driver and OpenHaptics (README, \"A real haptic device\"), or set \
-         SOFTHAPTIC_HD_LIBRARY to its libHD.so; or plug in a SpaceMouse (input only). `softhaptic \
-         devices` lists what is found"
+        "install the device driver and OpenHaptics (docs/devices.md, \"Setting up a PHANTOM or \
+         a Touch\"), or set SOFTHAPTIC_HD_LIBRARY to its libHD.so; or plug in a SpaceMouse (input \
+         only). `softhaptic devices` lists what is found"
     } else {
         "connect and power the device, check it in the vendor's Touch_Diagnostic, let your user \
-         open it (`ls -l /dev/ttyACM*`: the dialout group or a udev rule, README \"A real haptic \
-         device\"); a running softhaptic server holds the device, stop it before this check"
+         open it (`ls -l /dev/ttyACM*`: the dialout group or a udev rule, docs/devices.md \
+         \"Setting up a PHANTOM or a Touch\"); a running softhaptic server holds the device, stop \
+         it before this check"
     };
     Check::new(
         "haptic_device",

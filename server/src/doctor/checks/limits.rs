@@ -118,7 +118,7 @@ fn limits_conf_fix(p: &Privileges) -> String {
          and `{user} - memlock unlimited`, then log in again (check with `ulimit -r -l`: \
          {RTPRIO_FIX} and unlimited); a systemd service ignores limits.conf: put \
          `LimitRTPRIO={RTPRIO_FIX}` and `LimitMEMLOCK=infinity` in its [Service] section \
-         (README, \"A device host\")"
+         (docs/operating.md, \"The service\")"
     )
 }
 
