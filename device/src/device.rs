@@ -39,7 +39,7 @@ pub const MOTOR_TIME_CONSTANT_S: f64 = 5.0;
 
 impl DeviceLimits {
     /// PHANTOM Desktop: peak force, stable stiffness, damping and workspace as CHAI3D's
-    /// `CPhantomDevices.cpp` uses them; continuous force from the datasheet (physics.md).
+    /// `CPhantomDevices.cpp` uses them; continuous force from the datasheet (docs/physics.md).
     pub const PHANTOM_DESKTOP: DeviceLimits = DeviceLimits {
         name: "PHANTOM Desktop",
         peak_force_n: 7.9,
@@ -50,7 +50,7 @@ impl DeviceLimits {
         workspace_radius_m: 0.10,
     };
 
-    /// Touch (the PHANTOM Omni's successor): 3.3 N peak and 400 N/m as in physics.md;
+    /// Touch (the PHANTOM Omni's successor): 3.3 N peak and 400 N/m as in docs/physics.md;
     /// 0.88 N continuous from the vendor datasheet; damping chosen with the stiffness' ratio to
     /// the Desktop's (the Touch's lighter arm tolerates less); workspace 160 × 120 × 70 mm.
     pub const TOUCH: DeviceLimits = DeviceLimits {
@@ -63,7 +63,7 @@ impl DeviceLimits {
         workspace_radius_m: 0.075,
     };
 
-    /// PHANTOM Omni: 3.3 N peak and 700 N/m as in physics.md; 0.88 N continuous from the
+    /// PHANTOM Omni: 3.3 N peak and 700 N/m as in docs/physics.md; 0.88 N continuous from the
     /// datasheet; 5 N·s/m damping as CHAI3D's older PHANTOM driver gives the Omni.
     pub const OMNI: DeviceLimits = DeviceLimits {
         name: "PHANTOM Omni",

@@ -7,7 +7,7 @@
 //! every period: waits for its absolute deadline, reads the device, steps the world, commands the
 //! force, publishes the [`ContactState`], offers a [`TickRecord`] to the session log's ring, and
 //! records its timing. Other threads see its results only through wait-free publications
-//! ([`SeqCell`]), so no reader can ever delay the force (design.md, invariant 1). Per tick it
+//! ([`SeqCell`]), so no reader can ever delay the force (docs/design.md, invariant 1). Per tick it
 //! never allocates, logs, does I/O or waits for another thread.
 //!
 //! A standby thread on a second CPU wakes a quarter period after each deadline and runs the tick
@@ -382,7 +382,7 @@ struct TickCore {
 ///
 /// A thread takes the baton with one compare-and-swap. When the other thread holds it, that one
 /// is running a tick, and the taker leaves the tick to it instead of waiting: the baton is only
-/// ever tried, never waited for, so the loop never waits on another thread (design.md,
+/// ever tried, never waited for, so the loop never waits on another thread (docs/design.md,
 /// invariant 1). `Mutex::try_lock` would behave alike; this type says in its API that no caller
 /// blocks, and has no poisoning to handle on the 1 kHz path.
 struct Baton<T> {

@@ -5,7 +5,7 @@
 //! model uses it), followed across ticks so that a tool pushed through the object is held on the
 //! side it entered ([`crate::tracking`]), force rendering with every safety limit. The loop thread
 //! calls it at 1 kHz; tests, replays and benches call it directly, with no thread and no clock,
-//! which is what makes a replay bit-identical (design.md, invariant 5).
+//! which is what makes a replay bit-identical (docs/design.md, invariant 5).
 
 use glam::DVec3;
 use softhaptic_proto::{ContactFlags, ContactState, Material, Pose, ToolShape};
@@ -71,7 +71,7 @@ impl HapticWorld {
 
     /// Builds the world with the scene's contact model. When the model uses the object's
     /// curvature and the collider does not measure it yet, the curvature is estimated here, once
-    /// (design.md invariant 6: only a model that asks for it pays for it).
+    /// (docs/design.md, invariant 7: only a model that asks for it pays for it).
     pub fn with_model(
         collider: Collider,
         object_in_world: Pose,
@@ -246,7 +246,7 @@ impl HapticWorld {
     /// fault with zero force, and the force ramps in again afterwards as after any fault. The
     /// loop thread runs its ticks through here, and so does the replay check, whose replay device
     /// refuses the commands the recorded device refused: one code path, so a replay is
-    /// bit-identical (design.md, invariant 5).
+    /// bit-identical (docs/design.md, invariant 5).
     pub fn tick<D: HapticDevice + ?Sized>(&mut self, device: &mut D) -> TickOutcome {
         let read = device.read();
         let mut state = self.step(read);

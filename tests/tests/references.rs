@@ -26,12 +26,6 @@ const PENDING: &[(&str, &str)] = &[
     // Written on another branch: how to install a device host or a hub.
     ("README.md", "docs/install.md"),
     ("docs/operating.md", "install.md"),
-    // Files being rewritten on another branch; their comments are repointed at the merge.
-    ("device/src/device.rs", "physics.md"),
-    ("device/src/haptic_loop.rs", "design.md"),
-    ("device/src/openhaptics.rs", "devices.md"),
-    ("device/src/world.rs", "design.md"),
-    ("tests/standin/hd_standin.c", "shared/devices.md"),
 ];
 
 /// This file, which is not scanned (its table names references that dangle on purpose).
