@@ -27,6 +27,8 @@
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
+//! - [`viewer`]: the viewer's files (page, modules, three.js) built into the binary and served
+//!   with their type and ETag, or a checkout's `web/` with `--web-dir`; checked before a start.
 //! - [`session`]: recording sessions to MCAP files and reading them back; a replay check
 //!   rebuilds the recorded contact model from the recording's `scene` message.
 //! - [`tls`]: https and wss on the viewer's port (`--tls-cert`/`--tls-key`, or a kept
@@ -45,3 +47,4 @@ pub mod session;
 pub mod stream;
 pub mod tls;
 pub mod vectors;
+pub mod viewer;

@@ -88,9 +88,8 @@ struct RunArgs {
     /// Address to serve the viewer and the WebSocket stream on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8080", value_name = "HOST:PORT")]
     addr: SocketAddr,
-    /// Directory of the web viewer (index.html, src/, node_modules/three) [default: the first
-    /// web/ with an index.html next to the working directory or the executable, else the
-    /// source tree's web/].
+    /// Serve the viewer from this checkout's web/ (index.html, src/, node_modules/three), for
+    /// developing it without rebuilding [default: the viewer built into the binary].
     #[arg(long, value_name = "DIR")]
     web_dir: Option<PathBuf>,
     /// Do not ask for real-time scheduling (SCHED_FIFO, locked memory) for the haptic thread.
@@ -140,7 +139,7 @@ struct HubArgs {
     /// Address to serve the page and the relayed streams on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8090", value_name = "HOST:PORT")]
     addr: SocketAddr,
-    /// Directory of the web viewer [default: as for a station].
+    /// Serve the viewer from this checkout's web/ [default: the viewer built into the binary].
     #[arg(long, value_name = "DIR")]
     web_dir: Option<PathBuf>,
     #[command(flatten)]
@@ -203,7 +202,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
-    let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
+    let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
         let mut stop =
@@ -215,7 +214,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
                 credentials: args.nats_credentials.clone(),
             },
             addr: args.addr,
-            web_dir,
+            viewer,
             access: access.clone(),
             tls: tls.map(|t| t.config),
             viewer_limits: Default::default(),
@@ -247,6 +246,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
+    // A page that could not run (a --web-dir without three.js) stops the start too.
+    let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     // Refuse a bad scene before anything starts.
     let mut scene = match &args.scene {
         Some(path) => Scene::load(path)?,
@@ -273,14 +274,11 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         limits = %scene.validity.source,
         "scene loaded"
     );
-    let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
-    if !web_dir.join("index.html").is_file() {
-        tracing::warn!(dir = %web_dir.display(), "no index.html in the web directory; the viewer page will be missing");
-    }
     let mut recording =
         session::cli::LiveRecording::start(&args.record, &scene, args.scene.as_deref())?;
     runtime.block_on(async move {
-        let mut options = ServerOptions::new(args.addr, web_dir);
+        let mut options = ServerOptions::new(args.addr);
+        options.viewer = viewer;
         options.realtime = !args.no_realtime;
         options.loop_cpu = args.loop_cpu;
         options.loop_standby = !args.no_loop_standby;
