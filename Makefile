@@ -1,16 +1,24 @@
 # The two commands of the README: `make run` starts the simulator, `make test` runs every test.
 # Each installs what it needs (Rust components, npm packages, Debian's chromium and nats-server)
 # by itself. `make lab` runs a local teaching lab: NATS, two simulated stations and a hub.
+# `make package` makes the Debian package (target/debian/softhaptic_*.deb; docs/install.md).
 
 CARGO ?= cargo
 # Extra arguments for the simulator, e.g. `make run ARGS="--addr 0.0.0.0:8080 --scene scenes/cone.toml"`.
 ARGS ?=
+# The cargo profile `make package` builds and packages. The tests package the test build's
+# binary (dev) instead: a release build would cost CI several minutes; the package's layout and
+# the files in it are the same.
+PACKAGE_PROFILE ?= release
+TARGET_DIR := $(or $(CARGO_TARGET_DIR),target)
+PACKAGE_BUILD := $(TARGET_DIR)/$(if $(filter dev,$(PACKAGE_PROFILE)),debug,$(PACKAGE_PROFILE))
+PACKAGE_GEN := $(PACKAGE_BUILD)/softhaptic-package
 # Ports of `make lab`: NATS, the two stations, the hub.
 LAB_NATS_PORT ?= 4222
 LAB_PORTS ?= 8081 8082
 LAB_HUB_PORT ?= 8090
 
-.PHONY: run test lint test-rust test-web rust-tools web-deps chromium nats lab
+.PHONY: run test lint test-rust test-web package cargo-deb rust-tools web-deps chromium nats lab
 
 run: rust-tools web-deps
 	$(CARGO) run --release -p softhaptic-server --bin softhaptic -- $(ARGS)
@@ -32,6 +40,22 @@ test-rust: rust-tools web-deps nats
 test-web: web-deps chromium nats
 	cd web && npm test
 	cd web && npm run test:e2e
+
+# The Debian package, from one command: the binary, then the manual pages and completions it
+# writes, then cargo-deb (installed from crates.io when missing) with server/Cargo.toml's
+# [package.metadata.deb]. The .deb's path is the last line cargo-deb prints.
+package: rust-tools web-deps cargo-deb
+	$(CARGO) build --profile $(PACKAGE_PROFILE) -p softhaptic-server --bin softhaptic
+	rm -rf $(PACKAGE_GEN) && mkdir -p $(PACKAGE_GEN)
+	$(PACKAGE_BUILD)/softhaptic manpages --out $(PACKAGE_GEN)/man
+	gzip -9n $(PACKAGE_GEN)/man/*.1
+	$(PACKAGE_BUILD)/softhaptic completions bash > $(PACKAGE_GEN)/softhaptic.bash
+	$(PACKAGE_BUILD)/softhaptic completions zsh > $(PACKAGE_GEN)/_softhaptic
+	$(PACKAGE_BUILD)/softhaptic completions fish > $(PACKAGE_GEN)/softhaptic.fish
+	$(CARGO) deb -p softhaptic-server --no-build --profile $(PACKAGE_PROFILE) --output $(TARGET_DIR)/debian/
+
+cargo-deb:
+	@command -v cargo-deb >/dev/null 2>&1 || $(CARGO) install cargo-deb --locked
 
 rust-tools:
 	@command -v rustup >/dev/null 2>&1 && { rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt; rustup component list --installed | grep -q '^clippy' || rustup component add clippy; } || true

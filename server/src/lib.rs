@@ -14,6 +14,8 @@
 //! - [`app`]: [`app::start`] builds the haptic world, spawns the loop, binds HTTP and WebSocket
 //!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of
 //!   proto/WIRE.md.
+//! - [`datadir`]: where an installed binary finds the scenes and their tables without a source
+//!   tree (`--scene cone.toml` → /usr/share/softhaptic/scenes/cone.toml).
 //! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
 //!   reports) and the `softhaptic devices` listing.
 //! - [`doctor`]: `softhaptic doctor`: the host's readiness for the 1 kHz loop (preemption
@@ -37,6 +39,7 @@
 
 pub mod access;
 pub mod app;
+pub mod datadir;
 pub mod devices;
 pub mod doctor;
 pub mod files;

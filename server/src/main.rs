@@ -4,7 +4,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, CommandFactory, Parser, Subcommand};
 use softhaptic_server::access::AccessArgs;
 use softhaptic_server::app::{self, ServerOptions};
 use softhaptic_server::devices;
@@ -56,6 +56,18 @@ enum Command {
     /// Session recordings: info, export, check, replay, record-script.
     #[command(flatten)]
     Session(session::cli::SessionCommand),
+    /// Print the shell completion script for SHELL (the package installs bash's, zsh's and
+    /// fish's).
+    Completions {
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Write the manual pages into DIR: softhaptic.1 and one softhaptic-COMMAND.1 per
+    /// subcommand, made from this command line (the package installs them).
+    Manpages {
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+    },
 }
 
 #[derive(Subcommand, Debug)]
@@ -73,8 +85,11 @@ enum VectorsAction {
 
 #[derive(Args, Debug, Clone)]
 struct RunArgs {
-    /// Scene file (TOML; see scenes/default.toml). Without it, the built-in default scene: the
-    /// procedural liver, a 10 mm sphere, E = 50 kPa, ν = 0.33, a simulated PHANTOM Desktop.
+    /// Scene file (TOML; see scenes/default.toml): as given, else under the installed scenes
+    /// (the binary's ../share/softhaptic/scenes, then /usr/share/softhaptic/scenes: `--scene
+    /// cone.toml`).
+    /// Without it, the built-in default scene: the procedural liver, a 10 mm sphere, E = 50 kPa,
+    /// ν = 0.33, a simulated PHANTOM Desktop.
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
     /// The haptic device, replacing the scene's `[device] kind`: `simulated`, `openhaptics`
@@ -193,6 +208,23 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
             "{}",
             devices::listing(&name)
         ))),
+        Some(Command::Completions { shell }) => {
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "softhaptic", &mut script);
+            done(session::cli::print_report(format_args!(
+                "{}",
+                String::from_utf8_lossy(&script)
+            )))
+        }
+        Some(Command::Manpages { out }) => {
+            std::fs::create_dir_all(&out)
+                .with_context(|| format!("could not create {}", out.display()))?;
+            clap_mangen::generate_to(Cli::command(), &out).with_context(|| {
+                format!("could not write the manual pages into {}", out.display())
+            })?;
+            println!("wrote the manual pages into {}", out.display());
+            Ok(std::process::ExitCode::SUCCESS)
+        }
     }
 }
 
@@ -248,8 +280,14 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     }
     // A page that could not run (a --web-dir without three.js) stops the start too.
     let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
-    // Refuse a bad scene before anything starts.
-    let mut scene = match &args.scene {
+    // Refuse a bad scene before anything starts. A scene not found as given is looked for
+    // where the package installs them (datadir).
+    let scene_file = args
+        .scene
+        .as_deref()
+        .map(softhaptic_server::datadir::find_scene)
+        .transpose()?;
+    let mut scene = match &scene_file {
         Some(path) => Scene::load(path)?,
         None => Scene::builtin_default()?,
     };
@@ -267,7 +305,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     // limits the device really runs with; a device that cannot be opened stops here.
     let device = devices::open(&mut scene)?;
     tracing::info!(
-        scene = %args.scene.as_deref().map(|p| p.display().to_string()).unwrap_or_else(|| "built-in default".into()),
+        scene = %scene_file.as_deref().map(|p| p.display().to_string()).unwrap_or_else(|| "built-in default".into()),
         object = %scene.object_name,
         calibration = scene.calibration.source().as_str(),
         model = %scene.contact_model_info().label,
@@ -275,7 +313,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         "scene loaded"
     );
     let mut recording =
-        session::cli::LiveRecording::start(&args.record, &scene, args.scene.as_deref())?;
+        session::cli::LiveRecording::start(&args.record, &scene, scene_file.as_deref())?;
     runtime.block_on(async move {
         let mut options = ServerOptions::new(args.addr);
         options.viewer = viewer;
