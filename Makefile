@@ -7,7 +7,8 @@ CARGO ?= cargo
 # Extra arguments for the simulator, e.g. `make run ARGS="--addr 0.0.0.0:8080 --scene scenes/cone.toml"`.
 ARGS ?=
 # The cargo profile `make package` builds and packages. The tests package the test build's
-# binary (dev) instead: a release build would cost CI several minutes; the package's layout and
+# binary (dev) instead, the one the browser tests build with the same command (so CI compiles
+# nothing more for it): a release build would cost CI several minutes; the package's layout and
 # the files in it are the same.
 PACKAGE_PROFILE ?= release
 TARGET_DIR := $(or $(CARGO_TARGET_DIR),target)
@@ -18,12 +19,12 @@ LAB_NATS_PORT ?= 4222
 LAB_PORTS ?= 8081 8082
 LAB_HUB_PORT ?= 8090
 
-.PHONY: run test lint test-rust test-web package cargo-deb rust-tools web-deps chromium nats lab
+.PHONY: run test lint test-rust test-web test-package package cargo-deb rust-tools web-deps chromium nats lab
 
 run: rust-tools web-deps
 	$(CARGO) run --release -p softhaptic-server --bin softhaptic -- $(ARGS)
 
-test: lint test-rust test-web
+test: lint test-rust test-web test-package
 
 lint: rust-tools web-deps
 	$(CARGO) fmt --all -- --check
@@ -56,6 +57,12 @@ package: rust-tools web-deps cargo-deb
 
 cargo-deb:
 	@command -v cargo-deb >/dev/null 2>&1 || $(CARGO) install cargo-deb --locked
+
+# The package as an operator gets it: unpacked and run with no source tree in reach, its units
+# checked by systemd, its file list held to docs/install.md (web/tests/package.test.mjs).
+test-package: chromium
+	$(MAKE) package PACKAGE_PROFILE=dev
+	cd web && SOFTHAPTIC_DEB="$(abspath $(TARGET_DIR))/debian/$$(cd $(abspath $(TARGET_DIR))/debian && ls -t softhaptic_*.deb | head -1)" npm run test:package
 
 rust-tools:
 	@command -v rustup >/dev/null 2>&1 && { rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt; rustup component list --installed | grep -q '^clippy' || rustup component add clippy; } || true
