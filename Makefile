@@ -11,6 +11,8 @@ ARGS ?=
 # nothing more for it): a release build would cost CI several minutes; the package's layout and
 # the files in it are the same.
 PACKAGE_PROFILE ?= release
+# The debug symbols go into a -dbgsym .ddeb beside the package; the tests' package strips them.
+PACKAGE_DEB_FLAGS ?= --dbgsym
 TARGET_DIR := $(or $(CARGO_TARGET_DIR),target)
 PACKAGE_BUILD := $(TARGET_DIR)/$(if $(filter dev,$(PACKAGE_PROFILE)),debug,$(PACKAGE_PROFILE))
 PACKAGE_GEN := $(PACKAGE_BUILD)/softhaptic-package
@@ -53,7 +55,7 @@ package: rust-tools web-deps cargo-deb
 	$(PACKAGE_BUILD)/softhaptic completions bash > $(PACKAGE_GEN)/softhaptic.bash
 	$(PACKAGE_BUILD)/softhaptic completions zsh > $(PACKAGE_GEN)/_softhaptic
 	$(PACKAGE_BUILD)/softhaptic completions fish > $(PACKAGE_GEN)/softhaptic.fish
-	$(CARGO) deb -p softhaptic-server --no-build --profile $(PACKAGE_PROFILE) --output $(TARGET_DIR)/debian/
+	$(CARGO) deb -p softhaptic-server --no-build --profile $(PACKAGE_PROFILE) $(PACKAGE_DEB_FLAGS) --output $(TARGET_DIR)/debian/
 
 cargo-deb:
 	@command -v cargo-deb >/dev/null 2>&1 || $(CARGO) install cargo-deb --locked
@@ -61,7 +63,7 @@ cargo-deb:
 # The package as an operator gets it: unpacked and run with no source tree in reach, its units
 # checked by systemd, its file list held to docs/install.md (web/tests/package.test.mjs).
 test-package: chromium
-	$(MAKE) package PACKAGE_PROFILE=dev
+	$(MAKE) package PACKAGE_PROFILE=dev PACKAGE_DEB_FLAGS=
 	cd web && SOFTHAPTIC_DEB="$(abspath $(TARGET_DIR))/debian/$$(cd $(abspath $(TARGET_DIR))/debian && ls -t softhaptic_*.deb | head -1)" npm run test:package
 
 rust-tools:
