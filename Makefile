@@ -1,21 +1,32 @@
 # The two commands of the README: `make run` starts the simulator, `make test` runs every test.
 # Each installs what it needs (Rust components, npm packages, Debian's chromium and nats-server)
 # by itself. `make lab` runs a local teaching lab: NATS, two simulated stations and a hub.
+# `make package` makes the Debian package (target/debian/softhaptic_*.deb; docs/install.md).
 
 CARGO ?= cargo
 # Extra arguments for the simulator, e.g. `make run ARGS="--addr 0.0.0.0:8080 --scene scenes/cone.toml"`.
 ARGS ?=
+# The cargo profile `make package` builds and packages. The tests package the test build's
+# binary (dev) instead, the one the browser tests build with the same command (so CI compiles
+# nothing more for it): a release build would cost CI several minutes; the package's layout and
+# the files in it are the same.
+PACKAGE_PROFILE ?= release
+# The debug symbols go into a -dbgsym .ddeb beside the package; the tests' package strips them.
+PACKAGE_DEB_FLAGS ?= --dbgsym
+TARGET_DIR := $(or $(CARGO_TARGET_DIR),target)
+PACKAGE_BUILD := $(TARGET_DIR)/$(if $(filter dev,$(PACKAGE_PROFILE)),debug,$(PACKAGE_PROFILE))
+PACKAGE_GEN := $(PACKAGE_BUILD)/softhaptic-package
 # Ports of `make lab`: NATS, the two stations, the hub.
 LAB_NATS_PORT ?= 4222
 LAB_PORTS ?= 8081 8082
 LAB_HUB_PORT ?= 8090
 
-.PHONY: run test lint test-rust test-web rust-tools web-deps chromium nats lab
+.PHONY: run test lint test-rust test-web test-package package cargo-deb rust-tools web-deps chromium nats lab
 
 run: rust-tools web-deps
 	$(CARGO) run --release -p softhaptic-server --bin softhaptic -- $(ARGS)
 
-test: lint test-rust test-web
+test: lint test-rust test-web test-package
 
 lint: rust-tools web-deps
 	$(CARGO) fmt --all -- --check
@@ -24,13 +35,36 @@ lint: rust-tools web-deps
 	RUSTDOCFLAGS="-D warnings" $(CARGO) doc --workspace --no-deps --quiet
 	cd web && npm run lint && npm run format:check
 
-test-rust: rust-tools nats
+# The binary embeds the viewer and three.js (server/build.rs stops without web/node_modules).
+test-rust: rust-tools web-deps nats
 	# Every feature, so the report commands' own tests (their command lines) run too.
 	$(CARGO) test --workspace --all-features
 
 test-web: web-deps chromium nats
 	cd web && npm test
 	cd web && npm run test:e2e
+
+# The Debian package, from one command: the binary, then the manual pages and completions it
+# writes, then cargo-deb (installed from crates.io when missing) with server/Cargo.toml's
+# [package.metadata.deb]. The .deb's path is the last line cargo-deb prints.
+package: rust-tools web-deps cargo-deb
+	$(CARGO) build --profile $(PACKAGE_PROFILE) -p softhaptic-server --bin softhaptic
+	rm -rf $(PACKAGE_GEN) && mkdir -p $(PACKAGE_GEN)
+	$(PACKAGE_BUILD)/softhaptic manpages --out $(PACKAGE_GEN)/man
+	gzip -9n $(PACKAGE_GEN)/man/*.1
+	$(PACKAGE_BUILD)/softhaptic completions bash > $(PACKAGE_GEN)/softhaptic.bash
+	$(PACKAGE_BUILD)/softhaptic completions zsh > $(PACKAGE_GEN)/_softhaptic
+	$(PACKAGE_BUILD)/softhaptic completions fish > $(PACKAGE_GEN)/softhaptic.fish
+	$(CARGO) deb -p softhaptic-server --no-build --profile $(PACKAGE_PROFILE) $(PACKAGE_DEB_FLAGS) --output $(TARGET_DIR)/debian/
+
+cargo-deb:
+	@command -v cargo-deb >/dev/null 2>&1 || $(CARGO) install cargo-deb --locked
+
+# The package as an operator gets it: unpacked and run with no source tree in reach, its units
+# checked by systemd, its file list held to docs/install.md (web/tests/package.test.mjs).
+test-package: chromium
+	$(MAKE) package PACKAGE_PROFILE=dev PACKAGE_DEB_FLAGS=
+	cd web && SOFTHAPTIC_DEB="$(abspath $(TARGET_DIR))/debian/$$(cd $(abspath $(TARGET_DIR))/debian && ls -t softhaptic_*.deb | head -1)" npm run test:package
 
 rust-tools:
 	@command -v rustup >/dev/null 2>&1 && { rustup component list --installed | grep -q '^rustfmt' || rustup component add rustfmt; rustup component list --installed | grep -q '^clippy' || rustup component add clippy; } || true

@@ -17,7 +17,6 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -28,7 +27,7 @@ use axum::extract::ws::{Utf8Bytes, WebSocketUpgrade};
 use axum::extract::{Path as UrlPath, State};
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::{get, get_service};
+use axum::routing::get;
 use softhaptic_device::device::HapticDevice;
 use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig, LoopError, TickRecord};
 use softhaptic_device::stats::LoopStats;
@@ -36,11 +35,11 @@ use softhaptic_proto::ToolShape;
 use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, SceneMessage, ServerMessage};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
-use tower_http::services::{ServeDir, ServeFile};
 
 use crate::access::{self, Access, AccessConfig, AccessError, Connection};
 use crate::scene::Scene;
 use crate::stream::{self, StreamHub, ViewerEnd, ViewerLimits};
+use crate::viewer::Viewer;
 
 /// The frame and stats tasks, first in [`RunningServer`]'s tasks: they stop before the loop.
 const STREAM_TASKS: usize = 2;
@@ -70,6 +69,8 @@ pub enum ServerError {
     #[error(transparent)]
     Access(#[from] AccessError),
     #[error(transparent)]
+    Viewer(#[from] crate::viewer::ViewerError),
+    #[error(transparent)]
     Lab(#[from] crate::lab::LabError),
     #[error("could not encode the {what} message: {source}")]
     Encode {
@@ -82,8 +83,8 @@ pub enum ServerError {
 /// How to run the server.
 pub struct ServerOptions {
     pub addr: SocketAddr,
-    /// The viewer's files (index.html, src/, node_modules/three).
-    pub web_dir: PathBuf,
+    /// The viewer's files: built into the binary, or a checkout's `web/` (`--web-dir`).
+    pub viewer: Viewer,
     /// Ask the OS for real-time scheduling of the haptic thread.
     pub realtime: bool,
     /// The CPU the haptic thread is bound to (unbound by default; see `softhaptic_device::rt`).
@@ -123,11 +124,12 @@ pub struct ServerOptions {
 }
 
 impl ServerOptions {
-    /// 50 Hz frames, 1 Hz stats, default viewer limits, real-time requested, no tick sink.
-    pub fn new(addr: SocketAddr, web_dir: PathBuf) -> Self {
+    /// 50 Hz frames, 1 Hz stats, default viewer limits, real-time requested, no tick sink, the
+    /// viewer built into the binary.
+    pub fn new(addr: SocketAddr) -> Self {
         Self {
             addr,
-            web_dir,
+            viewer: Viewer::embedded(),
             realtime: true,
             loop_cpu: softhaptic_device::rt::CpuChoice::Unpinned,
             loop_standby: true,
@@ -271,8 +273,11 @@ pub async fn start(
     mut scene: Scene,
     mut options: ServerOptions,
 ) -> Result<RunningServer, ServerError> {
-    // Before the device is touched: a server that may not serve this address starts nothing.
+    // Before the device is touched: a server that may not serve this address, or would serve a
+    // page that cannot run, starts nothing.
     options.access.check_bind(options.addr)?;
+    options.viewer.check()?;
+    let page_html = options.viewer.page_html()?;
     // Before the loop starts: NATS refusing the station's credentials stops the start.
     let nats = match &options.lab {
         Some(lab) => Some(crate::lab::station::connect(lab).await?),
@@ -336,7 +341,7 @@ pub async fn start(
     // The page's own origin is https when the server serves TLS.
     options.access.secure_transport = options.tls.is_some();
     let caps = crate::tls::ConnectionCaps::for_limits(&options.access.limits);
-    let access = Arc::new(Access::new(options.access, &options.web_dir));
+    let access = Arc::new(Access::new(options.access, &page_html));
     let hub = Arc::new(
         StreamHub::new(
             &hello,
@@ -403,7 +408,7 @@ pub async fn start(
         meshes,
         hub: Arc::clone(&hub),
     };
-    let app = router(&options.web_dir, state);
+    let app = router(&options.viewer, state);
     let tls = options.tls.is_some();
     let http = serve_http(listener, app, options.tls, caps, shutdown_rx);
 
@@ -456,13 +461,13 @@ pub(crate) fn serve_http(
 /// The routes of proto/WIRE.md over an existing stream hub, for another source of frames than the
 /// haptic loop (a recording's replay).
 pub fn viewer_router(
-    web_dir: &Path,
+    viewer: &Viewer,
     scene_json: Bytes,
     meshes: HashMap<String, Bytes>,
     hub: Arc<StreamHub>,
 ) -> Router {
     router(
-        web_dir,
+        viewer,
         AppState {
             scene_json,
             meshes: Arc::new(meshes),
@@ -471,21 +476,8 @@ pub fn viewer_router(
     )
 }
 
-/// The viewer's own files: the page, its modules and three.js. They need no token.
-pub(crate) fn viewer_files<S: Clone + Send + Sync + 'static>(web_dir: &Path) -> Router<S> {
-    let three = web_dir.join("node_modules").join("three");
-    Router::new()
-        .route_service("/", get_service(ServeFile::new(web_dir.join("index.html"))))
-        .nest_service("/src", ServeDir::new(web_dir.join("src")))
-        .nest_service(
-            "/vendor/three/addons",
-            ServeDir::new(three.join("examples").join("jsm")),
-        )
-        .nest_service("/vendor/three", ServeDir::new(three.join("build")))
-}
-
 /// The routes of proto/WIRE.md, behind the access rules of the hub's [`Access`].
-fn router(web_dir: &Path, state: AppState) -> Router {
+fn router(viewer: &Viewer, state: AppState) -> Router {
     let access = Arc::clone(&state.hub.access);
     // The session's data needs a token (when the server has tokens); the viewer's files do not.
     let session_data = Router::new()
@@ -495,7 +487,9 @@ fn router(web_dir: &Path, state: AppState) -> Router {
             Arc::clone(&access),
             access::require_token,
         ));
-    let routes = viewer_files(web_dir)
+    // The viewer's own files need no token.
+    let routes = viewer
+        .routes()
         .merge(session_data)
         .route("/ws", get(ws))
         .route("/api/stations", get(not_a_hub))
@@ -588,25 +582,6 @@ pub(crate) fn upgrade_viewer(
             }
         }
     })
-}
-
-/// The viewer's directory when none is given: the first `web/` holding `index.html` found
-/// next to the working directory, next to the executable or above it, or in the source tree
-/// this binary was built from; the source tree's `web/` otherwise.
-pub fn default_web_dir() -> PathBuf {
-    let source_tree = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("web");
-    let mut candidates = Vec::new();
-    if let Ok(cwd) = std::env::current_dir() {
-        candidates.push(cwd.join("web"));
-    }
-    if let Ok(exe) = std::env::current_exe() {
-        candidates.extend(exe.ancestors().skip(1).map(|dir| dir.join("web")));
-    }
-    candidates.push(source_tree.clone());
-    candidates
-        .into_iter()
-        .find(|dir| dir.join("index.html").is_file())
-        .unwrap_or(source_tree)
 }
 
 /// The signals that ask the process to stop: Ctrl-C (SIGINT), SIGTERM (a service manager,

@@ -14,6 +14,8 @@
 //! - [`app`]: [`app::start`] builds the haptic world, spawns the loop, binds HTTP and WebSocket
 //!   and returns a [`app::RunningServer`] with an orderly shutdown; the HTTP routes of
 //!   proto/WIRE.md.
+//! - [`datadir`]: where an installed binary finds the scenes and their tables without a source
+//!   tree (`--scene cone.toml` → /usr/share/softhaptic/scenes/cone.toml).
 //! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
 //!   reports) and the `softhaptic devices` listing.
 //! - [`doctor`]: `softhaptic doctor`: the host's readiness for the 1 kHz loop (preemption
@@ -27,6 +29,8 @@
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
+//! - [`viewer`]: the viewer's files (page, modules, three.js) built into the binary and served
+//!   with their type and ETag, or a checkout's `web/` with `--web-dir`; checked before a start.
 //! - [`session`]: recording sessions to MCAP files and reading them back; a replay check
 //!   rebuilds the recorded contact model from the recording's `scene` message.
 //! - [`tls`]: https and wss on the viewer's port (`--tls-cert`/`--tls-key`, or a kept
@@ -35,6 +39,7 @@
 
 pub mod access;
 pub mod app;
+pub mod datadir;
 pub mod devices;
 pub mod doctor;
 pub mod files;
@@ -45,3 +50,4 @@ pub mod session;
 pub mod stream;
 pub mod tls;
 pub mod vectors;
+pub mod viewer;

@@ -4,7 +4,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, CommandFactory, Parser, Subcommand};
 use softhaptic_server::access::AccessArgs;
 use softhaptic_server::app::{self, ServerOptions};
 use softhaptic_server::devices;
@@ -56,6 +56,18 @@ enum Command {
     /// Session recordings: info, export, check, replay, record-script.
     #[command(flatten)]
     Session(session::cli::SessionCommand),
+    /// Print the shell completion script for SHELL (the package installs bash's, zsh's and
+    /// fish's).
+    Completions {
+        #[arg(value_enum)]
+        shell: clap_complete::Shell,
+    },
+    /// Write the manual pages into DIR: softhaptic.1 and one softhaptic-COMMAND.1 per
+    /// subcommand, made from this command line (the package installs them).
+    Manpages {
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+    },
 }
 
 #[derive(Subcommand, Debug)]
@@ -73,8 +85,11 @@ enum VectorsAction {
 
 #[derive(Args, Debug, Clone)]
 struct RunArgs {
-    /// Scene file (TOML; see scenes/default.toml). Without it, the built-in default scene: the
-    /// procedural liver, a 10 mm sphere, E = 50 kPa, ν = 0.33, a simulated PHANTOM Desktop.
+    /// Scene file (TOML; see scenes/default.toml): as given, else under the installed scenes
+    /// (the binary's ../share/softhaptic/scenes, then /usr/share/softhaptic/scenes: `--scene
+    /// cone.toml`).
+    /// Without it, the built-in default scene: the procedural liver, a 10 mm sphere, E = 50 kPa,
+    /// ν = 0.33, a simulated PHANTOM Desktop.
     #[arg(long, value_name = "FILE")]
     scene: Option<PathBuf>,
     /// The haptic device, replacing the scene's `[device] kind`: `simulated`, `openhaptics`
@@ -88,9 +103,8 @@ struct RunArgs {
     /// Address to serve the viewer and the WebSocket stream on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8080", value_name = "HOST:PORT")]
     addr: SocketAddr,
-    /// Directory of the web viewer (index.html, src/, node_modules/three) [default: the first
-    /// web/ with an index.html next to the working directory or the executable, else the
-    /// source tree's web/].
+    /// Serve the viewer from this checkout's web/ (index.html, src/, node_modules/three), for
+    /// developing it without rebuilding [default: the viewer built into the binary].
     #[arg(long, value_name = "DIR")]
     web_dir: Option<PathBuf>,
     /// Do not ask for real-time scheduling (SCHED_FIFO, locked memory) for the haptic thread.
@@ -140,7 +154,7 @@ struct HubArgs {
     /// Address to serve the page and the relayed streams on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8090", value_name = "HOST:PORT")]
     addr: SocketAddr,
-    /// Directory of the web viewer [default: as for a station].
+    /// Serve the viewer from this checkout's web/ [default: the viewer built into the binary].
     #[arg(long, value_name = "DIR")]
     web_dir: Option<PathBuf>,
     #[command(flatten)]
@@ -194,6 +208,23 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
             "{}",
             devices::listing(&name)
         ))),
+        Some(Command::Completions { shell }) => {
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "softhaptic", &mut script);
+            done(session::cli::print_report(format_args!(
+                "{}",
+                String::from_utf8_lossy(&script)
+            )))
+        }
+        Some(Command::Manpages { out }) => {
+            std::fs::create_dir_all(&out)
+                .with_context(|| format!("could not create {}", out.display()))?;
+            clap_mangen::generate_to(Cli::command(), &out).with_context(|| {
+                format!("could not write the manual pages into {}", out.display())
+            })?;
+            println!("wrote the manual pages into {}", out.display());
+            Ok(std::process::ExitCode::SUCCESS)
+        }
     }
 }
 
@@ -203,7 +234,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
-    let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
+    let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
         let mut stop =
@@ -215,7 +246,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
                 credentials: args.nats_credentials.clone(),
             },
             addr: args.addr,
-            web_dir,
+            viewer,
             access: access.clone(),
             tls: tls.map(|t| t.config),
             viewer_limits: Default::default(),
@@ -247,8 +278,16 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
-    // Refuse a bad scene before anything starts.
-    let mut scene = match &args.scene {
+    // A page that could not run (a --web-dir without three.js) stops the start too.
+    let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
+    // Refuse a bad scene before anything starts. A scene not found as given is looked for
+    // where the package installs them (datadir).
+    let scene_file = args
+        .scene
+        .as_deref()
+        .map(softhaptic_server::datadir::find_scene)
+        .transpose()?;
+    let mut scene = match &scene_file {
         Some(path) => Scene::load(path)?,
         None => Scene::builtin_default()?,
     };
@@ -266,21 +305,18 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     // limits the device really runs with; a device that cannot be opened stops here.
     let device = devices::open(&mut scene)?;
     tracing::info!(
-        scene = %args.scene.as_deref().map(|p| p.display().to_string()).unwrap_or_else(|| "built-in default".into()),
+        scene = %scene_file.as_deref().map(|p| p.display().to_string()).unwrap_or_else(|| "built-in default".into()),
         object = %scene.object_name,
         calibration = scene.calibration.source().as_str(),
         model = %scene.contact_model_info().label,
         limits = %scene.validity.source,
         "scene loaded"
     );
-    let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
-    if !web_dir.join("index.html").is_file() {
-        tracing::warn!(dir = %web_dir.display(), "no index.html in the web directory; the viewer page will be missing");
-    }
     let mut recording =
-        session::cli::LiveRecording::start(&args.record, &scene, args.scene.as_deref())?;
+        session::cli::LiveRecording::start(&args.record, &scene, scene_file.as_deref())?;
     runtime.block_on(async move {
-        let mut options = ServerOptions::new(args.addr, web_dir);
+        let mut options = ServerOptions::new(args.addr);
+        options.viewer = viewer;
         options.realtime = !args.no_realtime;
         options.loop_cpu = args.loop_cpu;
         options.loop_standby = !args.no_loop_standby;

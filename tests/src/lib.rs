@@ -54,10 +54,10 @@ pub fn test_tokens() -> std::sync::Arc<softhaptic_server::access::Tokens> {
 }
 
 /// The server options every test starts from: port 0, no real-time request (tests share the
-/// machine), the source tree's web directory.
+/// machine), the viewer built into the binary.
 pub fn test_options() -> ServerOptions {
     let addr: SocketAddr = ([127, 0, 0, 1], 0).into();
-    let mut options = ServerOptions::new(addr, app::default_web_dir());
+    let mut options = ServerOptions::new(addr);
     options.realtime = false;
     options
 }
@@ -108,7 +108,7 @@ impl RecordedServer {
     }
 }
 
-/// A replay's options: a free loopback port, the repository's viewer, no tokens, at `speed`,
+/// A replay's options: a free loopback port, the built-in viewer, no tokens, at `speed`,
 /// paused or playing from the start.
 pub fn replay_options(
     speed: f64,
@@ -116,7 +116,7 @@ pub fn replay_options(
 ) -> softhaptic_server::session::replay::ReplayOptions {
     softhaptic_server::session::replay::ReplayOptions {
         addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: app::default_web_dir(),
+        viewer: Default::default(),
         speed,
         start_paused,
         viewer_limits: softhaptic_server::stream::ViewerLimits::default(),

@@ -357,7 +357,7 @@ pub async fn start_hub(
     softhaptic_server::lab::hub::start(softhaptic_server::lab::hub::HubOptions {
         nats: options,
         addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: softhaptic_server::app::default_web_dir(),
+        viewer: Default::default(),
         access,
         tls: None,
         viewer_limits: Default::default(),

@@ -702,7 +702,7 @@ async fn a_hub_over_tls_streams_to_a_wss_viewer_and_refuses_plain_ws() {
     let hub = hub::start(hub::HubOptions {
         nats: nats(server.url(), None),
         addr: ([127, 0, 0, 1], 0).into(),
-        web_dir: app::default_web_dir(),
+        viewer: Default::default(),
         access: Default::default(),
         tls: Some(tls.config),
         viewer_limits: Default::default(),

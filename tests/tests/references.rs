@@ -23,9 +23,6 @@ use softhaptic_tests::fuzz::repo_root;
 /// Each must still dangle: once its target exists or the reference is gone, the test fails
 /// until the entry is removed, so this list only ever shrinks.
 const PENDING: &[(&str, &str)] = &[
-    // Written on another branch: how to install a device host or a hub.
-    ("README.md", "docs/install.md"),
-    ("docs/operating.md", "install.md"),
 ];
 
 /// This file, which is not scanned (its table names references that dangle on purpose).

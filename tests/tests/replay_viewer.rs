@@ -11,7 +11,6 @@ use std::time::Duration;
 use futures_util::{SinkExt, StreamExt};
 use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{ContactFrame, ServerMessage};
-use softhaptic_server::app::default_web_dir;
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::replay::{self, ReplayOptions};
 use softhaptic_server::stream::ViewerLimits;
@@ -104,7 +103,7 @@ async fn start(speed: f64, paused: bool) -> (replay::RunningReplay, SocketAddr) 
         recording(),
         ReplayOptions {
             addr,
-            web_dir: default_web_dir(),
+            viewer: Default::default(),
             speed,
             start_paused: paused,
             viewer_limits: ViewerLimits::default(),

@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{Hello, Mode, Refused, Role, ServerMessage};
 use softhaptic_server::access::{AccessConfig, Origin, Token, TokenSource, Tokens};
-use softhaptic_server::app::{ServerOptions, default_web_dir};
+use softhaptic_server::app::ServerOptions;
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::replay::{self, ReplayOptions};
 use softhaptic_server::stream::{REFUSED_LIVE, REFUSED_OBSERVER, ViewerLimits};
@@ -230,7 +230,7 @@ async fn on_a_replay_an_observer_is_refused_and_sees_the_timeline_the_instructor
         Recording::open(&path).unwrap(),
         ReplayOptions {
             addr: ([127, 0, 0, 1], 0).into(),
-            web_dir: default_web_dir(),
+            viewer: Default::default(),
             speed: 1.0,
             start_paused: true,
             viewer_limits: ViewerLimits::default(),
@@ -742,10 +742,12 @@ async fn a_storm_of_every_refusal_at_once_leaves_a_well_behaved_viewer_its_50_hz
     server.shutdown().await;
 }
 
-/// The CSP the server must send for the page in `web_dir`, computed here from the page: the
-/// SHA-256 of each inline script (the import map).
-fn expected_csp(web_dir: &Path) -> String {
-    let page = std::fs::read_to_string(web_dir.join("index.html")).unwrap();
+/// The CSP the server must send for the source tree's page (the one built into the binary),
+/// computed here from the page: the SHA-256 of each inline script (the import map).
+fn expected_csp() -> String {
+    let page =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../web/index.html"))
+            .unwrap();
     let mut hashes = String::new();
     let mut rest = page.as_str();
     while let Some(start) = rest.find("<script") {
@@ -771,7 +773,7 @@ fn expected_csp(web_dir: &Path) -> String {
 async fn every_response_carries_the_security_headers_and_session_data_needs_a_bearer_token() {
     let server = start_default(with_tokens()).await;
     let addr = server.local_addr();
-    let csp = expected_csp(&default_web_dir());
+    let csp = expected_csp();
     let bearer = |t: &str| format!("Bearer {t}");
     let (bearer_i, bearer_o) = (bearer(I), bearer(O));
     let wrong = bearer(&I.chars().rev().collect::<String>());

@@ -43,21 +43,17 @@ async fn scene_and_render_mesh_are_served_and_parse() {
     let (status, _) = http_get(addr, "/meshes/spleen.bin").await;
     assert_eq!(status, 404);
 
-    // The viewer page and three.js, when the web directory has them.
-    let web = softhaptic_server::app::default_web_dir();
-    if web.join("index.html").is_file() {
-        let (status, page) = http_get(addr, "/").await;
-        assert_eq!(status, 200);
-        assert_eq!(page, std::fs::read(web.join("index.html")).unwrap());
-    }
+    // The viewer page and three.js, built into the binary: the source tree's files.
+    let web = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../web");
+    let (status, page) = http_get(addr, "/").await;
+    assert_eq!(status, 200);
+    assert_eq!(page, std::fs::read(web.join("index.html")).unwrap());
     let three = web.join("node_modules/three/build/three.module.js");
-    if three.is_file() {
-        let (status, js) = http_get(addr, "/vendor/three/three.module.js").await;
-        assert_eq!(status, 200);
-        assert_eq!(js.len() as u64, three.metadata().unwrap().len());
-        let (status, _) = http_get(addr, "/vendor/three/addons/controls/OrbitControls.js").await;
-        assert_eq!(status, 200);
-    }
+    let (status, js) = http_get(addr, "/vendor/three/three.module.js").await;
+    assert_eq!(status, 200);
+    assert_eq!(js, std::fs::read(three).unwrap());
+    let (status, _) = http_get(addr, "/vendor/three/addons/controls/OrbitControls.js").await;
+    assert_eq!(status, 200);
 
     server.shutdown().await;
 }

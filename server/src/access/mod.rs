@@ -47,7 +47,7 @@ mod testing;
 mod tokens;
 
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Mutex;
 
 use axum::http::HeaderValue;
@@ -153,19 +153,10 @@ pub struct Access {
 }
 
 impl Access {
-    /// The rules of `config` for the viewer in `web_dir` (its `index.html` gives the CSP's
-    /// script hashes).
-    pub fn new(config: AccessConfig, web_dir: &Path) -> Self {
-        let index = web_dir.join("index.html");
-        // Bounded and regular files only: a FIFO or a huge file put there must not hang the start.
-        let page = match crate::files::read_text(&index, crate::files::FileKind::Page) {
-            Ok(page) => page,
-            Err(e) => {
-                tracing::debug!(file = %index.display(), error = %e, "no viewer page to hash for the CSP");
-                String::new()
-            }
-        };
-        let policy = content_security_policy(&page);
+    /// The rules of `config` for the viewer page `page_html` (its inline scripts' hashes go
+    /// into the CSP; see [`crate::viewer::Viewer::page_html`]).
+    pub fn new(config: AccessConfig, page_html: &str) -> Self {
+        let policy = content_security_policy(page_html);
         // Only ASCII goes into the policy (base64 and fixed words), so it is a valid header.
         let csp = HeaderValue::from_str(&policy)
             .unwrap_or_else(|_| HeaderValue::from_static("default-src 'self'"));

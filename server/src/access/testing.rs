@@ -2,7 +2,6 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
-use std::path::Path;
 use std::sync::Arc;
 
 use softhaptic_proto::wire::Role;
@@ -24,5 +23,5 @@ pub(super) fn tokens() -> Tokens {
 
 /// The rules of `config`, with no viewer page to hash.
 pub(super) fn access(config: AccessConfig) -> Arc<Access> {
-    Arc::new(Access::new(config, Path::new("/nonexistent")))
+    Arc::new(Access::new(config, ""))
 }

@@ -30,7 +30,6 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -59,7 +58,8 @@ use crate::stream::{EncodedFrame, StreamCounters, StreamHub, ViewerEnd, ViewerLi
 pub struct HubOptions {
     pub nats: NatsOptions,
     pub addr: SocketAddr,
-    pub web_dir: PathBuf,
+    /// The viewer's files (built in, or `--web-dir`).
+    pub viewer: crate::viewer::Viewer,
     pub access: AccessConfig,
     pub tls: Option<Arc<rustls::ServerConfig>>,
     pub viewer_limits: ViewerLimits,
@@ -72,6 +72,8 @@ pub enum HubError {
     Lab(#[from] LabError),
     #[error(transparent)]
     Access(#[from] access::AccessError),
+    #[error(transparent)]
+    Viewer(#[from] crate::viewer::ViewerError),
     #[error("could not listen on {addr}: {source}")]
     Bind {
         addr: SocketAddr,
@@ -981,6 +983,7 @@ async fn ws(
 pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
     let mut access_config = options.access;
     access_config.check_bind(options.addr)?;
+    options.viewer.check()?;
     let client = super::connect(&options.nats, "softhaptic hub".into(), "hub").await?;
     let status = client
         .subscribe(STATUS_SUBJECTS)
@@ -991,7 +994,7 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         })?;
     access_config.secure_transport = options.tls.is_some();
     let caps = crate::tls::ConnectionCaps::for_limits(&access_config.limits);
-    let access = Arc::new(Access::new(access_config, &options.web_dir));
+    let access = Arc::new(Access::new(access_config, &options.viewer.page_html()?));
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let lab = Arc::new(Lab {
         client,
@@ -1020,7 +1023,9 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
             Arc::clone(&access),
             access::require_token,
         ));
-    let routes = crate::app::viewer_files(&options.web_dir)
+    let routes = options
+        .viewer
+        .routes()
         .merge(session_data)
         .route("/ws", get(ws))
         .with_state(Arc::clone(&lab))

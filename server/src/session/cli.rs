@@ -84,7 +84,8 @@ pub enum SessionCommand {
         /// Address to serve the viewer on; port 0 picks a free port.
         #[arg(long, default_value = "127.0.0.1:8080", value_name = "HOST:PORT")]
         addr: SocketAddr,
-        /// Directory of the web viewer [default: as for `run`].
+        /// Serve the viewer from this checkout's web/ (index.html, src/, node_modules/three)
+        /// instead of the copy built into the binary [default: as for `run`].
         #[arg(long, value_name = "DIR")]
         web_dir: Option<PathBuf>,
         #[command(flatten)]
@@ -198,7 +199,7 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
             }
             let options = ReplayOptions {
                 addr,
-                web_dir: web_dir.unwrap_or_else(crate::app::default_web_dir),
+                viewer: crate::viewer::Viewer::from_option(web_dir)?,
                 speed,
                 start_paused: paused,
                 viewer_limits: ViewerLimits::default(),

@@ -51,7 +51,8 @@ const CONTROL_QUEUE: usize = 32;
 #[derive(Debug, Clone)]
 pub struct ReplayOptions {
     pub addr: SocketAddr,
-    pub web_dir: PathBuf,
+    /// The viewer's files (built in, or `--web-dir`).
+    pub viewer: crate::viewer::Viewer,
     /// Playback speed, 1.0 = real time.
     pub speed: f64,
     /// Start paused at the beginning (a viewer presses play).
@@ -67,6 +68,8 @@ pub struct ReplayOptions {
 /// Why a replay could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
+    #[error(transparent)]
+    Viewer(#[from] crate::viewer::ViewerError),
     #[error("{path}: nothing to replay: the recording has no contact frames")]
     Empty { path: PathBuf },
     #[error("--speed must be finite and in [0.01, 100], got {0}")]
@@ -136,6 +139,8 @@ pub async fn start(
     mut options: ReplayOptions,
 ) -> Result<RunningReplay, ReplayError> {
     options.access.check_bind(options.addr)?;
+    options.viewer.check()?;
+    let page_html = options.viewer.page_html()?;
     let speed = options.speed;
     if !(speed.is_finite()
         && (ReplayControl::SPEED_RANGE.0..=ReplayControl::SPEED_RANGE.1).contains(&speed))
@@ -161,7 +166,7 @@ pub async fn start(
     // The page's own origin is https when the replay serves TLS.
     options.access.secure_transport = options.tls.is_some();
     let caps = crate::tls::ConnectionCaps::for_limits(&options.access.limits);
-    let access = Arc::new(Access::new(options.access, &options.web_dir));
+    let access = Arc::new(Access::new(options.access, &page_html));
     let ReplayFeed {
         hub,
         scene_text,
@@ -178,7 +183,7 @@ pub async fn start(
     )?;
 
     let app = viewer_router(
-        &options.web_dir,
+        &options.viewer,
         // The same text as the WebSocket `scene` message, as a live server serves it.
         Bytes::from(scene_text),
         meshes,

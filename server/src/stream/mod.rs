@@ -304,10 +304,7 @@ mod tests {
             force_feedback: true,
             accepts_marks: true,
         };
-        let access = Arc::new(Access::new(
-            crate::access::AccessConfig::default(),
-            std::path::Path::new("web"),
-        ));
+        let access = Arc::new(Access::new(crate::access::AccessConfig::default(), ""));
         StreamHub::new(
             &hello,
             Utf8Bytes::from_static("{}"),
