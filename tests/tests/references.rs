@@ -22,8 +22,7 @@ use softhaptic_tests::fuzz::repo_root;
 /// Dangling references known to be fixed by work on another branch, as (file, reference).
 /// Each must still dangle: once its target exists or the reference is gone, the test fails
 /// until the entry is removed, so this list only ever shrinks.
-const PENDING: &[(&str, &str)] = &[
-];
+const PENDING: &[(&str, &str)] = &[];
 
 /// This file, which is not scanned (its table names references that dangle on purpose).
 const THIS_FILE: &str = "tests/tests/references.rs";
