@@ -32,6 +32,10 @@ pub(crate) fn reconnect_when_asked(inner: &Inner) {
     while !inner.shutting_down.load(Ordering::Acquire) {
         std::thread::park_timeout(Duration::from_millis(5));
         let silent_ns = rt::now_ns().saturating_sub(inner.last_callback_ns.load(Ordering::Acquire));
+        if inner.fatal.load(Ordering::Acquire) {
+            // A failed tick stays failed: nothing to reconnect.
+            continue;
+        }
         let silent = inner.servo_running.load(Ordering::Acquire)
             && !inner.fatal.load(Ordering::Acquire)
             && silent_ns > CALLBACK_SILENCE_RECONNECT.as_nanos() as u64;
@@ -70,6 +74,15 @@ pub(crate) fn reconnect_when_asked(inner: &Inner) {
         {
             let mut control = inner.control();
             inner.stop_servo(&mut control);
+        }
+        if inner.fatal.load(Ordering::Acquire) {
+            // The tick failed while the callback was silent (a panic being reported can take
+            // that long): a failed tick is never restarted.
+            tracing::error!(
+                device = %inner.display_name,
+                "the haptic loop's servo tick failed: no force until the server restarts"
+            );
+            return;
         }
         inner.disable_device();
         let mut attempts = 0u32;
