@@ -687,9 +687,11 @@ async fn a_force_the_driver_refuses_is_zero_on_that_tick_and_ramps_in_after() {
     let (_guard, s) = standin().await;
     let live = start(liver_scene(), "openhaptics-maxforce").await;
     wait_pressing(&s, 1.0).await;
-    // The driver's limit drops below the press: the next command exceeds it.
+    // The driver's limit drops below the press for a moment: the next command exceeds it, and
+    // the driver's cut-out trips once (the force ramps in from zero afterwards, well under the
+    // limit on the next ticks).
     s.set_nominal_max_force(0.3);
-    wait_ticks(&s, 30).await;
+    wait_ticks(&s, 3).await;
     s.set_nominal_max_force(7.9);
     wait_ticks(&s, 400).await;
     assert!(s.force_output_enabled(), "force output was enabled again");
@@ -1410,8 +1412,15 @@ async fn the_force_sent_stays_below_the_nominal_maximum_in_the_devices_axes() {
             .iter()
             .any(|d| flags(d).contains(ContactFlags::SATURATED))
     );
+    // (A tick that overran on a loaded machine sent zero instead: not a refusal.)
     assert!(
-        recording.device.iter().all(|d| d.command_error.is_none()),
+        recording.device.iter().all(|d| !matches!(
+            d.command_error,
+            Some(DeviceErrorRecord::ForceDisabled | DeviceErrorRecord::ForceLatched)
+        ) && !matches!(
+            d.device_error,
+            Some(DeviceErrorRecord::ForceDisabled | DeviceErrorRecord::ForceLatched)
+        )),
         "the driver refused a force"
     );
     println!("nominal limit: the largest force sent was {largest:.6} N of 3.3 N");
