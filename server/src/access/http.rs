@@ -11,7 +11,10 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
+use softhaptic_proto::wire::Role;
+
 use super::origin::request_host;
+use super::roles::{Action, may};
 use super::{Access, REASON_BAD_TOKEN, REASON_NO_TOKEN};
 
 /// The client's address of a request, when the server was started with connection info.
@@ -50,13 +53,16 @@ pub async fn guard_host(
 }
 
 /// Middleware of the session-data routes: with tokens, `Authorization: Bearer <token>` of
-/// either role, else 401 with `WWW-Authenticate: Bearer`.
+/// either role, else 401 with `WWW-Authenticate: Bearer`. The request goes on carrying its
+/// [`Role`] (an extension: `Extension<Role>` in a handler), an instructor's on a server without
+/// tokens; a route that not every role may use checks it with [`refusal`].
 pub async fn require_token(
     State(access): State<Arc<Access>>,
-    request: Request,
+    mut request: Request,
     next: Next,
 ) -> Response {
     let Some(tokens) = access.tokens() else {
+        request.extensions_mut().insert(Role::Instructor);
         return next.run(request).await;
     };
     let presented = request
@@ -68,7 +74,10 @@ pub async fn require_token(
             scheme.eq_ignore_ascii_case("bearer").then(|| token.trim())
         });
     let (reason, challenge) = match presented.map(|t| tokens.role_of(t)) {
-        Some(Some(_)) => return next.run(request).await,
+        Some(Some(role)) => {
+            request.extensions_mut().insert(role);
+            return next.run(request).await;
+        }
         Some(None) => (REASON_BAD_TOKEN, "Bearer error=\"invalid_token\""),
         None => (REASON_NO_TOKEN, "Bearer"),
     };
@@ -83,6 +92,27 @@ pub async fn require_token(
         HeaderValue::from_static(challenge),
     );
     response
+}
+
+/// `None` when `role` may do `action` ([`super::roles::may`]); else the 403 to answer, with the
+/// role's refusal, logged with the client and what was asked (`what`).
+pub fn refusal(
+    role: Role,
+    action: Action,
+    client: Option<SocketAddr>,
+    what: &str,
+) -> Option<Response> {
+    if may(role, action) {
+        return None;
+    }
+    let reason = action.observer_refusal();
+    tracing::warn!(
+        client = %client.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+        role = role.as_str(),
+        %what,
+        "request refused (403): {reason}"
+    );
+    Some(json_error(StatusCode::FORBIDDEN, reason))
 }
 
 /// A JSON error response: `{"error": "<reason>"}`.

@@ -34,6 +34,8 @@
 //!   [`Connection`] with the audit line logged when it ends.
 //! - `http.rs`: the middleware of the routes: the Host guard ([`guard_host`]) and the bearer
 //!   token of the session-data routes ([`require_token`]).
+//! - [`roles`]: who may do what ([`roles::Action`], [`roles::may`]), the one table the routes
+//!   and the WebSocket messages consult (docs/roles.md).
 //! - `headers.rs`: the security headers and the Content-Security-Policy of the served page
 //!   ([`content_security_policy`], [`with_security_headers`]).
 
@@ -42,6 +44,7 @@ mod connections;
 mod headers;
 mod http;
 mod origin;
+pub mod roles;
 #[cfg(test)]
 mod testing;
 mod tokens;
@@ -56,7 +59,7 @@ pub use config::{AccessArgs, AccessConfig, ConnectionLimits};
 use connections::Counts;
 pub use connections::{Admission, Connection, LimitRefusal, MessageRate};
 pub use headers::{content_security_policy, inline_script_hashes, with_security_headers};
-pub use http::{guard_host, json_error, peer_of, require_token};
+pub use http::{guard_host, json_error, peer_of, refusal, require_token};
 pub use origin::Origin;
 pub use tokens::{
     INSTRUCTOR_TOKEN_ENV, MAX_TOKEN_CHARS, MIN_TOKEN_CHARS, OBSERVER_TOKEN_ENV, Token,
@@ -68,6 +71,9 @@ pub use tokens::{
 pub const CLOSE_UNAUTHORIZED: u16 = 4401;
 /// Close code of a WebSocket refused by a connection limit (echoes HTTP's 429).
 pub const CLOSE_TOO_MANY: u16 = 4429;
+/// Close code of a WebSocket whose role may not do what it asked (echoes HTTP's 403): an
+/// observer naming a hub's replay that no instructor has opened.
+pub const CLOSE_FORBIDDEN: u16 = 4403;
 /// The close reason of a wrong token.
 pub const REASON_BAD_TOKEN: &str = "token not valid for this server";
 /// The close reason of a connection that presented no token in time.

@@ -14,7 +14,9 @@
 //! lives as long as its station's session; a station that restarts (a new session id) gets a
 //! new feed, and the old one's viewers are closed, so they reconnect to the new session. An
 //! archived recording's replay (`&archive=FILE`) is fetched for its first viewer and dropped when
-//! its last viewer leaves.
+//! its last viewer leaves. Only an instructor opens one, lists the archive or downloads a file
+//! from it; an observer watches the replays an instructor has open ([`crate::access::roles`],
+//! docs/roles.md), and is refused before anything is looked up.
 //!
 //! What a client without a valid token learns: nothing. `/ws` checks the `Origin` (and the guard
 //! every request passes, the `Host`) before anything else, and looks the station or the
@@ -34,6 +36,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use axum::Extension;
 use axum::Router;
 use axum::body::Bytes;
 use axum::extract::ws::{Utf8Bytes, WebSocketUpgrade};
@@ -51,6 +54,7 @@ use super::{
     LabError, MeshRequest, NatsOptions, OFFLINE_AFTER, STATUS_SUBJECTS, StationSession,
     StationState, StationStatus, Subjects,
 };
+use crate::access::roles::{Action, may};
 use crate::access::{self, Access, AccessConfig, Connection};
 use crate::app::SERVER_NAME;
 use crate::stream::{EncodedFrame, StreamCounters, StreamHub, ViewerEnd, ViewerLimits};
@@ -263,6 +267,7 @@ fn public_reason(status: StatusCode) -> &'static str {
         StatusCode::SERVICE_UNAVAILABLE => "the station is offline",
         StatusCode::BAD_GATEWAY => "the station or the archive did not answer",
         StatusCode::UNPROCESSABLE_ENTITY => "the recording could not be replayed",
+        StatusCode::FORBIDDEN => Action::OpenReplay.observer_refusal(),
         _ => "internal error",
     }
 }
@@ -335,6 +340,38 @@ impl Lab {
         }
     }
 
+    /// The replay of an archived recording that a viewer has open now, for an observer (who may
+    /// watch it but not make the hub fetch one): refused alike whether the recording exists or
+    /// not, since nothing is looked up beyond what is open.
+    fn open_replay(&self, station: &str, file: &str) -> Result<Arc<ArchiveFeed>, Refusal> {
+        let key = super::archive::object_name(station, file);
+        lock(&self.archives)
+            .get(&key)
+            .filter(|f| f.viewers.load(std::sync::atomic::Ordering::Relaxed) > 0)
+            .cloned()
+            .ok_or_else(|| {
+                (
+                    StatusCode::FORBIDDEN,
+                    format!("{key}: not open, and an observer may not open a replay"),
+                )
+            })
+    }
+
+    /// The replay of `station`'s `file` for a request of `role` over HTTP: an instructor's opens
+    /// it, an observer's finds it open or is refused.
+    async fn archive_feed_for(
+        &self,
+        station: &str,
+        file: &str,
+        role: Role,
+    ) -> Result<Arc<ArchiveFeed>, Refusal> {
+        if may(role, Action::OpenReplay) {
+            self.archive_feed(station, file).await
+        } else {
+            self.open_replay(station, file)
+        }
+    }
+
     /// The replay of an archived recording, started (paused) on first use.
     async fn archive_feed(&self, station: &str, file: &str) -> Result<Arc<ArchiveFeed>, Refusal> {
         super::check_station_name(station).map_err(|e| (StatusCode::NOT_FOUND, e))?;
@@ -396,12 +433,18 @@ impl Lab {
         self: &Arc<Self>,
         station: &str,
         archive: Option<&str>,
+        role: Role,
     ) -> Result<(Arc<StreamHub>, Option<ArchiveViewer>), Refusal> {
         let Some(file) = archive else {
             return Ok((Arc::clone(&self.feed(station).await?.hub), None));
         };
         loop {
-            let feed = self.archive_feed(station, file).await?;
+            // An observer joins a replay an instructor has open, and makes the hub fetch nothing.
+            let feed = if may(role, Action::OpenReplay) {
+                self.archive_feed(station, file).await?
+            } else {
+                self.open_replay(station, file)?
+            };
             let key = super::archive::object_name(station, file);
             let archives = lock(&self.archives);
             // Dropped meanwhile by its last viewer's leaving: fetch it again.
@@ -781,7 +824,20 @@ async fn api_stations(State(lab): State<Arc<Lab>>) -> Response {
 }
 
 /// `/api/archive?station=NAME`: the archived recordings (of one station, or all).
-async fn api_archive(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -> Response {
+async fn api_archive(
+    State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
+    connect_info: Option<Extension<ConnectInfo<SocketAddr>>>,
+    Query(q): Query<StationQuery>,
+) -> Response {
+    if let Some(refusal) = access::refusal(
+        role,
+        Action::ListArchive,
+        client_of(connect_info),
+        "/api/archive",
+    ) {
+        return refusal;
+    }
     match super::archive::list(&lab.client, q.station.as_deref()).await {
         Ok(list) => match serde_json::to_vec(&serde_json::json!({ "archive": list })) {
             Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
@@ -794,8 +850,19 @@ async fn api_archive(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>)
 /// An archived recording's file, for `softhaptic replay` on an instructor's machine.
 async fn archived_file(
     State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
+    connect_info: Option<Extension<ConnectInfo<SocketAddr>>>,
     UrlPath((station, file)): UrlPath<(String, String)>,
 ) -> Response {
+    // Before the name is even looked at: an observer learns nothing of what is archived.
+    if let Some(refusal) = access::refusal(
+        role,
+        Action::DownloadArchive,
+        client_of(connect_info),
+        "an archived file",
+    ) {
+        return refusal;
+    }
     if super::check_station_name(&station).is_err() || !file.ends_with(".mcap") {
         return refused(
             "an archived file",
@@ -830,9 +897,10 @@ async fn archived_file(
 /// A render mesh of a replayed archived recording.
 async fn archived_mesh(
     State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
     UrlPath((station, file, mesh)): UrlPath<(String, String, String)>,
 ) -> Response {
-    let feed = match lab.archive_feed(&station, &file).await {
+    let feed = match lab.archive_feed_for(&station, &file, role).await {
         Ok(f) => f,
         Err(e) => return refused("an archived recording's mesh", e),
     };
@@ -849,12 +917,16 @@ async fn archived_mesh(
     }
 }
 
-async fn api_scene(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -> Response {
+async fn api_scene(
+    State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
+    Query(q): Query<StationQuery>,
+) -> Response {
     let Some(name) = q.station else {
         return no_station();
     };
     if let Some(file) = q.archive {
-        return match lab.archive_feed(&name, &file).await {
+        return match lab.archive_feed_for(&name, &file, role).await {
             Ok(feed) => (
                 [(header::CONTENT_TYPE, "application/json")],
                 feed.scene_json.clone(),
@@ -902,7 +974,7 @@ async fn mesh(
 async fn ws(
     State(lab): State<Arc<Lab>>,
     Query(q): Query<StationQuery>,
-    connect_info: Option<axum::Extension<ConnectInfo<SocketAddr>>>,
+    connect_info: Option<Extension<ConnectInfo<SocketAddr>>>,
     headers: HeaderMap,
     upgrade: WebSocketUpgrade,
 ) -> Response {
@@ -938,8 +1010,8 @@ async fn ws(
         let used = &mut replay_use;
         let (hub_lab, client) = (&lab, &client);
         let (station, archive) = (station.as_str(), archive.as_deref());
-        let find = move || async move {
-            match hub_lab.viewer_stream(station, archive).await {
+        let find = move |role| async move {
+            match hub_lab.viewer_stream(station, archive, role).await {
                 // Made after the hub's feeds were closed: nobody would close it.
                 Ok(_) if *hub_lab.shutdown.borrow() => {
                     Err((axum::extract::ws::close_code::AWAY, "server shutting down"))
@@ -953,6 +1025,7 @@ async fn ws(
                     let reason = public_reason(status);
                     Err(match status {
                         StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
+                        StatusCode::FORBIDDEN => (access::CLOSE_FORBIDDEN, reason),
                         StatusCode::SERVICE_UNAVAILABLE | StatusCode::BAD_GATEWAY => {
                             (CLOSE_TRY_LATER, reason)
                         }
@@ -975,6 +1048,11 @@ async fn ws(
         drop(replay_use);
         connection.finish(&end);
     })
+}
+
+/// The client's address of a request served with connection info.
+fn client_of(connect_info: Option<Extension<ConnectInfo<SocketAddr>>>) -> Option<SocketAddr> {
+    connect_info.map(|info| info.0.0)
 }
 
 /// Connects to NATS, follows the stations and serves the page.
