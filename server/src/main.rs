@@ -147,6 +147,14 @@ struct HubArgs {
     access: AccessArgs,
     #[command(flatten)]
     tls: softhaptic_server::tls::TlsArgs,
+    /// Memory the hub keeps for archived recordings' replays, MiB: the replays open, and those
+    /// closed in the last --replay-expiry seconds; a replay that does not fit is refused until
+    /// one closes.
+    #[arg(long, default_value_t = 1024, value_name = "MIB")]
+    replay_memory_mib: u64,
+    /// How long a closed replay's recording is kept for a viewer that comes back, seconds.
+    #[arg(long, default_value_t = 600, value_name = "S")]
+    replay_expiry: u64,
 }
 
 fn main() -> std::process::ExitCode {
@@ -219,6 +227,10 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
             access: access.clone(),
             tls: tls.map(|t| t.config),
             viewer_limits: Default::default(),
+            replay_cache: softhaptic_server::lab::replays::ReplayCacheLimits {
+                max_bytes: args.replay_memory_mib.saturating_mul(1 << 20),
+                idle_expiry: std::time::Duration::from_secs(args.replay_expiry),
+            },
         })
         .await?;
         let mut access = access;

@@ -13,8 +13,10 @@
 //! made here would be stamped with no station time and recorded nowhere. A feed
 //! lives as long as its station's session; a station that restarts (a new session id) gets a
 //! new feed, and the old one's viewers are closed, so they reconnect to the new session. An
-//! archived recording's replay (`&archive=FILE`) is fetched for its first viewer and dropped when
-//! its last viewer leaves. Only an instructor opens one, lists the archive or downloads a file
+//! archived recording's replay (`&archive=FILE`) is opened for its first viewer and closed when
+//! its last viewer leaves; its decoded recording is kept by [`super::replays`] (bounded in
+//! bytes, expired when unused), and HTTP serves a replay's scene and meshes only while it is
+//! open, so no request loads one without a viewer. Only an instructor opens one, lists the archive or downloads a file
 //! from it; an observer watches the replays an instructor has open ([`crate::access::roles`],
 //! docs/roles.md), and is refused before anything is looked up.
 //!
@@ -67,6 +69,8 @@ pub struct HubOptions {
     pub access: AccessConfig,
     pub tls: Option<Arc<rustls::ServerConfig>>,
     pub viewer_limits: ViewerLimits,
+    /// How much of the archive the hub keeps decoded for replays.
+    pub replay_cache: super::replays::ReplayCacheLimits,
 }
 
 /// Why a hub did not start.
@@ -128,6 +132,17 @@ impl RunningHub {
         let mut keys: Vec<String> = lock(&self.lab.archives).keys().cloned().collect();
         keys.sort();
         keys
+    }
+
+    /// The archived recordings decoded and kept for replays now (open or not, until they
+    /// expire), by `STATION/FILE`, with the bytes each is counted for.
+    pub fn cached_recordings(&self) -> Vec<(String, u64)> {
+        self.lab.replays.cached()
+    }
+
+    /// Archived recordings fetched and decoded since the start.
+    pub fn recording_loads(&self) -> u64 {
+        self.lab.replays.loads()
     }
 
     /// What happened to the connections that had no stream yet: refused for their token, by a
@@ -198,6 +213,8 @@ impl Drop for Feed {
 /// An archived recording replayed for the hub's viewers (one replay per recording, shared by
 /// its viewers as on a replay server: the instructor's controls move it for everyone).
 struct ArchiveFeed {
+    /// Its recording, held from the replays' cache: while the replay is open it is not evicted.
+    _recording: Arc<crate::session::reader::Recording>,
     hub: Arc<StreamHub>,
     scene_json: Bytes,
     meshes: HashMap<String, Bytes>,
@@ -225,7 +242,9 @@ impl Drop for ArchiveViewer {
                 .is_some_and(|f| Arc::ptr_eq(f, &self.feed))
         {
             archives.remove(&self.key);
-            tracing::info!(recording = %self.key, "its last viewer left: the replay is dropped");
+            // Its recording stays in the cache until it expires or another needs the room.
+            self.lab.replays.touch(&self.key);
+            tracing::info!(recording = %self.key, "its last viewer left: the replay is closed");
         }
     }
 }
@@ -245,8 +264,8 @@ struct Lab {
     archives: Mutex<HashMap<String, Arc<ArchiveFeed>>>,
     /// Held while a feed is made, so two first viewers make one.
     making: tokio::sync::Mutex<()>,
-    /// Held while an archived recording is fetched, so two first viewers fetch it once.
-    fetching: tokio::sync::Mutex<()>,
+    /// The archived recordings decoded for replays (bounded in bytes, expired when unused).
+    replays: super::replays::ReplayCache,
     access: Arc<Access>,
     limits: ViewerLimits,
     /// The hub's shutdown, for the connections that have no stream yet.
@@ -268,10 +287,14 @@ fn public_reason(status: StatusCode) -> &'static str {
         StatusCode::BAD_GATEWAY => "the station or the archive did not answer",
         StatusCode::UNPROCESSABLE_ENTITY => "the recording could not be replayed",
         StatusCode::FORBIDDEN => Action::OpenReplay.observer_refusal(),
+        StatusCode::TOO_MANY_REQUESTS => REPLAYS_FULL,
         _ => "internal error",
     }
 }
 
+/// The answer to a replay the hub has no room for (its replays' memory is full of open ones).
+pub const REPLAYS_FULL: &str =
+    "the hub has as many replays open as it can hold: try again when one closes";
 /// The answer to every station, recording or mesh that is not there.
 const NOT_FOUND: &str = "no such station or recording";
 /// Close code of a hub viewer's connection whose station or recording is not there (4000–4999
@@ -340,39 +363,40 @@ impl Lab {
         }
     }
 
-    /// The replay of an archived recording that a viewer has open now, for an observer (who may
-    /// watch it but not make the hub fetch one): refused alike whether the recording exists or
-    /// not, since nothing is looked up beyond what is open.
-    fn open_replay(&self, station: &str, file: &str) -> Result<Arc<ArchiveFeed>, Refusal> {
-        let key = super::archive::object_name(station, file);
-        lock(&self.archives)
-            .get(&key)
-            .filter(|f| f.viewers.load(std::sync::atomic::Ordering::Relaxed) > 0)
-            .cloned()
-            .ok_or_else(|| {
-                (
-                    StatusCode::FORBIDDEN,
-                    format!("{key}: not open, and an observer may not open a replay"),
-                )
-            })
-    }
-
-    /// The replay of `station`'s `file` for a request of `role` over HTTP: an instructor's opens
-    /// it, an observer's finds it open or is refused.
-    async fn archive_feed_for(
+    /// The replay of an archived recording that a viewer has open now: what an observer may
+    /// watch, and what the replay's scene and meshes are served from over HTTP (which never
+    /// loads one: replays are loaded for connected viewers only). Refused before anything is
+    /// looked up beyond what is open: an observer with 403 whether the recording exists or not,
+    /// an instructor with the 404 of anything not there.
+    fn open_replay(
         &self,
         station: &str,
         file: &str,
         role: Role,
     ) -> Result<Arc<ArchiveFeed>, Refusal> {
-        if may(role, Action::OpenReplay) {
-            self.archive_feed(station, file).await
-        } else {
-            self.open_replay(station, file)
-        }
+        let key = super::archive::object_name(station, file);
+        let open = lock(&self.archives)
+            .get(&key)
+            .filter(|f| f.viewers.load(std::sync::atomic::Ordering::Relaxed) > 0)
+            .cloned();
+        open.ok_or_else(|| {
+            if may(role, Action::OpenReplay) {
+                (
+                    StatusCode::NOT_FOUND,
+                    format!("{key}: no viewer has its replay open"),
+                )
+            } else {
+                (
+                    StatusCode::FORBIDDEN,
+                    format!("{key}: not open, and an observer may not open a replay"),
+                )
+            }
+        })
     }
 
-    /// The replay of an archived recording, started (paused) on first use.
+    /// The replay of an archived recording for an instructor's viewer, opened (paused) if it is
+    /// not open: its recording from the replays' cache, loaded when it is not there (one load
+    /// for all who ask at once).
     async fn archive_feed(&self, station: &str, file: &str) -> Result<Arc<ArchiveFeed>, Refusal> {
         super::check_station_name(station).map_err(|e| (StatusCode::NOT_FOUND, e))?;
         if file.contains('/') || !file.ends_with(".mcap") {
@@ -385,21 +409,23 @@ impl Lab {
         if let Some(feed) = lock(&self.archives).get(&key) {
             return Ok(Arc::clone(feed));
         }
-        let _fetching = self.fetching.lock().await;
-        if let Some(feed) = lock(&self.archives).get(&key) {
-            return Ok(Arc::clone(feed));
-        }
-        let bytes = super::archive::fetch(&self.client, station, file)
-            .await
-            .map_err(|e| {
-                (
-                    StatusCode::NOT_FOUND,
-                    format!("archived recording {key}: {e}"),
-                )
-            })?;
-        let recording =
-            crate::session::reader::Recording::from_bytes(std::path::Path::new(&key), &bytes)
-                .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
+        let client = &self.client;
+        let max_file_bytes = self.replays.limits().max_bytes;
+        let recording = self
+            .replays
+            .get_or_load(&key, || async {
+                let bytes = super::archive::fetch(client, station, file, max_file_bytes)
+                    .await
+                    .map_err(|e| {
+                        (
+                            StatusCode::NOT_FOUND,
+                            format!("archived recording {key}: {e}"),
+                        )
+                    })?;
+                crate::session::reader::Recording::from_bytes(std::path::Path::new(&key), &bytes)
+                    .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))
+            })
+            .await?;
         let (stop, stop_rx) = watch::channel(false);
         let prefix = format!("/stations/{station}/archive/{file}/meshes");
         let feed = crate::session::replay::replay_feed(
@@ -412,18 +438,23 @@ impl Lab {
             Some(&prefix),
         )
         .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
-        let scene_json = feed.scene_text.clone();
-        tracing::info!(recording = %key, "replaying an archived recording");
         let archive = Arc::new(ArchiveFeed {
+            _recording: recording,
             hub: feed.hub,
-            scene_json: Bytes::from(scene_json),
+            scene_json: Bytes::from(feed.scene_text),
             meshes: feed.meshes,
             stop,
             player: feed.player,
             viewers: std::sync::atomic::AtomicUsize::new(0),
         });
-        lock(&self.archives).insert(key, Arc::clone(&archive));
-        Ok(archive)
+        // Another viewer may have opened it meanwhile: theirs is the replay (this one's player
+        // stops as it is dropped).
+        let mut archives = lock(&self.archives);
+        let open = archives.entry(key.clone()).or_insert_with(|| {
+            tracing::info!(recording = %key, "replaying an archived recording");
+            Arc::clone(&archive)
+        });
+        Ok(Arc::clone(open))
     }
 
     /// The stream a viewer names (a station's, or its archived recording's replay), looked up
@@ -443,7 +474,7 @@ impl Lab {
             let feed = if may(role, Action::OpenReplay) {
                 self.archive_feed(station, file).await?
             } else {
-                self.open_replay(station, file)?
+                self.open_replay(station, file, role)?
             };
             let key = super::archive::object_name(station, file);
             let archives = lock(&self.archives);
@@ -900,7 +931,7 @@ async fn archived_mesh(
     Extension(role): Extension<Role>,
     UrlPath((station, file, mesh)): UrlPath<(String, String, String)>,
 ) -> Response {
-    let feed = match lab.archive_feed_for(&station, &file, role).await {
+    let feed = match lab.open_replay(&station, &file, role) {
         Ok(f) => f,
         Err(e) => return refused("an archived recording's mesh", e),
     };
@@ -926,7 +957,7 @@ async fn api_scene(
         return no_station();
     };
     if let Some(file) = q.archive {
-        return match lab.archive_feed_for(&name, &file, role).await {
+        return match lab.open_replay(&name, &file, role) {
             Ok(feed) => (
                 [(header::CONTENT_TYPE, "application/json")],
                 feed.scene_json.clone(),
@@ -1026,9 +1057,9 @@ async fn ws(
                     Err(match status {
                         StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
                         StatusCode::FORBIDDEN => (access::CLOSE_FORBIDDEN, reason),
-                        StatusCode::SERVICE_UNAVAILABLE | StatusCode::BAD_GATEWAY => {
-                            (CLOSE_TRY_LATER, reason)
-                        }
+                        StatusCode::SERVICE_UNAVAILABLE
+                        | StatusCode::BAD_GATEWAY
+                        | StatusCode::TOO_MANY_REQUESTS => (CLOSE_TRY_LATER, reason),
                         _ => (axum::extract::ws::close_code::ERROR, reason),
                     })
                 }
@@ -1048,6 +1079,16 @@ async fn ws(
         drop(replay_use);
         connection.finish(&end);
     })
+}
+
+/// Drops the decoded recordings no replay has used for their expiry, a few times per expiry.
+async fn expire_replays(lab: Arc<Lab>) {
+    let every = (lab.replays.limits().idle_expiry / 4).max(Duration::from_millis(100));
+    let mut ticks = tokio::time::interval(every);
+    loop {
+        ticks.tick().await;
+        lab.replays.expire();
+    }
 }
 
 /// The client's address of a request served with connection info.
@@ -1076,13 +1117,16 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         stations: Mutex::new(HashMap::new()),
         archives: Mutex::new(HashMap::new()),
         making: tokio::sync::Mutex::new(()),
-        fetching: tokio::sync::Mutex::new(()),
+        replays: super::replays::ReplayCache::new(options.replay_cache),
         access: Arc::clone(&access),
         limits: options.viewer_limits,
         shutdown: shutdown_rx.clone(),
         gate: StreamCounters::default(),
     });
-    let tasks = vec![tokio::spawn(follow_stations(Arc::clone(&lab), status))];
+    let tasks = vec![
+        tokio::spawn(follow_stations(Arc::clone(&lab), status)),
+        tokio::spawn(expire_replays(Arc::clone(&lab))),
+    ];
 
     let session_data = Router::new()
         .route("/api/stations", get(api_stations))
