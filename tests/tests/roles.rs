@@ -1,7 +1,7 @@
 //! docs/roles.md against running servers: every route and every message of a live station, a
 //! replay server and a lab hub (on a real `nats-server`), tried as an instructor, as an observer
 //! and without a valid token. The expected answers are written out here, route by route, not
-//! taken from the server's own table.
+//! taken from the server's own table. Every answer of these routes says `Cache-Control: no-store`.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -50,6 +50,18 @@ impl As {
 async fn get(addr: SocketAddr, path: &str, who: As) -> (u16, String) {
     let bearer = format!("Bearer {}", who.token());
     let response = http_request(addr, path, &[("Authorization", &bearer)]).await;
+    // Session data, given or refused, is nobody's to keep (a shared browser's cache, a proxy's);
+    // a station's `/api/stations` (no data, no token) is the one route here that is not.
+    if path != "/api/stations"
+        || response.status == 401
+        || response.body.starts_with(b"{\"hub\":true")
+    {
+        assert_eq!(
+            response.header("cache-control"),
+            Some("no-store"),
+            "{path} as {who:?}"
+        );
+    }
     let body = if response.body.len() < 512 {
         String::from_utf8_lossy(&response.body).into_owned()
     } else {

@@ -53,14 +53,25 @@ pub async fn guard_host(
 }
 
 /// Middleware of the session-data routes: with tokens, `Authorization: Bearer <token>` of
-/// either role, else 401 with `WWW-Authenticate: Bearer`. The request goes on carrying its
-/// [`Role`] (an extension: `Extension<Role>` in a handler), an instructor's on a server without
-/// tokens; a route that not every role may use checks it with [`refusal`].
+/// either role, else 401 with `WWW-Authenticate: Bearer` (a wrong token answered after the wait
+/// [`Access::token_failed`] says). The request goes on carrying its [`Role`] (an extension:
+/// `Extension<Role>` in a handler), an instructor's on a server without tokens; a route that not
+/// every role may use checks it with [`refusal`]. Every answer, given or refused, says
+/// `Cache-Control: no-store`: session data is nobody's to keep (a shared browser's cache, a
+/// proxy's).
 pub async fn require_token(
     State(access): State<Arc<Access>>,
-    mut request: Request,
+    request: Request,
     next: Next,
 ) -> Response {
+    let mut response = check_token(&access, request, next).await;
+    response
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    response
+}
+
+async fn check_token(access: &Access, mut request: Request, next: Next) -> Response {
     let Some(tokens) = access.tokens() else {
         request.extensions_mut().insert(Role::Instructor);
         return next.run(request).await;
@@ -81,11 +92,15 @@ pub async fn require_token(
         Some(None) => (REASON_BAD_TOKEN, "Bearer error=\"invalid_token\""),
         None => (REASON_NO_TOKEN, "Bearer"),
     };
+    let client = peer_of(&request);
     tracing::warn!(
-        client = %peer_of(&request).map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+        client = %client.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
         path = %request.uri().path(),
         "request refused (401): {reason}"
     );
+    if reason == REASON_BAD_TOKEN {
+        tokio::time::sleep(access.token_failed(client.map(|c| c.ip()))).await;
+    }
     let mut response = json_error(StatusCode::UNAUTHORIZED, reason);
     response.headers_mut().insert(
         header::WWW_AUTHENTICATE,

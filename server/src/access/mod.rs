@@ -32,6 +32,8 @@
 //! - `connections.rs`: the connection counts ([`Access::admit`], [`Admission`]), the
 //!   per-connection limit on incoming messages ([`MessageRate`]), and one viewer's
 //!   [`Connection`] with the audit line logged when it ends.
+//! - `failures.rs`: wrong tokens counted per client address (IPv6 by /64), the next ones
+//!   answered after a wait that doubles ([`Access::token_failed`]).
 //! - `http.rs`: the middleware of the routes: the Host guard ([`guard_host`]) and the bearer
 //!   token of the session-data routes ([`require_token`]).
 //! - [`roles`]: who may do what ([`roles::Action`], [`roles::may`]), the one table the routes
@@ -41,6 +43,7 @@
 
 mod config;
 mod connections;
+mod failures;
 mod headers;
 mod http;
 mod origin;
@@ -153,6 +156,8 @@ pub struct Access {
     /// A `std` mutex, not tokio's: it is held for a few integer updates and never across an
     /// `.await`, so it cannot make a task wait on another's I/O.
     counts: Mutex<Counts>,
+    /// Wrong tokens per client address, to slow the next ones (`failures.rs`).
+    failures: Mutex<failures::FailedTokens>,
     /// Woken when the last admitted connection has ended (a shutdown waits for it, so that
     /// every connection's audit line is written).
     idle: tokio::sync::Notify,
@@ -179,6 +184,7 @@ impl Access {
             config,
             csp,
             counts: Mutex::new(Counts::default()),
+            failures: Mutex::new(failures::FailedTokens::default()),
             idle: tokio::sync::Notify::new(),
         }
     }
@@ -195,6 +201,19 @@ impl Access {
                 return;
             }
             notified.await;
+        }
+    }
+
+    /// Counts a wrong token presented from `client`: how long to wait before answering it
+    /// (nothing for the first few; see `failures.rs`). An unknown address is not slowed.
+    pub fn token_failed(&self, client: Option<std::net::IpAddr>) -> std::time::Duration {
+        match client {
+            Some(ip) => self
+                .failures
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .failed(ip, std::time::Instant::now()),
+            None => std::time::Duration::ZERO,
         }
     }
 

@@ -128,7 +128,8 @@ pub async fn serve_viewer(
     connection: &mut Connection,
 ) -> ViewerEnd {
     let mut rate = MessageRate::new(&hub.access.config.limits, Instant::now());
-    let role = match role_of(&mut socket, &hub.gate(), &mut rate).await {
+    let client = connection.peer.map(|p| p.ip());
+    let role = match role_of(&mut socket, &hub.gate(), &mut rate, client).await {
         Ok(role) => role,
         Err(end) => return end,
     };
@@ -183,7 +184,8 @@ impl Access {
             counters,
         };
         let mut rate = MessageRate::new(&self.config.limits, Instant::now());
-        let role = match role_of(&mut socket, &gate, &mut rate).await {
+        let client = connection.peer.map(|p| p.ip());
+        let role = match role_of(&mut socket, &gate, &mut rate, client).await {
             Ok(role) => role,
             Err(end) => return end,
         };
@@ -218,15 +220,16 @@ impl Access {
 }
 
 /// The connection's role: an instructor without tokens, else the role of the token its `auth`
-/// presents.
+/// presents (a wrong one from `client` answered after the wait [`Access::token_failed`] says).
 async fn role_of(
     socket: &mut WebSocket,
     gate: &Gate<'_>,
     rate: &mut MessageRate,
+    client: Option<std::net::IpAddr>,
 ) -> Result<Role, ViewerEnd> {
     match gate.access.tokens() {
         None => Ok(Role::Instructor),
-        Some(tokens) => authenticate(socket, gate, tokens, rate).await,
+        Some(tokens) => authenticate(socket, gate, tokens, rate, client).await,
     }
 }
 
@@ -397,6 +400,7 @@ async fn authenticate(
     gate: &Gate<'_>,
     tokens: &Tokens,
     rate: &mut MessageRate,
+    client: Option<std::net::IpAddr>,
 ) -> Result<Role, ViewerEnd> {
     let timeout = gate.limits.send_timeout;
     let deadline = tokio::time::Instant::now() + gate.access.config.limits.auth_timeout;
@@ -444,6 +448,14 @@ async fn authenticate(
                     Some(None) => (REASON_BAD_TOKEN, ViewerEnd::BadToken),
                     None => (REASON_NO_TOKEN, ViewerEnd::NoToken),
                 };
+                if end == ViewerEnd::BadToken {
+                    // Slowed, but never past the server's shutdown.
+                    let wait = tokio::time::sleep(gate.access.token_failed(client));
+                    tokio::select! {
+                        () = wait => {}
+                        _ = shutdown.changed() => {}
+                    }
+                }
                 gate.counters
                     .unauthorized_closes
                     .fetch_add(1, Ordering::Relaxed);
