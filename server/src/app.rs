@@ -503,7 +503,7 @@ fn router(web_dir: &Path, state: AppState) -> Router {
             access::guard_host,
         ));
     // Outermost, so that refusals (421, 401, 403) carry the headers too.
-    access::with_security_headers(routes, access.csp().clone())
+    access::with_security_headers(routes, access.csp().clone(), access.config.strict_transport)
 }
 
 /// `/api/stations` of a station: it is not a lab hub (see `lab::hub`).

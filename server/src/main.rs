@@ -206,11 +206,12 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
 }
 
 fn hub(args: HubArgs) -> anyhow::Result<()> {
-    let access = args.access.resolve(args.addr)?;
+    let mut access = args.access.resolve(args.addr)?;
     let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
+    access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
     let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
@@ -249,7 +250,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
 fn run(args: RunArgs) -> anyhow::Result<()> {
     // Refuse to serve an address beyond loopback without tokens, and bad token sources, before
     // anything starts.
-    let access = args.access.resolve(args.addr)?;
+    let mut access = args.access.resolve(args.addr)?;
     if let Some(url) = &args.nats {
         // Refused with the reason, never the URL: it would carry the credentials.
         softhaptic_server::lab::parse_nats_url(url).map_err(|e| anyhow::anyhow!("--nats: {e}"))?;
@@ -259,6 +260,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
+    access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
     // Refuse a bad scene before anything starts.
     let mut scene = match &args.scene {
         Some(path) => Scene::load(path)?,

@@ -60,6 +60,10 @@ pub struct AccessConfig {
     pub host_names: Vec<String>,
     /// The server speaks https and wss (TLS): its own origin's scheme is `https`.
     pub secure_transport: bool,
+    /// Tell browsers to use https only for this host (`Strict-Transport-Security`): set when
+    /// the certificate is a CA's (`--tls-cert`), which browsers trust without a click. Never
+    /// with a self-signed one: a browser that has seen the header refuses the click-through.
+    pub strict_transport: bool,
     pub limits: ConnectionLimits,
 }
 
@@ -83,6 +87,7 @@ impl Default for AccessConfig {
             allowed_origins: Vec::new(),
             host_names: Vec::new(),
             secure_transport: false,
+            strict_transport: false,
             limits: ConnectionLimits::default(),
         }
     }
@@ -305,6 +310,7 @@ impl AccessArgs {
             allowed_origins,
             host_names,
             secure_transport: false,
+            strict_transport: false,
             limits: ConnectionLimits {
                 max_viewers: self.max_viewers,
                 max_per_address: self.max_viewers_per_address,

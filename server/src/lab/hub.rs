@@ -1150,7 +1150,8 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
             Arc::clone(&access),
             access::guard_host,
         ));
-    let app = access::with_security_headers(routes, access.csp().clone());
+    let app =
+        access::with_security_headers(routes, access.csp().clone(), access.config.strict_transport);
 
     let listener = tokio::net::TcpListener::bind(options.addr)
         .await

@@ -223,6 +223,7 @@ async fn with_credentials(
     let text = crate::files::read_text(path, crate::files::FileKind::Secrets)
         .map(zeroize::Zeroizing::new)
         .map_err(|e| refused(e.to_string()))?;
+    crate::files::warn_if_others_may_read(path, "the NATS credentials file");
     if text.contains("-----BEGIN NATS USER JWT-----") {
         return options
             .credentials(&text)

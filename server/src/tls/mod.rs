@@ -116,6 +116,9 @@ pub struct TlsSetup {
     /// The names the self-signed certificate is valid for; empty for `--tls-cert`, whose
     /// certificate carries its own names.
     pub self_signed_names: Vec<String>,
+    /// The certificate is a CA's (`--tls-cert`): browsers trust it without a click, so the
+    /// server may tell them to use https only (`AccessConfig::strict_transport`).
+    pub from_a_ca: bool,
 }
 
 /// For the start-up message: which certificate, and the fingerprint to compare.
