@@ -564,10 +564,12 @@ pub(crate) fn upgrade_viewer(
     let origin = match hub.access.check_origin(headers) {
         Ok(origin) => origin,
         Err(reason) => {
-            tracing::warn!(
-                client = %peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
-                "WebSocket upgrade refused (403): {reason}"
-            );
+            if hub.access.log_refusal("403 (Origin)") {
+                tracing::warn!(
+                    client = %peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+                    "WebSocket upgrade refused (403): {reason}"
+                );
+            }
             return access::json_error(StatusCode::FORBIDDEN, "origin not allowed");
         }
     };
@@ -576,13 +578,13 @@ pub(crate) fn upgrade_viewer(
     limits.bound(upgrade).on_upgrade(move |socket| async move {
         match admission {
             Ok(admission) => {
-                let mut connection = Connection::new(peer, origin, Some(admission));
+                let mut connection = Connection::new(&hub.access, peer, origin, Some(admission));
                 let end = stream::serve_viewer(socket, hub, &mut connection).await;
                 connection.finish(&end);
             }
             Err(refusal) => {
                 stream::refuse_connection(socket, &hub, refusal).await;
-                Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                Connection::new(&hub.access, peer, origin, None).finish(&ViewerEnd::Limit(refusal));
             }
         }
     })

@@ -711,3 +711,90 @@ fn every_refusal_leaves_a_log_line_and_every_connection_an_audit_line_without_a_
         assert_eq!(printed, 1, "the token is printed once, in its link");
     }
 }
+
+/// A storm of refusals of every kind a client without a token can cause (a wrong Host, no
+/// token, a foreign Origin, a WebSocket whose first message is not an `auth`): at most 20 are
+/// logged one by one per 10 s, and a summary line counts the rest, so that every refusal is
+/// accounted for and the log grows by lines per interval, not per refusal. (One line per
+/// refusal before: 400 lines for these 400.)
+#[test]
+fn a_refusal_storm_is_logged_in_lines_per_interval_with_a_summary_of_the_rest() {
+    let mut server = Server::start(
+        &[
+            "--tokens",
+            "--addr",
+            "127.0.0.1:0",
+            "--no-record",
+            "--no-realtime",
+        ],
+        &[("RUST_LOG", "info")],
+    );
+    let (addr, _) = split_link(&server.line("viewer: "), "instructor");
+    let port = addr.rsplit(':').next().unwrap().to_owned();
+    let rebound = format!("evil.example:{port}");
+    const STORM: u64 = 400;
+    let started = Instant::now();
+    for i in 0..STORM {
+        match i % 4 {
+            0 => {
+                let response = http_get_naming(&addr, &rebound, "/api/scene", None);
+                assert!(response.starts_with("HTTP/1.1 421"), "{response}");
+            }
+            1 => {
+                let response = http_get(&addr, "/api/scene", None);
+                assert!(response.starts_with("HTTP/1.1 401"), "{response}");
+            }
+            2 => assert_eq!(
+                connect_from_origin(&addr, "http://evil.example").err(),
+                Some(403)
+            ),
+            _ => {
+                let mut socket = connect(&addr, None);
+                socket
+                    .send(tungstenite::Message::text("not an auth"))
+                    .unwrap();
+                assert_eq!(next_json(&mut socket), Err(Some(4401)));
+            }
+        }
+    }
+    let storm = started.elapsed();
+    let (_, log) = server.stop();
+    let refusal_lines = log
+        .lines()
+        .filter(|l| {
+            l.contains("request refused")
+                || l.contains("upgrade refused")
+                || (l.contains("viewer connection ended") && l.contains("refused"))
+        })
+        .count() as u64;
+    let not_logged: u64 = log
+        .lines()
+        .filter(|l| l.contains("refusals not logged one by one"))
+        .map(|l| {
+            let n = l
+                .split("not_logged=")
+                .nth(1)
+                .unwrap_or_else(|| panic!("{l}"));
+            n.split(|c: char| !c.is_ascii_digit())
+                .next()
+                .unwrap()
+                .parse::<u64>()
+                .unwrap()
+        })
+        .sum();
+    eprintln!(
+        "{STORM} refusals in {:.2} s: {refusal_lines} refusal lines ({:.0} per second), {not_logged} in summaries",
+        storm.as_secs_f64(),
+        refusal_lines as f64 / storm.as_secs_f64().max(1e-3)
+    );
+    let intervals = storm.as_secs() / 10 + 1;
+    assert!(
+        refusal_lines <= 20 * intervals,
+        "{refusal_lines} refusal lines in {intervals} intervals of 10 s"
+    );
+    assert_eq!(
+        refusal_lines + not_logged,
+        STORM,
+        "every refusal accounted for"
+    );
+}

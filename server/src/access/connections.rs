@@ -174,10 +174,13 @@ pub struct Connection {
     pub role: Option<Role>,
     started: Instant,
     admission: Option<Admission>,
+    /// The rules whose refusal log the audit line of a connection without a role goes through.
+    access: Arc<Access>,
 }
 
 impl Connection {
     pub fn new(
+        access: &Arc<Access>,
         peer: Option<SocketAddr>,
         origin: Option<String>,
         admission: Option<Admission>,
@@ -188,6 +191,7 @@ impl Connection {
             role: None,
             started: Instant::now(),
             admission,
+            access: Arc::clone(access),
         }
     }
 
@@ -200,8 +204,12 @@ impl Connection {
     }
 
     /// Logs the audit line (time, client address, role, Origin, how it ended, how long it
-    /// lasted) and gives back the connection's places in the counts.
+    /// lasted) and gives back the connection's places in the counts. A connection that never
+    /// had a role was refused: its line is a refusal's, rate-limited as they are.
     pub fn finish(self, ended: &dyn fmt::Display) {
+        if self.role.is_none() && !self.access.log_refusal("WebSocket closed before a role") {
+            return;
+        }
         tracing::info!(
             target: "softhaptic::audit",
             client = %self.peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),

@@ -38,12 +38,14 @@ pub async fn guard_host(
     match host {
         Some(host) if access.host_allowed(&host) => next.run(request).await,
         host => {
-            tracing::warn!(
-                client = %peer_of(&request).map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
-                host = ?host.as_deref().unwrap_or("none"),
-                path = %request.uri().path(),
-                "request refused (421): the Host is not a name of this server; give it with --host-name if it is"
-            );
+            if access.log_refusal("421 (Host not this server's)") {
+                tracing::warn!(
+                    client = %peer_of(&request).map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+                    host = ?host.as_deref().unwrap_or("none"),
+                    path = %request.uri().path(),
+                    "request refused (421): the Host is not a name of this server; give it with --host-name if it is"
+                );
+            }
             json_error(
                 StatusCode::MISDIRECTED_REQUEST,
                 "this server is not reached by that host name",
@@ -93,11 +95,13 @@ async fn check_token(access: &Access, mut request: Request, next: Next) -> Respo
         None => (REASON_NO_TOKEN, "Bearer"),
     };
     let client = peer_of(&request);
-    tracing::warn!(
-        client = %client.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
-        path = %request.uri().path(),
-        "request refused (401): {reason}"
-    );
+    if access.log_refusal("401 (token)") {
+        tracing::warn!(
+            client = %client.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+            path = %request.uri().path(),
+            "request refused (401): {reason}"
+        );
+    }
     if reason == REASON_BAD_TOKEN {
         tokio::time::sleep(access.token_failed(client.map(|c| c.ip()))).await;
     }

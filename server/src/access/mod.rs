@@ -32,6 +32,8 @@
 //! - `connections.rs`: the connection counts ([`Access::admit`], [`Admission`]), the
 //!   per-connection limit on incoming messages ([`MessageRate`]), and one viewer's
 //!   [`Connection`] with the audit line logged when it ends.
+//! - `refusal_log.rs`: the refusals' log lines, at most 20 in full per 10 s and a summary line
+//!   of the rest ([`Access::log_refusal`]).
 //! - `failures.rs`: wrong tokens counted per client address (IPv6 by /64), the next ones
 //!   answered after a wait that doubles ([`Access::token_failed`]).
 //! - `http.rs`: the middleware of the routes: the Host guard ([`guard_host`]) and the bearer
@@ -47,6 +49,7 @@ mod failures;
 mod headers;
 mod http;
 mod origin;
+mod refusal_log;
 pub mod roles;
 #[cfg(test)]
 mod testing;
@@ -156,6 +159,8 @@ pub struct Access {
     /// A `std` mutex, not tokio's: it is held for a few integer updates and never across an
     /// `.await`, so it cannot make a task wait on another's I/O.
     counts: Mutex<Counts>,
+    /// The refusals' log lines, rate-limited (`refusal_log.rs`).
+    refusals: std::sync::Arc<refusal_log::RefusalLog>,
     /// Wrong tokens per client address, to slow the next ones (`failures.rs`).
     failures: Mutex<failures::FailedTokens>,
     /// Woken when the last admitted connection has ended (a shutdown waits for it, so that
@@ -180,9 +185,24 @@ impl Access {
         // Only ASCII goes into the policy (base64 and fixed words), so it is a valid header.
         let csp = HeaderValue::from_str(&policy)
             .unwrap_or_else(|_| HeaderValue::from_static("default-src 'self'"));
+        let refusals = std::sync::Arc::new(refusal_log::RefusalLog::default());
+        // The summary of a storm that has ended is written within an interval, not only by the
+        // next refusal (when the rules run in a runtime: the servers' always do).
+        if let Ok(runtime) = tokio::runtime::Handle::try_current() {
+            let weak = std::sync::Arc::downgrade(&refusals);
+            runtime.spawn(async move {
+                let mut ticks = tokio::time::interval(refusal_log::INTERVAL);
+                loop {
+                    ticks.tick().await;
+                    let Some(log) = weak.upgrade() else { break };
+                    log.flush(std::time::Instant::now(), false);
+                }
+            });
+        }
         Self {
             config,
             csp,
+            refusals,
             counts: Mutex::new(Counts::default()),
             failures: Mutex::new(failures::FailedTokens::default()),
             idle: tokio::sync::Notify::new(),
@@ -202,6 +222,13 @@ impl Access {
             }
             notified.await;
         }
+    }
+
+    /// Whether a refusal of `kind` (its status and what was wrong, in a few words) is to be
+    /// logged in full now; when not, it is counted in the interval's summary line
+    /// (`refusal_log.rs`).
+    pub fn log_refusal(&self, kind: &'static str) -> bool {
+        self.refusals.admit(kind, std::time::Instant::now())
     }
 
     /// Counts a wrong token presented from `client`: how long to wait before answering it

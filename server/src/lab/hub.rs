@@ -1014,7 +1014,9 @@ async fn ws(
     let origin = match lab.access.check_origin(&headers) {
         Ok(origin) => origin,
         Err(reason) => {
-            tracing::warn!(%client, "WebSocket upgrade refused (403): {reason}");
+            if lab.access.log_refusal("403 (Origin)") {
+                tracing::warn!(%client, "WebSocket upgrade refused (403): {reason}");
+            }
             return access::json_error(StatusCode::FORBIDDEN, "origin not allowed");
         }
     };
@@ -1031,11 +1033,11 @@ async fn ws(
                 lab.access
                     .refuse_viewer(socket, refusal, limits, &lab.gate)
                     .await;
-                Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                Connection::new(&lab.access, peer, origin, None).finish(&ViewerEnd::Limit(refusal));
                 return;
             }
         };
-        let mut connection = Connection::new(peer, origin, Some(admission));
+        let mut connection = Connection::new(&lab.access, peer, origin, Some(admission));
         // The viewer's use of a replay, given back when it ends.
         let mut replay_use = None;
         let used = &mut replay_use;
