@@ -212,6 +212,11 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
     access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
+    access.links_dir = args
+        .tls
+        .data_dir
+        .clone()
+        .or_else(softhaptic_server::tls::default_data_dir);
     let web_dir = args.web_dir.clone().unwrap_or_else(app::default_web_dir);
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
@@ -261,6 +266,11 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
     access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
+    access.links_dir = args
+        .tls
+        .data_dir
+        .clone()
+        .or_else(softhaptic_server::tls::default_data_dir);
     // Refuse a bad scene before anything starts.
     let mut scene = match &args.scene {
         Some(path) => Scene::load(path)?,
@@ -354,14 +364,15 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             }
             _ => None,
         };
-        // The token is in the fragment, which no request carries; printed on stdout only.
+        // The token is in the fragment, which no request carries; on a terminal or a pipe only
+        // (else in a 0600 file the log names).
         let mut access = access;
         access.print_links(
             &server.viewer_url(),
             server.local_addr(),
             ["viewer", "observer"],
         );
-        // For a supervisor: up, and where (the links, with their tokens, are on stdout only).
+        // For a supervisor: up, and where (the links, with their tokens, are never logged).
         tracing::info!(addr = %server.local_addr(), "serving viewers");
         let signal = stop.recv().await;
         tracing::info!(signal, "shutting down");

@@ -798,3 +798,62 @@ fn a_refusal_storm_is_logged_in_lines_per_interval_with_a_summary_of_the_rest() 
         "every refusal accounted for"
     );
 }
+
+/// Standard output that keeps what it is given (a file here; the journal under systemd) gets
+/// no token: the links go to `links.txt`, mode 0600, in the data directory, and the log names
+/// that file. (A terminal or a pipe, which every other test here reads, gets them as before.)
+#[test]
+fn links_with_tokens_go_to_a_private_file_when_stdout_would_keep_them() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = scratch("links-file");
+    std::fs::create_dir_all(&dir).unwrap();
+    let stdout_path = dir.join("stdout.log");
+    let data_dir = dir.join("data");
+    let mut child = command(
+        &[
+            "--tokens",
+            "--addr",
+            "127.0.0.1:0",
+            "--no-record",
+            "--no-realtime",
+            "--data-dir",
+            data_dir.to_str().unwrap(),
+        ],
+        &[("RUST_LOG", "info")],
+    )
+    .stdout(std::fs::File::create(&stdout_path).unwrap())
+    .spawn()
+    .unwrap();
+    let links = data_dir.join("links.txt");
+    let started = Instant::now();
+    while !std::fs::read_to_string(&links).is_ok_and(|t| t.contains("observer: ")) {
+        assert!(started.elapsed() < DEADLINE, "no {}", links.display());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    support::stop_with_signal(&mut child, "TERM");
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    let text = std::fs::read_to_string(&links).unwrap();
+    let (_, instructor) = split_link(
+        text.lines()
+            .find_map(|l| l.strip_prefix("viewer: "))
+            .unwrap(),
+        "instructor",
+    );
+    assert!(is_generated_token(&instructor), "{text}");
+    assert_eq!(
+        std::fs::metadata(&links).unwrap().permissions().mode() & 0o777,
+        0o600
+    );
+    let stdout = std::fs::read_to_string(&stdout_path).unwrap();
+    assert!(!stdout.contains("#token="), "{stdout}");
+    assert!(!stdout.contains(&instructor) && !stderr.contains(&instructor));
+    let named = log_line(&stderr, &["links to open are in this file"]);
+    assert!(named.contains(&links.display().to_string()), "{named}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -64,6 +64,9 @@ pub struct AccessConfig {
     /// the certificate is a CA's (`--tls-cert`), which browsers trust without a click. Never
     /// with a self-signed one: a browser that has seen the header refuses the click-through.
     pub strict_transport: bool,
+    /// Where the links with their tokens are written when standard output would keep them (a
+    /// journal, a file): [`AccessConfig::print_links`]. The data directory.
+    pub links_dir: Option<PathBuf>,
     pub limits: ConnectionLimits,
 }
 
@@ -88,6 +91,7 @@ impl Default for AccessConfig {
             host_names: Vec::new(),
             secure_transport: false,
             strict_transport: false,
+            links_dir: None,
             limits: ConnectionLimits::default(),
         }
     }
@@ -193,20 +197,79 @@ impl AccessConfig {
         ))
     }
 
-    /// Prints on stdout (never in a log: the token is in the link) the links to open for a server
-    /// at `url` bound to `addr`: one per role when there are tokens, `{label}: URL` otherwise;
-    /// `labels` are the instructor's and the observer's.
+    /// Prints the links to open for a server at `url` bound to `addr`: one per role when there
+    /// are tokens, `{label}: URL` otherwise; `labels` are the instructor's and the observer's.
+    /// Never in a log (the token is in the link), and on standard output only when it is a
+    /// terminal or a pipe (a person, or a script that reads them): when it goes to the journal
+    /// (a service), a file or nowhere, which would keep the tokens for whoever reads those, the
+    /// links go to `links.txt` (mode 0600) in [`AccessConfig::links_dir`], which the log names.
     pub fn print_links(&mut self, url: &str, addr: SocketAddr, labels: [&str; 2]) {
         self.secure_transport = url.starts_with("https:");
         let base = self.public_base(url, addr);
-        match self.links(&base) {
-            Some((instructor, observer)) => {
-                crate::logging::print_line(format_args!("{}: {instructor}", labels[0]));
-                crate::logging::print_line(format_args!("{}: {observer}", labels[1]));
-            }
-            None => crate::logging::print_line(format_args!("{}: {base}", labels[0])),
+        let Some((instructor, observer)) = self.links(&base) else {
+            crate::logging::print_line(format_args!("{}: {base}", labels[0]));
+            return;
+        };
+        if stdout_is_read_now() {
+            crate::logging::print_line(format_args!("{}: {instructor}", labels[0]));
+            crate::logging::print_line(format_args!("{}: {observer}", labels[1]));
+            return;
+        }
+        let text = zeroize::Zeroizing::new(format!(
+            "{}: {instructor}\n{}: {observer}\n",
+            labels[0], labels[1]
+        ));
+        match write_links_file(self.links_dir.as_deref(), &text) {
+            Ok(path) => tracing::warn!(
+                file = %path.display(),
+                "standard output is not a terminal or a pipe (a journal or a file would keep the \
+                 tokens): the links to open are in this file (mode 0600) instead"
+            ),
+            Err(e) => tracing::error!(
+                "standard output is not a terminal or a pipe, and the links could not be written \
+                 to a file ({e}): they are not shown; give --data-dir, or the tokens with \
+                 --token-file"
+            ),
         }
     }
+}
+
+/// Whether standard output is read as it is written: a terminal, or a pipe. Anything else (the
+/// journal's socket, a regular file, /dev/null) keeps or drops what it is given.
+fn stdout_is_read_now() -> bool {
+    use std::io::IsTerminal;
+    use std::os::unix::fs::FileTypeExt;
+    if std::io::stdout().is_terminal() {
+        return true;
+    }
+    std::fs::metadata("/proc/self/fd/1").is_ok_and(|m| m.file_type().is_fifo())
+}
+
+/// Writes `text` to `links.txt` in `dir` (made 0700 if missing), mode 0600; its path.
+fn write_links_file(dir: Option<&std::path::Path>, text: &str) -> std::io::Result<PathBuf> {
+    use std::io::Write as _;
+    use std::os::unix::fs::{DirBuilderExt, OpenOptionsExt, PermissionsExt};
+    let dir = dir.ok_or_else(|| {
+        std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            "no data directory (neither --data-dir, XDG_DATA_HOME nor HOME)",
+        )
+    })?;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)?;
+    let path = dir.join("links.txt");
+    let mut file = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .mode(0o600)
+        .open(&path)?;
+    // A file left with another mode keeps its mode when opened: set it before writing.
+    file.set_permissions(std::fs::Permissions::from_mode(0o600))?;
+    file.write_all(text.as_bytes())?;
+    Ok(path)
 }
 
 /// The access options of `softhaptic run` and `softhaptic replay`.
@@ -311,6 +374,7 @@ impl AccessArgs {
             host_names,
             secure_transport: false,
             strict_transport: false,
+            links_dir: None,
             limits: ConnectionLimits {
                 max_viewers: self.max_viewers,
                 max_per_address: self.max_viewers_per_address,
