@@ -23,6 +23,9 @@ pub struct ConnectionLimits {
     pub max_per_address: u32,
     /// Connections waiting to present their token.
     pub max_pending: u32,
+    /// Connections waiting to present their token from one client address (IPv6: one /64;
+    /// loopback, a reverse proxy's, is not capped).
+    pub max_pending_per_address: u32,
     /// Incoming messages a connection may send per second, on average...
     pub messages_per_s: f64,
     /// ...and at once, after a quiet spell.
@@ -37,6 +40,9 @@ impl Default for ConnectionLimits {
             max_viewers: 500,
             max_per_address: 50,
             max_pending: 64,
+            // A browser opens one connection at a time and presents its token within
+            // milliseconds; a few more allow for tabs reconnecting at once.
+            max_pending_per_address: 8,
             // A viewer sends a handful of messages per click; a person cannot click 50 times a
             // second, a script flooding the server can.
             messages_per_s: 50.0,

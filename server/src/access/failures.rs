@@ -36,9 +36,9 @@ pub(super) struct FailedTokens {
     by_address: HashMap<IpAddr, Failures>,
 }
 
-/// The address failures are counted under: IPv4 (and IPv4-mapped IPv6) as it is, IPv6 by its
-/// /64.
-fn counted_as(ip: IpAddr) -> IpAddr {
+/// The address a client is counted under (its failures, its connections): IPv4 (and
+/// IPv4-mapped IPv6) as it is, IPv6 by its /64, since one host is given a whole /64.
+pub(super) fn counted_as(ip: IpAddr) -> IpAddr {
     match ip.to_canonical() {
         IpAddr::V6(v6) => {
             let prefix = u128::from(v6) & !((1u128 << 64) - 1);

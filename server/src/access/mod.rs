@@ -64,6 +64,12 @@ use axum::http::HeaderValue;
 pub use config::{AccessArgs, AccessConfig, ConnectionLimits};
 use connections::Counts;
 pub use connections::{Admission, Connection, LimitRefusal, MessageRate};
+/// The address a client is counted under by every per-address limit: IPv4 as it is (an
+/// IPv4-mapped IPv6 address too), IPv6 by its /64.
+pub fn client_key(ip: std::net::IpAddr) -> std::net::IpAddr {
+    failures::counted_as(ip)
+}
+
 pub use headers::{content_security_policy, inline_script_hashes, with_security_headers};
 pub use http::{guard_host, json_error, peer_of, refusal, require_token};
 pub use origin::Origin;

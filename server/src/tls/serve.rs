@@ -171,7 +171,8 @@ impl ConnectionGuard {
         if open.total >= self.caps.total {
             return Err(TooManyConnections { what: "in all" });
         }
-        let ip = ip.to_canonical();
+        // IPv6 by its /64: one host has a whole /64 to connect from.
+        let ip = crate::access::client_key(ip);
         let capped = !ip.is_loopback();
         let from_ip = open.per_address.get(&ip).copied().unwrap_or(0);
         if capped && from_ip >= self.caps.per_address {
