@@ -857,3 +857,93 @@ fn links_with_tokens_go_to_a_private_file_when_stdout_would_keep_them() {
     assert!(named.contains(&links.display().to_string()), "{named}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Standard output a socket: the journal's (systemd names it in `JOURNAL_STREAM`, as
+/// `device:inode`) gets no token, the links go to the 0600 file; any other socket (a program
+/// reading the links, as node's pipes are) gets them printed.
+#[test]
+fn links_go_to_the_file_under_the_journal_and_to_any_other_socket_as_printed() {
+    use std::os::fd::OwnedFd;
+    use std::os::unix::fs::MetadataExt;
+    use std::os::unix::net::UnixStream;
+    for journal in [true, false] {
+        let dir = scratch(&format!("links-journal-{journal}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let data_dir = dir.join("data");
+        let (ours, theirs) = UnixStream::pair().unwrap();
+        let meta = std::fs::metadata(format!(
+            "/proc/self/fd/{}",
+            std::os::fd::AsRawFd::as_raw_fd(&theirs)
+        ))
+        .unwrap();
+        let stream = format!("{}:{}", meta.dev(), meta.ino());
+        let env: Vec<(&str, &str)> = if journal {
+            vec![("RUST_LOG", "info"), ("JOURNAL_STREAM", &stream)]
+        } else {
+            vec![("RUST_LOG", "info")]
+        };
+        let mut child = command(
+            &[
+                "--tokens",
+                "--addr",
+                "127.0.0.1:0",
+                "--no-record",
+                "--no-realtime",
+                "--data-dir",
+                data_dir.to_str().unwrap(),
+            ],
+            &env,
+        )
+        .stdout(std::process::Stdio::from(OwnedFd::from(theirs)))
+        .spawn()
+        .unwrap();
+        let mut stderr = child.stderr.take().unwrap();
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = stderr.read_to_string(&mut text);
+            text
+        });
+        let links = data_dir.join("links.txt");
+        // What the socket gets, line by line.
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(ours).lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut printed = String::new();
+        if journal {
+            let started = Instant::now();
+            while !std::fs::read_to_string(&links).is_ok_and(|t| t.contains("observer: ")) {
+                assert!(started.elapsed() < DEADLINE, "no {}", links.display());
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        } else {
+            while !printed.contains("observer: ") {
+                let line = lines
+                    .recv_timeout(DEADLINE)
+                    .unwrap_or_else(|_| panic!("no links on the socket: {printed}"));
+                printed.push_str(&line);
+                printed.push('\n');
+            }
+        }
+        support::stop_with_signal(&mut child, "TERM");
+        while let Ok(line) = lines.recv_timeout(Duration::from_secs(5)) {
+            printed.push_str(&line);
+            printed.push('\n');
+        }
+        let log = stderr.join().unwrap();
+        if journal {
+            assert!(!printed.contains("#token="), "{printed}");
+            assert!(std::fs::read_to_string(&links).unwrap().contains("#token="));
+            log_line(&log, &["links to open are in this file"]);
+        } else {
+            assert!(printed.contains("viewer: http://"), "{printed}\n{log}");
+            assert!(!links.exists());
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

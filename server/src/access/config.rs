@@ -206,8 +206,8 @@ impl AccessConfig {
     /// Prints the links to open for a server at `url` bound to `addr`: one per role when there
     /// are tokens, `{label}: URL` otherwise; `labels` are the instructor's and the observer's.
     /// Never in a log (the token is in the link), and on standard output only when it is a
-    /// terminal or a pipe (a person, or a script that reads them): when it goes to the journal
-    /// (a service), a file or nowhere, which would keep the tokens for whoever reads those, the
+    /// terminal, a pipe or a socket (a person, or a program that reads them): when it goes to the
+    /// journal (a service), a file or nowhere, which would keep the tokens for whoever reads those, the
     /// links go to `links.txt` (mode 0600) in [`AccessConfig::links_dir`], which the log names.
     pub fn print_links(&mut self, url: &str, addr: SocketAddr, labels: [&str; 2]) {
         self.secure_transport = url.starts_with("https:");
@@ -240,15 +240,31 @@ impl AccessConfig {
     }
 }
 
-/// Whether standard output is read as it is written: a terminal, or a pipe. Anything else (the
-/// journal's socket, a regular file, /dev/null) keeps or drops what it is given.
+/// Whether standard output is read as it is written: a terminal, a pipe, or a socket (a
+/// program reading it: node's pipes are socket pairs) other than the journal's. Anything else
+/// (the journal, a regular file, /dev/null) keeps or drops what it is given. systemd names its
+/// journal's stream in `JOURNAL_STREAM` (`device:inode`), as it documents for this purpose.
 fn stdout_is_read_now() -> bool {
     use std::io::IsTerminal;
-    use std::os::unix::fs::FileTypeExt;
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
     if std::io::stdout().is_terminal() {
         return true;
     }
-    std::fs::metadata("/proc/self/fd/1").is_ok_and(|m| m.file_type().is_fifo())
+    let Ok(meta) = std::fs::metadata("/proc/self/fd/1") else {
+        return false;
+    };
+    let kind = meta.file_type();
+    if kind.is_fifo() {
+        return true;
+    }
+    if kind.is_socket() {
+        let journal = std::env::var("JOURNAL_STREAM").ok().and_then(|v| {
+            let (dev, ino) = v.split_once(':')?;
+            Some((dev.parse::<u64>().ok()?, ino.parse::<u64>().ok()?))
+        });
+        return journal != Some((meta.dev(), meta.ino()));
+    }
+    false
 }
 
 /// Writes `text` to `links.txt` in `dir` (made 0700 if missing), mode 0600; its path.
