@@ -2,7 +2,8 @@
 //! replay's scene or meshes over HTTP loads nothing (replays load for connected viewers only);
 //! viewers asking for one file at once share one load; the decoded recordings live in a cache
 //! bounded in bytes (a replay that does not fit beside the open ones is refused until one
-//! closes, and a closed one makes room) and expire once unused.
+//! closes, and a closed one makes room) and expire once unused. And the archive's list, which
+//! every hub page asks for every 2 s, is made once for all the pages that ask at once.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -180,5 +181,28 @@ async fn replays_live_in_a_cache_bounded_in_bytes_that_expires() {
         hub.cached_recordings().is_empty()
     })
     .await;
+    hub.shutdown().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_archive_list_is_made_once_for_the_pages_that_ask_at_once() {
+    let server = NatsServer::start("lab-replays-list");
+    archive(server.url(), &[("slide.mcap", "slide.mcap")]).await;
+    let hub = start(server.url(), ReplayCacheLimits::default()).await;
+    let addr = hub.local_addr();
+    let bearer = format!("Bearer {I}");
+    let headers = [("Authorization", bearer.as_str())];
+    // Forty pages at once (a class's worth): one listing, one JetStream consumer, not forty.
+    let answers = futures_util::future::join_all(
+        (0..40).map(|_| http_request(addr, "/api/archive", &headers)),
+    )
+    .await;
+    for a in &answers {
+        assert_eq!(a.status, 200);
+        assert_eq!(a.body, answers[0].body);
+    }
+    let list: serde_json::Value = serde_json::from_slice(&answers[0].body).unwrap();
+    assert_eq!(list["archive"][0]["file"], "slide.mcap", "{list}");
+    assert_eq!(hub.archive_listings(), 1);
     hub.shutdown().await;
 }

@@ -140,6 +140,13 @@ impl RunningHub {
         self.lab.replays.cached()
     }
 
+    /// Listings made of the archive (each a JetStream consumer) since the start.
+    pub fn archive_listings(&self) -> u64 {
+        self.lab
+            .listings_made
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     /// Archived recordings fetched and decoded since the start.
     pub fn recording_loads(&self) -> u64 {
         self.lab.replays.loads()
@@ -266,6 +273,13 @@ struct Lab {
     making: tokio::sync::Mutex<()>,
     /// The archived recordings decoded for replays (bounded in bytes, expired when unused).
     replays: super::replays::ReplayCache,
+    /// The archive's lists lately made, by station asked for (none: all), shared by every page
+    /// that asks within [`LISTING_FRESH`]: each page asks every 2 s, and each listing is a
+    /// JetStream consumer. Held while a listing is made, so that those asking meanwhile wait
+    /// for it instead of making their own.
+    listings: tokio::sync::Mutex<HashMap<Option<String>, (Instant, Bytes)>>,
+    /// Listings made of the archive since the start.
+    listings_made: std::sync::atomic::AtomicU64,
     access: Arc<Access>,
     limits: ViewerLimits,
     /// The hub's shutdown, for the connections that have no stream yet.
@@ -361,6 +375,29 @@ impl Lab {
         for feed in lock(&self.archives).drain().map(|(_, feed)| feed) {
             let _ = feed.stop.send(true);
         }
+    }
+
+    /// The archive's list (of `station`, or all) as `/api/archive` answers it: made at most once
+    /// per [`LISTING_FRESH`] however many pages ask.
+    async fn archive_listing(&self, station: Option<String>) -> Result<Bytes, String> {
+        let mut listings = self.listings.lock().await;
+        if let Some((made, json)) = listings.get(&station)
+            && made.elapsed() < LISTING_FRESH
+        {
+            return Ok(json.clone());
+        }
+        let list = super::archive::list(&self.client, station.as_deref()).await?;
+        self.listings_made
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let json = serde_json::to_vec(&serde_json::json!({ "archive": list }))
+            .map(Bytes::from)
+            .map_err(|e| e.to_string())?;
+        // Any name may be asked for: the table is bounded.
+        if listings.len() >= 64 {
+            listings.clear();
+        }
+        listings.insert(station, (Instant::now(), json.clone()));
+        Ok(json)
     }
 
     /// The replay of an archived recording that a viewer has open now: what an observer may
@@ -805,6 +842,9 @@ async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
     }
 }
 
+/// How long an archive's list is served as it was made: the hub's page asks every 2 s.
+const LISTING_FRESH: Duration = Duration::from_secs(2);
+
 /// The stations a hub lists at most (a lab has tens).
 const MAX_STATIONS: usize = 512;
 /// The largest heartbeat taken as one, bytes.
@@ -869,11 +909,8 @@ async fn api_archive(
     ) {
         return refusal;
     }
-    match super::archive::list(&lab.client, q.station.as_deref()).await {
-        Ok(list) => match serde_json::to_vec(&serde_json::json!({ "archive": list })) {
-            Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
-            Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
-        },
+    match lab.archive_listing(q.station).await {
+        Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
         Err(e) => refused("the archive's list", (StatusCode::BAD_GATEWAY, e)),
     }
 }
@@ -1120,6 +1157,8 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         archives: Mutex::new(HashMap::new()),
         making: tokio::sync::Mutex::new(()),
         replays: super::replays::ReplayCache::new(options.replay_cache),
+        listings: tokio::sync::Mutex::new(HashMap::new()),
+        listings_made: std::sync::atomic::AtomicU64::new(0),
         access: Arc::clone(&access),
         limits: options.viewer_limits,
         shutdown: shutdown_rx.clone(),
