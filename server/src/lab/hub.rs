@@ -732,18 +732,28 @@ fn rewrite_mesh_urls(scene: &str, prefix: &str) -> Result<String, String> {
     serde_json::to_string(&value).map_err(|e| e.to_string())
 }
 
-/// Whether a message from a station's stats subject may go to viewers: the 1 Hz messages a
-/// station sends there (`stats`, `metrics`), decoded as the wire's; anything else, however it
-/// got onto the subject, would make every viewer drop its connection as malformed.
-fn relayable_stats(text: &str) -> Result<(), String> {
+/// What of a message from a station's stats subject goes to viewers: the 1 Hz messages a
+/// station sends there (`stats`, `metrics`), decoded as the wire's and encoded again (nothing a
+/// station padded them with is passed on); anything else, however it got onto the subject,
+/// would make every viewer drop its connection as malformed.
+fn relayable_stats(text: &str) -> Result<String, String> {
     match ServerMessage::decode(text) {
-        Ok(ServerMessage::Stats(_) | ServerMessage::Metrics(_)) => Ok(()),
+        Ok(m @ (ServerMessage::Stats(_) | ServerMessage::Metrics(_))) => {
+            m.encode().map_err(|e| e.to_string())
+        }
         Ok(other) => Err(format!("a {} message", other.type_name())),
         Err(e) => Err(e.to_string()),
     }
 }
 
-/// The station's frames and stats from NATS into the feed's stream hub.
+/// Frames a second relayed from one station at most (it sends 50).
+const MAX_FRAMES_PER_S: f64 = 100.0;
+/// Stats and metrics messages a second relayed from one station at most (it sends 2).
+const MAX_STATS_PER_S: f64 = 10.0;
+
+/// The station's frames and stats from NATS into the feed's stream hub: each decoded and
+/// encoded again (nothing a station padded them with is passed on), at most
+/// [`MAX_FRAMES_PER_S`] and [`MAX_STATS_PER_S`].
 async fn relay(
     name: String,
     mut contact: async_nats::Subscriber,
@@ -752,11 +762,31 @@ async fn relay(
     mut stop: watch::Receiver<bool>,
 ) {
     let mut refused = 0u64;
+    // A station sends 50 frames and 2 stats or metrics messages a second; one sending far more
+    // (a broken or rogue publisher) is cut to this for the hub's viewers.
+    let cap = |per_s: f64| {
+        access::MessageRate::new(
+            &access::ConnectionLimits {
+                messages_per_s: per_s,
+                message_burst: per_s,
+                ..access::ConnectionLimits::default()
+            },
+            std::time::Instant::now(),
+        )
+    };
+    let (mut frame_rate, mut stats_rate) = (cap(MAX_FRAMES_PER_S), cap(MAX_STATS_PER_S));
     loop {
         tokio::select! {
             _ = stop.changed() => break,
             m = contact.next() => {
                 let Some(m) = m else { break };
+                if !frame_rate.allow(std::time::Instant::now()) {
+                    refused += 1;
+                    if refused == 1 || refused.is_power_of_two() {
+                        tracing::warn!(station = %name, "frames faster than {MAX_FRAMES_PER_S} a second are not relayed ({refused} refused so far)");
+                    }
+                    continue;
+                }
                 match String::from_utf8(m.payload.to_vec()).map_err(|e| e.to_string()).and_then(EncodedFrame::from_text) {
                     Ok(frame) => {
                         let _ = hub.frames.send(Arc::new(frame));
@@ -772,9 +802,13 @@ async fn relay(
             }
             m = stats.next() => {
                 let Some(m) = m else { break };
+                if !stats_rate.allow(std::time::Instant::now()) {
+                    refused += 1;
+                    continue;
+                }
                 let checked = String::from_utf8(m.payload.to_vec())
                     .map_err(|e| e.to_string())
-                    .and_then(|text| relayable_stats(&text).map(|()| text));
+                    .and_then(|text| relayable_stats(&text));
                 match checked {
                     Ok(text) => {
                         let _ = hub.stats.send(Utf8Bytes::from(text));
@@ -1291,6 +1325,14 @@ mod tests {
     fn only_stats_and_metrics_are_relayed_from_a_stations_stats_subject() {
         relayable_stats(&vector("stats")).unwrap();
         relayable_stats(&vector("metrics")).unwrap();
+        // Padded: what is relayed is the message alone.
+        let stats = vector("stats");
+        let padded = stats.replacen('{', &format!("{{{}", " ".repeat(10_000)), 1);
+        assert_eq!(
+            relayable_stats(&padded).unwrap(),
+            relayable_stats(&stats).unwrap()
+        );
+        assert!(relayable_stats(&padded).unwrap().len() < 2000);
         for bad in [
             "<script>not json".to_owned(),
             vector("hello"),
