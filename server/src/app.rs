@@ -448,6 +448,9 @@ pub(crate) fn serve_http(
     caps: crate::tls::ConnectionCaps,
     shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
+    // Every connection the caps allow must fit under the open-file limit, or the ones past it
+    // fail at accept instead of being refused.
+    crate::tls::ensure_open_file_limit(&caps);
     crate::tls::serve(listener, app, tls, caps, shutdown)
 }
 

@@ -45,7 +45,7 @@ use rustls::ServerConfig;
 
 pub use certificate::{default_data_dir, fingerprint_sha256};
 use certificate::{given_certificate, self_signed, self_signed_names};
-pub use serve::{ConnectionCaps, serve};
+pub use serve::{ConnectionCaps, ensure_open_file_limit, open_file_limit_plan, serve};
 
 /// The file in the data directory that keeps the self-signed certificate (PEM).
 pub const SELF_SIGNED_CERT_FILE: &str = "self-signed-cert.pem";
