@@ -455,6 +455,9 @@ pub(crate) fn serve_http(
     caps: crate::tls::ConnectionCaps,
     shutdown: watch::Receiver<bool>,
 ) -> JoinHandle<()> {
+    // Every connection the caps allow must fit under the open-file limit, or the ones past it
+    // fail at accept instead of being refused.
+    crate::tls::ensure_open_file_limit(&caps);
     crate::tls::serve(listener, app, tls, caps, shutdown)
 }
 
@@ -499,7 +502,7 @@ fn router(viewer: &Viewer, state: AppState) -> Router {
             access::guard_host,
         ));
     // Outermost, so that refusals (421, 401, 403) carry the headers too.
-    access::with_security_headers(routes, access.csp().clone())
+    access::with_security_headers(routes, access.csp().clone(), access.config.strict_transport)
 }
 
 /// `/api/stations` of a station: it is not a lab hub (see `lab::hub`).
@@ -560,10 +563,12 @@ pub(crate) fn upgrade_viewer(
     let origin = match hub.access.check_origin(headers) {
         Ok(origin) => origin,
         Err(reason) => {
-            tracing::warn!(
-                client = %peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
-                "WebSocket upgrade refused (403): {reason}"
-            );
+            if hub.access.log_refusal("403 (Origin)") {
+                tracing::warn!(
+                    client = %peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+                    "WebSocket upgrade refused (403): {reason}"
+                );
+            }
             return access::json_error(StatusCode::FORBIDDEN, "origin not allowed");
         }
     };
@@ -572,13 +577,13 @@ pub(crate) fn upgrade_viewer(
     limits.bound(upgrade).on_upgrade(move |socket| async move {
         match admission {
             Ok(admission) => {
-                let mut connection = Connection::new(peer, origin, Some(admission));
+                let mut connection = Connection::new(&hub.access, peer, origin, Some(admission));
                 let end = stream::serve_viewer(socket, hub, &mut connection).await;
                 connection.finish(&end);
             }
             Err(refusal) => {
                 stream::refuse_connection(socket, &hub, refusal).await;
-                Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                Connection::new(&hub.access, peer, origin, None).finish(&ViewerEnd::Limit(refusal));
             }
         }
     })

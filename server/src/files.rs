@@ -98,6 +98,27 @@ impl From<ReadError> for std::io::Error {
     }
 }
 
+/// Whether users other than the owner may read or write `path` (a secret: a key, a token or
+/// credentials file; a directory of them): said as a warning naming it, `what` it is and the
+/// `chmod` that fixes it. A secret others may read is theirs too; it is not refused, as the
+/// owner may mean it (a group of instructors), but it is never silent.
+pub fn warn_if_others_may_read(path: &Path, what: &str) -> bool {
+    use std::os::unix::fs::PermissionsExt;
+    let Ok(meta) = std::fs::metadata(path) else {
+        return false;
+    };
+    let open = meta.permissions().mode() & 0o077 != 0;
+    if open {
+        let fix = if meta.is_dir() { "700" } else { "600" };
+        tracing::warn!(
+            file = %path.display(),
+            mode = format_args!("{:o}", meta.permissions().mode() & 0o777),
+            "{what} may be read by other users of this machine (chmod {fix} it)"
+        );
+    }
+    open
+}
+
 /// What a path that is not a regular file is, in words.
 fn kind_of(file_type: std::fs::FileType) -> &'static str {
     use std::os::unix::fs::FileTypeExt;
@@ -176,6 +197,24 @@ pub fn read_text(path: &Path, kind: FileKind) -> Result<String, ReadError> {
 #[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_secret_others_may_read_is_told_and_one_only_its_owner_reads_is_not() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let key = dir.path().join("key.pem");
+        std::fs::write(&key, "secret").unwrap();
+        for (mode, open) in [(0o644, true), (0o640, true), (0o600, false), (0o400, false)] {
+            std::fs::set_permissions(&key, std::fs::Permissions::from_mode(mode)).unwrap();
+            assert_eq!(warn_if_others_may_read(&key, "a key"), open, "{mode:o}");
+        }
+        std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+        assert!(warn_if_others_may_read(dir.path(), "a data directory"));
+        assert!(!warn_if_others_may_read(
+            &dir.path().join("none"),
+            "nothing"
+        ));
+    }
 
     fn scratch(name: &str) -> std::path::PathBuf {
         let dir =

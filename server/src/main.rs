@@ -161,6 +161,14 @@ struct HubArgs {
     access: AccessArgs,
     #[command(flatten)]
     tls: softhaptic_server::tls::TlsArgs,
+    /// Memory the hub keeps for archived recordings' replays, MiB: the replays open, and those
+    /// closed in the last --replay-expiry seconds; a replay that does not fit is refused until
+    /// one closes.
+    #[arg(long, default_value_t = 1024, value_name = "MIB")]
+    replay_memory_mib: u64,
+    /// How long a closed replay's recording is kept for a viewer that comes back, seconds.
+    #[arg(long, default_value_t = 600, value_name = "S")]
+    replay_expiry: u64,
 }
 
 fn main() -> std::process::ExitCode {
@@ -229,11 +237,17 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
 }
 
 fn hub(args: HubArgs) -> anyhow::Result<()> {
-    let access = args.access.resolve(args.addr)?;
+    let mut access = args.access.resolve(args.addr)?;
     let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
+    access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
+    access.links_dir = args
+        .tls
+        .data_dir
+        .clone()
+        .or_else(softhaptic_server::tls::default_data_dir);
     let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
@@ -250,6 +264,10 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
             access: access.clone(),
             tls: tls.map(|t| t.config),
             viewer_limits: Default::default(),
+            replay_cache: softhaptic_server::lab::replays::ReplayCacheLimits {
+                max_bytes: args.replay_memory_mib.saturating_mul(1 << 20),
+                idle_expiry: std::time::Duration::from_secs(args.replay_expiry),
+            },
         })
         .await?;
         let mut access = access;
@@ -268,7 +286,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
 fn run(args: RunArgs) -> anyhow::Result<()> {
     // Refuse to serve an address beyond loopback without tokens, and bad token sources, before
     // anything starts.
-    let access = args.access.resolve(args.addr)?;
+    let mut access = args.access.resolve(args.addr)?;
     if let Some(url) = &args.nats {
         // Refused with the reason, never the URL: it would carry the credentials.
         softhaptic_server::lab::parse_nats_url(url).map_err(|e| anyhow::anyhow!("--nats: {e}"))?;
@@ -278,6 +296,12 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
+    access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
+    access.links_dir = args
+        .tls
+        .data_dir
+        .clone()
+        .or_else(softhaptic_server::tls::default_data_dir);
     // A page that could not run (a --web-dir without three.js) stops the start too.
     let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     // Refuse a bad scene before anything starts. A scene not found as given is looked for
@@ -376,14 +400,15 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             }
             _ => None,
         };
-        // The token is in the fragment, which no request carries; printed on stdout only.
+        // The token is in the fragment, which no request carries; on a terminal or a pipe only
+        // (else in a 0600 file the log names).
         let mut access = access;
         access.print_links(
             &server.viewer_url(),
             server.local_addr(),
             ["viewer", "observer"],
         );
-        // For a supervisor: up, and where (the links, with their tokens, are on stdout only).
+        // For a supervisor: up, and where (the links, with their tokens, are never logged).
         tracing::info!(addr = %server.local_addr(), "serving viewers");
         let signal = stop.recv().await;
         tracing::info!(signal, "shutting down");

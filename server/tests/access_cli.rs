@@ -711,3 +711,239 @@ fn every_refusal_leaves_a_log_line_and_every_connection_an_audit_line_without_a_
         assert_eq!(printed, 1, "the token is printed once, in its link");
     }
 }
+
+/// A storm of refusals of every kind a client without a token can cause (a wrong Host, no
+/// token, a foreign Origin, a WebSocket whose first message is not an `auth`): at most 20 are
+/// logged one by one per 10 s, and a summary line counts the rest, so that every refusal is
+/// accounted for and the log grows by lines per interval, not per refusal. (One line per
+/// refusal before: 400 lines for these 400.)
+#[test]
+fn a_refusal_storm_is_logged_in_lines_per_interval_with_a_summary_of_the_rest() {
+    let mut server = Server::start(
+        &[
+            "--tokens",
+            "--addr",
+            "127.0.0.1:0",
+            "--no-record",
+            "--no-realtime",
+        ],
+        &[("RUST_LOG", "info")],
+    );
+    let (addr, _) = split_link(&server.line("viewer: "), "instructor");
+    let port = addr.rsplit(':').next().unwrap().to_owned();
+    let rebound = format!("evil.example:{port}");
+    const STORM: u64 = 400;
+    let started = Instant::now();
+    for i in 0..STORM {
+        match i % 4 {
+            0 => {
+                let response = http_get_naming(&addr, &rebound, "/api/scene", None);
+                assert!(response.starts_with("HTTP/1.1 421"), "{response}");
+            }
+            1 => {
+                let response = http_get(&addr, "/api/scene", None);
+                assert!(response.starts_with("HTTP/1.1 401"), "{response}");
+            }
+            2 => assert_eq!(
+                connect_from_origin(&addr, "http://evil.example").err(),
+                Some(403)
+            ),
+            _ => {
+                let mut socket = connect(&addr, None);
+                socket
+                    .send(tungstenite::Message::text("not an auth"))
+                    .unwrap();
+                assert_eq!(next_json(&mut socket), Err(Some(4401)));
+            }
+        }
+    }
+    let storm = started.elapsed();
+    let (_, log) = server.stop();
+    let refusal_lines = log
+        .lines()
+        .filter(|l| {
+            l.contains("request refused")
+                || l.contains("upgrade refused")
+                || (l.contains("viewer connection ended") && l.contains("refused"))
+        })
+        .count() as u64;
+    let not_logged: u64 = log
+        .lines()
+        .filter(|l| l.contains("refusals not logged one by one"))
+        .map(|l| {
+            let n = l
+                .split("not_logged=")
+                .nth(1)
+                .unwrap_or_else(|| panic!("{l}"));
+            n.split(|c: char| !c.is_ascii_digit())
+                .next()
+                .unwrap()
+                .parse::<u64>()
+                .unwrap()
+        })
+        .sum();
+    eprintln!(
+        "{STORM} refusals in {:.2} s: {refusal_lines} refusal lines ({:.0} per second), {not_logged} in summaries",
+        storm.as_secs_f64(),
+        refusal_lines as f64 / storm.as_secs_f64().max(1e-3)
+    );
+    let intervals = storm.as_secs() / 10 + 1;
+    assert!(
+        refusal_lines <= 20 * intervals,
+        "{refusal_lines} refusal lines in {intervals} intervals of 10 s"
+    );
+    assert_eq!(
+        refusal_lines + not_logged,
+        STORM,
+        "every refusal accounted for"
+    );
+}
+
+/// Standard output that keeps what it is given (a file here; the journal under systemd) gets
+/// no token: the links go to `links.txt`, mode 0600, in the data directory, and the log names
+/// that file. (A terminal or a pipe, which every other test here reads, gets them as before.)
+#[test]
+fn links_with_tokens_go_to_a_private_file_when_stdout_would_keep_them() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = scratch("links-file");
+    std::fs::create_dir_all(&dir).unwrap();
+    let stdout_path = dir.join("stdout.log");
+    let data_dir = dir.join("data");
+    let mut child = command(
+        &[
+            "--tokens",
+            "--addr",
+            "127.0.0.1:0",
+            "--no-record",
+            "--no-realtime",
+            "--data-dir",
+            data_dir.to_str().unwrap(),
+        ],
+        &[("RUST_LOG", "info")],
+    )
+    .stdout(std::fs::File::create(&stdout_path).unwrap())
+    .spawn()
+    .unwrap();
+    let links = data_dir.join("links.txt");
+    let started = Instant::now();
+    while !std::fs::read_to_string(&links).is_ok_and(|t| t.contains("observer: ")) {
+        assert!(started.elapsed() < DEADLINE, "no {}", links.display());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    support::stop_with_signal(&mut child, "TERM");
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    let text = std::fs::read_to_string(&links).unwrap();
+    let (_, instructor) = split_link(
+        text.lines()
+            .find_map(|l| l.strip_prefix("viewer: "))
+            .unwrap(),
+        "instructor",
+    );
+    assert!(is_generated_token(&instructor), "{text}");
+    assert_eq!(
+        std::fs::metadata(&links).unwrap().permissions().mode() & 0o777,
+        0o600
+    );
+    let stdout = std::fs::read_to_string(&stdout_path).unwrap();
+    assert!(!stdout.contains("#token="), "{stdout}");
+    assert!(!stdout.contains(&instructor) && !stderr.contains(&instructor));
+    let named = log_line(&stderr, &["links to open are in this file"]);
+    assert!(named.contains(&links.display().to_string()), "{named}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Standard output a socket: the journal's (systemd names it in `JOURNAL_STREAM`, as
+/// `device:inode`) gets no token, the links go to the 0600 file; any other socket (a program
+/// reading the links, as node's pipes are) gets them printed.
+#[test]
+fn links_go_to_the_file_under_the_journal_and_to_any_other_socket_as_printed() {
+    use std::os::fd::OwnedFd;
+    use std::os::unix::fs::MetadataExt;
+    use std::os::unix::net::UnixStream;
+    for journal in [true, false] {
+        let dir = scratch(&format!("links-journal-{journal}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let data_dir = dir.join("data");
+        let (ours, theirs) = UnixStream::pair().unwrap();
+        let meta = std::fs::metadata(format!(
+            "/proc/self/fd/{}",
+            std::os::fd::AsRawFd::as_raw_fd(&theirs)
+        ))
+        .unwrap();
+        let stream = format!("{}:{}", meta.dev(), meta.ino());
+        let env: Vec<(&str, &str)> = if journal {
+            vec![("RUST_LOG", "info"), ("JOURNAL_STREAM", &stream)]
+        } else {
+            vec![("RUST_LOG", "info")]
+        };
+        let mut child = command(
+            &[
+                "--tokens",
+                "--addr",
+                "127.0.0.1:0",
+                "--no-record",
+                "--no-realtime",
+                "--data-dir",
+                data_dir.to_str().unwrap(),
+            ],
+            &env,
+        )
+        .stdout(std::process::Stdio::from(OwnedFd::from(theirs)))
+        .spawn()
+        .unwrap();
+        let mut stderr = child.stderr.take().unwrap();
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = stderr.read_to_string(&mut text);
+            text
+        });
+        let links = data_dir.join("links.txt");
+        // What the socket gets, line by line.
+        let (tx, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(ours).lines() {
+                let Ok(line) = line else { break };
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        let mut printed = String::new();
+        if journal {
+            let started = Instant::now();
+            while !std::fs::read_to_string(&links).is_ok_and(|t| t.contains("observer: ")) {
+                assert!(started.elapsed() < DEADLINE, "no {}", links.display());
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        } else {
+            while !printed.contains("observer: ") {
+                let line = lines
+                    .recv_timeout(DEADLINE)
+                    .unwrap_or_else(|_| panic!("no links on the socket: {printed}"));
+                printed.push_str(&line);
+                printed.push('\n');
+            }
+        }
+        support::stop_with_signal(&mut child, "TERM");
+        while let Ok(line) = lines.recv_timeout(Duration::from_secs(5)) {
+            printed.push_str(&line);
+            printed.push('\n');
+        }
+        let log = stderr.join().unwrap();
+        if journal {
+            assert!(!printed.contains("#token="), "{printed}");
+            assert!(std::fs::read_to_string(&links).unwrap().contains("#token="));
+            log_line(&log, &["links to open are in this file"]);
+        } else {
+            assert!(printed.contains("viewer: http://"), "{printed}\n{log}");
+            assert!(!links.exists());
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

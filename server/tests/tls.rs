@@ -214,6 +214,8 @@ async fn a_wss_viewer_that_trusts_the_self_signed_certificate_exchanges_messages
         .unwrap()
         .unwrap();
     assert!(setup.generated);
+    // Self-signed: never Strict-Transport-Security (a browser would refuse the click-through).
+    assert!(!setup.from_a_ca);
     assert_eq!(setup.self_signed_names, ["localhost", "127.0.0.1"]);
     assert_eq!(
         setup.certificate_path,
@@ -326,7 +328,7 @@ async fn a_second_start_reuses_the_kept_certificate_and_keeps_its_key_private() 
     let second = tls::server_config(&self_signed_args(&data_dir, &[]), LOOPBACK)
         .unwrap()
         .unwrap();
-    assert!(!second.generated);
+    assert!(!second.generated && !second.from_a_ca);
     assert_eq!(second.fingerprint_sha256, first.fingerprint_sha256);
     assert!(second.to_string().contains("kept from an earlier start"));
 
@@ -620,6 +622,8 @@ async fn a_certificate_and_key_from_pem_files_serve_wss_to_a_client_that_trusts_
     let setup = tls::server_config(&args, LOOPBACK).unwrap().unwrap();
     assert!(!setup.generated);
     assert!(setup.self_signed_names.is_empty());
+    // A CA's certificate: browsers may be told to use https only (Strict-Transport-Security).
+    assert!(setup.from_a_ca);
     assert_eq!(setup.certificate_path, cert_path);
     assert_eq!(
         setup.fingerprint_sha256,

@@ -14,9 +14,13 @@
 //! tokens: numbers replaced by extreme ones, brackets and quotes inserted, length fields of the
 //! binary format overwritten by huge values.
 //!
-//! A panic is a failure. [`run`] runs each input under [`std::panic::catch_unwind`] and saves
-//! an input that panicked under the caller's directory, named by target and content hash, so it
-//! can be turned into a regression test. The offline report (`src/bin/fuzz_report.rs`) runs
+//! A panic is a failure, and so is an input that makes its parser hold more memory at once than
+//! the target's limit ([`Target::max_memory_bytes`]: a parser that believes a length field, or
+//! keeps what a crafted input decompresses to). [`run`] runs each input under
+//! [`std::panic::catch_unwind`], measuring what it allocates with [`CountingAllocator`] (which the
+//! fuzzer's programs install as their global allocator), and saves an input that failed under
+//! the caller's directory, named by target and content hash, so it can be turned into a
+//! regression test. The offline report (`src/bin/fuzz_report.rs`) runs
 //! millions of inputs per target; `tests/fuzz_seeded.rs` runs a few thousand in the test suite.
 
 use std::cell::RefCell;
@@ -57,6 +61,96 @@ pub struct Target {
     pub seeds: Vec<Vec<u8>>,
     /// The parser and what follows it; it must return, never panic.
     pub run: fn(&[u8]) -> Outcome,
+    /// The most memory one input may make it hold at once, bytes (counted by
+    /// [`CountingAllocator`], on the thread that runs the input).
+    pub max_memory_bytes: u64,
+}
+
+/// The memory limit of the text targets: a few times what the largest seed's scene, mesh or
+/// table takes.
+const TEXT_MEMORY_LIMIT: u64 = 256 << 20;
+/// The recordings' limit: what the reader may decode from a small file (32 MiB), one chunk's
+/// decompression in the walk and again in the MCAP library (at most 64 MiB each), and the
+/// rest. A reader that kept what a crafted file decompresses to would go far past it.
+const MCAP_MEMORY_LIMIT: u64 = 256 << 20;
+
+/// The global allocator of the fuzzer's programs (`#[global_allocator] static A:
+/// CountingAllocator = CountingAllocator;`): the system's, counting per thread the bytes
+/// allocated and not yet freed, and the most at once, so that [`run_one`] knows what an input
+/// cost. Counting is two thread-local integers per call, and never allocates.
+pub struct CountingAllocator;
+
+thread_local! {
+    static LIVE_BYTES: std::cell::Cell<i64> = const { std::cell::Cell::new(0) };
+    static PEAK_BYTES: std::cell::Cell<i64> = const { std::cell::Cell::new(0) };
+}
+
+/// Whether a [`CountingAllocator`] counted anything (it is the global allocator).
+static COUNTING: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+fn count_allocation(delta: i64) {
+    // `try_with`: a thread being torn down has no counters left; its frees are not counted.
+    let _ = LIVE_BYTES.try_with(|live| {
+        let now = live.get() + delta;
+        live.set(now);
+        let _ = PEAK_BYTES.try_with(|peak| peak.set(peak.get().max(now)));
+    });
+}
+
+// SAFETY: every call is passed to the system allocator unchanged; the counting touches
+// thread-local integers only and never allocates.
+unsafe impl std::alloc::GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
+        // SAFETY: the caller's contract is `GlobalAlloc::alloc`'s, passed on.
+        let p = unsafe { std::alloc::System.alloc(layout) };
+        if !p.is_null() {
+            count_allocation(layout.size() as i64);
+        }
+        p
+    }
+    unsafe fn alloc_zeroed(&self, layout: std::alloc::Layout) -> *mut u8 {
+        // SAFETY: as for `alloc`.
+        let p = unsafe { std::alloc::System.alloc_zeroed(layout) };
+        if !p.is_null() {
+            count_allocation(layout.size() as i64);
+        }
+        p
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: std::alloc::Layout) {
+        // SAFETY: `ptr` was allocated by `System` with `layout` (every allocation goes there).
+        unsafe { std::alloc::System.dealloc(ptr, layout) };
+        count_allocation(-(layout.size() as i64));
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: std::alloc::Layout, new_size: usize) -> *mut u8 {
+        // SAFETY: as for `dealloc`, and the caller's contract for `new_size`.
+        let p = unsafe { std::alloc::System.realloc(ptr, layout, new_size) };
+        if !p.is_null() {
+            count_allocation(new_size as i64 - layout.size() as i64);
+        }
+        p
+    }
+}
+
+/// Starts measuring this thread's peak from what it holds now; [`CountingAllocator`] only.
+fn start_measuring() -> i64 {
+    let live = LIVE_BYTES.with(std::cell::Cell::get);
+    PEAK_BYTES.with(|peak| peak.set(live));
+    live
+}
+
+/// The most this thread held at once since `start_measuring` returned `from`, bytes.
+fn measured_peak(from: i64) -> u64 {
+    let peak = PEAK_BYTES.with(std::cell::Cell::get);
+    if peak > 0 {
+        COUNTING.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+    (peak - from).max(0) as u64
+}
+
+/// Whether the program's global allocator is a [`CountingAllocator`] (known once an input ran):
+/// without it the memory limits check nothing.
+pub fn memory_is_counted() -> bool {
+    COUNTING.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 /// The names of every target, in the order [`targets`] returns them.
@@ -79,6 +173,7 @@ pub fn targets(root: &Path) -> Result<Vec<Target>, String> {
             text: true,
             seeds: files_with_extension(&root.join("scenes"), "toml")?,
             run: scene_toml,
+            max_memory_bytes: TEXT_MEMORY_LIMIT,
         },
         Target {
             name: "obj",
@@ -86,6 +181,7 @@ pub fn targets(root: &Path) -> Result<Vec<Target>, String> {
             text: true,
             seeds: obj_seeds(root)?,
             run: obj,
+            max_memory_bytes: TEXT_MEMORY_LIMIT,
         },
         Target {
             name: "calibration",
@@ -93,6 +189,7 @@ pub fn targets(root: &Path) -> Result<Vec<Target>, String> {
             text: true,
             seeds: calibration_seeds(root)?,
             run: calibration_json,
+            max_memory_bytes: TEXT_MEMORY_LIMIT,
         },
         Target {
             name: "limits",
@@ -100,6 +197,7 @@ pub fn targets(root: &Path) -> Result<Vec<Target>, String> {
             text: true,
             seeds: vec![read(&root.join("scenes/calibration/model_limits.json"))?],
             run: limits_json,
+            max_memory_bytes: TEXT_MEMORY_LIMIT,
         },
         Target {
             name: "mcap",
@@ -107,6 +205,7 @@ pub fn targets(root: &Path) -> Result<Vec<Target>, String> {
             text: false,
             seeds: mcap_seeds(root)?,
             run: mcap,
+            max_memory_bytes: MCAP_MEMORY_LIMIT,
         },
         Target {
             name: "wire",
@@ -114,6 +213,7 @@ pub fn targets(root: &Path) -> Result<Vec<Target>, String> {
             text: true,
             seeds: wire_seeds(root)?,
             run: wire_messages,
+            max_memory_bytes: TEXT_MEMORY_LIMIT,
         },
     ])
 }
@@ -779,16 +879,42 @@ fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
     }
 }
 
-/// Runs one input; `Err` holds the panic's message (and place, with the quiet hook).
+/// Runs one input; `Err` holds the panic's message (and place, with the quiet hook), or says
+/// how far the input took the target past its memory limit.
 pub fn run_one(target: &Target, input: &[u8]) -> Result<Outcome, String> {
+    run_measured(target, input).0
+}
+
+/// [`run_one`], and the most memory the input made the target hold at once (0 without a
+/// [`CountingAllocator`]).
+pub fn run_measured(target: &Target, input: &[u8]) -> (Result<Outcome, String>, u64) {
     let run = target.run;
     LAST_PANIC.with(|p| p.borrow_mut().take());
+    let from = start_measuring();
     // AssertUnwindSafe: the input is only read, and nothing the target built outlives it.
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(input))).map_err(|payload| {
-        LAST_PANIC
-            .with(|p| p.borrow_mut().take())
-            .unwrap_or_else(|| panic_message(payload.as_ref()))
-    })
+    let outcome =
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(input))).map_err(|payload| {
+            LAST_PANIC
+                .with(|p| p.borrow_mut().take())
+                .unwrap_or_else(|| panic_message(payload.as_ref()))
+        });
+    let peak = measured_peak(from);
+    if peak > target.max_memory_bytes {
+        let refused = match &outcome {
+            Ok(Outcome::Refused(e)) => format!(" before it was refused ({e})"),
+            _ => String::new(),
+        };
+        return (
+            Err(format!(
+                "held {} MiB at once for an input of {} bytes{refused}; the limit is {} MiB",
+                peak >> 20,
+                input.len(),
+                target.max_memory_bytes >> 20
+            )),
+            peak,
+        );
+    }
+    (outcome, peak)
 }
 
 /// One input that panicked.
@@ -812,6 +938,8 @@ pub struct Stats {
     /// echoed back), a rough count of the different ways inputs were refused.
     pub distinct_errors: HashSet<u64>,
     pub crashes: Vec<Crash>,
+    /// The most memory one input made the target hold at once, bytes (0 when not counted).
+    pub max_memory_bytes: u64,
 }
 
 /// Saved crash files per target at most: after that only the count grows (the same panic hit
@@ -832,7 +960,9 @@ pub fn run(
     let mut stats = Stats::default();
     for index in start..start.saturating_add(count) {
         let input = make_input(target, seed, index);
-        match run_one(target, &input) {
+        let (outcome, peak) = run_measured(target, &input);
+        stats.max_memory_bytes = stats.max_memory_bytes.max(peak);
+        match outcome {
             Ok(Outcome::Accepted) => stats.accepted += 1,
             Ok(Outcome::Skipped) => stats.skipped += 1,
             Ok(Outcome::Refused(message)) => {

@@ -16,7 +16,10 @@
 //! - [`fuzz`]: a mutation fuzzer of every parser that takes outside input (scene, OBJ,
 //!   calibration and limits JSON, recordings, wire messages), run offline by `fuzz-report` and
 //!   briefly by `tests/fuzz_seeded.rs`.
+//! - [`crafted`]: recordings made to hurt their reader (valid, but padded to decode to far more
+//!   than their size), for `tests/recording_limits.rs` and `padded-recording`.
 
+pub mod crafted;
 pub mod fuzz;
 pub mod nats;
 pub mod standin;

@@ -361,6 +361,7 @@ pub async fn start_hub(
         access,
         tls: None,
         viewer_limits: Default::default(),
+        replay_cache: Default::default(),
     })
     .await
     .expect("the hub starts")

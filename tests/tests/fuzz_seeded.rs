@@ -9,6 +9,10 @@
 
 use softhaptic_tests::fuzz::{self, Target};
 
+// Each input is held to its target's memory limit (a crash when it goes past): this counts.
+#[global_allocator]
+static ALLOCATOR: fuzz::CountingAllocator = fuzz::CountingAllocator;
+
 const SEED: u64 = 7;
 
 fn target(name: &str) -> Target {
@@ -31,6 +35,7 @@ fn no_input_panics(name: &str, count: u64) {
         .map(|c| format!("input {}: {} (saved as {:?})", c.index, c.message, c.saved))
         .collect();
     assert!(crashes.is_empty(), "{name}: {crashes:#?}");
+    assert!(fuzz::memory_is_counted(), "the memory limits count nothing");
     // Mutations that never reach past the first byte's check would prove nothing.
     assert!(
         stats.accepted > 0 && stats.refused > 0,
@@ -68,6 +73,25 @@ fn mutated_recordings_are_refused_or_summarised_without_a_panic() {
 #[test]
 fn mutated_wire_messages_are_refused_or_decoded_on_both_sides_without_a_panic() {
     no_input_panics("wire", 5000);
+}
+
+/// A recording padded to decode to 200 MiB (four contact frames of 50 MiB of whitespace, 140 KB
+/// on disk) is refused within the recordings' memory limit: the reader once held all of it.
+#[test]
+fn a_recording_padded_to_decode_to_hundreds_of_mib_is_refused_within_the_memory_limit() {
+    let target = target("mcap");
+    let dir = softhaptic_tests::scratch_dir("fuzz-padded");
+    let path = dir.join("padded.mcap");
+    softhaptic_tests::crafted::padded_recording(&path, 4, 50 << 20);
+    let input = std::fs::read(&path).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let (outcome, peak) = fuzz::run_measured(&target, &input);
+    match outcome {
+        Ok(fuzz::Outcome::Refused(e)) => assert!(e.contains("more than the limit of"), "{e}"),
+        other => panic!("{other:?}"),
+    }
+    assert!(fuzz::memory_is_counted());
+    assert!(peak < 64 << 20, "{} MiB", peak >> 20);
 }
 
 #[test]

@@ -23,6 +23,9 @@ pub struct ConnectionLimits {
     pub max_per_address: u32,
     /// Connections waiting to present their token.
     pub max_pending: u32,
+    /// Connections waiting to present their token from one client address (IPv6: one /64;
+    /// loopback, a reverse proxy's, is not capped).
+    pub max_pending_per_address: u32,
     /// Incoming messages a connection may send per second, on average...
     pub messages_per_s: f64,
     /// ...and at once, after a quiet spell.
@@ -37,6 +40,9 @@ impl Default for ConnectionLimits {
             max_viewers: 500,
             max_per_address: 50,
             max_pending: 64,
+            // A browser opens one connection at a time and presents its token within
+            // milliseconds; a few more allow for tabs reconnecting at once.
+            max_pending_per_address: 8,
             // A viewer sends a handful of messages per click; a person cannot click 50 times a
             // second, a script flooding the server can.
             messages_per_s: 50.0,
@@ -60,6 +66,13 @@ pub struct AccessConfig {
     pub host_names: Vec<String>,
     /// The server speaks https and wss (TLS): its own origin's scheme is `https`.
     pub secure_transport: bool,
+    /// Tell browsers to use https only for this host (`Strict-Transport-Security`): set when
+    /// the certificate is a CA's (`--tls-cert`), which browsers trust without a click. Never
+    /// with a self-signed one: a browser that has seen the header refuses the click-through.
+    pub strict_transport: bool,
+    /// Where the links with their tokens are written when standard output would keep them (a
+    /// journal, a file): [`AccessConfig::print_links`]. The data directory.
+    pub links_dir: Option<PathBuf>,
     pub limits: ConnectionLimits,
 }
 
@@ -83,6 +96,8 @@ impl Default for AccessConfig {
             allowed_origins: Vec::new(),
             host_names: Vec::new(),
             secure_transport: false,
+            strict_transport: false,
+            links_dir: None,
             limits: ConnectionLimits::default(),
         }
     }
@@ -188,20 +203,95 @@ impl AccessConfig {
         ))
     }
 
-    /// Prints on stdout (never in a log: the token is in the link) the links to open for a server
-    /// at `url` bound to `addr`: one per role when there are tokens, `{label}: URL` otherwise;
-    /// `labels` are the instructor's and the observer's.
+    /// Prints the links to open for a server at `url` bound to `addr`: one per role when there
+    /// are tokens, `{label}: URL` otherwise; `labels` are the instructor's and the observer's.
+    /// Never in a log (the token is in the link), and on standard output only when it is a
+    /// terminal, a pipe or a socket (a person, or a program that reads them): when it goes to the
+    /// journal (a service), a file or nowhere, which would keep the tokens for whoever reads those, the
+    /// links go to `links.txt` (mode 0600) in [`AccessConfig::links_dir`], which the log names.
     pub fn print_links(&mut self, url: &str, addr: SocketAddr, labels: [&str; 2]) {
         self.secure_transport = url.starts_with("https:");
         let base = self.public_base(url, addr);
-        match self.links(&base) {
-            Some((instructor, observer)) => {
-                crate::logging::print_line(format_args!("{}: {instructor}", labels[0]));
-                crate::logging::print_line(format_args!("{}: {observer}", labels[1]));
-            }
-            None => crate::logging::print_line(format_args!("{}: {base}", labels[0])),
+        let Some((instructor, observer)) = self.links(&base) else {
+            crate::logging::print_line(format_args!("{}: {base}", labels[0]));
+            return;
+        };
+        if stdout_is_read_now() {
+            crate::logging::print_line(format_args!("{}: {instructor}", labels[0]));
+            crate::logging::print_line(format_args!("{}: {observer}", labels[1]));
+            return;
+        }
+        let text = zeroize::Zeroizing::new(format!(
+            "{}: {instructor}\n{}: {observer}\n",
+            labels[0], labels[1]
+        ));
+        match write_links_file(self.links_dir.as_deref(), &text) {
+            Ok(path) => tracing::warn!(
+                file = %path.display(),
+                "standard output is not a terminal or a pipe (a journal or a file would keep the \
+                 tokens): the links to open are in this file (mode 0600) instead"
+            ),
+            Err(e) => tracing::error!(
+                "standard output is not a terminal or a pipe, and the links could not be written \
+                 to a file ({e}): they are not shown; give --data-dir, or the tokens with \
+                 --token-file"
+            ),
         }
     }
+}
+
+/// Whether standard output is read as it is written: a terminal, a pipe, or a socket (a
+/// program reading it: node's pipes are socket pairs) other than the journal's. Anything else
+/// (the journal, a regular file, /dev/null) keeps or drops what it is given. systemd names its
+/// journal's stream in `JOURNAL_STREAM` (`device:inode`), as it documents for this purpose.
+fn stdout_is_read_now() -> bool {
+    use std::io::IsTerminal;
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    if std::io::stdout().is_terminal() {
+        return true;
+    }
+    let Ok(meta) = std::fs::metadata("/proc/self/fd/1") else {
+        return false;
+    };
+    let kind = meta.file_type();
+    if kind.is_fifo() {
+        return true;
+    }
+    if kind.is_socket() {
+        let journal = std::env::var("JOURNAL_STREAM").ok().and_then(|v| {
+            let (dev, ino) = v.split_once(':')?;
+            Some((dev.parse::<u64>().ok()?, ino.parse::<u64>().ok()?))
+        });
+        return journal != Some((meta.dev(), meta.ino()));
+    }
+    false
+}
+
+/// Writes `text` to `links.txt` in `dir` (made 0700 if missing), mode 0600; its path.
+fn write_links_file(dir: Option<&std::path::Path>, text: &str) -> std::io::Result<PathBuf> {
+    use std::io::Write as _;
+    use std::os::unix::fs::{DirBuilderExt, OpenOptionsExt, PermissionsExt};
+    let dir = dir.ok_or_else(|| {
+        std::io::Error::new(
+            std::io::ErrorKind::NotFound,
+            "no data directory (neither --data-dir, XDG_DATA_HOME nor HOME)",
+        )
+    })?;
+    std::fs::DirBuilder::new()
+        .recursive(true)
+        .mode(0o700)
+        .create(dir)?;
+    let path = dir.join("links.txt");
+    let mut file = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .mode(0o600)
+        .open(&path)?;
+    // A file left with another mode keeps its mode when opened: set it before writing.
+    file.set_permissions(std::fs::Permissions::from_mode(0o600))?;
+    file.write_all(text.as_bytes())?;
+    Ok(path)
 }
 
 /// The access options of `softhaptic run` and `softhaptic replay`.
@@ -305,6 +395,8 @@ impl AccessArgs {
             allowed_origins,
             host_names,
             secure_transport: false,
+            strict_transport: false,
+            links_dir: None,
             limits: ConnectionLimits {
                 max_viewers: self.max_viewers,
                 max_per_address: self.max_viewers_per_address,

@@ -19,6 +19,7 @@ pub enum LimitRefusal {
     TooManyViewers,
     TooManyFromAddress,
     TooManyPending,
+    TooManyPendingFromAddress,
 }
 
 impl LimitRefusal {
@@ -28,6 +29,9 @@ impl LimitRefusal {
             LimitRefusal::TooManyViewers => "too many viewers",
             LimitRefusal::TooManyFromAddress => "too many viewers from this address",
             LimitRefusal::TooManyPending => "too many connections waiting to authenticate",
+            LimitRefusal::TooManyPendingFromAddress => {
+                "too many connections from this address waiting to authenticate"
+            }
         }
     }
 }
@@ -38,6 +42,9 @@ pub(super) struct Counts {
     viewers: u32,
     pending: u32,
     per_address: HashMap<IpAddr, u32>,
+    /// Connections waiting for their token, per address (loopback, a reverse proxy's, not
+    /// counted): two addresses holding every waiting place would lock everyone else out.
+    pending_per_address: HashMap<IpAddr, u32>,
 }
 
 impl Access {
@@ -45,8 +52,10 @@ impl Access {
     /// limit it would break. The admission holds its places until dropped.
     pub fn admit(self: &Arc<Self>, ip: Option<IpAddr>) -> Result<Admission, LimitRefusal> {
         let limits = self.config.limits;
-        let ip = ip.map(|ip| ip.to_canonical());
+        let ip = ip.map(super::failures::counted_as);
         let pending = self.config.tokens.is_some();
+        // Loopback is a reverse proxy's: every viewer behind it comes from there.
+        let pending_ip = ip.filter(|ip| pending && !ip.is_loopback());
         let mut counts = self.counts.lock().unwrap_or_else(|e| e.into_inner());
         if counts.viewers >= limits.max_viewers {
             return Err(LimitRefusal::TooManyViewers);
@@ -59,6 +68,12 @@ impl Access {
         if pending && counts.pending >= limits.max_pending {
             return Err(LimitRefusal::TooManyPending);
         }
+        if let Some(ip) = pending_ip
+            && counts.pending_per_address.get(&ip).copied().unwrap_or(0)
+                >= limits.max_pending_per_address
+        {
+            return Err(LimitRefusal::TooManyPendingFromAddress);
+        }
         counts.viewers += 1;
         if let Some(ip) = ip {
             *counts.per_address.entry(ip).or_insert(0) += 1;
@@ -66,10 +81,14 @@ impl Access {
         if pending {
             counts.pending += 1;
         }
+        if let Some(ip) = pending_ip {
+            *counts.pending_per_address.entry(ip).or_insert(0) += 1;
+        }
         Ok(Admission {
             access: Arc::clone(self),
             ip,
             pending,
+            pending_ip,
         })
     }
 
@@ -96,6 +115,8 @@ pub struct Admission {
     access: Arc<Access>,
     ip: Option<IpAddr>,
     pending: bool,
+    /// The address its waiting place is counted under, while it waits.
+    pending_ip: Option<IpAddr>,
 }
 
 impl Admission {
@@ -104,6 +125,9 @@ impl Admission {
         if std::mem::take(&mut self.pending) {
             let mut counts = self.access.counts.lock().unwrap_or_else(|e| e.into_inner());
             counts.pending = counts.pending.saturating_sub(1);
+            if let Some(ip) = self.pending_ip.take() {
+                release(&mut counts.pending_per_address, ip);
+            }
         }
     }
 }
@@ -118,13 +142,21 @@ impl Drop for Admission {
         if self.pending {
             counts.pending = counts.pending.saturating_sub(1);
         }
-        if let Some(ip) = self.ip
-            && let Some(n) = counts.per_address.get_mut(&ip)
-        {
-            *n = n.saturating_sub(1);
-            if *n == 0 {
-                counts.per_address.remove(&ip);
-            }
+        if let Some(ip) = self.pending_ip {
+            release(&mut counts.pending_per_address, ip);
+        }
+        if let Some(ip) = self.ip {
+            release(&mut counts.per_address, ip);
+        }
+    }
+}
+
+/// Gives back one place of `ip` in `counts`, forgetting the address at zero.
+fn release(counts: &mut HashMap<IpAddr, u32>, ip: IpAddr) {
+    if let Some(n) = counts.get_mut(&ip) {
+        *n = n.saturating_sub(1);
+        if *n == 0 {
+            counts.remove(&ip);
         }
     }
 }
@@ -174,10 +206,13 @@ pub struct Connection {
     pub role: Option<Role>,
     started: Instant,
     admission: Option<Admission>,
+    /// The rules whose refusal log the audit line of a connection without a role goes through.
+    access: Arc<Access>,
 }
 
 impl Connection {
     pub fn new(
+        access: &Arc<Access>,
         peer: Option<SocketAddr>,
         origin: Option<String>,
         admission: Option<Admission>,
@@ -188,6 +223,7 @@ impl Connection {
             role: None,
             started: Instant::now(),
             admission,
+            access: Arc::clone(access),
         }
     }
 
@@ -200,8 +236,12 @@ impl Connection {
     }
 
     /// Logs the audit line (time, client address, role, Origin, how it ended, how long it
-    /// lasted) and gives back the connection's places in the counts.
+    /// lasted) and gives back the connection's places in the counts. A connection that never
+    /// had a role was refused: its line is a refusal's, rate-limited as they are.
     pub fn finish(self, ended: &dyn fmt::Display) {
+        if self.role.is_none() && !self.access.log_refusal("WebSocket closed before a role") {
+            return;
+        }
         tracing::info!(
             target: "softhaptic::audit",
             client = %self.peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
@@ -259,6 +299,34 @@ mod tests {
         drop(first);
         assert_eq!((a.viewers(), a.pending()), (2, 2));
         assert!(a.admit(ip(1)).is_ok());
+    }
+
+    #[test]
+    fn waiting_places_are_capped_per_address_and_ipv6_counts_by_its_64() {
+        let a = access(AccessConfig {
+            tokens: Some(Arc::new(tokens())),
+            limits: ConnectionLimits {
+                max_pending_per_address: 2,
+                ..ConnectionLimits::default()
+            },
+            ..AccessConfig::default()
+        });
+        let v6 = |s: &str| Some(s.parse::<IpAddr>().unwrap());
+        // Two addresses of one /64: one host.
+        let mut first = a.admit(v6("2001:db8:0:1::1")).unwrap();
+        let _second = a.admit(v6("2001:db8:0:1::2")).unwrap();
+        assert_eq!(
+            a.admit(v6("2001:db8:0:1:abcd::3")).unwrap_err(),
+            LimitRefusal::TooManyPendingFromAddress
+        );
+        // Another /64, and loopback (a reverse proxy's), are not held back by it.
+        let _other = a.admit(v6("2001:db8:0:2::1")).unwrap();
+        let _proxied: Vec<_> = (0..5)
+            .map(|_| a.admit(Some(IpAddr::from([127, 0, 0, 1]))).unwrap())
+            .collect();
+        // One that presented its token no longer waits: its place is free.
+        first.leave_pending();
+        let _third = a.admit(v6("2001:db8:0:1::3")).unwrap();
     }
 
     #[test]

@@ -50,9 +50,21 @@ pub fn inline_script_hashes(page_html: &str) -> Vec<String> {
     hashes
 }
 
+/// `Strict-Transport-Security` of a server with a CA's certificate: a year.
+pub const STRICT_TRANSPORT: &str = "max-age=31536000";
+
 /// Adds the security headers to every response of `router` (pages, scripts, API, errors):
-/// the CSP, `nosniff`, no referrer, no framing.
-pub fn with_security_headers(router: Router, csp: HeaderValue) -> Router {
+/// the CSP, `nosniff`, no referrer, no framing; and with `strict_transport` (a CA's
+/// certificate, see `AccessConfig::strict_transport`), `Strict-Transport-Security`.
+pub fn with_security_headers(router: Router, csp: HeaderValue, strict_transport: bool) -> Router {
+    let router = if strict_transport {
+        router.layer(SetResponseHeaderLayer::overriding(
+            header::STRICT_TRANSPORT_SECURITY,
+            HeaderValue::from_static(STRICT_TRANSPORT),
+        ))
+    } else {
+        router
+    };
     router
         .layer(SetResponseHeaderLayer::overriding(
             header::CONTENT_SECURITY_POLICY,
@@ -76,6 +88,28 @@ pub fn with_security_headers(router: Router, csp: HeaderValue) -> Router {
 #[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
+
+    #[tokio::test]
+    async fn strict_transport_is_sent_only_when_asked() {
+        use tower::ServiceExt;
+        for asked in [false, true] {
+            let router = Router::new().route("/", axum::routing::get(|| async { "page" }));
+            let response = with_security_headers(router, HeaderValue::from_static("x"), asked)
+                .oneshot(
+                    axum::http::Request::get("/")
+                        .body(axum::body::Body::empty())
+                        .unwrap(),
+                )
+                .await
+                .unwrap();
+            let sent = response.headers().get(header::STRICT_TRANSPORT_SECURITY);
+            assert_eq!(
+                sent.map(|v| v.to_str().unwrap()),
+                asked.then_some(STRICT_TRANSPORT)
+            );
+            assert!(response.headers().contains_key(header::X_FRAME_OPTIONS));
+        }
+    }
 
     #[test]
     fn the_csp_allows_exactly_the_pages_inline_script_by_its_hash() {

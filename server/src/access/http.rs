@@ -11,7 +11,10 @@ use axum::http::{HeaderValue, StatusCode, header};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
+use softhaptic_proto::wire::Role;
+
 use super::origin::request_host;
+use super::roles::{Action, may};
 use super::{Access, REASON_BAD_TOKEN, REASON_NO_TOKEN};
 
 /// The client's address of a request, when the server was started with connection info.
@@ -35,12 +38,14 @@ pub async fn guard_host(
     match host {
         Some(host) if access.host_allowed(&host) => next.run(request).await,
         host => {
-            tracing::warn!(
-                client = %peer_of(&request).map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
-                host = ?host.as_deref().unwrap_or("none"),
-                path = %request.uri().path(),
-                "request refused (421): the Host is not a name of this server; give it with --host-name if it is"
-            );
+            if access.log_refusal("421 (Host not this server's)") {
+                tracing::warn!(
+                    client = %peer_of(&request).map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+                    host = ?host.as_deref().unwrap_or("none"),
+                    path = %request.uri().path(),
+                    "request refused (421): the Host is not a name of this server; give it with --host-name if it is"
+                );
+            }
             json_error(
                 StatusCode::MISDIRECTED_REQUEST,
                 "this server is not reached by that host name",
@@ -50,13 +55,27 @@ pub async fn guard_host(
 }
 
 /// Middleware of the session-data routes: with tokens, `Authorization: Bearer <token>` of
-/// either role, else 401 with `WWW-Authenticate: Bearer`.
+/// either role, else 401 with `WWW-Authenticate: Bearer` (a wrong token answered after the wait
+/// [`Access::token_failed`] says). The request goes on carrying its [`Role`] (an extension:
+/// `Extension<Role>` in a handler), an instructor's on a server without tokens; a route that not
+/// every role may use checks it with [`refusal`]. Every answer, given or refused, says
+/// `Cache-Control: no-store`: session data is nobody's to keep (a shared browser's cache, a
+/// proxy's).
 pub async fn require_token(
     State(access): State<Arc<Access>>,
     request: Request,
     next: Next,
 ) -> Response {
+    let mut response = check_token(&access, request, next).await;
+    response
+        .headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    response
+}
+
+async fn check_token(access: &Access, mut request: Request, next: Next) -> Response {
     let Some(tokens) = access.tokens() else {
+        request.extensions_mut().insert(Role::Instructor);
         return next.run(request).await;
     };
     let presented = request
@@ -68,21 +87,51 @@ pub async fn require_token(
             scheme.eq_ignore_ascii_case("bearer").then(|| token.trim())
         });
     let (reason, challenge) = match presented.map(|t| tokens.role_of(t)) {
-        Some(Some(_)) => return next.run(request).await,
+        Some(Some(role)) => {
+            request.extensions_mut().insert(role);
+            return next.run(request).await;
+        }
         Some(None) => (REASON_BAD_TOKEN, "Bearer error=\"invalid_token\""),
         None => (REASON_NO_TOKEN, "Bearer"),
     };
-    tracing::warn!(
-        client = %peer_of(&request).map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
-        path = %request.uri().path(),
-        "request refused (401): {reason}"
-    );
+    let client = peer_of(&request);
+    if access.log_refusal("401 (token)") {
+        tracing::warn!(
+            client = %client.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+            path = %request.uri().path(),
+            "request refused (401): {reason}"
+        );
+    }
+    if reason == REASON_BAD_TOKEN {
+        tokio::time::sleep(access.token_failed(client.map(|c| c.ip()))).await;
+    }
     let mut response = json_error(StatusCode::UNAUTHORIZED, reason);
     response.headers_mut().insert(
         header::WWW_AUTHENTICATE,
         HeaderValue::from_static(challenge),
     );
     response
+}
+
+/// `None` when `role` may do `action` ([`super::roles::may`]); else the 403 to answer, with the
+/// role's refusal, logged with the client and what was asked (`what`).
+pub fn refusal(
+    role: Role,
+    action: Action,
+    client: Option<SocketAddr>,
+    what: &str,
+) -> Option<Response> {
+    if may(role, action) {
+        return None;
+    }
+    let reason = action.observer_refusal();
+    tracing::warn!(
+        client = %client.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+        role = role.as_str(),
+        %what,
+        "request refused (403): {reason}"
+    );
+    Some(json_error(StatusCode::FORBIDDEN, reason))
 }
 
 /// A JSON error response: `{"error": "<reason>"}`.

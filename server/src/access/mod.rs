@@ -32,16 +32,25 @@
 //! - `connections.rs`: the connection counts ([`Access::admit`], [`Admission`]), the
 //!   per-connection limit on incoming messages ([`MessageRate`]), and one viewer's
 //!   [`Connection`] with the audit line logged when it ends.
+//! - `refusal_log.rs`: the refusals' log lines, at most 20 in full per 10 s and a summary line
+//!   of the rest ([`Access::log_refusal`]).
+//! - `failures.rs`: wrong tokens counted per client address (IPv6 by /64), the next ones
+//!   answered after a wait that doubles ([`Access::token_failed`]).
 //! - `http.rs`: the middleware of the routes: the Host guard ([`guard_host`]) and the bearer
 //!   token of the session-data routes ([`require_token`]).
+//! - [`roles`]: who may do what ([`roles::Action`], [`roles::may`]), the one table the routes
+//!   and the WebSocket messages consult (docs/roles.md).
 //! - `headers.rs`: the security headers and the Content-Security-Policy of the served page
 //!   ([`content_security_policy`], [`with_security_headers`]).
 
 mod config;
 mod connections;
+mod failures;
 mod headers;
 mod http;
 mod origin;
+mod refusal_log;
+pub mod roles;
 #[cfg(test)]
 mod testing;
 mod tokens;
@@ -55,8 +64,14 @@ use axum::http::HeaderValue;
 pub use config::{AccessArgs, AccessConfig, ConnectionLimits};
 use connections::Counts;
 pub use connections::{Admission, Connection, LimitRefusal, MessageRate};
+/// The address a client is counted under by every per-address limit: IPv4 as it is (an
+/// IPv4-mapped IPv6 address too), IPv6 by its /64.
+pub fn client_key(ip: std::net::IpAddr) -> std::net::IpAddr {
+    failures::counted_as(ip)
+}
+
 pub use headers::{content_security_policy, inline_script_hashes, with_security_headers};
-pub use http::{guard_host, json_error, peer_of, require_token};
+pub use http::{guard_host, json_error, peer_of, refusal, require_token};
 pub use origin::Origin;
 pub use tokens::{
     INSTRUCTOR_TOKEN_ENV, MAX_TOKEN_CHARS, MIN_TOKEN_CHARS, OBSERVER_TOKEN_ENV, Token,
@@ -68,6 +83,9 @@ pub use tokens::{
 pub const CLOSE_UNAUTHORIZED: u16 = 4401;
 /// Close code of a WebSocket refused by a connection limit (echoes HTTP's 429).
 pub const CLOSE_TOO_MANY: u16 = 4429;
+/// Close code of a WebSocket whose role may not do what it asked (echoes HTTP's 403): an
+/// observer naming a hub's replay that no instructor has opened.
+pub const CLOSE_FORBIDDEN: u16 = 4403;
 /// The close reason of a wrong token.
 pub const REASON_BAD_TOKEN: &str = "token not valid for this server";
 /// The close reason of a connection that presented no token in time.
@@ -147,6 +165,10 @@ pub struct Access {
     /// A `std` mutex, not tokio's: it is held for a few integer updates and never across an
     /// `.await`, so it cannot make a task wait on another's I/O.
     counts: Mutex<Counts>,
+    /// The refusals' log lines, rate-limited (`refusal_log.rs`).
+    refusals: std::sync::Arc<refusal_log::RefusalLog>,
+    /// Wrong tokens per client address, to slow the next ones (`failures.rs`).
+    failures: Mutex<failures::FailedTokens>,
     /// Woken when the last admitted connection has ended (a shutdown waits for it, so that
     /// every connection's audit line is written).
     idle: tokio::sync::Notify,
@@ -160,10 +182,26 @@ impl Access {
         // Only ASCII goes into the policy (base64 and fixed words), so it is a valid header.
         let csp = HeaderValue::from_str(&policy)
             .unwrap_or_else(|_| HeaderValue::from_static("default-src 'self'"));
+        let refusals = std::sync::Arc::new(refusal_log::RefusalLog::default());
+        // The summary of a storm that has ended is written within an interval, not only by the
+        // next refusal (when the rules run in a runtime: the servers' always do).
+        if let Ok(runtime) = tokio::runtime::Handle::try_current() {
+            let weak = std::sync::Arc::downgrade(&refusals);
+            runtime.spawn(async move {
+                let mut ticks = tokio::time::interval(refusal_log::INTERVAL);
+                loop {
+                    ticks.tick().await;
+                    let Some(log) = weak.upgrade() else { break };
+                    log.flush(std::time::Instant::now(), false);
+                }
+            });
+        }
         Self {
             config,
             csp,
+            refusals,
             counts: Mutex::new(Counts::default()),
+            failures: Mutex::new(failures::FailedTokens::default()),
             idle: tokio::sync::Notify::new(),
         }
     }
@@ -180,6 +218,26 @@ impl Access {
                 return;
             }
             notified.await;
+        }
+    }
+
+    /// Whether a refusal of `kind` (its status and what was wrong, in a few words) is to be
+    /// logged in full now; when not, it is counted in the interval's summary line
+    /// (`refusal_log.rs`).
+    pub fn log_refusal(&self, kind: &'static str) -> bool {
+        self.refusals.admit(kind, std::time::Instant::now())
+    }
+
+    /// Counts a wrong token presented from `client`: how long to wait before answering it
+    /// (nothing for the first few; see `failures.rs`). An unknown address is not slowed.
+    pub fn token_failed(&self, client: Option<std::net::IpAddr>) -> std::time::Duration {
+        match client {
+            Some(ip) => self
+                .failures
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .failed(ip, std::time::Instant::now()),
+            None => std::time::Duration::ZERO,
         }
     }
 

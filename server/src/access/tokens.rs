@@ -237,24 +237,9 @@ pub fn read_token_file(path: &Path) -> Result<Tokens, AccessError> {
             path: path.to_path_buf(),
             source,
         })?;
-    warn_if_others_may_read(path);
+    // A token file others may read gives their links away: said once, at start.
+    crate::files::warn_if_others_may_read(path, "the token file");
     parse_token_file(path, &text)
-}
-
-/// A token file others may read gives their links away: said once, at start.
-fn warn_if_others_may_read(path: &Path) {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        if let Ok(meta) = std::fs::metadata(path)
-            && meta.permissions().mode() & 0o077 != 0
-        {
-            tracing::warn!(
-                file = %path.display(),
-                "the token file may be read by other users of this machine (chmod 600 it)"
-            );
-        }
-    }
 }
 
 fn parse_token_file(path: &Path, text: &str) -> Result<Tokens, AccessError> {

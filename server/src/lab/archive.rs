@@ -335,11 +335,12 @@ fn is_no_bucket(error: &jetstream::context::ObjectStoreError) -> bool {
         })
 }
 
-/// One archived recording's bytes (at most a recording's size limit).
+/// One archived recording's bytes (at most `max_bytes`, and a recording's size limit).
 pub async fn fetch(
     client: &async_nats::Client,
     station: &str,
     file: &str,
+    max_bytes: u64,
 ) -> Result<Vec<u8>, String> {
     use tokio::io::AsyncReadExt;
     let js = async_nats::jetstream::new(client.clone());
@@ -351,7 +352,7 @@ pub async fn fetch(
         .get(object_name(station, file))
         .await
         .map_err(|e| e.to_string())?;
-    let limit = crate::files::FileKind::Recording.max_bytes();
+    let limit = crate::files::FileKind::Recording.max_bytes().min(max_bytes);
     let mut bytes = Vec::new();
     (&mut object)
         .take(limit + 1)

@@ -13,8 +13,12 @@
 //! made here would be stamped with no station time and recorded nowhere. A feed
 //! lives as long as its station's session; a station that restarts (a new session id) gets a
 //! new feed, and the old one's viewers are closed, so they reconnect to the new session. An
-//! archived recording's replay (`&archive=FILE`) is fetched for its first viewer and dropped when
-//! its last viewer leaves.
+//! archived recording's replay (`&archive=FILE`) is opened for its first viewer and closed when
+//! its last viewer leaves; its decoded recording is kept by [`super::replays`] (bounded in
+//! bytes, expired when unused), and HTTP serves a replay's scene and meshes only while it is
+//! open, so no request loads one without a viewer. Only an instructor opens one, lists the archive or downloads a file
+//! from it; an observer watches the replays an instructor has open ([`crate::access::roles`],
+//! docs/roles.md), and is refused before anything is looked up.
 //!
 //! What a client without a valid token learns: nothing. `/ws` checks the `Origin` (and the guard
 //! every request passes, the `Host`) before anything else, and looks the station or the
@@ -33,6 +37,7 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use axum::Extension;
 use axum::Router;
 use axum::body::Bytes;
 use axum::extract::ws::{Utf8Bytes, WebSocketUpgrade};
@@ -50,6 +55,7 @@ use super::{
     LabError, MeshRequest, NatsOptions, OFFLINE_AFTER, STATUS_SUBJECTS, StationSession,
     StationState, StationStatus, Subjects,
 };
+use crate::access::roles::{Action, may};
 use crate::access::{self, Access, AccessConfig, Connection};
 use crate::app::SERVER_NAME;
 use crate::stream::{EncodedFrame, StreamCounters, StreamHub, ViewerEnd, ViewerLimits};
@@ -63,6 +69,8 @@ pub struct HubOptions {
     pub access: AccessConfig,
     pub tls: Option<Arc<rustls::ServerConfig>>,
     pub viewer_limits: ViewerLimits,
+    /// How much of the archive the hub keeps decoded for replays.
+    pub replay_cache: super::replays::ReplayCacheLimits,
 }
 
 /// Why a hub did not start.
@@ -126,6 +134,24 @@ impl RunningHub {
         let mut keys: Vec<String> = lock(&self.lab.archives).keys().cloned().collect();
         keys.sort();
         keys
+    }
+
+    /// The archived recordings decoded and kept for replays now (open or not, until they
+    /// expire), by `STATION/FILE`, with the bytes each is counted for.
+    pub fn cached_recordings(&self) -> Vec<(String, u64)> {
+        self.lab.replays.cached()
+    }
+
+    /// Listings made of the archive (each a JetStream consumer) since the start.
+    pub fn archive_listings(&self) -> u64 {
+        self.lab
+            .listings_made
+            .load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Archived recordings fetched and decoded since the start.
+    pub fn recording_loads(&self) -> u64 {
+        self.lab.replays.loads()
     }
 
     /// What happened to the connections that had no stream yet: refused for their token, by a
@@ -196,6 +222,8 @@ impl Drop for Feed {
 /// An archived recording replayed for the hub's viewers (one replay per recording, shared by
 /// its viewers as on a replay server: the instructor's controls move it for everyone).
 struct ArchiveFeed {
+    /// Its recording, held from the replays' cache: while the replay is open it is not evicted.
+    _recording: Arc<crate::session::reader::Recording>,
     hub: Arc<StreamHub>,
     scene_json: Bytes,
     meshes: HashMap<String, Bytes>,
@@ -223,7 +251,9 @@ impl Drop for ArchiveViewer {
                 .is_some_and(|f| Arc::ptr_eq(f, &self.feed))
         {
             archives.remove(&self.key);
-            tracing::info!(recording = %self.key, "its last viewer left: the replay is dropped");
+            // Its recording stays in the cache until it expires or another needs the room.
+            self.lab.replays.touch(&self.key);
+            tracing::info!(recording = %self.key, "its last viewer left: the replay is closed");
         }
     }
 }
@@ -243,8 +273,15 @@ struct Lab {
     archives: Mutex<HashMap<String, Arc<ArchiveFeed>>>,
     /// Held while a feed is made, so two first viewers make one.
     making: tokio::sync::Mutex<()>,
-    /// Held while an archived recording is fetched, so two first viewers fetch it once.
-    fetching: tokio::sync::Mutex<()>,
+    /// The archived recordings decoded for replays (bounded in bytes, expired when unused).
+    replays: super::replays::ReplayCache,
+    /// The archive's lists lately made, by station asked for (none: all), shared by every page
+    /// that asks within [`LISTING_FRESH`]: each page asks every 2 s, and each listing is a
+    /// JetStream consumer. Held while a listing is made, so that those asking meanwhile wait
+    /// for it instead of making their own.
+    listings: tokio::sync::Mutex<HashMap<Option<String>, (Instant, Bytes)>>,
+    /// Listings made of the archive since the start.
+    listings_made: std::sync::atomic::AtomicU64,
     access: Arc<Access>,
     limits: ViewerLimits,
     /// The hub's shutdown, for the connections that have no stream yet.
@@ -265,10 +302,15 @@ fn public_reason(status: StatusCode) -> &'static str {
         StatusCode::SERVICE_UNAVAILABLE => "the station is offline",
         StatusCode::BAD_GATEWAY => "the station or the archive did not answer",
         StatusCode::UNPROCESSABLE_ENTITY => "the recording could not be replayed",
+        StatusCode::FORBIDDEN => Action::OpenReplay.observer_refusal(),
+        StatusCode::TOO_MANY_REQUESTS => REPLAYS_FULL,
         _ => "internal error",
     }
 }
 
+/// The answer to a replay the hub has no room for (its replays' memory is full of open ones).
+pub const REPLAYS_FULL: &str =
+    "the hub has as many replays open as it can hold: try again when one closes";
 /// The answer to every station, recording or mesh that is not there.
 const NOT_FOUND: &str = "no such station or recording";
 /// Close code of a hub viewer's connection whose station or recording is not there (4000–4999
@@ -337,7 +379,63 @@ impl Lab {
         }
     }
 
-    /// The replay of an archived recording, started (paused) on first use.
+    /// The archive's list (of `station`, or all) as `/api/archive` answers it: made at most once
+    /// per [`LISTING_FRESH`] however many pages ask.
+    async fn archive_listing(&self, station: Option<String>) -> Result<Bytes, String> {
+        let mut listings = self.listings.lock().await;
+        if let Some((made, json)) = listings.get(&station)
+            && made.elapsed() < LISTING_FRESH
+        {
+            return Ok(json.clone());
+        }
+        let list = super::archive::list(&self.client, station.as_deref()).await?;
+        self.listings_made
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let json = serde_json::to_vec(&serde_json::json!({ "archive": list }))
+            .map(Bytes::from)
+            .map_err(|e| e.to_string())?;
+        // Any name may be asked for: the table is bounded.
+        if listings.len() >= 64 {
+            listings.clear();
+        }
+        listings.insert(station, (Instant::now(), json.clone()));
+        Ok(json)
+    }
+
+    /// The replay of an archived recording that a viewer has open now: what an observer may
+    /// watch, and what the replay's scene and meshes are served from over HTTP (which never
+    /// loads one: replays are loaded for connected viewers only). Refused before anything is
+    /// looked up beyond what is open: an observer with 403 whether the recording exists or not,
+    /// an instructor with the 404 of anything not there.
+    fn open_replay(
+        &self,
+        station: &str,
+        file: &str,
+        role: Role,
+    ) -> Result<Arc<ArchiveFeed>, Refusal> {
+        let key = super::archive::object_name(station, file);
+        let open = lock(&self.archives)
+            .get(&key)
+            .filter(|f| f.viewers.load(std::sync::atomic::Ordering::Relaxed) > 0)
+            .cloned();
+        open.ok_or_else(|| {
+            if may(role, Action::OpenReplay) {
+                (
+                    StatusCode::NOT_FOUND,
+                    format!("{key}: no viewer has its replay open"),
+                )
+            } else {
+                (
+                    StatusCode::FORBIDDEN,
+                    format!("{key}: not open, and an observer may not open a replay"),
+                )
+            }
+        })
+    }
+
+    /// The replay of an archived recording for an instructor's viewer, opened (paused) if it is
+    /// not open: its recording from the replays' cache, loaded when it is not there (one load
+    /// for all who ask at once).
     async fn archive_feed(&self, station: &str, file: &str) -> Result<Arc<ArchiveFeed>, Refusal> {
         super::check_station_name(station).map_err(|e| (StatusCode::NOT_FOUND, e))?;
         if file.contains('/') || !file.ends_with(".mcap") {
@@ -350,21 +448,23 @@ impl Lab {
         if let Some(feed) = lock(&self.archives).get(&key) {
             return Ok(Arc::clone(feed));
         }
-        let _fetching = self.fetching.lock().await;
-        if let Some(feed) = lock(&self.archives).get(&key) {
-            return Ok(Arc::clone(feed));
-        }
-        let bytes = super::archive::fetch(&self.client, station, file)
-            .await
-            .map_err(|e| {
-                (
-                    StatusCode::NOT_FOUND,
-                    format!("archived recording {key}: {e}"),
-                )
-            })?;
-        let recording =
-            crate::session::reader::Recording::from_bytes(std::path::Path::new(&key), &bytes)
-                .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
+        let client = &self.client;
+        let max_file_bytes = self.replays.limits().max_bytes;
+        let recording = self
+            .replays
+            .get_or_load(&key, || async {
+                let bytes = super::archive::fetch(client, station, file, max_file_bytes)
+                    .await
+                    .map_err(|e| {
+                        (
+                            StatusCode::NOT_FOUND,
+                            format!("archived recording {key}: {e}"),
+                        )
+                    })?;
+                crate::session::reader::Recording::from_bytes(std::path::Path::new(&key), &bytes)
+                    .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))
+            })
+            .await?;
         let (stop, stop_rx) = watch::channel(false);
         let prefix = format!("/stations/{station}/archive/{file}/meshes");
         let feed = crate::session::replay::replay_feed(
@@ -377,18 +477,23 @@ impl Lab {
             Some(&prefix),
         )
         .map_err(|e| (StatusCode::UNPROCESSABLE_ENTITY, e.to_string()))?;
-        let scene_json = feed.scene_text.clone();
-        tracing::info!(recording = %key, "replaying an archived recording");
         let archive = Arc::new(ArchiveFeed {
+            _recording: recording,
             hub: feed.hub,
-            scene_json: Bytes::from(scene_json),
+            scene_json: Bytes::from(feed.scene_text),
             meshes: feed.meshes,
             stop,
             player: feed.player,
             viewers: std::sync::atomic::AtomicUsize::new(0),
         });
-        lock(&self.archives).insert(key, Arc::clone(&archive));
-        Ok(archive)
+        // Another viewer may have opened it meanwhile: theirs is the replay (this one's player
+        // stops as it is dropped).
+        let mut archives = lock(&self.archives);
+        let open = archives.entry(key.clone()).or_insert_with(|| {
+            tracing::info!(recording = %key, "replaying an archived recording");
+            Arc::clone(&archive)
+        });
+        Ok(Arc::clone(open))
     }
 
     /// The stream a viewer names (a station's, or its archived recording's replay), looked up
@@ -398,12 +503,18 @@ impl Lab {
         self: &Arc<Self>,
         station: &str,
         archive: Option<&str>,
+        role: Role,
     ) -> Result<(Arc<StreamHub>, Option<ArchiveViewer>), Refusal> {
         let Some(file) = archive else {
             return Ok((Arc::clone(&self.feed(station).await?.hub), None));
         };
         loop {
-            let feed = self.archive_feed(station, file).await?;
+            // An observer joins a replay an instructor has open, and makes the hub fetch nothing.
+            let feed = if may(role, Action::OpenReplay) {
+                self.archive_feed(station, file).await?
+            } else {
+                self.open_replay(station, file, role)?
+            };
             let key = super::archive::object_name(station, file);
             let archives = lock(&self.archives);
             // Dropped meanwhile by its last viewer's leaving: fetch it again.
@@ -623,18 +734,28 @@ fn rewrite_mesh_urls(scene: &str, prefix: &str) -> Result<String, String> {
     serde_json::to_string(&value).map_err(|e| e.to_string())
 }
 
-/// Whether a message from a station's stats subject may go to viewers: the 1 Hz messages a
-/// station sends there (`stats`, `metrics`), decoded as the wire's; anything else, however it
-/// got onto the subject, would make every viewer drop its connection as malformed.
-fn relayable_stats(text: &str) -> Result<(), String> {
+/// What of a message from a station's stats subject goes to viewers: the 1 Hz messages a
+/// station sends there (`stats`, `metrics`), decoded as the wire's and encoded again (nothing a
+/// station padded them with is passed on); anything else, however it got onto the subject,
+/// would make every viewer drop its connection as malformed.
+fn relayable_stats(text: &str) -> Result<String, String> {
     match ServerMessage::decode(text) {
-        Ok(ServerMessage::Stats(_) | ServerMessage::Metrics(_)) => Ok(()),
+        Ok(m @ (ServerMessage::Stats(_) | ServerMessage::Metrics(_))) => {
+            m.encode().map_err(|e| e.to_string())
+        }
         Ok(other) => Err(format!("a {} message", other.type_name())),
         Err(e) => Err(e.to_string()),
     }
 }
 
-/// The station's frames and stats from NATS into the feed's stream hub.
+/// Frames a second relayed from one station at most (it sends 50).
+const MAX_FRAMES_PER_S: f64 = 100.0;
+/// Stats and metrics messages a second relayed from one station at most (it sends 2).
+const MAX_STATS_PER_S: f64 = 10.0;
+
+/// The station's frames and stats from NATS into the feed's stream hub: each decoded and
+/// encoded again (nothing a station padded them with is passed on), at most
+/// [`MAX_FRAMES_PER_S`] and [`MAX_STATS_PER_S`].
 async fn relay(
     name: String,
     mut contact: async_nats::Subscriber,
@@ -643,11 +764,31 @@ async fn relay(
     mut stop: watch::Receiver<bool>,
 ) {
     let mut refused = 0u64;
+    // A station sends 50 frames and 2 stats or metrics messages a second; one sending far more
+    // (a broken or rogue publisher) is cut to this for the hub's viewers.
+    let cap = |per_s: f64| {
+        access::MessageRate::new(
+            &access::ConnectionLimits {
+                messages_per_s: per_s,
+                message_burst: per_s,
+                ..access::ConnectionLimits::default()
+            },
+            std::time::Instant::now(),
+        )
+    };
+    let (mut frame_rate, mut stats_rate) = (cap(MAX_FRAMES_PER_S), cap(MAX_STATS_PER_S));
     loop {
         tokio::select! {
             _ = stop.changed() => break,
             m = contact.next() => {
                 let Some(m) = m else { break };
+                if !frame_rate.allow(std::time::Instant::now()) {
+                    refused += 1;
+                    if refused == 1 || refused.is_power_of_two() {
+                        tracing::warn!(station = %name, "frames faster than {MAX_FRAMES_PER_S} a second are not relayed ({refused} refused so far)");
+                    }
+                    continue;
+                }
                 match String::from_utf8(m.payload.to_vec()).map_err(|e| e.to_string()).and_then(EncodedFrame::from_text) {
                     Ok(frame) => {
                         let _ = hub.frames.send(Arc::new(frame));
@@ -663,9 +804,13 @@ async fn relay(
             }
             m = stats.next() => {
                 let Some(m) = m else { break };
+                if !stats_rate.allow(std::time::Instant::now()) {
+                    refused += 1;
+                    continue;
+                }
                 let checked = String::from_utf8(m.payload.to_vec())
                     .map_err(|e| e.to_string())
-                    .and_then(|text| relayable_stats(&text).map(|()| text));
+                    .and_then(|text| relayable_stats(&text));
                 match checked {
                     Ok(text) => {
                         let _ = hub.stats.send(Utf8Bytes::from(text));
@@ -733,6 +878,9 @@ async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
     }
 }
 
+/// How long an archive's list is served as it was made: the hub's page asks every 2 s.
+const LISTING_FRESH: Duration = Duration::from_secs(2);
+
 /// The stations a hub lists at most (a lab has tens).
 const MAX_STATIONS: usize = 512;
 /// The largest heartbeat taken as one, bytes.
@@ -783,12 +931,22 @@ async fn api_stations(State(lab): State<Arc<Lab>>) -> Response {
 }
 
 /// `/api/archive?station=NAME`: the archived recordings (of one station, or all).
-async fn api_archive(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -> Response {
-    match super::archive::list(&lab.client, q.station.as_deref()).await {
-        Ok(list) => match serde_json::to_vec(&serde_json::json!({ "archive": list })) {
-            Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
-            Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
-        },
+async fn api_archive(
+    State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
+    connect_info: Option<Extension<ConnectInfo<SocketAddr>>>,
+    Query(q): Query<StationQuery>,
+) -> Response {
+    if let Some(refusal) = access::refusal(
+        role,
+        Action::ListArchive,
+        client_of(connect_info),
+        "/api/archive",
+    ) {
+        return refusal;
+    }
+    match lab.archive_listing(q.station).await {
+        Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
         Err(e) => refused("the archive's list", (StatusCode::BAD_GATEWAY, e)),
     }
 }
@@ -796,8 +954,19 @@ async fn api_archive(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>)
 /// An archived recording's file, for `softhaptic replay` on an instructor's machine.
 async fn archived_file(
     State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
+    connect_info: Option<Extension<ConnectInfo<SocketAddr>>>,
     UrlPath((station, file)): UrlPath<(String, String)>,
 ) -> Response {
+    // Before the name is even looked at: an observer learns nothing of what is archived.
+    if let Some(refusal) = access::refusal(
+        role,
+        Action::DownloadArchive,
+        client_of(connect_info),
+        "an archived file",
+    ) {
+        return refusal;
+    }
     if super::check_station_name(&station).is_err() || !file.ends_with(".mcap") {
         return refused(
             "an archived file",
@@ -832,9 +1001,10 @@ async fn archived_file(
 /// A render mesh of a replayed archived recording.
 async fn archived_mesh(
     State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
     UrlPath((station, file, mesh)): UrlPath<(String, String, String)>,
 ) -> Response {
-    let feed = match lab.archive_feed(&station, &file).await {
+    let feed = match lab.open_replay(&station, &file, role) {
         Ok(f) => f,
         Err(e) => return refused("an archived recording's mesh", e),
     };
@@ -851,12 +1021,16 @@ async fn archived_mesh(
     }
 }
 
-async fn api_scene(State(lab): State<Arc<Lab>>, Query(q): Query<StationQuery>) -> Response {
+async fn api_scene(
+    State(lab): State<Arc<Lab>>,
+    Extension(role): Extension<Role>,
+    Query(q): Query<StationQuery>,
+) -> Response {
     let Some(name) = q.station else {
         return no_station();
     };
     if let Some(file) = q.archive {
-        return match lab.archive_feed(&name, &file).await {
+        return match lab.open_replay(&name, &file, role) {
             Ok(feed) => (
                 [(header::CONTENT_TYPE, "application/json")],
                 feed.scene_json.clone(),
@@ -904,7 +1078,7 @@ async fn mesh(
 async fn ws(
     State(lab): State<Arc<Lab>>,
     Query(q): Query<StationQuery>,
-    connect_info: Option<axum::Extension<ConnectInfo<SocketAddr>>>,
+    connect_info: Option<Extension<ConnectInfo<SocketAddr>>>,
     headers: HeaderMap,
     upgrade: WebSocketUpgrade,
 ) -> Response {
@@ -913,7 +1087,9 @@ async fn ws(
     let origin = match lab.access.check_origin(&headers) {
         Ok(origin) => origin,
         Err(reason) => {
-            tracing::warn!(%client, "WebSocket upgrade refused (403): {reason}");
+            if lab.access.log_refusal("403 (Origin)") {
+                tracing::warn!(%client, "WebSocket upgrade refused (403): {reason}");
+            }
             return access::json_error(StatusCode::FORBIDDEN, "origin not allowed");
         }
     };
@@ -930,18 +1106,18 @@ async fn ws(
                 lab.access
                     .refuse_viewer(socket, refusal, limits, &lab.gate)
                     .await;
-                Connection::new(peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                Connection::new(&lab.access, peer, origin, None).finish(&ViewerEnd::Limit(refusal));
                 return;
             }
         };
-        let mut connection = Connection::new(peer, origin, Some(admission));
+        let mut connection = Connection::new(&lab.access, peer, origin, Some(admission));
         // The viewer's use of a replay, given back when it ends.
         let mut replay_use = None;
         let used = &mut replay_use;
         let (hub_lab, client) = (&lab, &client);
         let (station, archive) = (station.as_str(), archive.as_deref());
-        let find = move || async move {
-            match hub_lab.viewer_stream(station, archive).await {
+        let find = move |role| async move {
+            match hub_lab.viewer_stream(station, archive, role).await {
                 // Made after the hub's feeds were closed: nobody would close it.
                 Ok(_) if *hub_lab.shutdown.borrow() => {
                     Err((axum::extract::ws::close_code::AWAY, "server shutting down"))
@@ -955,9 +1131,10 @@ async fn ws(
                     let reason = public_reason(status);
                     Err(match status {
                         StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
-                        StatusCode::SERVICE_UNAVAILABLE | StatusCode::BAD_GATEWAY => {
-                            (CLOSE_TRY_LATER, reason)
-                        }
+                        StatusCode::FORBIDDEN => (access::CLOSE_FORBIDDEN, reason),
+                        StatusCode::SERVICE_UNAVAILABLE
+                        | StatusCode::BAD_GATEWAY
+                        | StatusCode::TOO_MANY_REQUESTS => (CLOSE_TRY_LATER, reason),
                         _ => (axum::extract::ws::close_code::ERROR, reason),
                     })
                 }
@@ -977,6 +1154,21 @@ async fn ws(
         drop(replay_use);
         connection.finish(&end);
     })
+}
+
+/// Drops the decoded recordings no replay has used for their expiry, a few times per expiry.
+async fn expire_replays(lab: Arc<Lab>) {
+    let every = (lab.replays.limits().idle_expiry / 4).max(Duration::from_millis(100));
+    let mut ticks = tokio::time::interval(every);
+    loop {
+        ticks.tick().await;
+        lab.replays.expire();
+    }
+}
+
+/// The client's address of a request served with connection info.
+fn client_of(connect_info: Option<Extension<ConnectInfo<SocketAddr>>>) -> Option<SocketAddr> {
+    connect_info.map(|info| info.0.0)
 }
 
 /// Connects to NATS, follows the stations and serves the page.
@@ -1001,13 +1193,18 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         stations: Mutex::new(HashMap::new()),
         archives: Mutex::new(HashMap::new()),
         making: tokio::sync::Mutex::new(()),
-        fetching: tokio::sync::Mutex::new(()),
+        replays: super::replays::ReplayCache::new(options.replay_cache),
+        listings: tokio::sync::Mutex::new(HashMap::new()),
+        listings_made: std::sync::atomic::AtomicU64::new(0),
         access: Arc::clone(&access),
         limits: options.viewer_limits,
         shutdown: shutdown_rx.clone(),
         gate: StreamCounters::default(),
     });
-    let tasks = vec![tokio::spawn(follow_stations(Arc::clone(&lab), status))];
+    let tasks = vec![
+        tokio::spawn(follow_stations(Arc::clone(&lab), status)),
+        tokio::spawn(expire_replays(Arc::clone(&lab))),
+    ];
 
     let session_data = Router::new()
         .route("/api/stations", get(api_stations))
@@ -1033,7 +1230,8 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
             Arc::clone(&access),
             access::guard_host,
         ));
-    let app = access::with_security_headers(routes, access.csp().clone());
+    let app =
+        access::with_security_headers(routes, access.csp().clone(), access.config.strict_transport);
 
     let listener = tokio::net::TcpListener::bind(options.addr)
         .await
@@ -1132,6 +1330,14 @@ mod tests {
     fn only_stats_and_metrics_are_relayed_from_a_stations_stats_subject() {
         relayable_stats(&vector("stats")).unwrap();
         relayable_stats(&vector("metrics")).unwrap();
+        // Padded: what is relayed is the message alone.
+        let stats = vector("stats");
+        let padded = stats.replacen('{', &format!("{{{}", " ".repeat(10_000)), 1);
+        assert_eq!(
+            relayable_stats(&padded).unwrap(),
+            relayable_stats(&stats).unwrap()
+        );
+        assert!(relayable_stats(&padded).unwrap().len() < 2000);
         for bad in [
             "<script>not json".to_owned(),
             vector("hello"),

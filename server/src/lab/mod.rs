@@ -16,6 +16,8 @@
 //!   any station's stream to browsers through a [`StreamHub`](crate::stream::StreamHub) of its
 //!   own per station, fed from one NATS subscription, behind the same access rules (tokens,
 //!   Origin, Host, TLS) as a station. Hubs hold no state NATS does not have.
+//! - [`replays`]: the archived recordings a hub has decoded for replays, loaded for an
+//!   instructor's viewer only, in a cache bounded in bytes with an expiry.
 //!
 //! Subjects (`NAME` a station's name, `[A-Za-z0-9_-]`, at most 64 characters):
 //!
@@ -29,6 +31,7 @@
 
 pub mod archive;
 pub mod hub;
+pub mod replays;
 pub mod station;
 
 use std::path::{Path, PathBuf};
@@ -220,6 +223,7 @@ async fn with_credentials(
     let text = crate::files::read_text(path, crate::files::FileKind::Secrets)
         .map(zeroize::Zeroizing::new)
         .map_err(|e| refused(e.to_string()))?;
+    crate::files::warn_if_others_may_read(path, "the NATS credentials file");
     if text.contains("-----BEGIN NATS USER JWT-----") {
         return options
             .credentials(&text)

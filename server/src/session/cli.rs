@@ -188,11 +188,14 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
         } => {
             // Before the recording is read: a replay that may not serve this address, or whose
             // certificate does not load, starts nothing.
-            let access = access.resolve(addr)?;
+            let mut access = access.resolve(addr)?;
+            let tls_args_dir = tls.data_dir.clone();
             let tls = crate::tls::server_config(&tls, addr.ip())?;
             if let Some(t) = &tls {
                 crate::logging::print_line(format_args!("{t}"));
             }
+            access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
+            access.links_dir = tls_args_dir.or_else(crate::tls::default_data_dir);
             let recording = Recording::open(&file)?;
             if !recording.is_complete() {
                 eprintln!("{}", recording.recovery());

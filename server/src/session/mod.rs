@@ -89,6 +89,19 @@ pub enum SessionError {
         log_time_ns: u64,
         reason: String,
     },
+    #[error(
+        "{path}: message {sequence} on {topic} (device time {log_time_ns} ns) is {bytes} bytes; \
+         a {topic} message may be at most {limit} bytes: refused, as damaged or made to fill the \
+         reader's memory"
+    )]
+    MessageTooLarge {
+        path: PathBuf,
+        topic: String,
+        sequence: u32,
+        log_time_ns: u64,
+        bytes: u64,
+        limit: u64,
+    },
     #[error("{path}: no /build record before the data: not a softhaptic recording")]
     MissingBuild { path: PathBuf },
     #[error("{path}: no /scene record: not a complete softhaptic recording")]

@@ -44,28 +44,22 @@ impl EncodedFrame {
     }
 
     /// A frame received as text (a station's, relayed by a hub): it must be a contact message
-    /// of the wire protocol whose `dropped` is 0; its bytes are kept as they are, so a hub's
-    /// viewers get exactly what the station's get.
+    /// of the wire protocol whose `dropped` is 0, and it is encoded again from what was decoded,
+    /// never passed on as it came: whitespace or unknown fields a station padded it with do not
+    /// reach the hub's viewers (a real station's frame comes out byte for byte the same, as
+    /// both sides encode it alike).
     pub fn from_text(text: String) -> Result<Self, String> {
-        let seq = match ServerMessage::decode(&text) {
-            Ok(ServerMessage::Contact(frame)) => frame.seq,
-            Ok(other) => {
-                return Err(format!(
-                    "a {} message, not a contact frame",
-                    other.type_name()
-                ));
+        match ServerMessage::decode(&text) {
+            Ok(ServerMessage::Contact(frame)) if frame.dropped == 0 => {
+                Self::new(&frame).map_err(|e| e.to_string())
             }
-            Err(e) => return Err(e.to_string()),
-        };
-        if !text.ends_with(NO_DROPS_TAIL) {
-            return Err("a contact frame that does not end with \"dropped\":0".into());
+            Ok(ServerMessage::Contact(_)) => Err("a contact frame whose dropped is not 0".into()),
+            Ok(other) => Err(format!(
+                "a {} message, not a contact frame",
+                other.type_name()
+            )),
+            Err(e) => Err(e.to_string()),
         }
-        let prefix_len = text.len() - 2;
-        Ok(Self {
-            seq,
-            with_no_drops: Utf8Bytes::from(text),
-            prefix_len,
-        })
     }
 
     /// The text for a viewer that has lost `dropped` frames so far.
@@ -87,6 +81,32 @@ impl EncodedFrame {
 mod tests {
     use super::*;
     use softhaptic_proto::{ContactFlags, ContactState};
+
+    #[test]
+    fn a_relayed_frame_is_encoded_again_padding_and_unknown_fields_dropped() {
+        let state = ContactState {
+            in_contact: true,
+            depth_m: 0.003,
+            ..ContactState::IDLE
+        };
+        let made = EncodedFrame::new(&ContactFrame::from_state(&state, 7, 0.02, 0)).unwrap();
+        let sent = made.text_for(0).to_string();
+        // A real station's frame: the same bytes.
+        let relayed = EncodedFrame::from_text(sent.clone()).unwrap();
+        assert_eq!(relayed.text_for(0).as_str(), sent);
+        // Padded inside and given a field of its own: what viewers get is the frame alone.
+        let padded = sent.replacen(
+            '{',
+            &format!("{{{}\"junk\":\"{}\",", " ".repeat(4096), "x".repeat(4096)),
+            1,
+        );
+        assert!(padded.len() > 8000);
+        let relayed = EncodedFrame::from_text(padded).unwrap();
+        assert_eq!(relayed.text_for(0).as_str(), sent);
+        // A frame claiming drops of its own is not one a station sends.
+        let dropped = sent.replace("\"dropped\":0}", "\"dropped\":5}");
+        assert!(EncodedFrame::from_text(dropped).is_err());
+    }
 
     #[test]
     fn per_viewer_dropped_counts_are_spliced_into_the_shared_text() {

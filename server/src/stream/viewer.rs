@@ -25,6 +25,7 @@ use softhaptic_proto::wire::{
 use tokio::sync::{broadcast, watch};
 
 use super::{StreamCounters, StreamHub, ViewerLimits};
+use crate::access::roles::{Action, may};
 use crate::access::{
     Access, CLOSE_UNAUTHORIZED, Connection, LimitRefusal, MessageRate, REASON_BAD_TOKEN,
     REASON_NO_TOKEN, Tokens,
@@ -104,10 +105,9 @@ impl fmt::Display for ViewerEnd {
 /// The close reason of a connection that sent more messages than its rate allows.
 pub const REASON_FLOOD: &str = "too many messages";
 /// The `refused` reason of a `replay_control` from an observer.
-pub const REFUSED_OBSERVER: &str =
-    "an observer cannot control the replay: only an instructor's link can";
+pub const REFUSED_OBSERVER: &str = Action::ControlReplay.observer_refusal();
 /// The `refused` reason of an `add_mark` from an observer.
-pub const REFUSED_MARK_OBSERVER: &str = "only an instructor marks the session";
+pub const REFUSED_MARK_OBSERVER: &str = Action::Mark.observer_refusal();
 /// The `refused` reason of an `add_mark` sent to a replay.
 pub const REFUSED_MARK_REPLAY: &str = "a replay's marks are the recording's: mark a live session";
 /// The `refused` reason of an `add_mark` sent to a stream that takes none (a lab hub's relay of
@@ -134,7 +134,8 @@ pub async fn serve_viewer(
     connection: &mut Connection,
 ) -> ViewerEnd {
     let mut rate = MessageRate::new(&hub.access.config.limits, Instant::now());
-    let role = match role_of(&mut socket, &hub.gate(), &mut rate).await {
+    let client = connection.peer.map(|p| p.ip());
+    let role = match role_of(&mut socket, &hub.gate(), &mut rate, client).await {
         Ok(role) => role,
         Err(end) => return end,
     };
@@ -166,7 +167,7 @@ impl Access {
     /// which looks up the station or the recording a viewer names for a viewer with a valid
     /// token only (a client without one learns nothing of what exists, and makes the hub fetch
     /// nothing). With tokens the `auth` comes first, as for [`serve_viewer`], and its refusals
-    /// count in `counters`; then `find` gives the stream, or the close code and reason of a
+    /// count in `counters`; then `find` gives the stream for the viewer's role, or the close code and reason of a
     /// stream that cannot be served (closed with them), and the viewer is served as
     /// [`serve_viewer`] serves one.
     pub async fn serve_viewer_found_after_auth<F, Fut>(
@@ -179,7 +180,7 @@ impl Access {
         find: F,
     ) -> ViewerEnd
     where
-        F: FnOnce() -> Fut,
+        F: FnOnce(Role) -> Fut,
         Fut: Future<Output = Result<Arc<StreamHub>, (u16, &'static str)>>,
     {
         let gate = Gate {
@@ -189,11 +190,12 @@ impl Access {
             counters,
         };
         let mut rate = MessageRate::new(&self.config.limits, Instant::now());
-        let role = match role_of(&mut socket, &gate, &mut rate).await {
+        let client = connection.peer.map(|p| p.ip());
+        let role = match role_of(&mut socket, &gate, &mut rate, client).await {
             Ok(role) => role,
             Err(end) => return end,
         };
-        match find().await {
+        match find(role).await {
             Ok(hub) => serve_role(socket, hub, connection, role, rate).await,
             Err((code, reason)) => {
                 connection.authenticated(role);
@@ -224,15 +226,16 @@ impl Access {
 }
 
 /// The connection's role: an instructor without tokens, else the role of the token its `auth`
-/// presents.
+/// presents (a wrong one from `client` answered after the wait [`Access::token_failed`] says).
 async fn role_of(
     socket: &mut WebSocket,
     gate: &Gate<'_>,
     rate: &mut MessageRate,
+    client: Option<std::net::IpAddr>,
 ) -> Result<Role, ViewerEnd> {
     match gate.access.tokens() {
         None => Ok(Role::Instructor),
-        Some(tokens) => authenticate(socket, gate, tokens, rate).await,
+        Some(tokens) => authenticate(socket, gate, tokens, rate, client).await,
     }
 }
 
@@ -403,6 +406,7 @@ async fn authenticate(
     gate: &Gate<'_>,
     tokens: &Tokens,
     rate: &mut MessageRate,
+    client: Option<std::net::IpAddr>,
 ) -> Result<Role, ViewerEnd> {
     let timeout = gate.limits.send_timeout;
     let deadline = tokio::time::Instant::now() + gate.access.config.limits.auth_timeout;
@@ -450,6 +454,14 @@ async fn authenticate(
                     Some(None) => (REASON_BAD_TOKEN, ViewerEnd::BadToken),
                     None => (REASON_NO_TOKEN, ViewerEnd::NoToken),
                 };
+                if end == ViewerEnd::BadToken {
+                    // Slowed, but never past the server's shutdown.
+                    let wait = tokio::time::sleep(gate.access.token_failed(client));
+                    tokio::select! {
+                        () = wait => {}
+                        _ = shutdown.changed() => {}
+                    }
+                }
                 gate.counters
                     .unauthorized_closes
                     .fetch_add(1, Ordering::Relaxed);
@@ -564,12 +576,12 @@ async fn handle_incoming(
     };
     match message_type(&text) {
         Ok(kind) if kind == "replay_control" => {
-            let tx = match (&hub.replay_control, role) {
-                (Some(tx), Role::Instructor) => tx,
-                (None, _) => return refuse(socket, hub, connection, &kind, REFUSED_LIVE).await,
-                (Some(_), Role::Observer) => {
+            let tx = match &hub.replay_control {
+                None => return refuse(socket, hub, connection, &kind, REFUSED_LIVE).await,
+                Some(_) if !may(role, Action::ControlReplay) => {
                     return refuse(socket, hub, connection, &kind, REFUSED_OBSERVER).await;
                 }
+                Some(tx) => tx,
             };
             let control = serde_json::from_str::<ReplayControl>(&text)
                 .map_err(|e| e.to_string())
@@ -602,7 +614,7 @@ async fn handle_incoming(
             if !hub.accepts_marks {
                 return refuse(socket, hub, connection, &kind, REFUSED_MARK_HUB).await;
             }
-            if role == Role::Observer {
+            if !may(role, Action::Mark) {
                 return refuse(socket, hub, connection, &kind, REFUSED_MARK_OBSERVER).await;
             }
             let request = serde_json::from_str::<MarkRequest>(&text).map_err(|e| e.to_string());

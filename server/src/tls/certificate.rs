@@ -4,7 +4,6 @@
 //! fingerprint an instructor compares.
 
 use std::net::IpAddr;
-use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
@@ -160,6 +159,7 @@ fn rustls_config(
 pub(super) fn given_certificate(cert_path: &Path, key_path: &Path) -> Result<TlsSetup, TlsError> {
     let chain = read_certificates(cert_path)?;
     let key = read_private_key(key_path)?;
+    crate::files::warn_if_others_may_read(key_path, "the TLS key (--tls-key)");
     // `read_certificates` refuses a file without a certificate, so there is a first one.
     let fingerprint = fingerprint_sha256(chain[0].as_ref());
     let config = rustls_config(chain, key, cert_path, key_path)?;
@@ -169,11 +169,14 @@ pub(super) fn given_certificate(cert_path: &Path, key_path: &Path) -> Result<Tls
         certificate_path: cert_path.to_owned(),
         generated: false,
         self_signed_names: Vec::new(),
+        from_a_ca: true,
     })
 }
 
 /// `--tls-self-signed`: the kept certificate when it still serves, else a new one.
 pub(super) fn self_signed(dir: &Path, names: Vec<String>) -> Result<TlsSetup, TlsError> {
+    // Made 0700 when it is made; one that was there before is only looked at.
+    crate::files::warn_if_others_may_read(dir, "the data directory (it keeps the TLS key)");
     let cert_path = dir.join(SELF_SIGNED_CERT_FILE);
     let key_path = dir.join(SELF_SIGNED_KEY_FILE);
     if !cert_path.exists() {
@@ -225,6 +228,7 @@ pub(super) fn self_signed(dir: &Path, names: Vec<String>) -> Result<TlsSetup, Tl
         certificate_path: cert_path,
         generated: true,
         self_signed_names: names,
+        from_a_ca: false,
     })
 }
 
@@ -241,14 +245,7 @@ fn kept_self_signed(
 ) -> Result<TlsSetup, String> {
     let chain = read_certificates(cert_path).map_err(|e| e.to_string())?;
     let key = read_private_key(key_path).map_err(|e| e.to_string())?;
-    let others_may_read = std::fs::metadata(key_path)
-        .is_ok_and(|metadata| metadata.permissions().mode() & 0o077 != 0);
-    if others_may_read {
-        tracing::warn!(
-            key = %key_path.display(),
-            "the self-signed certificate's key is readable by other users; `chmod 600` it"
-        );
-    }
+    crate::files::warn_if_others_may_read(key_path, "the self-signed certificate's key");
     let [certificate] = &chain[..] else {
         return Err(format!(
             "{} holds more than one certificate",
@@ -286,6 +283,7 @@ fn kept_self_signed(
         certificate_path: cert_path.to_owned(),
         generated: false,
         self_signed_names: names.to_vec(),
+        from_a_ca: false,
     })
 }
 

@@ -45,7 +45,7 @@ use rustls::ServerConfig;
 
 pub use certificate::{default_data_dir, fingerprint_sha256};
 use certificate::{given_certificate, self_signed, self_signed_names};
-pub use serve::{ConnectionCaps, serve};
+pub use serve::{ConnectionCaps, ensure_open_file_limit, open_file_limit_plan, serve};
 
 /// The file in the data directory that keeps the self-signed certificate (PEM).
 pub const SELF_SIGNED_CERT_FILE: &str = "self-signed-cert.pem";
@@ -116,6 +116,9 @@ pub struct TlsSetup {
     /// The names the self-signed certificate is valid for; empty for `--tls-cert`, whose
     /// certificate carries its own names.
     pub self_signed_names: Vec<String>,
+    /// The certificate is a CA's (`--tls-cert`): browsers trust it without a click, so the
+    /// server may tell them to use https only (`AccessConfig::strict_transport`).
+    pub from_a_ca: bool,
 }
 
 /// For the start-up message: which certificate, and the fingerprint to compare.

@@ -46,6 +46,64 @@ pub struct ConnectionCaps {
     pub header_read_timeout: Duration,
 }
 
+/// Files the process keeps open besides its connections: the listening socket, the device, the
+/// recording, NATS, the runtime's own, the viewer's files being served.
+const FILES_BESIDE_CONNECTIONS: u64 = 256;
+
+/// What to do about the open-file limit for `needed` files, given the limit's `soft` and
+/// `hard` values: `Ok(Some(n))` raise the soft limit to `n`, `Ok(None)` nothing, `Err` the hard
+/// limit is below what is needed (say so: connections past it would fail at accept, not be
+/// refused by the caps).
+pub fn open_file_limit_plan(needed: u64, soft: u64, hard: u64) -> Result<Option<u64>, u64> {
+    if soft >= needed {
+        Ok(None)
+    } else if hard >= needed {
+        // As far as allowed: nothing is gained by stopping at `needed`.
+        Ok(Some(hard))
+    } else {
+        Err(hard)
+    }
+}
+
+/// Raises the process's open-file limit (the usual soft limit, 1 024, is below the default
+/// caps' 1 192 connections) to hold `caps.total` connections and the rest; warns when the hard
+/// limit does not allow it.
+pub fn ensure_open_file_limit(caps: &ConnectionCaps) {
+    let needed = caps.total as u64 + FILES_BESIDE_CONNECTIONS;
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: `limit` is a valid rlimit for getrlimit to write.
+    if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } != 0 {
+        tracing::warn!(error = %std::io::Error::last_os_error(), "could not read the open-file limit");
+        return;
+    }
+    match open_file_limit_plan(needed, limit.rlim_cur, limit.rlim_max) {
+        Ok(None) => {}
+        Ok(Some(raised)) => {
+            let new = libc::rlimit {
+                rlim_cur: raised,
+                rlim_max: limit.rlim_max,
+            };
+            // SAFETY: `new` is a valid rlimit, its soft value within the hard one.
+            if unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &new) } == 0 {
+                tracing::debug!(from = limit.rlim_cur, to = raised, "open-file limit raised");
+            } else {
+                tracing::warn!(error = %std::io::Error::last_os_error(), "could not raise the open-file limit");
+            }
+        }
+        Err(hard) => tracing::warn!(
+            hard,
+            needed,
+            "the open-file limit allows {hard} files, and the connection caps {}: connections \
+             past it fail at accept instead of being refused; raise it (LimitNOFILE= in a \
+             systemd unit, `ulimit -Hn`) or lower --max-viewers and --max-pending",
+            caps.total
+        ),
+    }
+}
+
 impl ConnectionCaps {
     /// Room for the viewers `limits` admits, each with the few connections a browser opens for
     /// the page beside its WebSocket; [`FIRST_REQUEST_TIMEOUT`] and [`HEADER_READ_TIMEOUT`].
@@ -171,7 +229,8 @@ impl ConnectionGuard {
         if open.total >= self.caps.total {
             return Err(TooManyConnections { what: "in all" });
         }
-        let ip = ip.to_canonical();
+        // IPv6 by its /64: one host has a whole /64 to connect from.
+        let ip = crate::access::client_key(ip);
         let capped = !ip.is_loopback();
         let from_ip = open.per_address.get(&ip).copied().unwrap_or(0);
         if capped && from_ip >= self.caps.per_address {
@@ -403,6 +462,36 @@ fn log_refused_connection(client: Option<&SocketAddr>, error: &io::Error) {
 mod tests {
     use super::*;
     use std::time::Instant;
+
+    #[test]
+    fn the_open_file_limit_is_raised_to_hold_the_default_caps_or_the_shortfall_said() {
+        let caps = ConnectionCaps::for_limits(&ConnectionLimits::default());
+        let needed = caps.total as u64 + FILES_BESIDE_CONNECTIONS;
+        // The usual soft limit is below the default caps.
+        assert!(needed > 1024, "{needed}");
+        assert_eq!(
+            open_file_limit_plan(needed, 1024, 524_288),
+            Ok(Some(524_288))
+        );
+        assert_eq!(open_file_limit_plan(needed, 65_536, 524_288), Ok(None));
+        assert_eq!(open_file_limit_plan(needed, 1024, 1024), Err(1024));
+        // And in this process, with the test machine's hard limit: raised as far as needed.
+        ensure_open_file_limit(&caps);
+        let mut limit = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        // SAFETY: `limit` is a valid rlimit for getrlimit to write.
+        assert_eq!(
+            unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) },
+            0
+        );
+        assert!(
+            limit.rlim_cur >= needed.min(limit.rlim_max),
+            "{}",
+            limit.rlim_cur
+        );
+    }
 
     /// Serves a one-route app plainly on a loopback port with `caps`.
     async fn serve_ok(caps: ConnectionCaps) -> (SocketAddr, watch::Sender<bool>, JoinHandle<()>) {

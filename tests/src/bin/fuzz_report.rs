@@ -8,6 +8,10 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use softhaptic_tests::fuzz::{self, Stats, TARGET_NAMES};
 
+// Every input is held to its target's memory limit: this counts what each one allocates.
+#[global_allocator]
+static ALLOCATOR: fuzz::CountingAllocator = fuzz::CountingAllocator;
+
 const HELP: &str = "\
 fuzz-report: runs the mutation fuzzer over every parser that takes outside input.
 
@@ -185,14 +189,22 @@ fn run() -> anyhow::Result<bool> {
 
 fn print_table(rows: &[Row]) {
     println!(
-        "{:<12} {:>12} {:>10} {:>12} {:>12} {:>10} {:>9} {:>8}",
-        "target", "inputs", "inputs/s", "accepted", "refused", "skipped", "distinct", "crashes"
+        "{:<12} {:>12} {:>10} {:>12} {:>12} {:>10} {:>9} {:>8} {:>9}",
+        "target",
+        "inputs",
+        "inputs/s",
+        "accepted",
+        "refused",
+        "skipped",
+        "distinct",
+        "crashes",
+        "peak MiB"
     );
     for row in rows {
         let s = &row.stats;
         let rate = s.inputs as f64 / row.elapsed.as_secs_f64().max(1e-9);
         println!(
-            "{:<12} {:>12} {:>10.0} {:>12} {:>12} {:>10} {:>9} {:>8}",
+            "{:<12} {:>12} {:>10.0} {:>12} {:>12} {:>10} {:>9} {:>8} {:>9}",
             row.name,
             s.inputs,
             rate,
@@ -200,7 +212,8 @@ fn print_table(rows: &[Row]) {
             s.refused,
             s.skipped,
             s.distinct_errors.len(),
-            s.crashes.len()
+            s.crashes.len(),
+            s.max_memory_bytes >> 20
         );
     }
 }

@@ -29,6 +29,24 @@ enum Kind {
     Unknown,
 }
 
+impl Kind {
+    /// The largest message of this kind read, bytes: a few times the largest this build writes
+    /// (a tick's record is about 300 bytes, a contact frame about 600, a stats or metrics
+    /// message a few hundred); the scene, which holds the object's meshes, as large as a chunk.
+    /// A larger one is refused before it is parsed or kept: a frame padded with whitespace is
+    /// valid JSON, and a few thousand of them would fill the memory of whoever reads the file.
+    const fn max_message_bytes(self) -> u64 {
+        match self {
+            Kind::Scene => super::walk::MAX_CHUNK_UNCOMPRESSED_BYTES,
+            Kind::Build | Kind::Contact | Kind::LoopStats | Kind::Metrics => 64 << 10,
+            Kind::Device | Kind::Stats => 4 << 10,
+            Kind::Marks => 8 << 10,
+            // Not parsed and not kept: bounded by its chunk.
+            Kind::Unknown => u64::MAX,
+        }
+    }
+}
+
 impl Recording {
     pub(super) fn from_source<S: Source + ?Sized>(
         path: &Path,
@@ -124,6 +142,17 @@ impl Recording {
                     k
                 }
             };
+            let limit = kind.max_message_bytes();
+            if message.data.len() as u64 > limit {
+                return Err(SessionError::MessageTooLarge {
+                    path: path_buf,
+                    topic: channel.topic.clone(),
+                    sequence: message.sequence,
+                    log_time_ns: message.log_time,
+                    bytes: message.data.len() as u64,
+                    limit,
+                });
+            }
             let bad = |e: serde_json::Error| SessionError::BadMessage {
                 path: path_buf.clone(),
                 topic: channel.topic.clone(),
@@ -183,7 +212,7 @@ impl Recording {
                     }
                     contacts.push(RecordedMessage {
                         time_ns: message.log_time,
-                        json,
+                        json: compact_json(json),
                     });
                 }
                 Kind::LoopStats => {
@@ -191,7 +220,7 @@ impl Recording {
                     match ServerMessage::decode(&json) {
                         Ok(ServerMessage::Stats(_)) => loop_stats.push(RecordedMessage {
                             time_ns: message.log_time,
-                            json,
+                            json: compact_json(json),
                         }),
                         _ => {
                             return Err(SessionError::BadMessage {
@@ -271,6 +300,12 @@ impl Recording {
             };
         }
         device.sort_by_key(|r: &DeviceRecord| r.tick);
+        // Kept for as long as the recording is replayed or checked: no spare capacity.
+        device.shrink_to_fit();
+        contacts.shrink_to_fit();
+        loop_stats.shrink_to_fit();
+        marks.shrink_to_fit();
+        metrics.shrink_to_fit();
         Ok(Recording {
             path: path_buf,
             file_len,
@@ -287,6 +322,51 @@ impl Recording {
             metrics,
         })
     }
+}
+
+/// `json` (valid JSON) without the whitespace between its tokens, and without spare capacity: a
+/// frame is kept as the text viewers are sent, and the text a recording holds may have been
+/// padded. Strings are kept as they are, escapes and all.
+fn compact_json(json: String) -> String {
+    let mut in_string = false;
+    let mut escaped = false;
+    let padded = json.bytes().any(|b| {
+        let space = !in_string && matches!(b, b' ' | b'\t' | b'\n' | b'\r');
+        if in_string {
+            match (escaped, b) {
+                (true, _) => escaped = false,
+                (false, b'\\') => escaped = true,
+                (false, b'"') => in_string = false,
+                _ => {}
+            }
+        } else if b == b'"' {
+            in_string = true;
+        }
+        space
+    });
+    if !padded {
+        let mut json = json;
+        json.shrink_to_fit();
+        return json;
+    }
+    let mut out = String::with_capacity(json.len());
+    let (mut in_string, mut escaped) = (false, false);
+    for c in json.chars() {
+        if in_string {
+            out.push(c);
+            match (escaped, c) {
+                (true, _) => escaped = false,
+                (false, '\\') => escaped = true,
+                (false, '"') => in_string = false,
+                _ => {}
+            }
+        } else if !matches!(c, ' ' | '\t' | '\n' | '\r') {
+            in_string = c == '"';
+            out.push(c);
+        }
+    }
+    out.shrink_to_fit();
+    out
 }
 
 /// The refusal of a recording whose build and scene records were in a damaged part of the file

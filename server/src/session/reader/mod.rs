@@ -16,6 +16,14 @@
 //! schema, a newer format or protocol version, a message that does not parse) are refused with a
 //! [`SessionError`] naming the file and the cause.
 //!
+//! What a reader holds is bounded by the file's size, whoever made the file: its chunks may
+//! decompress to at most 64 times its size (and 32 MiB for any file; a recording this build
+//! writes decompresses to about 5 times), checked from the chunks' headers before anything is
+//! decompressed; every message has a size limit of its channel (a contact frame 64 KiB, a tick
+//! 4 KiB, the scene with its meshes a chunk); and the frames are kept as compact text, without
+//! whitespace a file may have padded them with. A file past a limit is refused, naming it: a
+//! few hundred kilobytes of whitespace-padded frames once made `info` take 2.1 GB.
+//!
 //! # Layout
 //! - this file: [`Recording`] and what it holds, [`Recording::open`], and the account of what
 //!   was recovered ([`Recovery`]).
@@ -181,6 +189,34 @@ impl Recording {
             .windows(2)
             .map(|w| w[1].tick.saturating_sub(w[0].tick + 1))
             .sum()
+    }
+
+    /// About how much memory the recording holds, bytes: its vectors and the texts they keep
+    /// (a lab hub's cache of replays is bounded by this).
+    pub fn memory_bytes(&self) -> u64 {
+        use std::mem::size_of;
+        let texts = |v: &[RecordedMessage]| -> usize {
+            v.iter().map(|m| m.json.capacity()).sum::<usize>() + std::mem::size_of_val(v)
+        };
+        let meshes = self.scene.meshes.as_ref().map_or(0, |m| {
+            [Some(&m.haptic), m.render.as_ref()]
+                .into_iter()
+                .flatten()
+                .map(|mesh| {
+                    mesh.positions_m.len() * size_of::<[f64; 3]>()
+                        + mesh.triangles.len() * size_of::<[u32; 3]>()
+                })
+                .sum::<usize>()
+        });
+        let bytes = size_of::<Recording>()
+            + self.device.capacity() * size_of::<DeviceRecord>()
+            + texts(&self.contacts)
+            + texts(&self.loop_stats)
+            + self.marks.len() * (size_of::<softhaptic_proto::wire::MarkMessage>() + 1024)
+            + self.metrics.len() * size_of::<softhaptic_proto::wire::MetricsMessage>()
+            + self.scene.scene_toml.len()
+            + meshes;
+        bytes as u64
     }
 
     /// Whether the file was closed by its writer and nothing in it was damaged.

@@ -13,7 +13,39 @@ use super::LostSpan;
 
 /// Largest uncompressed chunk accepted. The writer closes chunks at about 1 MiB; anything far
 /// beyond is a damaged length field, which the MCAP library would try to allocate.
-const MAX_CHUNK_UNCOMPRESSED_BYTES: u64 = 64 << 20;
+pub(super) const MAX_CHUNK_UNCOMPRESSED_BYTES: u64 = 64 << 20;
+
+/// What a file's chunks may decompress to, in all, per byte of the file. A recording this build
+/// writes decompresses to about 5 times its size (the test recordings: 4.8 to 5.8); a file whose
+/// chunks claim far more is crafted to fill the reader's memory (a megabyte of whitespace
+/// compresses to a few hundred bytes), and is refused before anything is decompressed.
+pub(crate) const DECODED_BYTES_PER_FILE_BYTE: u64 = 64;
+/// What any file may decompress to, however small: room for a scene whose meshes compress well.
+pub(crate) const MIN_DECODED_BYTES: u64 = 32 << 20;
+
+/// The most a file of `file_len` bytes may decompress to ([`DECODED_BYTES_PER_FILE_BYTE`],
+/// [`MIN_DECODED_BYTES`]).
+pub(crate) fn decoded_budget(file_len: u64) -> u64 {
+    file_len
+        .saturating_mul(DECODED_BYTES_PER_FILE_BYTE)
+        .max(MIN_DECODED_BYTES)
+}
+
+/// The refusal of a file whose chunks claim more than [`decoded_budget`].
+fn decodes_too_much(file_len: u64, claimed: u64, pos: u64) -> std::io::Error {
+    std::io::Error::new(
+        std::io::ErrorKind::InvalidData,
+        format!(
+            "its chunks decompress to more than the limit of {} bytes ({} bytes up to the chunk \
+             at byte {pos}; the limit is {DECODED_BYTES_PER_FILE_BYTE} times the file's {file_len} \
+             bytes, and at least {} MiB; a recording this build writes decompresses to about 5 \
+             times its size): refused, as made to fill the reader's memory",
+            decoded_budget(file_len),
+            claimed,
+            MIN_DECODED_BYTES >> 20
+        ),
+    )
+}
 
 /// MCAP opcode of a chunk record.
 const OP_CHUNK: u8 = 0x06;
@@ -565,6 +597,9 @@ pub(super) fn scan<S: Source + ?Sized>(src: &S) -> std::io::Result<Scanned> {
     let mut tail = None;
     let mut scratch = Vec::new();
     let mut budget = resync_budget(len);
+    // What the chunks checked so far decompress to (a chunk given up on later still counts:
+    // the limit is on the work, and a real file is far below it).
+    let mut decoded: u64 = 0;
     let mut pos = mcap::MAGIC.len() as u64;
     // The end of the last record that checked out in full: the records after it, up to `pos`,
     // were stepped over on their length alone.
@@ -596,6 +631,14 @@ pub(super) fn scan<S: Source + ?Sized>(src: &S) -> std::io::Result<Scanned> {
                 )
             }
             Some((OP_CHUNK, start, end)) => {
+                // Held against the limit before anything is decompressed: the header says.
+                let (head, n) = chunk_head_at(src, start, end)?;
+                if let Ok(fields) = chunk_fields(&head[..n], end - start) {
+                    decoded = decoded.saturating_add(fields.uncompressed_size);
+                    if decoded > decoded_budget(len) {
+                        return Err(decodes_too_much(len, decoded, pos));
+                    }
+                }
                 let check = match checked.take() {
                     Some((at, times)) if at == pos => Ok(times),
                     _ => chunk_damage_at(src, start, end, &mut scratch)?,
