@@ -23,6 +23,8 @@ pub enum Action {
     ControlReplay,
     /// Mark a live session (`add_mark`).
     Mark,
+    /// Switch a live device's force output back on after it latched off (`rearm_device`).
+    RearmDevice,
     /// List a lab's archived recordings (`GET /api/archive`).
     ListArchive,
     /// Download an archived recording's file (`GET /stations/NAME/archive/FILE`).
@@ -31,12 +33,13 @@ pub enum Action {
 
 impl Action {
     /// Every action, for tables and tests.
-    pub const ALL: [Action; 7] = [
+    pub const ALL: [Action; 8] = [
         Action::WatchLive,
         Action::WatchOpenReplay,
         Action::OpenReplay,
         Action::ControlReplay,
         Action::Mark,
+        Action::RearmDevice,
         Action::ListArchive,
         Action::DownloadArchive,
     ];
@@ -52,6 +55,7 @@ impl Action {
                 "an observer cannot control the replay: only an instructor's link can"
             }
             Action::Mark => "only an instructor marks the session",
+            Action::RearmDevice => "only an instructor re-arms the device",
             Action::ListArchive => "only an instructor lists the archive",
             Action::DownloadArchive => "only an instructor downloads archived recordings",
         }

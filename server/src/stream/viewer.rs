@@ -117,7 +117,7 @@ pub const REFUSED_MARK_HUB: &str =
 /// The `refused` reason of an `add_mark` once the session has all the marks it keeps.
 pub const REFUSED_MARKS_FULL: &str = "this session has all the marks it can keep (1000)";
 /// The `refused` reason of a `rearm_device` from an observer.
-pub const REFUSED_REARM_OBSERVER: &str = "only an instructor re-arms the device";
+pub const REFUSED_REARM_OBSERVER: &str = Action::RearmDevice.observer_refusal();
 /// The `refused` reason of a `rearm_device` where there is no device to re-arm (a replay, a lab
 /// hub's relay, a device whose force output cannot latch off).
 pub const REFUSED_REARM_NONE: &str =
@@ -630,7 +630,7 @@ async fn handle_incoming(
             }
         }
         Ok(kind) if kind == "rearm_device" => {
-            if role == Role::Observer {
+            if !may(role, Action::RearmDevice) {
                 return refuse(socket, hub, connection, &kind, REFUSED_REARM_OBSERVER).await;
             }
             if !hub.rearm_device() {
