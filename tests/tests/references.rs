@@ -102,6 +102,11 @@ fn references(line: &str) -> Vec<&str> {
         if reference.starts_with("//") || line[..start].ends_with(':') {
             continue;
         }
+        // Where the Debian package installs a page (`/usr/share/doc/…`) is a path on the
+        // installed system, not in the repository.
+        if reference.trim_start_matches('/').starts_with("usr/share/") {
+            continue;
+        }
         found.push(reference);
     }
     found
