@@ -1510,9 +1510,19 @@ async fn a_tick_that_panics_sends_zero_in_its_frame_and_raises_a_fatal_flag() {
         }))
         .unwrap();
     wait_until("the panic", || ticks.load(Ordering::SeqCst) > 200).await;
-    // The failed callback is gone once its frame has ended (or once the silence it caused had
-    // the scheduler stopped: a failed tick is never restarted, so no servo tick need follow).
-    wait_until("the failed callback gone", || s.scheduled_callbacks() == 0).await;
+    // The failed tick raises the fatal state inside its frame, just before ending it.
+    let failed = || {
+        let mut d = device.lock().unwrap_or_else(PoisonError::into_inner);
+        d.read().err() == Some(DeviceError::Fatal)
+    };
+    wait_until("the fatal state", failed).await;
+    // Its frame has ended once the servo thread has ticked again, or once the silence its report
+    // caused had the scheduler stopped (a failed tick is never restarted).
+    let after = s.ticks();
+    wait_until("the failed frame's end", || {
+        !s.scheduler_running() || s.ticks() > after
+    })
+    .await;
     assert_eq!(
         s.last_force_n(),
         [0.0; 3],
