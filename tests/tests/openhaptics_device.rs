@@ -1190,7 +1190,12 @@ async fn warm_motors_keep_rendering_limited_to_the_continuous_force() {
         .collect();
     assert!(warm.len() >= 2_000, "{} ticks flagged warm", warm.len());
     for d in &warm {
-        assert!(!d.device_fault, "tick {}: a warning is no fault", d.tick);
+        // A warning is no fault (a tick that overran on a loaded machine is one of its own).
+        assert!(
+            !d.device_fault || d.command_error == Some(DeviceErrorRecord::Overrun),
+            "tick {}: a warning is no fault: {d:?}",
+            d.tick
+        );
         assert!(
             force(d) <= limits.continuous_force_n + 1e-9,
             "tick {}: {} N",
