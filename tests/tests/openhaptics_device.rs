@@ -1559,16 +1559,28 @@ async fn late_servo_ticks_do_not_make_a_held_press_chatter() {
         assert!(late.len() >= 45, "{} late ticks", late.len());
         let (first, last) = (late[0], *late.last().unwrap());
         let mut largest = 0.0_f64;
+        let mut overruns = 0;
         for i in first..(last + 50).min(device.len()) {
             let step = (DVec3::from_array(device[i].force_n)
                 - DVec3::from_array(device[i - 1].force_n))
             .length();
-            largest = largest.max(step);
             let onset = !device[i - 1].in_contact && device[i].in_contact;
+            // A tick that overran its servo period (a loaded machine) sends zero and ramps in
+            // again: that fault is the overrun's, tested on its own, not chatter.
+            let overrun = |d: &DeviceRecord| {
+                d.device_fault && d.command_error == Some(DeviceErrorRecord::Overrun)
+            };
+            if overrun(&device[i]) || overrun(&device[i - 1]) {
+                overruns += 1;
+                continue;
+            }
+            largest = largest.max(step);
             assert!(
                 step <= 1.0 || onset,
-                "{tick_s} s ticks: a step of {step} N at tick {}",
-                device[i].tick
+                "{tick_s} s ticks: a step of {step} N at tick {}: {:?} then {:?}",
+                device[i].tick,
+                device[i - 1],
+                device[i]
             );
         }
         let saturated = device[first..=last]
@@ -1577,7 +1589,8 @@ async fn late_servo_ticks_do_not_make_a_held_press_chatter() {
             .count();
         assert_eq!(saturated, 0, "{tick_s} s ticks: saturated during the stall");
         println!(
-            "late ticks of {} ms: the largest step {largest:.3} N",
+            "late ticks of {} ms: the largest step {largest:.3} N ({overruns} steps beside an \
+             overrun left out)",
             tick_s * 1e3
         );
         assert_replays(&recording);
