@@ -177,7 +177,23 @@ pub struct ForceRenderer {
     /// Device time of the last tick whose device reported its motors warm, while the limit they
     /// set is in force or releasing ([`ForceRenderer::set_motors_warm`]).
     warm_last_ns: Option<u64>,
+    /// A late tick limited the force, which may still lag the law's: the next ticks settle it
+    /// under the same limit at the nominal stiffness.
+    late_lag: bool,
 }
+
+/// The servo period the devices' stable stiffness K_max is rated at (1 kHz). A tick whose
+/// interval spans more of these holds its force longer, and a sampled spring is stable only while
+/// stiffness × interval stays below what the rating allows (Colgate & Schenkel 1997).
+pub const NOMINAL_PERIOD_NS: u64 = 1_000_000;
+
+/// A tick is late when its interval exceeds this many nominal periods: ordinary jitter is not.
+const LATE_TICK_PERIODS: f64 = 1.5;
+
+/// Largest change of force a late tick or a tick settling a lag after one may make beyond what
+/// the limited stiffness allows over the displacement, N. It lets the force follow a slow change
+/// that is not motion (damping, a ramp) and settle the lag a stall left within a few ticks.
+const LATE_SETTLE_STEP_N: f64 = 0.25;
 
 /// Time the warm-motors limit takes to rise back from the continuous force to the peak once the
 /// device no longer reports its motors warm: a release, not a step, of up to the peak force.
@@ -237,6 +253,7 @@ impl ForceRenderer {
             },
             thermal_time_ns: None,
             warm_last_ns: None,
+            late_lag: false,
         }
     }
 
@@ -385,6 +402,7 @@ impl ForceRenderer {
         self.previous_time_ns = None;
         self.previous_force_n = DVec3::ZERO;
         self.previous_position_m = None;
+        self.late_lag = false;
         self.observer.reset();
         RenderedForce {
             force_n: DVec3::ZERO,
@@ -404,12 +422,21 @@ impl ForceRenderer {
         time_ns: u64,
     ) -> RenderedForce {
         // Book the work of last tick's force over the displacement the device really made.
-        if let Some(previous) = self.previous_position_m {
-            self.observer
-                .observe(self.previous_force_n, position_m - previous);
+        let displacement_m = self
+            .previous_position_m
+            .map(|previous| position_m - previous);
+        if let Some(d) = displacement_m {
+            self.observer.observe(self.previous_force_n, d);
         }
         self.previous_position_m = Some(position_m);
+        let interval_ns = match self.previous_time_ns {
+            Some(previous) if time_ns > previous => time_ns - previous,
+            _ => 0,
+        };
         let mut rendered = self.render_force(contact, velocity_m_s, tool_axis, time_ns);
+        if let Some(d) = displacement_m {
+            self.limit_late_step(&mut rendered, d, interval_ns);
+        }
         if let Some(thermal) = self.thermal.as_mut() {
             // Last in the pipeline, after the saturation: it books what the device delivers. The
             // force is held until the next tick, estimated as long as the last interval; after a
@@ -435,6 +462,43 @@ impl ForceRenderer {
         }
         self.previous_force_n = rendered.force_n;
         rendered
+    }
+
+    /// Bounds what a late tick changes, as a virtual coupling would: over an interval of r
+    /// nominal periods the force moves by at most K_max / r times the tip's displacement (plus
+    /// [`LATE_SETTLE_STEP_N`]), so that stiffness × interval stays at its rated value. Without
+    /// it a stiff contact held for 10 ms per tick by a loose grip chatters between zero and the
+    /// peak. The lag this leaves is settled on the following ticks under the same bound at the
+    /// nominal stiffness, where the law itself never moves faster. A contact that begins, ends or
+    /// faults is not limited: its own ramp and zero apply.
+    fn limit_late_step(
+        &mut self,
+        rendered: &mut RenderedForce,
+        displacement_m: DVec3,
+        interval_ns: u64,
+    ) {
+        let lateness = interval_ns as f64 / NOMINAL_PERIOD_NS as f64;
+        let late = lateness > LATE_TICK_PERIODS;
+        let both_in_contact =
+            rendered.force_n != DVec3::ZERO && self.previous_force_n != DVec3::ZERO;
+        if !both_in_contact
+            || rendered.flags.contains(ContactFlags::DEVICE_FAULT)
+            || !(late || self.late_lag)
+        {
+            self.late_lag = false;
+            return;
+        }
+        let stiffness_n_per_m = self.beyond_tip_stiffness_n_per_m / lateness.max(1.0);
+        let allowed_n = stiffness_n_per_m * displacement_m.length() + LATE_SETTLE_STEP_N;
+        let step_n = rendered.force_n - self.previous_force_n;
+        let size_n = step_n.length();
+        if size_n > allowed_n && size_n.is_finite() {
+            rendered.force_n = self.previous_force_n + step_n * (allowed_n / size_n);
+            rendered.flags |= ContactFlags::LATE_TICK_LIMITED;
+            self.late_lag = true;
+        } else {
+            self.late_lag = late;
+        }
     }
 
     /// The device reports (on this tick) whether its motors are warm. The driver keeps rendering
@@ -880,6 +944,67 @@ mod tests {
         let f = r.render(Some(&zero_normal), at(0.001), DVec3::ZERO, DVec3::Y, t + MS);
         assert!(f.flags.contains(ContactFlags::DEGENERATE_NORMAL));
         assert!(f.force_n.is_finite() && f.force_n.y > 0.0);
+    }
+
+    #[test]
+    fn a_late_tick_changes_the_force_by_at_most_the_stiffness_its_interval_allows() {
+        let mut r = renderer(Material::PAPER_STIFF, |c| c.passivity = false);
+        let t = settle(&mut r, 0.001);
+        let before = r.render(Some(&contact(0.001)), at(0.001), DVec3::ZERO, DVec3::Y, t);
+        // 10 ms late, 2 mm deeper: the law's force rises by several newtons.
+        let law = {
+            let mut fresh = renderer(Material::PAPER_STIFF, |c| c.passivity = false);
+            let t = settle(&mut fresh, 0.003);
+            fresh.render(Some(&contact(0.003)), at(0.003), DVec3::ZERO, DVec3::Y, t)
+        };
+        assert!(law.force_n.y - before.force_n.y > 2.0, "{law:?}");
+        let late_ns = t + 10 * MS;
+        let f = r.render(
+            Some(&contact(0.003)),
+            at(0.003),
+            DVec3::ZERO,
+            DVec3::Y,
+            late_ns,
+        );
+        let k_max = DeviceLimits::PHANTOM_DESKTOP.max_stiffness_n_per_m;
+        let allowed = k_max / 10.0 * 0.002 + LATE_SETTLE_STEP_N;
+        assert!(f.flags.contains(ContactFlags::LATE_TICK_LIMITED));
+        assert!(
+            (f.force_n.y - before.force_n.y - allowed).abs() < 1e-9,
+            "{} N after {} N",
+            f.force_n.y,
+            before.force_n.y
+        );
+        // On time again, held still: the lag settles by the settling step per tick, and the
+        // force reaches the law's within a few ticks.
+        let mut previous = f.force_n.y;
+        let mut settled_after = None;
+        for k in 1..=40u64 {
+            let g = r.render(
+                Some(&contact(0.003)),
+                at(0.003),
+                DVec3::ZERO,
+                DVec3::Y,
+                late_ns + k * MS,
+            );
+            assert!(g.force_n.y - previous <= LATE_SETTLE_STEP_N + 1e-9);
+            previous = g.force_n.y;
+            if !g.flags.contains(ContactFlags::LATE_TICK_LIMITED) {
+                settled_after.get_or_insert(k);
+            }
+        }
+        let settled_after = settled_after.unwrap();
+        assert!((previous - law.force_n.y).abs() < 1e-9);
+        assert!(settled_after <= 20, "{settled_after} ticks");
+        // An on-time tick of ordinary motion is never limited.
+        let g = r.render(
+            Some(&contact(0.0031)),
+            at(0.0031),
+            DVec3::ZERO,
+            DVec3::Y,
+            late_ns + 41 * MS,
+        );
+        assert!(!g.flags.contains(ContactFlags::LATE_TICK_LIMITED));
     }
 
     #[test]

@@ -75,6 +75,9 @@ bitflags::bitflags! {
         /// The tip is outside the device's usable workspace (inside the box it can reach, where
         /// its readings are less accurate).
         const OUTSIDE_WORKSPACE = 1 << 11;
+        /// The tick came late (the servo thread stalled): the force's change since the last
+        /// tick was limited to what the device renders stably over so long an interval.
+        const LATE_TICK_LIMITED = 1 << 12;
     }
 }
 

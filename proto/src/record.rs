@@ -404,7 +404,7 @@ pub mod schema {
     "in_contact": {"type": "boolean"},
     "depth_m": {"type": ["number", "string"], "description": "indentation depth, metres"},
     "force_n": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "commanded force, world frame, newtons"},
-    "flags": {"type": "integer", "minimum": 0, "description": "ContactFlags bits: 1 beyond_valid_depth, 2 beyond_valid_inclination, 4 saturated, 8 stiffness_capped, 16 device_fault, 32 ramping, 64 passivity_damping, 128 degenerate_normal, 256 continuous_force_limited, 512 pushed_through, 1024 motors_warm, 2048 outside_workspace"}
+    "flags": {"type": "integer", "minimum": 0, "description": "ContactFlags bits: 1 beyond_valid_depth, 2 beyond_valid_inclination, 4 saturated, 8 stiffness_capped, 16 device_fault, 32 ramping, 64 passivity_damping, 128 degenerate_normal, 256 continuous_force_limited, 512 pushed_through, 1024 motors_warm, 2048 outside_workspace, 4096 late_tick_limited"}
   },
   "required": ["tick", "time_ns", "sample", "device_fault", "in_contact", "depth_m", "force_n", "flags"]
 }"##;

@@ -26,6 +26,7 @@ export const CONTACT_FLAGS = Object.freeze([
   'pushed_through',
   'motors_warm',
   'outside_workspace',
+  'late_tick_limited',
 ]);
 
 /**

@@ -604,7 +604,7 @@ pub fn flag_name(flag: ContactFlags) -> Option<&'static str> {
 }
 
 /// Every flag with its wire name, in the order proto/WIRE.md lists them.
-pub const FLAG_NAMES: [(ContactFlags, &str); 12] = [
+pub const FLAG_NAMES: [(ContactFlags, &str); 13] = [
     (ContactFlags::SATURATED, "saturated"),
     (ContactFlags::STIFFNESS_CAPPED, "stiffness_capped"),
     (ContactFlags::BEYOND_VALID_DEPTH, "beyond_valid_depth"),
@@ -623,6 +623,7 @@ pub const FLAG_NAMES: [(ContactFlags, &str); 12] = [
     (ContactFlags::PUSHED_THROUGH, "pushed_through"),
     (ContactFlags::MOTORS_WARM, "motors_warm"),
     (ContactFlags::OUTSIDE_WORKSPACE, "outside_workspace"),
+    (ContactFlags::LATE_TICK_LIMITED, "late_tick_limited"),
 ];
 
 /// The snake_case names of the set flags, in [`FLAG_NAMES`] order.
