@@ -1,13 +1,13 @@
 //! The 1 kHz loop thread.
 //!
 //! One file because the tick's order (read, step, command, publish) and its real-time rules are
-//! checked by reading it top to bottom; the last 360 lines are its tests.
+//! checked by reading it top to bottom; its second half is its tests.
 //!
 //! [`HapticLoop::spawn`] moves a device and a [`HapticWorld`] onto a dedicated std thread that,
 //! every period: waits for its absolute deadline, reads the device, steps the world, commands the
 //! force, publishes the [`ContactState`], offers a [`TickRecord`] to the session log's ring, and
 //! records its timing. Other threads see its results only through wait-free publications
-//! ([`SeqCell`]), so no reader can ever delay the force (docs/design.md, invariant 1). Per tick it
+//! ([`crate::cells::SeqCell`]), so no reader can ever delay the force (docs/design.md, invariant 1). Per tick it
 //! never allocates, logs, does I/O or waits for another thread.
 //!
 //! A standby thread on a second CPU wakes a quarter period after each deadline and runs the tick
@@ -38,12 +38,13 @@
 
 use std::cell::UnsafeCell;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering, fence};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 
-use glam::{DQuat, DVec3};
+use glam::DVec3;
 use softhaptic_proto::{ContactFlags, ContactState, Pose};
 
+use crate::cells::{SeqCell, Words, WordsReader};
 use crate::device::{DeviceError, DeviceSample, HapticDevice, ServoClock};
 use crate::metrics::TraineeMetrics;
 use crate::rt::{self, CpuChoice, RealtimeStatus};
@@ -121,134 +122,47 @@ const STATS_EVERY_TICKS: u64 = 100;
 /// after it.
 const WATCHDOG_SILENT_PERIODS: u64 = 100;
 
-/// A seqlock over plain `u64` words: one writer, any number of readers, no `unsafe`.
-///
-/// The writer makes the sequence odd, stores the words, makes it even again; a reader retries
-/// when it saw an odd sequence or a different one after reading. The writer never waits (it is
-/// wait-free); a reader waits at most for the writer's few stores. Every word is an atomic, so a
-/// torn read is detected, never undefined behaviour.
-pub struct SeqCell<const N: usize> {
-    seq: AtomicU64,
-    words: [AtomicU64; N],
-}
-
-impl<const N: usize> SeqCell<N> {
-    pub fn new(initial: [u64; N]) -> Self {
-        Self {
-            seq: AtomicU64::new(0),
-            words: initial.map(AtomicU64::new),
-        }
-    }
-
-    /// Publishes new words. One thread at a time may write a given cell (the loop's baton holder,
-    /// whose hand-over orders the writes); two at once would not be unsafe but could let readers
-    /// see a mix.
-    pub fn write(&self, value: &[u64; N]) {
-        let s = self.seq.load(Ordering::Relaxed);
-        self.seq.store(s.wrapping_add(1), Ordering::Relaxed);
-        fence(Ordering::Release);
-        for (w, v) in self.words.iter().zip(value) {
-            w.store(*v, Ordering::Relaxed);
-        }
-        self.seq.store(s.wrapping_add(2), Ordering::Release);
-    }
-
-    /// One attempt at a consistent copy: `None` when the writer is mid-write (or wrote during the
-    /// copy). Wait-free, for a reader that must never wait for its writer (the 1 kHz thread
-    /// reading what a lower-priority thread publishes keeps its previous copy instead).
-    pub fn try_read(&self) -> Option<[u64; N]> {
-        let before = self.seq.load(Ordering::Acquire);
-        if before & 1 == 1 {
-            return None;
-        }
-        let out = std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
-        fence(Ordering::Acquire);
-        (self.seq.load(Ordering::Relaxed) == before).then_some(out)
-    }
-
-    /// Reads a consistent copy of the last published words.
-    pub fn read(&self) -> [u64; N] {
-        let mut attempts = 0u32;
-        loop {
-            attempts = attempts.wrapping_add(1);
-            if attempts.is_multiple_of(64) {
-                // The writer was preempted mid-write (possible when it runs without SCHED_FIFO):
-                // let it run instead of burning the reader's time slice.
-                std::thread::yield_now();
-            }
-            let before = self.seq.load(Ordering::Acquire);
-            if before & 1 == 1 {
-                std::hint::spin_loop();
-                continue;
-            }
-            let out = std::array::from_fn(|i| self.words[i].load(Ordering::Relaxed));
-            fence(Ordering::Acquire);
-            if self.seq.load(Ordering::Relaxed) == before {
-                return out;
-            }
-        }
-    }
-}
-
 const CONTACT_WORDS: usize = 26;
 
 fn contact_to_words(c: &ContactState) -> [u64; CONTACT_WORDS] {
-    let p = c.tip_in_world.position_m;
-    let q = c.tip_in_world.orientation;
-    let v = c.tip_velocity_m_s;
-    let n = c.normal;
-    let cp = c.contact_point_m;
-    let f = c.force_n;
-    [
-        c.tick,
-        c.time_ns,
-        p.x.to_bits(),
-        p.y.to_bits(),
-        p.z.to_bits(),
-        q.x.to_bits(),
-        q.y.to_bits(),
-        q.z.to_bits(),
-        q.w.to_bits(),
-        v.x.to_bits(),
-        v.y.to_bits(),
-        v.z.to_bits(),
-        c.buttons as u64,
-        c.in_contact as u64,
-        c.depth_m.to_bits(),
-        n.x.to_bits(),
-        n.y.to_bits(),
-        n.z.to_bits(),
-        cp.x.to_bits(),
-        cp.y.to_bits(),
-        cp.z.to_bits(),
-        c.contact_radius_m.to_bits(),
-        f.x.to_bits(),
-        f.y.to_bits(),
-        f.z.to_bits(),
-        c.flags.bits() as u64,
-    ]
+    let mut w = Words::new();
+    w.u64(c.tick)
+        .u64(c.time_ns)
+        .vec3(c.tip_in_world.position_m)
+        .quat(c.tip_in_world.orientation)
+        .vec3(c.tip_velocity_m_s)
+        .u64(u64::from(c.buttons))
+        .bool(c.in_contact)
+        .f64(c.depth_m)
+        .vec3(c.normal)
+        .vec3(c.contact_point_m)
+        .f64(c.contact_radius_m)
+        .vec3(c.force_n)
+        .u64(u64::from(c.flags.bits()));
+    w.finish()
 }
 
-fn contact_from_words(w: &[u64; CONTACT_WORDS]) -> ContactState {
-    let f = |i: usize| f64::from_bits(w[i]);
-    let v3 = |i: usize| DVec3::new(f(i), f(i + 1), f(i + 2));
-    ContactState {
-        tick: w[0],
-        time_ns: w[1],
+fn contact_from_words(words: &[u64; CONTACT_WORDS]) -> ContactState {
+    let mut r = WordsReader::new(words);
+    let c = ContactState {
+        tick: r.u64(),
+        time_ns: r.u64(),
         tip_in_world: Pose {
-            position_m: v3(2),
-            orientation: DQuat::from_xyzw(f(5), f(6), f(7), f(8)),
+            position_m: r.vec3(),
+            orientation: r.quat(),
         },
-        tip_velocity_m_s: v3(9),
-        buttons: w[12] as u32,
-        in_contact: w[13] != 0,
-        depth_m: f(14),
-        normal: v3(15),
-        contact_point_m: v3(18),
-        contact_radius_m: f(21),
-        force_n: v3(22),
-        flags: ContactFlags::from_bits_retain(w[25] as u32),
-    }
+        tip_velocity_m_s: r.vec3(),
+        buttons: r.u64() as u32,
+        in_contact: r.bool(),
+        depth_m: r.f64(),
+        normal: r.vec3(),
+        contact_point_m: r.vec3(),
+        contact_radius_m: r.f64(),
+        force_n: r.vec3(),
+        flags: ContactFlags::from_bits_retain(r.u64() as u32),
+    };
+    r.finish();
+    c
 }
 
 /// What the loop threads share with everyone else. Only the holder of the `Baton` writes the
@@ -1414,7 +1328,7 @@ mod tests {
             time_ns: 9,
             tip_in_world: Pose {
                 position_m: DVec3::new(0.1, -0.2, 0.3),
-                orientation: DQuat::from_rotation_x(0.3),
+                orientation: glam::DQuat::from_rotation_x(0.3),
             },
             tip_velocity_m_s: DVec3::new(1.0, 2.0, 3.0),
             buttons: 5,
@@ -1427,33 +1341,5 @@ mod tests {
             flags: ContactFlags::SATURATED | ContactFlags::RAMPING,
         };
         assert_eq!(contact_from_words(&contact_to_words(&c)), c);
-    }
-
-    #[test]
-    fn seqlock_readers_never_see_a_torn_value() {
-        let cell = Arc::new(SeqCell::<8>::new([0; 8]));
-        let stop = Arc::new(AtomicBool::new(false));
-        let readers: Vec<_> = (0..2)
-            .map(|_| {
-                let (cell, stop) = (Arc::clone(&cell), Arc::clone(&stop));
-                std::thread::spawn(move || {
-                    let mut reads = 0u64;
-                    while !stop.load(Ordering::Relaxed) {
-                        let w = cell.read();
-                        assert!(w.iter().all(|&x| x == w[0]), "torn read {w:?}");
-                        reads += 1;
-                    }
-                    reads
-                })
-            })
-            .collect();
-        for i in 1..=200_000u64 {
-            cell.write(&[i; 8]);
-        }
-        stop.store(true, Ordering::Relaxed);
-        for r in readers {
-            assert!(r.join().unwrap() > 0);
-        }
-        assert_eq!(cell.read(), [200_000; 8]);
     }
 }

@@ -39,11 +39,14 @@
 //!   with the scene's [`ForceModel`](model::ForceModel) (or the paper's law).
 //! - [`haptic_loop`]: the 1 kHz thread, its standby on a second CPU, and the wait-free publication
 //!   of the latest contact.
+//! - [`cells`]: [`SeqCell`](cells::SeqCell), the seqlock the loop and the device backends
+//!   publish through, and [`Words`](cells::Words), the one way a state is packed into its words.
 //! - [`stats`]: fixed-size timing histograms and the loop's [`LoopStats`](stats::LoopStats).
 //! - [`rt`]: monotonic clock, absolute-deadline sleep, SCHED_FIFO and mlockall requests.
 //! - [`replay`]: [`ReplayDevice`](replay::ReplayDevice), a recorded session played back as a
 //!   device, and the exact conversions between device samples and session-log records.
 
+pub mod cells;
 pub mod collision;
 pub mod curvature;
 pub mod device;

@@ -28,6 +28,8 @@
 
 use glam::DVec3;
 use softhaptic_proto::ContactFlags;
+
+use crate::cells::{Words, WordsReader};
 use softhaptic_proto::record::DeviceRecord;
 
 /// Longest tick interval counted, s.
@@ -90,42 +92,42 @@ pub struct TraineeMetrics {
 }
 
 impl TraineeMetrics {
-    /// Words for publishing through a seqlock ([`crate::haptic_loop::SeqCell`]).
-    pub const WORDS: usize = 11 + FLAG_BITS;
+    /// Words for publishing through a seqlock ([`crate::cells::SeqCell`]).
+    pub const WORDS: usize = 10 + FLAG_BITS;
 
     pub fn to_words(&self) -> [u64; Self::WORDS] {
-        let mut w = [0u64; Self::WORDS];
-        w[0] = self.peak_force_n.to_bits();
-        w[1] = self.peak_force_time_s.to_bits();
-        w[2] = self.safe_force_n.to_bits();
-        w[3] = self.time_above_safe_s.to_bits();
-        w[4] = self.time_in_contact_s.to_bits();
-        w[5] = self.path_length_in_contact_m.to_bits();
-        w[6] = self.mean_squared_jerk_m2_s6.to_bits();
-        w[7] = self.pushes;
-        w[8] = self.device_fault_ticks;
-        w[9] = self.ticks;
-        w[10] = 0;
-        w[11..].copy_from_slice(&self.flag_onsets);
-        w
+        let mut w = Words::new();
+        w.f64(self.peak_force_n)
+            .f64(self.peak_force_time_s)
+            .f64(self.safe_force_n)
+            .f64(self.time_above_safe_s)
+            .f64(self.time_in_contact_s)
+            .f64(self.path_length_in_contact_m)
+            .f64(self.mean_squared_jerk_m2_s6)
+            .u64(self.pushes)
+            .u64(self.device_fault_ticks)
+            .u64(self.ticks)
+            .u64s(&self.flag_onsets);
+        w.finish()
     }
 
-    pub fn from_words(w: &[u64; Self::WORDS]) -> Self {
-        let mut flag_onsets = [0u64; FLAG_BITS];
-        flag_onsets.copy_from_slice(&w[11..]);
-        TraineeMetrics {
-            peak_force_n: f64::from_bits(w[0]),
-            peak_force_time_s: f64::from_bits(w[1]),
-            safe_force_n: f64::from_bits(w[2]),
-            time_above_safe_s: f64::from_bits(w[3]),
-            time_in_contact_s: f64::from_bits(w[4]),
-            path_length_in_contact_m: f64::from_bits(w[5]),
-            mean_squared_jerk_m2_s6: f64::from_bits(w[6]),
-            pushes: w[7],
-            device_fault_ticks: w[8],
-            ticks: w[9],
-            flag_onsets,
-        }
+    pub fn from_words(words: &[u64; Self::WORDS]) -> Self {
+        let mut r = WordsReader::new(words);
+        let m = TraineeMetrics {
+            peak_force_n: r.f64(),
+            peak_force_time_s: r.f64(),
+            safe_force_n: r.f64(),
+            time_above_safe_s: r.f64(),
+            time_in_contact_s: r.f64(),
+            path_length_in_contact_m: r.f64(),
+            mean_squared_jerk_m2_s6: r.f64(),
+            pushes: r.u64(),
+            device_fault_ticks: r.u64(),
+            ticks: r.u64(),
+            flag_onsets: r.u64s(),
+        };
+        r.finish();
+        m
     }
 }
 

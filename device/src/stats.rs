@@ -4,6 +4,8 @@
 //! per power of two, so every bucket is within about 3 % of its values); recording is a few
 //! integer operations and never allocates, so the 1 kHz thread can record every tick.
 
+use crate::cells::{Words, WordsReader};
+
 /// Linear sub-buckets per power of two (2^5: ≈ 3 % resolution).
 const SUB_BITS: u32 = 5;
 const SUB: usize = 1 << SUB_BITS;
@@ -152,49 +154,52 @@ impl LoopStats {
 
     /// Encodes into words for a lock-free publication (f64 by bit pattern).
     pub fn to_words(&self) -> [u64; Self::WORDS] {
-        [
-            self.ticks,
-            self.loop_rate_hz.to_bits(),
-            self.period_error_p50_ns,
-            self.period_error_p99_ns,
-            self.period_error_p999_ns,
-            self.period_error_max_ns,
-            self.overruns,
-            self.compute_p50_ns,
-            self.compute_p99_ns,
-            self.compute_max_ns,
-            self.dropped_tick_records,
-            self.device_faults,
-            self.command_errors,
-            self.realtime_granted as u64,
-            self.spin_ns,
-            self.deadline_origin_ns,
-            self.standby_ticks,
-            self.watchdog_ticks,
-        ]
+        let mut w = Words::new();
+        w.u64(self.ticks)
+            .f64(self.loop_rate_hz)
+            .u64(self.period_error_p50_ns)
+            .u64(self.period_error_p99_ns)
+            .u64(self.period_error_p999_ns)
+            .u64(self.period_error_max_ns)
+            .u64(self.overruns)
+            .u64(self.compute_p50_ns)
+            .u64(self.compute_p99_ns)
+            .u64(self.compute_max_ns)
+            .u64(self.dropped_tick_records)
+            .u64(self.device_faults)
+            .u64(self.command_errors)
+            .bool(self.realtime_granted)
+            .u64(self.spin_ns)
+            .u64(self.deadline_origin_ns)
+            .u64(self.standby_ticks)
+            .u64(self.watchdog_ticks);
+        w.finish()
     }
 
-    pub fn from_words(w: &[u64; Self::WORDS]) -> Self {
-        Self {
-            ticks: w[0],
-            loop_rate_hz: f64::from_bits(w[1]),
-            period_error_p50_ns: w[2],
-            period_error_p99_ns: w[3],
-            period_error_p999_ns: w[4],
-            period_error_max_ns: w[5],
-            overruns: w[6],
-            compute_p50_ns: w[7],
-            compute_p99_ns: w[8],
-            compute_max_ns: w[9],
-            dropped_tick_records: w[10],
-            device_faults: w[11],
-            command_errors: w[12],
-            realtime_granted: w[13] != 0,
-            spin_ns: w[14],
-            deadline_origin_ns: w[15],
-            standby_ticks: w[16],
-            watchdog_ticks: w[17],
-        }
+    pub fn from_words(words: &[u64; Self::WORDS]) -> Self {
+        let mut r = WordsReader::new(words);
+        let s = Self {
+            ticks: r.u64(),
+            loop_rate_hz: r.f64(),
+            period_error_p50_ns: r.u64(),
+            period_error_p99_ns: r.u64(),
+            period_error_p999_ns: r.u64(),
+            period_error_max_ns: r.u64(),
+            overruns: r.u64(),
+            compute_p50_ns: r.u64(),
+            compute_p99_ns: r.u64(),
+            compute_max_ns: r.u64(),
+            dropped_tick_records: r.u64(),
+            device_faults: r.u64(),
+            command_errors: r.u64(),
+            realtime_granted: r.bool(),
+            spin_ns: r.u64(),
+            deadline_origin_ns: r.u64(),
+            standby_ticks: r.u64(),
+            watchdog_ticks: r.u64(),
+        };
+        r.finish();
+        s
     }
 }
 
@@ -248,23 +253,23 @@ impl LateLog {
 
     /// Encodes into words for a lock-free publication.
     pub fn to_words(&self) -> [u64; Self::WORDS] {
-        let mut w = [0; Self::WORDS];
-        w[0] = self.total;
-        for (i, wake) in self.ring.iter().enumerate() {
-            w[1 + 2 * i] = wake.deadline_ns;
-            w[2 + 2 * i] = wake.late_ns;
+        let mut w = Words::new();
+        w.u64(self.total);
+        for wake in &self.ring {
+            w.u64(wake.deadline_ns).u64(wake.late_ns);
         }
-        w
+        w.finish()
     }
 
-    pub fn from_words(w: &[u64; Self::WORDS]) -> Self {
-        Self {
-            total: w[0],
-            ring: std::array::from_fn(|i| LateWake {
-                deadline_ns: w[1 + 2 * i],
-                late_ns: w[2 + 2 * i],
-            }),
-        }
+    pub fn from_words(words: &[u64; Self::WORDS]) -> Self {
+        let mut r = WordsReader::new(words);
+        let total = r.u64();
+        let ring = std::array::from_fn(|_| LateWake {
+            deadline_ns: r.u64(),
+            late_ns: r.u64(),
+        });
+        r.finish();
+        Self { total, ring }
     }
 }
 

@@ -37,8 +37,8 @@ use std::time::Duration;
 
 use glam::DVec3;
 
+use crate::cells::{SeqCell, Words, WordsReader};
 use crate::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
-use crate::haptic_loop::SeqCell;
 use crate::rt;
 use rate::{RateConfig, RateControl};
 use report::{Axes, Model, Parser, PuckState};
@@ -108,35 +108,37 @@ struct Shared {
 
 impl Shared {
     fn to_words(self) -> [u64; PUCK_WORDS] {
-        let t = self.puck.axes.translation;
-        let r = self.puck.axes.rotation;
-        [
-            self.reports,
-            u64::from(self.connected),
-            self.report_ns,
-            t[0].to_bits(),
-            t[1].to_bits(),
-            t[2].to_bits(),
-            r[0].to_bits(),
-            r[1].to_bits(),
-            r[2].to_bits(),
-            u64::from(self.puck.buttons),
-        ]
+        let mut w = Words::new();
+        w.u64(self.reports).bool(self.connected).u64(self.report_ns);
+        for v in self
+            .puck
+            .axes
+            .translation
+            .into_iter()
+            .chain(self.puck.axes.rotation)
+        {
+            w.f64(v);
+        }
+        w.u64(u64::from(self.puck.buttons));
+        w.finish()
     }
 
-    fn from_words(w: [u64; PUCK_WORDS]) -> Self {
-        Shared {
-            reports: w[0],
-            connected: w[1] != 0,
-            report_ns: w[2],
+    fn from_words(words: [u64; PUCK_WORDS]) -> Self {
+        let mut r = WordsReader::new(&words);
+        let shared = Shared {
+            reports: r.u64(),
+            connected: r.bool(),
+            report_ns: r.u64(),
             puck: PuckState {
                 axes: Axes {
-                    translation: [w[3], w[4], w[5]].map(f64::from_bits),
-                    rotation: [w[6], w[7], w[8]].map(f64::from_bits),
+                    translation: [r.f64(), r.f64(), r.f64()],
+                    rotation: [r.f64(), r.f64(), r.f64()],
                 },
-                buttons: w[9] as u32,
+                buttons: r.u64() as u32,
             },
-        }
+        };
+        r.finish();
+        shared
     }
 }
 
