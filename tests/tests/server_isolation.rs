@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use futures_util::StreamExt;
 use softhaptic_device::haptic_loop::TickRecord;
 use softhaptic_proto::wire::ServerMessage;
-use softhaptic_tests::{Viewer, start_default, test_options};
+use softhaptic_tests::{Viewer, start_default, test_options, wait_until};
 use tokio_tungstenite::tungstenite::Message;
 
 const WAIT: Duration = Duration::from_secs(10);
@@ -245,12 +245,24 @@ async fn a_viewer_that_stalls_skips_ahead_and_is_told_how_many_frames_it_lost() 
         Arc::new(AtomicBool::new(true)),
         Arc::clone(&stop),
     ));
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    // Then reads for 1.5 s: first what the socket buffers held, then the newest frames.
+    // The slow viewer reads nothing while the server produces 60 frames: more than its backlog
+    // and both socket buffers hold (a frame is about 600 bytes), so it must have lapped. Counted
+    // in frames, not seconds: a slow machine waits longer, not less.
+    let sent = || server.counters().frames_sent.load(Ordering::Relaxed);
+    let stalled_at = sent();
+    wait_until("60 frames produced during the stall", || {
+        sent() >= stalled_at + 60
+    })
+    .await;
+    // Then it reads: first what the socket buffers held, then the newest frames, until it has
+    // been told of the loss and seen some frames after that.
     let mut frames = Vec::new();
-    let until = Instant::now() + Duration::from_millis(1500);
-    while Instant::now() < until {
+    let mut after_loss = 0;
+    while after_loss < 25 {
         if let ServerMessage::Contact(f) = slow.expect_message(WAIT).await {
+            if f.dropped > 0 {
+                after_loss += 1;
+            }
             frames.push(f);
         }
     }
