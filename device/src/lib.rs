@@ -32,6 +32,8 @@
 //!   flags at the active model's limits.
 //! - [`metrics`]: the trainee's metrics (peak force, time above the safe force, time in
 //!   contact, path, smoothness, pushes, faults, flags) from every tick, in constant time.
+//! - [`exercise`]: [`Scorer`](exercise::Scorer), an exercise's score (press, trace) from the
+//!   same ticks as the metrics, live or from a recording.
 //! - [`passivity`]: the passivity observer and controller (Hannaford & Ryu 2002).
 //! - [`thermal`]: [`ContinuousForceLimiter`](thermal::ContinuousForceLimiter), a model of the
 //!   motors' heating that holds the RMS force at the device's continuous rating.
@@ -50,6 +52,7 @@ pub mod cells;
 pub mod collision;
 pub mod curvature;
 pub mod device;
+pub mod exercise;
 pub mod force;
 pub mod haptic_loop;
 pub mod law;

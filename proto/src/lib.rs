@@ -16,6 +16,8 @@
 //! - [`calibration`]: the δ → R_d calibration table (JSON file format), its piecewise fit and
 //!   the analytical half-space table used when no FEM table exists.
 //! - [`deformation`]: the reference Bézier deformation profile the viewer mirrors (proto/WIRE.md).
+//! - [`exercise`]: exercises (press, trace), the metrics each kind scores with the direction
+//!   that is better, pass marks, and an attempt's result.
 //! - [`wire`]: the WebSocket messages between server and viewer, and their decoding; the render
 //!   mesh's binary layout ([`wire::shm1`]).
 //! - [`record`]: the session-log records (one MCAP channel each, JSON schemas) and the replay
@@ -28,6 +30,7 @@
 pub mod calibration;
 pub mod contact;
 pub mod deformation;
+pub mod exercise;
 pub mod material;
 pub mod model;
 pub mod record;
