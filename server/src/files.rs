@@ -15,6 +15,8 @@ use std::path::Path;
 pub enum FileKind {
     /// A scene (TOML): a page of settings.
     Scene,
+    /// An exercise (TOML): a page of settings, a traced path of up to a thousand points.
+    Exercise,
     /// An OBJ mesh: a fine render mesh of a few million triangles is about 200 MB of text.
     Mesh,
     /// A calibration table or a model-limits file (JSON): a few hundred rows.
@@ -34,6 +36,7 @@ impl FileKind {
     pub const fn max_bytes(self) -> u64 {
         match self {
             FileKind::Scene => 1 << 20,
+            FileKind::Exercise => 1 << 20,
             FileKind::Mesh => 256 << 20,
             FileKind::Table => 16 << 20,
             FileKind::Recording => 4 << 30,
@@ -46,6 +49,7 @@ impl FileKind {
     fn name(self) -> &'static str {
         match self {
             FileKind::Scene => "a scene file",
+            FileKind::Exercise => "an exercise file",
             FileKind::Mesh => "a mesh",
             FileKind::Table => "a calibration or limits file",
             FileKind::Recording => "a recording",

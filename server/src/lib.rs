@@ -21,6 +21,8 @@
 //! - [`doctor`]: `softhaptic doctor`: the host's readiness for the 1 kHz loop (preemption
 //!   model, real-time limits, CPU isolation, interrupts, governor, swap, devices), each with its
 //!   fix, and a short measurement of the loop idle and under load.
+//! - [`exercise`]: exercise files (press, trace) checked and placed in their scene, attempts
+//!   scored from the ticks, pass marks from experts (`benchmark`) and results (`results`).
 //! - [`lab`]: the teaching lab on NATS: a station publishes its stream (`--nats`, `--station`),
 //!   a hub (`softhaptic hub`) lists the stations and relays any of them to browsers.
 //! - [`files`]: reading the files users name: regular files only, each kind bounded in size.
@@ -42,6 +44,7 @@ pub mod app;
 pub mod datadir;
 pub mod devices;
 pub mod doctor;
+pub mod exercise;
 pub mod files;
 pub mod lab;
 pub mod logging;

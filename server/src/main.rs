@@ -56,6 +56,17 @@ enum Command {
     /// Session recordings: info, export, check, replay, record-script.
     #[command(flatten)]
     Session(session::cli::SessionCommand),
+    /// Exercise files: check them, and score recordings as attempts.
+    Exercise {
+        #[command(subcommand)]
+        command: softhaptic_server::exercise::cli::ExerciseCommand,
+    },
+    /// Pass marks from experts: score experts' recordings of an exercise and set each metric's
+    /// mark at the experts' mean, loosened by one standard deviation (at least five recordings).
+    Benchmark(softhaptic_server::exercise::cli::BenchmarkArgs),
+    /// A trainee's or a class's attempts at an exercise: one CSV row per attempt, and an HTML
+    /// report with a plot per metric against its pass mark.
+    Results(softhaptic_server::exercise::cli::ResultsArgs),
     /// Print the shell completion script for SHELL (the package installs bash's, zsh's and
     /// fish's).
     Completions {
@@ -211,6 +222,13 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
             Ok(std::process::ExitCode::SUCCESS)
         }
         Some(Command::Session(command)) => done(session::cli::run(command)),
+        Some(Command::Exercise { command }) => {
+            done(softhaptic_server::exercise::cli::run_exercise(command))
+        }
+        Some(Command::Benchmark(args)) => {
+            done(softhaptic_server::exercise::cli::run_benchmark(args))
+        }
+        Some(Command::Results(args)) => done(softhaptic_server::exercise::cli::run_results(args)),
         Some(Command::Doctor(args)) => Ok(status(softhaptic_server::doctor::run(&args)?)),
         Some(Command::Devices { name }) => done(session::cli::print_report(format_args!(
             "{}",

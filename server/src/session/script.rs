@@ -104,36 +104,60 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
             source: Box::new(e),
         }
     })?;
+    let script = hand_script(name, &scene);
+    record_hand(
+        &scene,
+        name.scene_toml(),
+        script,
+        &format!("script-{}", name.label()),
+        out,
+        |device| {
+            if name == ScriptName::FaultMidPress {
+                let (hold_start_s, hold_end_s) = script.hold_window_s();
+                let middle_ns = ((hold_start_s + hold_end_s) * 0.5 * 1e9) as u64;
+                device.schedule_fault(
+                    middle_ns - 100_000_000,
+                    middle_ns + 100_000_000,
+                    SimFault::Error(DeviceError::Disconnected),
+                );
+            }
+        },
+    )
+}
+
+/// Records the simulated PHANTOM moved by `script` in `scene` (whose text is `scene_toml`) to
+/// `out` (which must not exist), tick by tick without a wall clock, as a live session records;
+/// `prepare` may schedule the device's faults first. Tests record the scripted attempts of an
+/// exercise through it.
+pub fn record_hand(
+    scene: &Scene,
+    scene_toml: &str,
+    script: HandScript,
+    session_id: &str,
+    out: &Path,
+    prepare: impl FnOnce(&mut SimulatedPhantom),
+) -> Result<RecordingStats, ScriptError> {
     let params = SimParams {
         limits: scene.device_limits,
         ..SimParams::default()
     };
-    let script = hand_script(name, &scene);
     let mut device = SimulatedPhantom::with_params(script, params);
-    if name == ScriptName::FaultMidPress {
-        let (hold_start_s, hold_end_s) = script.hold_window_s();
-        let middle_ns = ((hold_start_s + hold_end_s) * 0.5 * 1e9) as u64;
-        device.schedule_fault(
-            middle_ns - 100_000_000,
-            middle_ns + 100_000_000,
-            SimFault::Error(DeviceError::Disconnected),
-        );
-    }
-    let mut world = haptic_world(&scene);
+    prepare(&mut device);
+    let mut world = haptic_world(scene);
 
     let build = BuildRecord {
         session_format_version: softhaptic_proto::record::SESSION_FORMAT_VERSION,
         protocol_version: softhaptic_proto::wire::PROTOCOL_VERSION,
         writer: crate::app::SERVER_NAME.into(),
         git_commit: super::git_commit(),
-        session_id: format!("script-{}", name.label()),
+        session_id: session_id.to_owned(),
         // No wall clock in a scripted session: the same script and build write the same bytes,
         // so a regenerated recording only changes when the forces do.
         started_unix_ns: 0,
     };
     let scene_record = SceneRecord {
         message: scene.message(),
-        scene_toml: name.scene_toml().to_owned(),
+        scene_toml: scene_toml.to_owned(),
         scene_file: None,
         period_ns: params.period_ns,
         meshes: scene.recorded_meshes(),

@@ -1,0 +1,14 @@
+//! Exercises: tasks a trainee completes, scored from the 1 kHz ticks and held against pass marks
+//! set from experts' recordings.
+//!
+//! # Layout
+//! - [`mod@file`]: the exercise file (TOML) and its checks, placed in its scene's world frame.
+//! - [`score`]: an attempt scored from a recording's ticks, exactly as it was live.
+//! - [`cli`]: `exercise check`, `exercise score`, `benchmark` (pass marks from experts) and
+//!   `results` (a trainee's or a class's attempts as CSV and an HTML report).
+
+pub mod cli;
+pub mod file;
+pub mod score;
+
+pub use file::{ExerciseError, LoadedExercise};

@@ -1,0 +1,318 @@
+//! Exercises through the real `softhaptic` binary, on attempts recorded from scripted hands:
+//! `exercise check` on the shipped files, `exercise score` on hands that pass and that fail each
+//! kind (the scores against what the scripted motion gives), `benchmark` from five scripted
+//! experts (refused from four), and `results` as CSV read back by a CSV parser and an HTML
+//! report with a plot per metric.
+
+// Test code, synchronous: records the attempts and reads the files the commands wrote.
+#![allow(clippy::disallowed_methods)]
+#![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use glam::DVec3;
+use softhaptic_device::sim::HandScript;
+use softhaptic_server::scene::Scene;
+use softhaptic_server::session::script::record_hand;
+
+fn repo(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path)
+}
+
+fn softhaptic(args: &[&std::ffi::OsStr]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_softhaptic"))
+        .args(args)
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .expect("softhaptic runs")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("softhaptic-exercise-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const SCENE_TOML: &str = include_str!("../../scenes/default.toml");
+
+fn scene() -> Scene {
+    Scene::load(&repo("scenes/default.toml")).unwrap()
+}
+
+/// A press at the scene's press site, `depth_m` below the surface, held for `hold_s`.
+fn press(scene: &Scene, depth_m: f64, hold_s: f64) -> HandScript {
+    let mut s = scene.hand_script();
+    s.repeat = false;
+    s.press_depth_m = depth_m;
+    s.hold_s = hold_s;
+    s.slide_distance_m = 0.0;
+    s.slide_s = 0.0;
+    s
+}
+
+fn record(scene: &Scene, script: HandScript, out: &Path) {
+    record_hand(scene, SCENE_TOML, script, "exercise-test", out, |_| {}).unwrap();
+}
+
+fn metric(report: &str, name: &str) -> f64 {
+    report
+        .lines()
+        .find_map(|l| {
+            let mut words = l.split_whitespace();
+            (words.next() == Some(name)).then(|| words.next().unwrap().parse().unwrap())
+        })
+        .unwrap_or_else(|| panic!("{name} not in\n{report}"))
+}
+
+#[test]
+fn the_shipped_exercises_check() {
+    let files = [
+        repo("exercises/press-hold.toml"),
+        repo("exercises/trace-line.toml"),
+    ];
+    let mut args: Vec<&std::ffi::OsStr> = vec!["exercise".as_ref(), "check".as_ref()];
+    args.extend(files.iter().map(|f| f.as_os_str()));
+    let out = ok(&softhaptic(&args));
+    assert!(out.contains("Press and hold 1 N (press, 20 s)"), "{out}");
+    assert!(out.contains("Trace a line at 1 N (trace, 30 s)"), "{out}");
+}
+
+fn score(recording: &Path, exercise: &Path) -> String {
+    ok(&softhaptic(&[
+        "exercise".as_ref(),
+        "score".as_ref(),
+        recording.as_os_str(),
+        "--exercise".as_ref(),
+        exercise.as_os_str(),
+    ]))
+}
+
+#[test]
+fn a_press_held_passes_and_one_too_hard_or_too_short_fails() {
+    let d = dir("press");
+    let scene = scene();
+    let exercise = repo("exercises/press-hold.toml");
+    // 6 mm into the liver gives about 1.0 N (the window is 1 ± 0.25 N), held 3 s: the script
+    // approaches for 0.5 s and presses for 0.5 s, so the force enters the window between 0.5 s
+    // and a little after 1 s, and the 2 s hold is complete 2 s later; the attempt ends there.
+    let good = d.join("good.mcap");
+    record(&scene, press(&scene, 0.006, 3.0), &good);
+    let out = score(&good, &exercise);
+    assert!(
+        out.contains("— passed (completed, safe, ended: Completed"),
+        "{out}"
+    );
+    assert_eq!(metric(&out, "hold_s"), 2.0);
+    let to_hold = metric(&out, "time_to_hold_s");
+    assert!((2.5..3.2).contains(&to_hold), "{out}");
+    assert!(
+        (0.75..=1.25).contains(&metric(&out, "peak_force_n")),
+        "{out}"
+    );
+    assert!(metric(&out, "hold_force_sd_n") < 0.25, "{out}");
+    assert_eq!(metric(&out, "time_above_safe_s"), 0.0);
+
+    // 14 mm: the force passes the window and the scene's 2 N safe force.
+    let hard = d.join("hard.mcap");
+    record(&scene, press(&scene, 0.014, 3.0), &hard);
+    let out = score(&hard, &exercise);
+    assert!(out.contains("— not passed (not completed, UNSAFE"), "{out}");
+    assert!(metric(&out, "peak_force_n") > 2.0, "{out}");
+    assert!(metric(&out, "time_above_safe_s") > 0.5, "{out}");
+    assert!(metric(&out, "hold_s") < 0.5, "{out}");
+
+    // Held 1 s only: the hold is that second and the ramps' share of the window, short of 2 s.
+    let short = d.join("short.mcap");
+    record(&scene, press(&scene, 0.006, 1.0), &short);
+    let out = score(&short, &exercise);
+    assert!(
+        out.contains("— not passed (not completed, safe, ended: Stopped"),
+        "{out}"
+    );
+    let hold = metric(&out, "hold_s");
+    assert!((1.0..1.8).contains(&hold), "{out}");
+}
+
+/// A trace: pressed 6 mm in, then slid 15 mm over 3 s along `direction` (world frame).
+fn slide(scene: &Scene, direction: DVec3) -> HandScript {
+    let mut s = press(scene, 0.006, 0.5);
+    s.slide_direction = direction;
+    s.slide_distance_m = 0.015;
+    s.slide_s = 3.0;
+    s
+}
+
+#[test]
+fn a_stroke_along_the_line_traces_it_and_one_across_it_does_not() {
+    let d = dir("trace");
+    let scene = scene();
+    let exercise = repo("exercises/trace-line.toml");
+    // The file's line runs 15 mm from the press site along the surface toward +x.
+    let along = d.join("along.mcap");
+    record(&scene, slide(&scene, DVec3::X), &along);
+    let out = score(&along, &exercise);
+    assert!(
+        out.contains("— passed (completed, safe, ended: Completed"),
+        "{out}"
+    );
+    assert!(metric(&out, "coverage") >= 0.9, "{out}");
+    // The hand follows the line: well inside the 3 mm tolerance all the way.
+    assert!(metric(&out, "max_deviation_m") < 0.0015, "{out}");
+    assert!(metric(&out, "mean_deviation_m") < 0.001, "{out}");
+    assert!(metric(&out, "in_window_fraction") > 0.7, "{out}");
+
+    // Across it (toward +z): only the first 3 mm of the line lie within 3 mm of the stroke's
+    // start, about a fifth of its 15 mm.
+    let across = d.join("across.mcap");
+    record(&scene, slide(&scene, DVec3::Z), &across);
+    let out = score(&across, &exercise);
+    assert!(out.contains("— not passed (not completed, safe"), "{out}");
+    let coverage = metric(&out, "coverage");
+    assert!(coverage < 0.3, "{out}");
+    assert!(metric(&out, "max_deviation_m") > 0.01, "{out}");
+}
+
+#[test]
+fn a_benchmark_of_five_experts_sets_marks_that_an_expert_like_trainee_meets() {
+    let d = dir("benchmark");
+    let scene = scene();
+    let exercise = d.join("press.toml");
+    std::fs::copy(repo("exercises/press-hold.toml"), &exercise).unwrap();
+    let experts: Vec<PathBuf> = [0.0058, 0.0059, 0.006, 0.0061, 0.0062]
+        .iter()
+        .enumerate()
+        .map(|(i, depth)| {
+            let path = d.join(format!("expert-{i}.mcap"));
+            record(&scene, press(&scene, *depth, 3.0), &path);
+            path
+        })
+        .collect();
+    let mut args: Vec<&std::ffi::OsStr> = vec!["benchmark".as_ref()];
+    args.extend(experts[..4].iter().map(|p| p.as_os_str()));
+    args.extend(["--exercise".as_ref(), exercise.as_os_str()]);
+    let four = softhaptic(&args);
+    assert!(!four.status.success());
+    assert!(
+        String::from_utf8_lossy(&four.stderr)
+            .contains("a benchmark needs at least 5 experts' recordings, got 4"),
+        "{}",
+        String::from_utf8_lossy(&four.stderr)
+    );
+
+    args.insert(5, experts[4].as_os_str());
+    args.push("--write".as_ref());
+    let out = ok(&softhaptic(&args));
+    assert!(out.contains("5 experts' recordings"), "{out}");
+    // The peaks each expert reached, from `exercise score`: the mark is their mean + 1 SD.
+    let peaks: Vec<f64> = experts
+        .iter()
+        .map(|e| metric(&score(e, &exercise), "peak_force_n"))
+        .collect();
+    let mean = peaks.iter().sum::<f64>() / 5.0;
+    let sd = (peaks.iter().map(|p| (p - mean).powi(2)).sum::<f64>() / 4.0).sqrt();
+    let written = std::fs::read_to_string(&exercise).unwrap();
+    let file: toml::Table = toml::from_str(&written).unwrap();
+    let mark = file["pass"]["peak_force_n"]["at_most"].as_float().unwrap();
+    assert!(
+        (mark - (mean + sd)).abs() < 1e-5 * mark,
+        "{mark} vs {mean} + {sd}"
+    );
+    assert_eq!(
+        file["pass"]["peak_force_n"]["experts"]["recordings"].as_integer(),
+        Some(5)
+    );
+    assert!(file["pass"]["hold_s"]["at_least"].as_float().is_some());
+    // The file's comments and other lines are kept.
+    assert!(written.starts_with("# Press the liver"), "{written}");
+    assert!(written.contains("target_force_n = 1.0"));
+
+    // A trainee who presses as the experts do passes every mark; one who presses 7 mm (1.2 N,
+    // still in the window) completes the task but misses the experts' peak force.
+    let like = d.join("trainee-like.mcap");
+    record(&scene, press(&scene, 0.006, 3.0), &like);
+    let out = score(&like, &exercise);
+    assert!(out.contains("— passed"), "{out}");
+    let harder = d.join("trainee-harder.mcap");
+    record(&scene, press(&scene, 0.007, 3.0), &harder);
+    let out = score(&harder, &exercise);
+    assert!(out.contains("— not passed (completed, safe"), "{out}");
+    assert!(out.contains("mark peak_force_n"), "{out}");
+    assert!(
+        out.lines()
+            .any(|l| l.contains("mark peak_force_n") && l.ends_with("MISSED")),
+        "{out}"
+    );
+}
+
+#[test]
+fn results_are_a_csv_row_per_attempt_and_a_report_with_a_plot_per_metric() {
+    let d = dir("results");
+    let scene = scene();
+    let exercise = repo("exercises/press-hold.toml");
+    let attempts: Vec<PathBuf> = [0.009, 0.0075, 0.006]
+        .iter()
+        .enumerate()
+        .map(|(i, depth)| {
+            let path = d.join(format!("attempt-{i}.mcap"));
+            record(&scene, press(&scene, *depth, 3.0), &path);
+            path
+        })
+        .collect();
+    let (csv_path, html_path) = (d.join("results.csv"), d.join("results.html"));
+    let mut args: Vec<&std::ffi::OsStr> = vec!["results".as_ref()];
+    args.extend(attempts.iter().map(|p| p.as_os_str()));
+    args.extend([
+        "--exercise".as_ref(),
+        exercise.as_os_str(),
+        "--trainee".as_ref(),
+        "ana".as_ref(),
+        "--csv".as_ref(),
+        csv_path.as_os_str(),
+        "--html".as_ref(),
+        html_path.as_os_str(),
+    ]);
+    ok(&softhaptic(&args));
+    // Kept unless --replace.
+    let again = softhaptic(&args);
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("results --replace"));
+
+    let mut reader = csv::Reader::from_path(&csv_path).unwrap();
+    let header = reader.headers().unwrap().clone();
+    for column in ["trainee", "attempt", "passed", "hold_s", "peak_force_n"] {
+        assert!(header.iter().any(|h| h == column), "{header:?}");
+    }
+    let rows: Vec<csv::StringRecord> = reader.records().map(Result::unwrap).collect();
+    assert_eq!(rows.len(), 3);
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let attempts_seen: Vec<&str> = rows.iter().map(|r| &r[column("attempt")]).collect();
+    assert_eq!(attempts_seen, ["1", "2", "3"]);
+    assert!(rows.iter().all(|r| &r[column("trainee")] == "ana"));
+    // The hardest press misses the window; the last one, as the experts press, passes.
+    assert_eq!(&rows[0][column("passed")], "false");
+    assert_eq!(&rows[2][column("passed")], "true");
+    // The same numbers as `exercise score` prints.
+    let scored = score(&attempts[2], &exercise);
+    let peak: f64 = rows[2][column("peak_force_n")].parse().unwrap();
+    assert!((peak - metric(&scored, "peak_force_n")).abs() < 1e-6);
+
+    let html = std::fs::read_to_string(&html_path).unwrap();
+    assert_eq!(
+        html.matches("<figure class=\"plot\"").count(),
+        5,
+        "a plot per metric"
+    );
+    assert_eq!(html.matches("<svg").count(), 5);
+}
