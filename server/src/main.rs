@@ -236,18 +236,30 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
     }
 }
 
-fn hub(args: HubArgs) -> anyhow::Result<()> {
-    let mut access = args.access.resolve(args.addr)?;
-    let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
+/// The TLS setup `args` ask for on `addr` (said on the terminal when there is one), and what it
+/// decides of `access`: HSTS only with a CA's certificate (a browser told to insist on https
+/// for a self-signed one would lock its users out when it changes), and the data directory,
+/// where the links go when standard output would keep them. The hub and a station alike.
+fn tls_for(
+    args: &softhaptic_server::tls::TlsArgs,
+    addr: SocketAddr,
+    access: &mut softhaptic_server::access::AccessConfig,
+) -> anyhow::Result<Option<softhaptic_server::tls::TlsSetup>> {
+    let tls = softhaptic_server::tls::server_config(args, addr.ip())?;
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
     access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
     access.links_dir = args
-        .tls
         .data_dir
         .clone()
         .or_else(softhaptic_server::tls::default_data_dir);
+    Ok(tls)
+}
+
+fn hub(args: HubArgs) -> anyhow::Result<()> {
+    let mut access = args.access.resolve(args.addr)?;
+    let tls = tls_for(&args.tls, args.addr, &mut access)?;
     let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
@@ -292,16 +304,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         softhaptic_server::lab::parse_nats_url(url).map_err(|e| anyhow::anyhow!("--nats: {e}"))?;
     }
     // A certificate that does not load stops the start too, before a recording is begun.
-    let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
-    if let Some(t) = &tls {
-        softhaptic_server::logging::print_line(format_args!("{t}"));
-    }
-    access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
-    access.links_dir = args
-        .tls
-        .data_dir
-        .clone()
-        .or_else(softhaptic_server::tls::default_data_dir);
+    let tls = tls_for(&args.tls, args.addr, &mut access)?;
     // A page that could not run (a --web-dir without three.js) stops the start too.
     let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     // Refuse a bad scene before anything starts. A scene not found as given is looked for
