@@ -510,6 +510,20 @@ mod tests {
             ),
             "{err}"
         );
+        // Long enough, but made of words: refused, naming the variable, never quoting it.
+        let hand_made = |name: &str| match name {
+            OBSERVER_TOKEN_ENV => Some("observer-token-for-the-lab-2024".to_owned() + "x"),
+            _ => Some(I.to_owned()),
+        };
+        let err = args
+            .resolve_with_env(addr, &hand_made)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("SOFTHAPTIC_OBSERVER_TOKEN: the observer token looks made by hand"),
+            "{err}"
+        );
+        assert!(!err.contains("token-for"), "{err}");
     }
 
     #[test]
