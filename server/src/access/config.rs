@@ -47,7 +47,10 @@ impl Default for ConnectionLimits {
             // second, a script flooding the server can.
             messages_per_s: 50.0,
             message_burst: 100.0,
-            auth_timeout: Duration::from_secs(10),
+            // A page presents its token within milliseconds of the upgrade (a slow link: a few
+            // hundred); every second beyond that is a second a connection that never will holds
+            // one of the waiting places.
+            auth_timeout: Duration::from_secs(5),
         }
     }
 }
