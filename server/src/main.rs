@@ -56,6 +56,19 @@ enum Command {
     /// Session recordings: info, export, check, replay, record-script.
     #[command(flatten)]
     Session(session::cli::SessionCommand),
+    /// A teaching lab's NATS sign-in: a user nkey seed per station and one for the hubs in DIR
+    /// (mode 0600; seeds already there are kept), and DIR/authorization.conf, the
+    /// nats-server `authorization` block that lets each station publish only its own subjects
+    /// and archive bucket, and the hubs only read. Include it in the server's configuration;
+    /// give each station `--nats-credentials DIR/station-NAME.nk`, each hub DIR/hub.nk.
+    NatsConfig {
+        /// A station's name (repeatable).
+        #[arg(long = "station", value_name = "NAME", required = true)]
+        stations: Vec<String>,
+        /// Where to write the seeds and the configuration.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+    },
     /// Print the shell completion script for SHELL (the package installs bash's, zsh's and
     /// fish's).
     Completions {
@@ -135,10 +148,14 @@ struct RunArgs {
     #[arg(long, value_name = "NAME", requires = "nats")]
     station: Option<String>,
     /// NATS credentials: a NATS .creds file, a user nkey seed file (`SU…`, as `nk -gen user`
-    /// writes it), or TOML with `token = "…"`, `user = "…"` and `password = "…"`, or `nkey =
-    /// "SU…"`.
+    /// or `softhaptic nats-config` writes it), or TOML with `token = "…"`, `user = "…"` and
+    /// `password = "…"`, or `nkey = "SU…"`. Beyond this machine they need TLS (--nats-ca or
+    /// tls:// URLs).
     #[arg(long, value_name = "FILE", requires = "nats")]
     nats_credentials: Option<PathBuf>,
+    /// TLS to NATS, the server's certificate verified against this CA's (PEM) alone.
+    #[arg(long, value_name = "FILE", requires = "nats")]
+    nats_ca: Option<PathBuf>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -147,10 +164,14 @@ struct HubArgs {
     #[arg(long, value_name = "URL")]
     nats: String,
     /// NATS credentials: a NATS .creds file, a user nkey seed file (`SU…`, as `nk -gen user`
-    /// writes it), or TOML with `token = "…"`, `user = "…"` and `password = "…"`, or `nkey =
-    /// "SU…"`.
+    /// or `softhaptic nats-config` writes it), or TOML with `token = "…"`, `user = "…"` and
+    /// `password = "…"`, or `nkey = "SU…"`. Beyond this machine they need TLS (--nats-ca or
+    /// tls:// URLs).
     #[arg(long, value_name = "FILE")]
     nats_credentials: Option<PathBuf>,
+    /// TLS to NATS, the server's certificate verified against this CA's (PEM) alone.
+    #[arg(long, value_name = "FILE")]
+    nats_ca: Option<PathBuf>,
     /// Address to serve the page and the relayed streams on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8090", value_name = "HOST:PORT")]
     addr: SocketAddr,
@@ -216,6 +237,24 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
             "{}",
             devices::listing(&name)
         ))),
+        Some(Command::NatsConfig { stations, out }) => {
+            let written = softhaptic_server::lab::permissions::write_lab_config(&out, &stations)
+                .map_err(|e| anyhow::anyhow!("nats-config: {e}"))?;
+            for (who, path, made) in &written.seeds {
+                println!(
+                    "{} {who}'s seed: {}",
+                    if *made { "made" } else { "kept" },
+                    path.display()
+                );
+            }
+            println!(
+                "wrote {}: copy it beside nats-server's configuration and add the line \
+                 `include \"{}\"` there (an include is read relative to the configuration)",
+                written.authorization.display(),
+                softhaptic_server::lab::permissions::AUTHORIZATION_FILE
+            );
+            Ok(std::process::ExitCode::SUCCESS)
+        }
         Some(Command::Completions { shell }) => {
             let mut script = Vec::new();
             clap_complete::generate(shell, &mut Cli::command(), "softhaptic", &mut script);
@@ -270,6 +309,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
                 url: softhaptic_server::lab::parse_nats_url(&args.nats)
                     .map_err(|e| anyhow::anyhow!("--nats: {e}"))?,
                 credentials: args.nats_credentials.clone(),
+                tls_ca: args.nats_ca.clone(),
             },
             addr: args.addr,
             viewer,
@@ -302,6 +342,14 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(url) = &args.nats {
         // Refused with the reason, never the URL: it would carry the credentials.
         softhaptic_server::lab::parse_nats_url(url).map_err(|e| anyhow::anyhow!("--nats: {e}"))?;
+        // Credentials that would cross the network in plain text stop the start here, before
+        // the device is opened and a recording begun.
+        softhaptic_server::lab::NatsOptions {
+            url: url.clone(),
+            credentials: args.nats_credentials.clone(),
+            tls_ca: args.nats_ca.clone(),
+        }
+        .check_transport()?;
     }
     // A certificate that does not load stops the start too, before a recording is begun.
     let tls = tls_for(&args.tls, args.addr, &mut access)?;
@@ -361,6 +409,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                     nats: softhaptic_server::lab::NatsOptions {
                         url,
                         credentials: args.nats_credentials.clone(),
+                        tls_ca: args.nats_ca.clone(),
                     },
                     name,
                 },
@@ -390,7 +439,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                 let client = softhaptic_server::lab::connect(
                     &lab.nats,
                     format!("softhaptic station {} archive", lab.name),
-                    "station",
+                    softhaptic_server::lab::Party::Station(&lab.name),
                 )
                 .await?;
                 Some(softhaptic_server::lab::archive::StationArchive::start(

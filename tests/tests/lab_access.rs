@@ -77,9 +77,13 @@ async fn archive_a_recording(url: String, name: &str) {
     let dir = scratch_dir("lab-access-archive");
     let sessions = softhaptic_tests::repo_scenes().join("../tests/sessions");
     std::fs::copy(sessions.join("slide.mcap"), dir.join("slide.mcap")).unwrap();
-    let client = softhaptic_server::lab::connect(&nats(url), "archive test".into(), "station")
-        .await
-        .unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(url),
+        "archive test".into(),
+        softhaptic_server::lab::Party::Station(name),
+    )
+    .await
+    .unwrap();
     let report = archive::upload_finished(&client, name, &dir, None).await;
     assert_eq!(report.uploaded.len(), 1, "{report:?}");
     let _ = std::fs::remove_dir_all(&dir);

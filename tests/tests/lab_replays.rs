@@ -35,9 +35,13 @@ async fn archive(url: String, files: &[(&str, &str)]) {
     for (name, source) in files {
         std::fs::copy(session(source), dir.join(name)).unwrap();
     }
-    let client = softhaptic_server::lab::connect(&nats(url), "replays test".into(), "station")
-        .await
-        .unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(url),
+        "replays test".into(),
+        softhaptic_server::lab::Party::Station("st1"),
+    )
+    .await
+    .unwrap();
     let report = archive::upload_finished(&client, "st1", &dir, None).await;
     assert_eq!(report.uploaded.len(), files.len(), "{report:?}");
     let _ = std::fs::remove_dir_all(&dir);

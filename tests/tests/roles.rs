@@ -221,9 +221,13 @@ async fn archive_a_recording(url: String, name: &str) {
         dir.join("slide.mcap"),
     )
     .unwrap();
-    let client = softhaptic_server::lab::connect(&nats(url), "roles test".into(), "station")
-        .await
-        .unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(url),
+        "roles test".into(),
+        softhaptic_server::lab::Party::Station(name),
+    )
+    .await
+    .unwrap();
     let report = archive::upload_finished(&client, name, &dir, None).await;
     assert_eq!(report.uploaded.len(), 1, "{report:?}");
     let _ = std::fs::remove_dir_all(&dir);
