@@ -388,3 +388,28 @@ pub async fn start_hub(
     .await
     .expect("the hub starts")
 }
+
+/// Archives `files` (`(name in the archive, file of tests/sessions)`) as station `station`'s,
+/// signed in to the NATS of `options` as that station, as a station's start does.
+pub async fn archive_sessions(
+    options: softhaptic_server::lab::NatsOptions,
+    station: &str,
+    files: &[(&str, &str)],
+) {
+    let dir = crate::scratch_dir(&format!("archive-{station}-{}", files.len()));
+    let sessions = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sessions");
+    for (name, source) in files {
+        std::fs::copy(sessions.join(source), dir.join(name)).expect("a shipped session copies");
+    }
+    let client = softhaptic_server::lab::connect(
+        &options,
+        format!("{station} archive (test)"),
+        softhaptic_server::lab::Party::Station(station),
+    )
+    .await
+    .expect("the station signs in to NATS");
+    let report =
+        softhaptic_server::lab::archive::upload_finished(&client, station, &dir, None).await;
+    assert_eq!(report.uploaded.len(), files.len(), "{report:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use softhaptic_server::lab::permissions::{HUB_SEED_FILE, station_seed_file, write_lab_config};
 use softhaptic_server::lab::{NatsOptions, Party};
-use softhaptic_tests::nats::{NatsServer, start_hub, start_station};
+use softhaptic_tests::nats::{NatsServer, archive_sessions, start_hub, start_station};
 use softhaptic_tests::{Viewer, http_request, scratch_dir, wait_until};
 use tokio::sync::mpsc;
 
@@ -114,26 +114,13 @@ async fn refused(events: &mut mpsc::Receiver<String>, what: &str, subject: &str)
 }
 
 /// Archives `tests/sessions/slide.mcap` as `station`'s, signed in as `station`.
-async fn archive_slide(lab: &Lab, station: &str) -> PathBuf {
-    use softhaptic_server::lab::archive;
-    let dir = lab.dir.join(format!("recordings-{station}"));
-    std::fs::create_dir_all(&dir).unwrap();
-    let file = dir.join("slide.mcap");
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("sessions/slide.mcap"),
-        &file,
+async fn archive_slide(lab: &Lab, station: &str) {
+    archive_sessions(
+        lab.options(Party::Station(station)),
+        station,
+        &[("slide.mcap", "slide.mcap")],
     )
-    .unwrap();
-    let client = softhaptic_server::lab::connect(
-        &lab.options(Party::Station(station)),
-        format!("{station} archive"),
-        Party::Station(station),
-    )
-    .await
-    .unwrap();
-    let report = archive::upload_finished(&client, station, &dir, None).await;
-    assert_eq!(report.uploaded.len(), 1, "{report:?}");
-    file
+    .await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -142,7 +129,7 @@ async fn a_station_and_a_hub_do_all_a_lab_does_with_their_own_permissions() {
     let station = start_station("desk-1", lab.options(Party::Station("desk-1")))
         .await
         .unwrap();
-    let recorded = archive_slide(&lab, "desk-1").await;
+    archive_slide(&lab, "desk-1").await;
     let hub = start_hub(lab.options(Party::Hub), false).await;
     wait_until("desk-1 listed by the hub", || {
         hub.stations().iter().any(|s| s.name == "desk-1")
@@ -169,7 +156,8 @@ async fn a_station_and_a_hub_do_all_a_lab_does_with_their_own_permissions() {
     assert!(text.contains("\"file\":\"slide.mcap\""), "{text}");
     let download = http_request(hub.local_addr(), "/stations/desk-1/archive/slide.mcap", &[]).await;
     assert_eq!(download.status, 200);
-    assert_eq!(download.body, std::fs::read(&recorded).unwrap());
+    let recorded = Path::new(env!("CARGO_MANIFEST_DIR")).join("sessions/slide.mcap");
+    assert_eq!(download.body, std::fs::read(recorded).unwrap());
     hub.shutdown().await;
     station.shutdown().await;
 }
