@@ -322,6 +322,40 @@ mod tests {
     }
 
     #[test]
+    fn nats_config_makes_private_seeds_keeps_them_on_a_second_run_and_refuses_a_bad_name() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("lab-nats");
+        let read = |p: &std::path::Path| {
+            crate::files::read_text(p, crate::files::FileKind::Secrets).unwrap()
+        };
+        let first = write_lab_config(&out, &["desk-1".to_owned()]).unwrap();
+        assert!(first.seeds.iter().all(|(_, _, made)| *made), "{first:?}");
+        let mode = |p: &std::path::Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode(&out), 0o700);
+        for (_, path, _) in &first.seeds {
+            assert_eq!(mode(path), 0o600, "{}", path.display());
+        }
+        let seed = read(&out.join(station_seed_file("desk-1")));
+        let config = read(&first.authorization);
+        // Public keys only: no seed in the server's configuration.
+        let seed_line = seed.lines().find(|l| l.starts_with("SU")).unwrap();
+        assert!(!config.contains(seed_line), "{config}");
+        assert!(config.contains(&nkeys::KeyPair::from_seed(seed_line).unwrap().public_key()));
+        // Adding a station keeps desk-1's key and the hubs'.
+        let second = write_lab_config(&out, &["desk-1".to_owned(), "desk-2".to_owned()]).unwrap();
+        let made: Vec<bool> = second.seeds.iter().map(|(_, _, made)| *made).collect();
+        assert_eq!(made, [false, true, false]);
+        assert_eq!(read(&out.join(station_seed_file("desk-1"))), seed);
+        let again = read(&second.authorization);
+        for line in config.lines().filter(|l| l.contains("nkey:")) {
+            assert!(again.contains(line), "{line} lost");
+        }
+        let e = write_lab_config(&out, &["desk.1".to_owned()]).unwrap_err();
+        assert!(e.contains("\"desk.1\""), "{e}");
+    }
+
+    #[test]
     fn the_configuration_lists_each_member_with_its_key() {
         let text = authorization_config(&[
             Member {
