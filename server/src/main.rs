@@ -67,6 +67,19 @@ enum Command {
     /// A trainee's or a class's attempts at an exercise: one CSV row per attempt, and an HTML
     /// report with a plot per metric against its pass mark.
     Results(softhaptic_server::exercise::cli::ResultsArgs),
+    /// A teaching lab's NATS sign-in: a user nkey seed per station and one for the hubs in DIR
+    /// (mode 0600; seeds already there are kept), and DIR/authorization.conf, the
+    /// nats-server `authorization` block that lets each station publish only its own subjects
+    /// and archive bucket, and the hubs only read. Include it in the server's configuration;
+    /// give each station `--nats-credentials DIR/station-NAME.nk`, each hub DIR/hub.nk.
+    NatsConfig {
+        /// A station's name (repeatable).
+        #[arg(long = "station", value_name = "NAME", required = true)]
+        stations: Vec<String>,
+        /// Where to write the seeds and the configuration.
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+    },
     /// Print the shell completion script for SHELL (the package installs bash's, zsh's and
     /// fish's).
     Completions {
@@ -146,10 +159,14 @@ struct RunArgs {
     #[arg(long, value_name = "NAME", requires = "nats")]
     station: Option<String>,
     /// NATS credentials: a NATS .creds file, a user nkey seed file (`SU…`, as `nk -gen user`
-    /// writes it), or TOML with `token = "…"`, `user = "…"` and `password = "…"`, or `nkey =
-    /// "SU…"`.
+    /// or `softhaptic nats-config` writes it), or TOML with `token = "…"`, `user = "…"` and
+    /// `password = "…"`, or `nkey = "SU…"`. Beyond this machine they need TLS (--nats-ca or
+    /// tls:// URLs).
     #[arg(long, value_name = "FILE", requires = "nats")]
     nats_credentials: Option<PathBuf>,
+    /// TLS to NATS, the server's certificate verified against this CA's (PEM) alone.
+    #[arg(long, value_name = "FILE", requires = "nats")]
+    nats_ca: Option<PathBuf>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -158,10 +175,14 @@ struct HubArgs {
     #[arg(long, value_name = "URL")]
     nats: String,
     /// NATS credentials: a NATS .creds file, a user nkey seed file (`SU…`, as `nk -gen user`
-    /// writes it), or TOML with `token = "…"`, `user = "…"` and `password = "…"`, or `nkey =
-    /// "SU…"`.
+    /// or `softhaptic nats-config` writes it), or TOML with `token = "…"`, `user = "…"` and
+    /// `password = "…"`, or `nkey = "SU…"`. Beyond this machine they need TLS (--nats-ca or
+    /// tls:// URLs).
     #[arg(long, value_name = "FILE")]
     nats_credentials: Option<PathBuf>,
+    /// TLS to NATS, the server's certificate verified against this CA's (PEM) alone.
+    #[arg(long, value_name = "FILE")]
+    nats_ca: Option<PathBuf>,
     /// Address to serve the page and the relayed streams on; port 0 picks a free port.
     #[arg(long, default_value = "127.0.0.1:8090", value_name = "HOST:PORT")]
     addr: SocketAddr,
@@ -234,6 +255,24 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
             "{}",
             devices::listing(&name)
         ))),
+        Some(Command::NatsConfig { stations, out }) => {
+            let written = softhaptic_server::lab::permissions::write_lab_config(&out, &stations)
+                .map_err(|e| anyhow::anyhow!("nats-config: {e}"))?;
+            for (who, path, made) in &written.seeds {
+                println!(
+                    "{} {who}'s seed: {}",
+                    if *made { "made" } else { "kept" },
+                    path.display()
+                );
+            }
+            println!(
+                "wrote {}: copy it beside nats-server's configuration and add the line \
+                 `include \"{}\"` there (an include is read relative to the configuration)",
+                written.authorization.display(),
+                softhaptic_server::lab::permissions::AUTHORIZATION_FILE
+            );
+            Ok(std::process::ExitCode::SUCCESS)
+        }
         Some(Command::Completions { shell }) => {
             let mut script = Vec::new();
             clap_complete::generate(shell, &mut Cli::command(), "softhaptic", &mut script);
@@ -254,18 +293,30 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
     }
 }
 
-fn hub(args: HubArgs) -> anyhow::Result<()> {
-    let mut access = args.access.resolve(args.addr)?;
-    let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
+/// The TLS setup `args` ask for on `addr` (said on the terminal when there is one), and what it
+/// decides of `access`: HSTS only with a CA's certificate (a browser told to insist on https
+/// for a self-signed one would lock its users out when it changes), and the data directory,
+/// where the links go when standard output would keep them. The hub and a station alike.
+fn tls_for(
+    args: &softhaptic_server::tls::TlsArgs,
+    addr: SocketAddr,
+    access: &mut softhaptic_server::access::AccessConfig,
+) -> anyhow::Result<Option<softhaptic_server::tls::TlsSetup>> {
+    let tls = softhaptic_server::tls::server_config(args, addr.ip())?;
     if let Some(t) = &tls {
         softhaptic_server::logging::print_line(format_args!("{t}"));
     }
     access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
     access.links_dir = args
-        .tls
         .data_dir
         .clone()
         .or_else(softhaptic_server::tls::default_data_dir);
+    Ok(tls)
+}
+
+fn hub(args: HubArgs) -> anyhow::Result<()> {
+    let mut access = args.access.resolve(args.addr)?;
+    let tls = tls_for(&args.tls, args.addr, &mut access)?;
     let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     runtime.block_on(async move {
@@ -276,6 +327,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
                 url: softhaptic_server::lab::parse_nats_url(&args.nats)
                     .map_err(|e| anyhow::anyhow!("--nats: {e}"))?,
                 credentials: args.nats_credentials.clone(),
+                tls_ca: args.nats_ca.clone(),
             },
             addr: args.addr,
             viewer,
@@ -308,18 +360,17 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     if let Some(url) = &args.nats {
         // Refused with the reason, never the URL: it would carry the credentials.
         softhaptic_server::lab::parse_nats_url(url).map_err(|e| anyhow::anyhow!("--nats: {e}"))?;
+        // Credentials that would cross the network in plain text stop the start here, before
+        // the device is opened and a recording begun.
+        softhaptic_server::lab::NatsOptions {
+            url: url.clone(),
+            credentials: args.nats_credentials.clone(),
+            tls_ca: args.nats_ca.clone(),
+        }
+        .check_transport()?;
     }
     // A certificate that does not load stops the start too, before a recording is begun.
-    let tls = softhaptic_server::tls::server_config(&args.tls, args.addr.ip())?;
-    if let Some(t) = &tls {
-        softhaptic_server::logging::print_line(format_args!("{t}"));
-    }
-    access.strict_transport = tls.as_ref().is_some_and(|t| t.from_a_ca);
-    access.links_dir = args
-        .tls
-        .data_dir
-        .clone()
-        .or_else(softhaptic_server::tls::default_data_dir);
+    let tls = tls_for(&args.tls, args.addr, &mut access)?;
     // A page that could not run (a --web-dir without three.js) stops the start too.
     let viewer = softhaptic_server::viewer::Viewer::from_option(args.web_dir.clone())?;
     // Refuse a bad scene before anything starts. A scene not found as given is looked for
@@ -376,6 +427,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                     nats: softhaptic_server::lab::NatsOptions {
                         url,
                         credentials: args.nats_credentials.clone(),
+                        tls_ca: args.nats_ca.clone(),
                     },
                     name,
                 },
@@ -405,7 +457,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
                 let client = softhaptic_server::lab::connect(
                     &lab.nats,
                     format!("softhaptic station {} archive", lab.name),
-                    "station",
+                    softhaptic_server::lab::Party::Station(&lab.name),
                 )
                 .await?;
                 Some(softhaptic_server::lab::archive::StationArchive::start(

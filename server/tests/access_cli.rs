@@ -436,8 +436,8 @@ fn contains(haystack: &[u8], needle: &[u8]) -> bool {
 
 #[test]
 fn stable_tokens_from_the_environment_are_the_ones_in_the_links_and_not_in_the_log() {
-    let instructor = "lab-instructor-0123456789abcdefghij";
-    let observer = "lab-observer-0123456789abcdefghijkl";
+    let instructor = "lab-instructor-39dda56eb9b68204cac0";
+    let observer = "lab-observer-184cdd91c08d039d51a380";
     let mut server = Server::start(
         &["--addr", "127.0.0.1:0", "--no-record", "--no-realtime"],
         &[

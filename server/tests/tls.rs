@@ -5,7 +5,9 @@
 //! plain-text or silent client is refused without disturbing the next TLS client, and every bad
 //! option or file gets an error that names it.
 //!
-//! One file because its 14 tests share one router, the clients' TLS setups and a lab CA.
+//! An idle HTTP/2 connection is closed and cleartext HTTP/2 refused.
+//!
+//! One file because its 16 tests share one router, the clients' TLS setups and a lab CA.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -88,12 +90,19 @@ struct Server {
 
 impl Server {
     async fn start(config: Option<Arc<rustls::ServerConfig>>) -> Server {
-        let listener = TcpListener::bind((LOOPBACK, 0)).await.unwrap();
-        let addr = listener.local_addr().unwrap();
-        let (shutdown, shutdown_rx) = watch::channel(false);
         let caps = tls::ConnectionCaps::for_limits(
             &softhaptic_server::access::ConnectionLimits::default(),
         );
+        Server::start_with(config, caps).await
+    }
+
+    async fn start_with(
+        config: Option<Arc<rustls::ServerConfig>>,
+        caps: tls::ConnectionCaps,
+    ) -> Server {
+        let listener = TcpListener::bind((LOOPBACK, 0)).await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (shutdown, shutdown_rx) = watch::channel(false);
         let task = tls::serve(listener, router(), config, caps, shutdown_rx);
         Server {
             addr,
@@ -309,6 +318,99 @@ async fn https_get_works_over_http1_and_http2_and_requests_carry_the_client_addr
         .parse()
         .unwrap();
     assert_eq!(client.ip(), LOOPBACK);
+    server.stop().await;
+}
+
+#[tokio::test]
+async fn an_idle_http2_connection_is_closed_and_a_quiet_websocket_is_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let setup = tls::server_config(&self_signed_args(dir.path(), &[]), LOOPBACK)
+        .unwrap()
+        .unwrap();
+    // The idle time made short for the test (30 s in service): what is tested is that the
+    // connection ends at all, within a generous deadline, not when.
+    let caps = tls::ConnectionCaps {
+        http2_idle_timeout: Duration::from_millis(300),
+        ..tls::ConnectionCaps::for_limits(&softhaptic_server::access::ConnectionLimits::default())
+    };
+    let server = Server::start_with(Some(setup.config.clone()), caps).await;
+    let certificate = certificate_of(&setup);
+
+    let tls = tls_connect(
+        server.addr,
+        "localhost",
+        client_trusting(std::slice::from_ref(&certificate), &[b"h2"]),
+    )
+    .await
+    .unwrap();
+    let (mut sender, connection) =
+        hyper::client::conn::http2::handshake(TokioExecutor::new(), TokioIo::new(tls))
+            .await
+            .unwrap();
+    let connection = tokio::spawn(connection);
+    let request = hyper::Request::get(format!("https://localhost:{}/hello", server.addr.port()))
+        .body(Empty::<Bytes>::new())
+        .unwrap();
+    let response = sender.send_request(request).await.unwrap();
+    assert_eq!(response.status(), 200);
+    drop(response);
+    // Then nothing: the server ends the connection (the client's connection task returns).
+    let ended = tokio::time::timeout(HANG_GUARD, connection).await;
+    assert!(ended.is_ok(), "the idle HTTP/2 connection is still open");
+
+    // A WebSocket (HTTP/1.1) quiet for longer than that is still served: a paused replay's
+    // viewer sends nothing for minutes.
+    let tls = tls_connect(
+        server.addr,
+        "localhost",
+        client_trusting(std::slice::from_ref(&certificate), &[]),
+    )
+    .await
+    .unwrap();
+    let url = format!("wss://localhost:{}/ws", server.addr.port());
+    let (mut ws, _) = tokio_tungstenite::client_async(url, tls).await.unwrap();
+    let greeting = tokio::time::timeout(HANG_GUARD, ws.next()).await.unwrap();
+    assert_eq!(greeting.unwrap().unwrap().into_text().unwrap(), "welcome");
+    tokio::time::sleep(caps.http2_idle_timeout * 3).await;
+    ws.send(tungstenite::Message::text("still here"))
+        .await
+        .unwrap();
+    let reply = tokio::time::timeout(HANG_GUARD, ws.next()).await.unwrap();
+    assert_eq!(
+        reply.unwrap().unwrap().into_text().unwrap(),
+        "echo still here"
+    );
+    server.stop().await;
+}
+
+#[tokio::test]
+async fn cleartext_http2_is_refused_on_a_plain_port() {
+    let server = Server::start(None).await;
+    // Prior knowledge (RFC 9113 §3.3): the preface, then an empty SETTINGS frame.
+    let mut h2c = TcpStream::connect(server.addr).await.unwrap();
+    h2c.write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\0\0\0\x04\0\0\0\0\0")
+        .await
+        .unwrap();
+    let mut answer = Vec::new();
+    // Closed, or reset (the server drops it with the client's frame unread).
+    let _closed_or_reset = tokio::time::timeout(HANG_GUARD, h2c.read_to_end(&mut answer))
+        .await
+        .expect("the h2c connection was not closed");
+    // No HTTP/2 frame (a server's first is SETTINGS, type 4 in its fourth byte): at most an
+    // HTTP/1.1 error.
+    assert!(
+        answer.is_empty() || answer.starts_with(b"HTTP/1.1 4") || answer.starts_with(b"HTTP/1.1 5"),
+        "{:?}",
+        String::from_utf8_lossy(&answer)
+    );
+    // HTTP/1.1 on the same port is served as before.
+    let mut http = TcpStream::connect(server.addr).await.unwrap();
+    http.write_all(b"GET /hello HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
+        .await
+        .unwrap();
+    let mut answer = String::new();
+    http.read_to_string(&mut answer).await.unwrap();
+    assert!(answer.starts_with("HTTP/1.1 200 OK\r\n"), "{answer}");
     server.stop().await;
 }
 

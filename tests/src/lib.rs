@@ -377,6 +377,13 @@ pub async fn http_request(addr: SocketAddr, path: &str, headers: &[(&str, &str)]
     }
 }
 
+/// A GET of `path` presenting `token` in `Authorization: Bearer`, as the viewer's own fetches
+/// of session data do.
+pub async fn http_get_with_token(addr: SocketAddr, path: &str, token: &str) -> HttpResponse {
+    let bearer = format!("Bearer {token}");
+    http_request(addr, path, &[("Authorization", &bearer)]).await
+}
+
 /// Decodes a chunked HTTP body.
 fn dechunk(mut body: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();

@@ -30,6 +30,11 @@ enum Auth {
     Nkey {
         public_key: String,
     },
+    /// A configuration file's text (an `authorization` block, a `tls` block, `include`s of files
+    /// in the store directory), given with `-c`; the flags still set the address, port and store.
+    Config {
+        text: String,
+    },
     /// Decentralised auth: the operator's JWT, the system account's and one account's (public
     /// key, JWT), preloaded.
     Operator {
@@ -107,6 +112,11 @@ impl NatsServer {
                 public_key: public_key.to_owned(),
             }),
         )
+    }
+
+    /// Starts a server with the configuration `text` (paths in it absolute).
+    pub fn start_with_config(name: &str, text: String) -> NatsServer {
+        Self::start_with(name, Some(Auth::Config { text }))
     }
 
     /// Starts a server in operator mode (decentralised JWT auth, as a managed NATS service runs)
@@ -241,6 +251,12 @@ impl NatsServer {
                 .expect("the server's configuration");
                 command.arg("-c").arg(&config);
             }
+            Some(Auth::Config { text }) => {
+                let config = self.store.join("softhaptic-test.conf");
+                std::fs::create_dir_all(&self.store).expect("the store directory");
+                std::fs::write(&config, text).expect("the server's configuration");
+                command.arg("-c").arg(&config);
+            }
             Some(Auth::Operator {
                 operator_jwt,
                 system: (system, system_jwt),
@@ -268,9 +284,11 @@ impl NatsServer {
         });
         self.child = Some(child);
         let addr = SocketAddr::from(([127, 0, 0, 1], self.port));
-        wait_for_listener(addr);
+        // A configuration the server refuses ends it at once: said then, not after the wait.
+        let child = self.child.as_mut().expect("just started");
+        wait_for_listener(addr, || child.try_wait().ok().flatten());
         if let Some(monitor_port) = self.monitor_port {
-            wait_for_listener(SocketAddr::from(([127, 0, 0, 1], monitor_port)));
+            wait_for_listener(SocketAddr::from(([127, 0, 0, 1], monitor_port)), || None);
         }
     }
 
@@ -291,10 +309,17 @@ fn free_port() -> u16 {
         .expect("a free port")
 }
 
-/// Returns once `addr` accepts connections; panics after 30 s.
-fn wait_for_listener(addr: SocketAddr) {
+/// Returns once `addr` accepts connections; panics after 30 s, or as soon as `exited` gives the
+/// server's exit status (run it by hand with the same `-c` file to see why).
+fn wait_for_listener(
+    addr: SocketAddr,
+    mut exited: impl FnMut() -> Option<std::process::ExitStatus>,
+) {
     let deadline = Instant::now() + Duration::from_secs(30);
     while std::net::TcpStream::connect_timeout(&addr, Duration::from_millis(200)).is_err() {
+        if let Some(status) = exited() {
+            panic!("nats-server exited ({status}) before it listened on {addr}");
+        }
         assert!(
             Instant::now() < deadline,
             "nats-server did not listen on {addr}"
@@ -322,10 +347,7 @@ impl Drop for NatsServer {
 
 /// Options for the NATS at `url`, without credentials.
 pub fn options(url: String) -> softhaptic_server::lab::NatsOptions {
-    softhaptic_server::lab::NatsOptions {
-        url,
-        credentials: None,
-    }
+    softhaptic_server::lab::NatsOptions::new(url)
 }
 
 /// A simulated station named `name` on the built-in scene (the test options: loopback, a free
@@ -365,4 +387,29 @@ pub async fn start_hub(
     })
     .await
     .expect("the hub starts")
+}
+
+/// Archives `files` (`(name in the archive, file of tests/sessions)`) as station `station`'s,
+/// signed in to the NATS of `options` as that station, as a station's start does.
+pub async fn archive_sessions(
+    options: softhaptic_server::lab::NatsOptions,
+    station: &str,
+    files: &[(&str, &str)],
+) {
+    let dir = crate::scratch_dir(&format!("archive-{station}-{}", files.len()));
+    let sessions = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sessions");
+    for (name, source) in files {
+        std::fs::copy(sessions.join(source), dir.join(name)).expect("a shipped session copies");
+    }
+    let client = softhaptic_server::lab::connect(
+        &options,
+        format!("{station} archive (test)"),
+        softhaptic_server::lab::Party::Station(station),
+    )
+    .await
+    .expect("the station signs in to NATS");
+    let report =
+        softhaptic_server::lab::archive::upload_finished(&client, station, &dir, None).await;
+    assert_eq!(report.uploaded.len(), files.len(), "{report:?}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -6,7 +6,7 @@
 use std::time::{Duration, Instant};
 
 use softhaptic_tests::{
-    INSTRUCTOR_TOKEN as I, Viewer, http_request, start_default, test_options, test_tokens,
+    INSTRUCTOR_TOKEN as I, Viewer, http_get_with_token, start_default, test_options, test_tokens,
 };
 
 const WRONG: &str = "ffffffffffffffff0000000000000000";
@@ -17,14 +17,13 @@ async fn wrong_tokens_from_one_address_are_answered_ever_more_slowly() {
     options.access.tokens = Some(test_tokens());
     let server = start_default(options).await;
     let addr = server.local_addr();
-    let wrong = format!("Bearer {WRONG}");
     // The first five (a mistyped or expired link, tried again) are answered at once; the sixth
     // waits 250 ms, the seventh 500, the eighth a second. Only lower bounds are checked: a slow
     // machine answers later, never sooner.
     let mut waits = Vec::new();
     for _ in 0..8 {
         let started = Instant::now();
-        let response = http_request(addr, "/api/scene", &[("Authorization", &wrong)]).await;
+        let response = http_get_with_token(addr, "/api/scene", WRONG).await;
         assert_eq!(response.status, 401);
         waits.push(started.elapsed());
     }
@@ -44,8 +43,7 @@ async fn wrong_tokens_from_one_address_are_answered_ever_more_slowly() {
         started.elapsed()
     );
     // The right token from the same address is served.
-    let bearer = format!("Bearer {I}");
-    let response = http_request(addr, "/api/scene", &[("Authorization", &bearer)]).await;
+    let response = http_get_with_token(addr, "/api/scene", I).await;
     assert_eq!(response.status, 200);
     server.shutdown().await;
 }

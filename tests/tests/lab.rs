@@ -32,7 +32,11 @@ use tokio_rustls::rustls::{self, ClientConfig, RootCertStore};
 const O: &str = softhaptic_tests::OBSERVER_TOKEN;
 
 fn nats(url: String, credentials: Option<std::path::PathBuf>) -> NatsOptions {
-    NatsOptions { url, credentials }
+    NatsOptions {
+        url,
+        credentials,
+        tls_ca: None,
+    }
 }
 
 async fn station(
@@ -401,7 +405,7 @@ async fn recordings_are_archived_verified_retried_and_replayed_from_the_hub() {
     let client = softhaptic_server::lab::connect(
         &nats(server.url(), None),
         "archive test".into(),
-        "station",
+        softhaptic_server::lab::Party::Station("desk-a"),
     )
     .await
     .unwrap();

@@ -14,8 +14,10 @@ use softhaptic_proto::wire::{Mode, ServerMessage};
 use softhaptic_server::app::RunningServer;
 use softhaptic_server::lab::NatsOptions;
 use softhaptic_server::lab::hub::RunningHub;
-use softhaptic_tests::nats::{NatsServer, options as nats, start_hub, start_station};
-use softhaptic_tests::{Viewer, http_request, scratch_dir, wait_until};
+use softhaptic_tests::nats::{
+    NatsServer, archive_sessions, options as nats, start_hub, start_station,
+};
+use softhaptic_tests::{Viewer, http_get_with_token, wait_until};
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
 use tokio_tungstenite::tungstenite::http::HeaderValue;
 
@@ -71,25 +73,11 @@ fn assert_no_internal_text(text: &str) {
     }
 }
 
-/// Archives `slide.mcap` as station `name`'s recording.
-async fn archive_a_recording(url: String, name: &str) {
-    use softhaptic_server::lab::archive;
-    let dir = scratch_dir("lab-access-archive");
-    let sessions = softhaptic_tests::repo_scenes().join("../tests/sessions");
-    std::fs::copy(sessions.join("slide.mcap"), dir.join("slide.mcap")).unwrap();
-    let client = softhaptic_server::lab::connect(&nats(url), "archive test".into(), "station")
-        .await
-        .unwrap();
-    let report = archive::upload_finished(&client, name, &dir, None).await;
-    assert_eq!(report.uploaded.len(), 1, "{report:?}");
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_foreign_origin_or_a_missing_token_learns_nothing_and_makes_the_hub_fetch_nothing() {
     let server = NatsServer::start("lab-access");
     let st1 = station("st1", nats(server.url())).await;
-    archive_a_recording(server.url(), "st1").await;
+    archive_sessions(nats(server.url()), "st1", &[("slide.mcap", "slide.mcap")]).await;
     let hub = tokened_hub(nats(server.url())).await;
     wait_until("the station listed", || hub.stations().len() == 1).await;
     let addr = hub.local_addr();
@@ -185,7 +173,6 @@ async fn a_foreign_origin_or_a_missing_token_learns_nothing_and_makes_the_hub_fe
     }
     closes.dedup();
     assert_eq!(closes.len(), 1, "{closes:?}");
-    let bearer = format!("Bearer {I}");
     let mut bodies = Vec::new();
     for path in [
         "/api/scene?station=nosuch",
@@ -195,7 +182,7 @@ async fn a_foreign_origin_or_a_missing_token_learns_nothing_and_makes_the_hub_fe
         "/stations/st1/archive/x.mcap",
         "/stations/st1/archive/x.mcap/meshes/liver.bin",
     ] {
-        let response = http_request(addr, path, &[("Authorization", &bearer)]).await;
+        let response = http_get_with_token(addr, path, I).await;
         let body = String::from_utf8_lossy(&response.body).into_owned();
         assert_eq!(response.status, 404, "{path}: {body}");
         assert_no_internal_text(&body);
@@ -219,7 +206,12 @@ async fn a_foreign_origin_or_a_missing_token_learns_nothing_and_makes_the_hub_fe
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_archived_replay_is_fetched_for_an_authenticated_viewer_and_dropped_after_the_last() {
     let server = NatsServer::start("lab-access-replay");
-    archive_a_recording(server.url(), "desk-r").await;
+    archive_sessions(
+        nats(server.url()),
+        "desk-r",
+        &[("slide.mcap", "slide.mcap")],
+    )
+    .await;
     let hub = tokened_hub(nats(server.url())).await;
     let addr = hub.local_addr();
     let query = "station=desk-r&archive=slide.mcap";

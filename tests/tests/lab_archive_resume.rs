@@ -100,11 +100,14 @@ async fn an_upload_cut_by_a_nats_restart_resends_only_the_missing_parts_and_the_
     let dir = scratch_dir("lab-archive-resume");
     let (path, total) = recording(&dir, "slide.mcap");
     let local = std::fs::read(&path).unwrap();
-    let client =
-        softhaptic_server::lab::connect(&nats(server.url()), "resume test".into(), "station")
-            .await
-            .unwrap();
-    let store = archive::store(&client).await.unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(server.url()),
+        "resume test".into(),
+        softhaptic_server::lab::Party::Station("desk-a"),
+    )
+    .await
+    .unwrap();
+    let store = archive::store(&client, "desk-a").await.unwrap();
 
     // The first attempt stores some parts, then NATS stops under it; it gives up at once.
     let (tx, mut rx) = mpsc::channel(1);
@@ -141,7 +144,7 @@ async fn an_upload_cut_by_a_nats_restart_resends_only_the_missing_parts_and_the_
 
     // NATS back with the same store: the next attempt asks what is there and sends the rest.
     server.restart();
-    let store = until_ok("the object store", || archive::store(&client)).await;
+    let store = until_ok("the object store", || archive::store(&client, "desk-a")).await;
     let (tx, mut rx) = mpsc::channel(1);
     let options = UploadOptions {
         part_bytes: PART_BYTES,
@@ -241,11 +244,14 @@ async fn a_nats_restart_during_an_upload_is_resumed_in_the_same_call_without_res
     let mut server = NatsServer::start("archive-resume-same-call");
     let dir = scratch_dir("lab-archive-resume-same-call");
     let (path, total) = recording(&dir, "slide.mcap");
-    let client =
-        softhaptic_server::lab::connect(&nats(server.url()), "resume test".into(), "station")
-            .await
-            .unwrap();
-    let store = archive::store(&client).await.unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(server.url()),
+        "resume test".into(),
+        softhaptic_server::lab::Party::Station("desk-a"),
+    )
+    .await
+    .unwrap();
+    let store = archive::store(&client, "desk-b").await.unwrap();
     let (tx, mut rx) = mpsc::channel(1);
     let options = UploadOptions {
         part_bytes: PART_BYTES,
@@ -285,11 +291,14 @@ async fn a_nats_restart_during_an_upload_is_resumed_in_the_same_call_without_res
 async fn the_parts_of_an_upload_that_can_never_finish_are_swept_once_old_and_nothing_else_is() {
     let server = NatsServer::start("archive-orphans");
     let dir = scratch_dir("lab-archive-orphans");
-    let client =
-        softhaptic_server::lab::connect(&nats(server.url()), "orphan test".into(), "station")
-            .await
-            .unwrap();
-    let store = archive::store(&client).await.unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(server.url()),
+        "orphan test".into(),
+        softhaptic_server::lab::Party::Station("desk-a"),
+    )
+    .await
+    .unwrap();
+    let store = archive::store(&client, "desk-a").await.unwrap();
     let small = UploadOptions {
         part_bytes: PART_BYTES,
         ..UploadOptions::default()

@@ -53,7 +53,7 @@ macro_rules! until_archived {
             );
             tokio::time::sleep(Duration::from_millis(200)).await;
         }
-        let store = archive::store(client).await.unwrap();
+        let store = archive::store(client, station).await.unwrap();
         let mut object = store
             .objects()
             .get(archive::object_name(station, file))
@@ -78,10 +78,13 @@ async fn a_recording_left_unarchived_while_nats_was_down_is_archived_once_it_is_
     let current = dir.join("current.mcap");
 
     // The station starts with NATS down: its client connects in the background.
-    let client =
-        softhaptic_server::lab::connect(&nats(server.url()), "retry test".into(), "station")
-            .await
-            .unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(server.url()),
+        "retry test".into(),
+        softhaptic_server::lab::Party::Station("desk-r"),
+    )
+    .await
+    .unwrap();
     let archive = StationArchive::start(
         client.clone(),
         "desk-r".into(),
@@ -140,11 +143,14 @@ async fn with_nats_down_the_hub_says_the_archive_did_not_answer_not_that_it_is_e
     assert_eq!(body, serde_json::json!({ "archive": [] }));
 
     // One recording archived.
-    let client =
-        softhaptic_server::lab::connect(&nats(server.url()), "list test".into(), "station")
-            .await
-            .unwrap();
-    let store = archive::store(&client).await.unwrap();
+    let client = softhaptic_server::lab::connect(
+        &nats(server.url()),
+        "list test".into(),
+        softhaptic_server::lab::Party::Station("desk-l"),
+    )
+    .await
+    .unwrap();
+    let store = archive::store(&client, "desk-l").await.unwrap();
     assert_eq!(
         archive::upload(&store, "desk-l", &session("slide.mcap")).await,
         Ok(true)

@@ -124,19 +124,20 @@ async fn download(addr: std::net::SocketAddr, path: &str) -> (u16, Option<usize>
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn archived_downloads_are_streamed_not_held_whole_in_the_hubs_memory() {
     let server = NatsServer::start("archive-download");
-    let nats = NatsOptions {
-        url: server.url(),
-        credentials: None,
-    };
+    let nats = NatsOptions::new(server.url());
     // An archived recording's bytes (any bytes: a download does not read them).
     let object: Vec<u8> = (0..OBJECT_BYTES)
         .map(|i| (i as u32).wrapping_mul(2_654_435_761).to_be_bytes()[0])
         .collect();
     {
-        let client = softhaptic_server::lab::connect(&nats, "download test".into(), "station")
-            .await
-            .unwrap();
-        let store = archive::store(&client).await.unwrap();
+        let client = softhaptic_server::lab::connect(
+            &nats,
+            "download test".into(),
+            softhaptic_server::lab::Party::Station("desk-d"),
+        )
+        .await
+        .unwrap();
+        let store = archive::store(&client, "desk-d").await.unwrap();
         store
             .objects()
             .put("desk-d/long.mcap", &mut object.as_slice())
@@ -181,14 +182,15 @@ async fn archived_downloads_are_streamed_not_held_whole_in_the_hubs_memory() {
 async fn a_download_whose_parts_do_not_have_the_objects_digest_never_ends_whole() {
     use base64::Engine;
     let server = NatsServer::start("archive-download-digest");
-    let nats = NatsOptions {
-        url: server.url(),
-        credentials: None,
-    };
-    let client = softhaptic_server::lab::connect(&nats, "digest test".into(), "station")
-        .await
-        .unwrap();
-    let store = archive::store(&client).await.unwrap();
+    let nats = NatsOptions::new(server.url());
+    let client = softhaptic_server::lab::connect(
+        &nats,
+        "digest test".into(),
+        softhaptic_server::lab::Party::Station("desk-d"),
+    )
+    .await
+    .unwrap();
+    let store = archive::store(&client, "desk-d").await.unwrap();
     // Two objects of the same size (several parts each), different bytes.
     let size = 5 * (128 << 10) + 17;
     let good: Vec<u8> = (0..size).map(|i| (i % 251) as u8).collect();
@@ -216,7 +218,7 @@ async fn a_download_whose_parts_do_not_have_the_objects_digest_never_ends_whole(
     meta["nuid"] = serde_json::Value::String(other_parts.clone());
     let subject = format!(
         "$O.{}.M.{}",
-        archive::BUCKET,
+        archive::bucket("desk-d"),
         base64::engine::general_purpose::URL_SAFE.encode("desk-d/good.mcap")
     );
     client

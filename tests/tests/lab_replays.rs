@@ -16,8 +16,10 @@ use softhaptic_proto::wire::{Mode, ServerMessage};
 use softhaptic_server::lab::hub::{self, REPLAYS_FULL, RunningHub};
 use softhaptic_server::lab::replays::{ReplayCacheLimits, replay_bytes};
 use softhaptic_server::session::reader::Recording;
-use softhaptic_tests::nats::{NatsServer, options as nats};
-use softhaptic_tests::{INSTRUCTOR_TOKEN as I, Viewer, http_request, scratch_dir, wait_until};
+use softhaptic_tests::nats::{NatsServer, archive_sessions, options as nats};
+use softhaptic_tests::{
+    INSTRUCTOR_TOKEN as I, Viewer, http_get_with_token, http_request, wait_until,
+};
 use tokio_tungstenite::tungstenite::Message;
 
 const WAIT: Duration = Duration::from_secs(30);
@@ -26,21 +28,6 @@ fn session(name: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("sessions")
         .join(name)
-}
-
-/// Archives `files` (`(name in the archive, file of tests/sessions)`) as station `st1`'s.
-async fn archive(url: String, files: &[(&str, &str)]) {
-    use softhaptic_server::lab::archive;
-    let dir = scratch_dir(&format!("lab-replays-{}", files.len()));
-    for (name, source) in files {
-        std::fs::copy(session(source), dir.join(name)).unwrap();
-    }
-    let client = softhaptic_server::lab::connect(&nats(url), "replays test".into(), "station")
-        .await
-        .unwrap();
-    let report = archive::upload_finished(&client, "st1", &dir, None).await;
-    assert_eq!(report.uploaded.len(), files.len(), "{report:?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 async fn start(url: String, replay_cache: ReplayCacheLimits) -> RunningHub {
@@ -91,16 +78,13 @@ async fn close(hub: &RunningHub, mut viewer: Viewer) {
 }
 
 async fn status(addr: SocketAddr, path: &str) -> u16 {
-    let bearer = format!("Bearer {I}");
-    http_request(addr, path, &[("Authorization", &bearer)])
-        .await
-        .status
+    http_get_with_token(addr, path, I).await.status
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn http_loads_no_replay_and_viewers_of_one_file_share_one_load() {
     let server = NatsServer::start("lab-replays-http");
-    archive(server.url(), &[("slide.mcap", "slide.mcap")]).await;
+    archive_sessions(nats(server.url()), "st1", &[("slide.mcap", "slide.mcap")]).await;
     let hub = start(server.url(), ReplayCacheLimits::default()).await;
     let addr = hub.local_addr();
     let scene = "/api/scene?station=st1&archive=slide.mcap";
@@ -135,8 +119,9 @@ async fn http_loads_no_replay_and_viewers_of_one_file_share_one_load() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replays_live_in_a_cache_bounded_in_bytes_that_expires() {
     let server = NatsServer::start("lab-replays-cache");
-    archive(
-        server.url(),
+    archive_sessions(
+        nats(server.url()),
+        "st1",
         &[("a.mcap", "slide.mcap"), ("b.mcap", "sphere-press.mcap")],
     )
     .await;
@@ -187,7 +172,7 @@ async fn replays_live_in_a_cache_bounded_in_bytes_that_expires() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_archive_list_is_made_once_for_the_pages_that_ask_at_once() {
     let server = NatsServer::start("lab-replays-list");
-    archive(server.url(), &[("slide.mcap", "slide.mcap")]).await;
+    archive_sessions(nats(server.url()), "st1", &[("slide.mcap", "slide.mcap")]).await;
     let hub = start(server.url(), ReplayCacheLimits::default()).await;
     let addr = hub.local_addr();
     let bearer = format!("Bearer {I}");

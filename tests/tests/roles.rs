@@ -17,9 +17,11 @@ use softhaptic_server::session::replay;
 use softhaptic_server::stream::{
     REFUSED_LIVE, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_OBSERVER,
 };
-use softhaptic_tests::nats::{NatsServer, options as nats, start_hub, start_station};
+use softhaptic_tests::nats::{
+    NatsServer, archive_sessions, options as nats, start_hub, start_station,
+};
 use softhaptic_tests::{
-    INSTRUCTOR_TOKEN as I, OBSERVER_TOKEN as O, Viewer, http_request, replay_options, scratch_dir,
+    INSTRUCTOR_TOKEN as I, OBSERVER_TOKEN as O, Viewer, http_get_with_token, replay_options,
     start_default, test_options, test_tokens, wait_until,
 };
 use tokio_tungstenite::tungstenite::Message;
@@ -48,8 +50,7 @@ impl As {
 
 /// The status of a GET of `path` made as `who`.
 async fn get(addr: SocketAddr, path: &str, who: As) -> (u16, String) {
-    let bearer = format!("Bearer {}", who.token());
-    let response = http_request(addr, path, &[("Authorization", &bearer)]).await;
+    let response = http_get_with_token(addr, path, who.token()).await;
     // Session data, given or refused, is nobody's to keep (a shared browser's cache, a proxy's);
     // a station's `/api/stations` (no data, no token) is the one route here that is not.
     if path != "/api/stations"
@@ -136,8 +137,7 @@ async fn refused_without_a_role(addr: SocketAddr, query: &str) {
 
 /// The mesh URL of the scene `addr` serves at `scene_path` to an instructor.
 async fn first_mesh_url(addr: SocketAddr, scene_path: &str) -> String {
-    let bearer = format!("Bearer {I}");
-    let response = http_request(addr, scene_path, &[("Authorization", &bearer)]).await;
+    let response = http_get_with_token(addr, scene_path, I).await;
     assert_eq!(response.status, 200, "{scene_path}");
     let scene: serde_json::Value = serde_json::from_slice(&response.body).unwrap();
     scene["render_meshes"][0]["url"]
@@ -212,28 +212,11 @@ async fn a_station_and_a_replay_server_answer_each_route_and_message_by_role() {
     server.shutdown().await;
 }
 
-/// Archives `slide.mcap` as station `name`'s recording.
-async fn archive_a_recording(url: String, name: &str) {
-    use softhaptic_server::lab::archive;
-    let dir = scratch_dir("roles-archive");
-    std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("sessions/slide.mcap"),
-        dir.join("slide.mcap"),
-    )
-    .unwrap();
-    let client = softhaptic_server::lab::connect(&nats(url), "roles test".into(), "station")
-        .await
-        .unwrap();
-    let report = archive::upload_finished(&client, name, &dir, None).await;
-    assert_eq!(report.uploaded.len(), 1, "{report:?}");
-    let _ = std::fs::remove_dir_all(&dir);
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_hub_answers_each_route_and_message_by_role() {
     let server = NatsServer::start("roles");
     let station = start_station("st1", nats(server.url())).await.unwrap();
-    archive_a_recording(server.url(), "st1").await;
+    archive_sessions(nats(server.url()), "st1", &[("slide.mcap", "slide.mcap")]).await;
     let hub = start_hub(nats(server.url()), true).await;
     wait_until("the station listed", || hub.stations().len() == 1).await;
     let addr = hub.local_addr();

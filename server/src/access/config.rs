@@ -47,7 +47,10 @@ impl Default for ConnectionLimits {
             // second, a script flooding the server can.
             messages_per_s: 50.0,
             message_burst: 100.0,
-            auth_timeout: Duration::from_secs(10),
+            // A page presents its token within milliseconds of the upgrade (a slow link: a few
+            // hundred); every second beyond that is a second a connection that never will holds
+            // one of the waiting places.
+            auth_timeout: Duration::from_secs(5),
         }
     }
 }
@@ -424,6 +427,15 @@ mod tests {
     use crate::access::testing::{I, O, tokens};
 
     #[test]
+    fn a_new_connection_waits_at_most_5_s_for_its_token_and_holds_no_place_longer() {
+        // A page sends its token as the socket opens; the wait only bounds how long one that
+        // never will holds a waiting place (WIRE.md says 5 s).
+        let limits = ConnectionLimits::default();
+        assert_eq!(limits.auth_timeout, std::time::Duration::from_secs(5));
+        assert!(limits.max_pending_per_address < limits.max_pending);
+    }
+
+    #[test]
     fn links_name_the_host_name_when_the_server_listens_on_every_interface() {
         let mut config = AccessConfig {
             host_names: vec!["lab-pc.example".into()],
@@ -510,6 +522,20 @@ mod tests {
             ),
             "{err}"
         );
+        // Long enough, but made of words: refused, naming the variable, never quoting it.
+        let hand_made = |name: &str| match name {
+            OBSERVER_TOKEN_ENV => Some("observer-token-for-the-lab-2024".to_owned() + "x"),
+            _ => Some(I.to_owned()),
+        };
+        let err = args
+            .resolve_with_env(addr, &hand_made)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("SOFTHAPTIC_OBSERVER_TOKEN: the observer token looks made by hand"),
+            "{err}"
+        );
+        assert!(!err.contains("token-for"), "{err}");
     }
 
     #[test]

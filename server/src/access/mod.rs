@@ -51,6 +51,7 @@ mod http;
 mod origin;
 mod refusal_log;
 pub mod roles;
+pub mod strength;
 #[cfg(test)]
 mod testing;
 mod tokens;

@@ -8,8 +8,8 @@ use softhaptic_proto::wire::Role;
 
 use super::{Access, AccessConfig, Token, TokenSource, Tokens};
 
-pub(super) const I: &str = "0123456789abcdef0123456789abcdef";
-pub(super) const O: &str = "fedcba9876543210fedcba9876543210";
+pub(super) const I: &str = "820282620bb7debb2b6fb8f77ac1644a";
+pub(super) const O: &str = "d5b629ee48797979cfda037291bd83dc";
 
 /// The instructor's token is [`I`], the observer's [`O`].
 pub(super) fn tokens() -> Tokens {

@@ -18,8 +18,6 @@ pub const INSTRUCTOR_TOKEN_ENV: &str = "SOFTHAPTIC_INSTRUCTOR_TOKEN";
 pub const OBSERVER_TOKEN_ENV: &str = "SOFTHAPTIC_OBSERVER_TOKEN";
 /// The shortest token accepted: 32 characters, as the 128 bits of a generated one in hex.
 pub const MIN_TOKEN_CHARS: usize = 32;
-/// Fewest different characters a token given by a person may use.
-pub const MIN_DISTINCT_TOKEN_CHARS: usize = 8;
 /// The longest token accepted (a bound on what a token file can make the server hold).
 pub const MAX_TOKEN_CHARS: usize = 512;
 /// Bytes drawn from the OS for a generated token: 128 bits.
@@ -38,10 +36,12 @@ pub enum TokenProblem {
     #[error("the {role} token is {chars} characters long; at most {MAX_TOKEN_CHARS} are accepted")]
     TooLong { role: &'static str, chars: usize },
     #[error(
-        "the {role} token uses only {distinct} different characters: it looks made by hand, not \
-         drawn at random; make one with `openssl rand -hex 16`"
+        "the {role} token looks made by hand, not drawn at random: words, years, sequences or \
+         repeats make it about {bits} bits to guess, and at least {min} are needed; make one \
+         with `openssl rand -hex 16`",
+        min = super::strength::MIN_TOKEN_BITS
     )]
-    HandMade { role: &'static str, distinct: usize },
+    HandMade { role: &'static str, bits: u32 },
     #[error(
         "the {role} token has a character other than a letter, a digit, `-`, `.`, `_` or `~` \
          (it must go into a link unchanged)"
@@ -103,14 +103,14 @@ impl Token {
         if chars > MAX_TOKEN_CHARS {
             return Err(TokenProblem::TooLong { role, chars });
         }
-        // Length alone does not make a secret: `aaaa…` or `abab…` passes it. Thirty-two random
-        // hex digits use about 14 of the 16 (fewer than 8 with odds below 1e-9).
-        let distinct = text
-            .bytes()
-            .collect::<std::collections::BTreeSet<u8>>()
-            .len();
-        if distinct < MIN_DISTINCT_TOKEN_CHARS {
-            return Err(TokenProblem::HandMade { role, distinct });
+        // Length alone does not make a secret: `aaaa…`, `abab…` or
+        // `instructor-token-for-lab-2024xyz` pass it (see `strength`).
+        let bits = super::strength::estimated_bits(text);
+        if bits < super::strength::MIN_TOKEN_BITS {
+            return Err(TokenProblem::HandMade {
+                role,
+                bits: bits as u32,
+            });
         }
         Ok(Token(zeroize::Zeroizing::new(text.to_owned())))
     }
@@ -334,6 +334,10 @@ mod tests {
             );
         }
         assert_ne!(a, b);
+        // Strong by the same measure as a person's: a generated token passes it.
+        for t in [&a, &b] {
+            Token::parse(t.expose_secret(), Role::Instructor).unwrap();
+        }
         let both = Tokens::generate().unwrap();
         assert_ne!(both.instructor(), both.observer());
     }
@@ -413,7 +417,13 @@ mod tests {
             ),
             (
                 format!("instructor = {I}\nobserver = {}\n", "ab".repeat(20)),
-                "/lab/tokens.txt:2: the observer token uses only 2 different characters",
+                "/lab/tokens.txt:2: the observer token looks made by hand",
+            ),
+            (
+                format!("instructor = instructor-token-for-lab-2024xyz\nobserver = {O}\n"),
+                "/lab/tokens.txt:1: the instructor token looks made by hand, not drawn at random: \
+                 words, years, sequences or repeats make it about 70 bits to guess, and at least \
+                 80 are needed",
             ),
             (
                 format!("instructor = {I}\ntrainee = {O}\n"),
@@ -446,7 +456,7 @@ mod tests {
                 err.starts_with(expected) || err.contains(expected),
                 "{err}\nexpected: {expected}"
             );
-            for secret in [I, O, short] {
+            for secret in [I, O, short, "instructor-token"] {
                 assert!(!err.contains(secret), "the error shows a token: {err}");
             }
         }

@@ -3,7 +3,9 @@
 //! A station with a recording directory uploads every finished recording there (all but the one
 //! being written) when it starts, again while it runs until none is left unarchived
 //! ([`mod@schedule`]), and the session's own recording when it stops, each as
-//! `STATION/FILE` in the bucket [`BUCKET`]. An upload goes part by part and resumes: a pass cut
+//! `STATION/FILE` in the station's own bucket ([`bucket`]: one per station, so that NATS's
+//! permissions can let each station's credentials write its bucket and nothing else, and a
+//! hub's read them all; see [`crate::lab::permissions`]). An upload goes part by part and resumes: a pass cut
 //! short (NATS restarted, the station stopped) leaves the parts it stored in the store, and the
 //! next attempt, in the same pass or the next, or at the next start, asks the store how far
 //! it got and sends only the rest ([`mod@upload`] explains how the store keeps that count exact).
@@ -38,8 +40,19 @@ use base64::Engine;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-/// The object store bucket of the lab's recordings.
-pub const BUCKET: &str = "softhaptic-sessions";
+/// The start of every station's bucket's name: [`bucket`].
+pub const BUCKET_PREFIX: &str = "softhaptic-sessions-";
+
+/// The object store bucket of `station`'s recordings. A station's name is a bucket name's
+/// characters (`[A-Za-z0-9_-]`), so each name has its own bucket.
+pub fn bucket(station: &str) -> String {
+    format!("{BUCKET_PREFIX}{station}")
+}
+
+/// The JetStream stream under `station`'s bucket, by the name the object store gives it.
+pub fn bucket_stream(station: &str) -> String {
+    format!("OBJ_{}", bucket(station))
+}
 
 /// What an archiving pass did.
 #[derive(Debug, Default, Clone, PartialEq, Eq)]
@@ -101,12 +114,14 @@ fn same_digest(a: &str, b: &str) -> bool {
     a.trim_end_matches('=') == b.trim_end_matches('=')
 }
 
-/// The lab's recording store: the object store, and the stream under it that resumable
+/// A station's recording store: its object store, and the stream under it that resumable
 /// uploads write their parts to.
 #[derive(Clone)]
 pub struct Store {
     client: async_nats::Client,
     js: jetstream::Context,
+    station: String,
+    bucket: String,
     objects: ObjectStore,
     stream: Stream,
 }
@@ -116,30 +131,44 @@ impl Store {
     pub fn objects(&self) -> &ObjectStore {
         &self.objects
     }
+
+    /// The station whose store it is.
+    pub fn station(&self) -> &str {
+        &self.station
+    }
+
+    /// The subject of the parts stored under chunk id `id`.
+    pub(crate) fn chunk_subject(&self, id: &str) -> String {
+        upload::chunk_subject(&self.bucket, id)
+    }
 }
 
-/// The lab's recording store, made on first use.
-pub async fn store(client: &async_nats::Client) -> Result<Store, String> {
+/// `station`'s recording store, made on first use.
+pub async fn store(client: &async_nats::Client, station: &str) -> Result<Store, String> {
     let js = jetstream::new(client.clone());
-    let objects = match js.get_object_store(BUCKET).await {
+    let bucket = bucket(station);
+    let objects = match js.get_object_store(&bucket).await {
         Ok(store) => store,
         Err(_) => js
             .create_object_store(object_store::Config {
-                bucket: BUCKET.to_owned(),
-                description: Some("softhaptic session recordings, STATION/FILE".to_owned()),
+                bucket: bucket.clone(),
+                description: Some(format!(
+                    "softhaptic session recordings of station {station}, {station}/FILE"
+                )),
                 ..Default::default()
             })
             .await
-            .map_err(|e| format!("the object store {BUCKET:?}: {e}"))?,
+            .map_err(|e| format!("the object store {bucket:?}: {e}"))?,
     };
-    // The object store's stream, by the name the object store gives it.
     let stream = js
-        .get_stream(format!("OBJ_{BUCKET}"))
+        .get_stream(bucket_stream(station))
         .await
-        .map_err(|e| format!("the object store {BUCKET:?}'s stream: {e}"))?;
+        .map_err(|e| format!("the object store {bucket:?}'s stream: {e}"))?;
     Ok(Store {
         client: client.clone(),
         js,
+        station: station.to_owned(),
+        bucket,
         objects,
         stream,
     })
@@ -170,7 +199,7 @@ pub async fn upload_finished(
     if files.is_empty() {
         return report;
     }
-    let store = match store(client).await {
+    let store = match store(client, station).await {
         Ok(s) => s,
         Err(e) => {
             for f in files {
@@ -222,7 +251,7 @@ pub async fn sweep_orphan_parts(
         if used.contains(&id) {
             continue;
         }
-        let subject = upload::chunk_subject(&id);
+        let subject = store.chunk_subject(&id);
         let last = store
             .stream
             .get_last_raw_message_by_subject(&subject)
@@ -248,7 +277,7 @@ pub async fn sweep_orphan_parts(
 /// unfinished uploads' alike.
 pub async fn stored_parts(store: &Store) -> Result<Vec<(String, usize)>, String> {
     use futures_util::TryStreamExt;
-    let prefix = upload::chunk_subject("");
+    let prefix = store.chunk_subject("");
     let mut listing = store
         .stream
         .info_with_subjects(format!("{prefix}>"))
@@ -285,7 +314,9 @@ fn recordings(dir: &Path, skip: Option<&Path>) -> Result<Vec<PathBuf>, String> {
     Ok(files)
 }
 
-/// The archived recordings of `station` (all stations when `None`).
+/// The archived recordings of `station` (all stations when `None`), each from its station's
+/// own bucket: an object in a station's bucket is that station's, whatever name it was given
+/// (one named for another station is not listed: only its own station could have put it there).
 pub async fn list(
     client: &async_nats::Client,
     station: Option<&str>,
@@ -296,28 +327,47 @@ pub async fn list(
         return Err("NATS is not connected".to_owned());
     }
     let js = async_nats::jetstream::new(client.clone());
-    let store = match js.get_object_store(BUCKET).await {
-        Ok(store) => store,
-        // Nothing was ever archived: no bucket yet.
-        Err(e) if is_no_bucket(&e) => return Ok(Vec::new()),
-        Err(e) => return Err(format!("the object store {BUCKET:?}: {e}")),
-    };
-    let mut objects = store.list().await.map_err(|e| e.to_string())?;
-    let mut out = Vec::new();
-    while let Some(info) = objects.next().await {
-        let info = info.map_err(|e| e.to_string())?;
-        let Some((s, file)) = info.name.split_once('/') else {
-            continue;
-        };
-        if station.is_some_and(|want| want != s) {
-            continue;
+    let stations = match station {
+        Some(s) => vec![s.to_owned()],
+        None => {
+            let mut names = js.stream_names();
+            let mut stations = Vec::new();
+            while let Some(name) = names.next().await {
+                let name = name.map_err(|e| format!("listing the stations' buckets: {e}"))?;
+                if let Some(s) = name.strip_prefix(&format!("OBJ_{BUCKET_PREFIX}"))
+                    && crate::lab::check_station_name(s).is_ok()
+                {
+                    stations.push(s.to_owned());
+                }
+            }
+            stations
         }
-        out.push(ArchivedSession {
-            station: s.to_owned(),
-            file: file.to_owned(),
-            bytes: info.size as u64,
-            digest: info.digest.clone().unwrap_or_default(),
-        });
+    };
+    let mut out = Vec::new();
+    for station in stations {
+        let bucket = bucket(&station);
+        let store = match js.get_object_store(&bucket).await {
+            Ok(store) => store,
+            // Nothing archived by this station: no bucket yet.
+            Err(e) if is_no_bucket(&e) => continue,
+            Err(e) => return Err(format!("the object store {bucket:?}: {e}")),
+        };
+        let mut objects = store.list().await.map_err(|e| e.to_string())?;
+        while let Some(info) = objects.next().await {
+            let info = info.map_err(|e| e.to_string())?;
+            let Some((s, file)) = info.name.split_once('/') else {
+                continue;
+            };
+            if s != station {
+                continue;
+            }
+            out.push(ArchivedSession {
+                station: station.clone(),
+                file: file.to_owned(),
+                bytes: info.size as u64,
+                digest: info.digest.clone().unwrap_or_default(),
+            });
+        }
     }
     out.sort_by(|a, b| (&a.station, &a.file).cmp(&(&b.station, &b.file)));
     Ok(out)
@@ -345,7 +395,7 @@ pub async fn fetch(
     use tokio::io::AsyncReadExt;
     let js = async_nats::jetstream::new(client.clone());
     let store = js
-        .get_object_store(BUCKET)
+        .get_object_store(bucket(station))
         .await
         .map_err(|e| e.to_string())?;
     let mut object = store
@@ -384,7 +434,7 @@ pub async fn download(
     use futures_util::StreamExt;
     let js = async_nats::jetstream::new(client.clone());
     let objects = js
-        .get_object_store(BUCKET)
+        .get_object_store(bucket(station))
         .await
         .map_err(|e| e.to_string())?;
     let info = objects
@@ -408,12 +458,12 @@ pub async fn download(
         return Err(format!("{bytes} bytes in no part"));
     }
     let stream = js
-        .get_stream(format!("OBJ_{BUCKET}"))
+        .get_stream(bucket_stream(station))
         .await
         .map_err(|e| e.to_string())?;
     let reading = Reading {
         stream,
-        subject: upload::chunk_subject(&info.nuid),
+        subject: upload::chunk_subject(&bucket(station), &info.nuid),
         chunks: info.chunks,
         digest: info.digest.clone(),
         bytes,

@@ -1176,7 +1176,7 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
     let mut access_config = options.access;
     access_config.check_bind(options.addr)?;
     options.viewer.check()?;
-    let client = super::connect(&options.nats, "softhaptic hub".into(), "hub").await?;
+    let client = super::connect(&options.nats, "softhaptic hub".into(), super::Party::Hub).await?;
     let status = client
         .subscribe(STATUS_SUBJECTS)
         .await

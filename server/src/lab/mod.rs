@@ -31,6 +31,7 @@
 
 pub mod archive;
 pub mod hub;
+pub mod permissions;
 pub mod replays;
 pub mod station;
 
@@ -139,6 +140,88 @@ pub struct NatsOptions {
     /// nkey seed file (`SU…`, as `nk -gen user` writes it), or TOML with `token = "…"`, `user =
     /// "…"` and `password = "…"`, or `nkey = "SU…"`.
     pub credentials: Option<PathBuf>,
+    /// The certificate (PEM) of the CA that signed the NATS server's: TLS to NATS, the server
+    /// verified against this CA alone (`--nats-ca`).
+    pub tls_ca: Option<PathBuf>,
+}
+
+impl NatsOptions {
+    /// The NATS at `url`, without credentials or a CA.
+    pub fn new(url: impl Into<String>) -> Self {
+        NatsOptions {
+            url: url.into(),
+            credentials: None,
+            tls_ca: None,
+        }
+    }
+
+    /// Whether the connection is encrypted: a CA is given, or every URL is `tls://`.
+    pub fn uses_tls(&self) -> bool {
+        self.tls_ca.is_some()
+            || self
+                .url
+                .split(',')
+                .all(|u| u.trim().to_ascii_lowercase().starts_with("tls://"))
+    }
+
+    /// Refused when credentials would cross a network in plain text: given credentials, TLS is
+    /// required unless every server is on this machine (loopback).
+    pub fn check_transport(&self) -> Result<(), LabError> {
+        if self.credentials.is_none() || self.uses_tls() || all_loopback(&self.url) {
+            return Ok(());
+        }
+        Err(LabError::Plaintext {
+            url: self.url.clone(),
+        })
+    }
+}
+
+/// Whether every server of a `--nats` URL list is this machine (`localhost`, `127.x`, `::1`).
+fn all_loopback(urls: &str) -> bool {
+    urls.split(',').all(|url| {
+        let url = url.trim();
+        let authority = url.split_once("://").map_or(url, |(_, rest)| rest);
+        let authority = authority.split(['/', '?', '#']).next().unwrap_or_default();
+        // `[::1]:4222`, `127.0.0.1:4222`, `localhost`.
+        let host = match authority.strip_prefix('[') {
+            Some(rest) => rest.split(']').next().unwrap_or_default(),
+            None => authority.split(':').next().unwrap_or_default(),
+        };
+        host.eq_ignore_ascii_case("localhost")
+            || host
+                .parse::<std::net::IpAddr>()
+                .is_ok_and(|ip| ip.is_loopback())
+    })
+}
+
+/// Who connects to NATS. Each party's replies (to its requests, JetStream's answers, the
+/// objects it reads) come to an inbox subject of its own, which NATS's permissions let no other
+/// party subscribe to ([`permissions`]): a station cannot read what the hub is sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Party<'a> {
+    /// The station of this name.
+    Station(&'a str),
+    /// A hub (every hub of the lab alike).
+    Hub,
+}
+
+impl Party<'_> {
+    /// The party in words, for errors.
+    pub fn role(&self) -> &'static str {
+        match self {
+            Party::Station(_) => "station",
+            Party::Hub => "hub",
+        }
+    }
+
+    /// The start of its inbox subjects: `_INBOX.station.NAME` or `_INBOX.hub` (a station's name
+    /// has no `.`, so no station's is a hub's).
+    pub fn inbox_prefix(&self) -> String {
+        match self {
+            Party::Station(name) => format!("_INBOX.station.{name}"),
+            Party::Hub => "_INBOX.hub".to_owned(),
+        }
+    }
 }
 
 /// A `--nats` URL (or a comma-separated list of them), refused when it carries credentials
@@ -180,6 +263,14 @@ pub enum LabError {
     },
     #[error("NATS at {url}: {reason}")]
     Connect { url: String, reason: String },
+    #[error(
+        "--nats-credentials with NATS at {url} would send the credentials, and every frame, \
+         across the network in plain text: give --nats-ca FILE (the CA that signed the NATS \
+         server's certificate) or tls:// URLs"
+    )]
+    Plaintext { url: String },
+    #[error("--nats-ca {path}: {reason}")]
+    Ca { path: PathBuf, reason: String },
     #[error("{0}")]
     Name(String),
 }
@@ -273,21 +364,48 @@ async fn with_credentials(
     }
 }
 
-/// Connects to NATS as `name` (shown in the server's connection list). A server that refuses
-/// the credentials stops the start with the reason. One that cannot be reached does not when
-/// `wait` is false: the client keeps trying in the background (a station serves its own viewers
-/// meanwhile); with `wait`, it is an error too.
+/// Checks the `--nats-ca` file before it is used: a readable PEM certificate (async-nats would
+/// only fail at the first connection, and then as a TLS error without the file's name).
+fn check_ca(path: &Path) -> Result<(), LabError> {
+    let refused = |reason: String| LabError::Ca {
+        path: path.to_owned(),
+        reason,
+    };
+    let text = crate::files::read_text(path, crate::files::FileKind::Pem)
+        .map_err(|e| refused(e.to_string()))?;
+    if !text.contains("-----BEGIN CERTIFICATE-----") {
+        return Err(refused(
+            "no PEM certificate in it (-----BEGIN CERTIFICATE-----)".to_owned(),
+        ));
+    }
+    Ok(())
+}
+
+/// Connects to NATS as `party`, named `name` (shown in the server's connection list). A server
+/// that refuses the credentials stops the start with the reason, and so do credentials that
+/// would cross a network without TLS ([`NatsOptions::check_transport`]). A server that cannot
+/// be reached does not: the client keeps trying in the background (a station serves its own
+/// viewers meanwhile).
 pub async fn connect(
     options: &NatsOptions,
     name: String,
-    role: &'static str,
+    party: Party<'_>,
 ) -> Result<async_nats::Client, LabError> {
+    let role = party.role();
+    options.check_transport()?;
+    if let Some(ca) = &options.tls_ca {
+        check_ca(ca)?;
+    }
     let base = || async {
         let mut o = async_nats::ConnectOptions::new()
             .name(name.clone())
             .connection_timeout(Duration::from_secs(3))
             // Frames go out within one frame period or not at all: never a backlog of stale ones.
-            .client_capacity(256);
+            .client_capacity(256)
+            .custom_inbox_prefix(party.inbox_prefix());
+        if let Some(ca) = &options.tls_ca {
+            o = o.add_root_certificates(ca.clone()).require_tls(true);
+        }
         if let Some(path) = &options.credentials {
             o = with_credentials(o, path).await?;
         }
@@ -307,6 +425,14 @@ pub async fn connect(
                     url: options.url.clone(),
                     reason: e.to_string(),
                 }),
+                // A certificate not trusted (no --nats-ca, or another CA's) comes as an I/O
+                // error: retrying would never help, so it stops the start too.
+                K::Io if is_tls_failure(&e) => Err(LabError::Connect {
+                    url: options.url.clone(),
+                    reason: format!(
+                        "{e} (TLS: is --nats-ca the CA that signed the NATS server's certificate?)"
+                    ),
+                }),
                 _ => {
                     tracing::warn!(
                         "NATS at {} is not reachable ({e}); carrying on and connecting in the background",
@@ -325,6 +451,22 @@ pub async fn connect(
             }
         }
     }
+}
+
+/// Whether `error` comes from the TLS handshake (rustls refused the server, or the server us).
+fn is_tls_failure(error: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cause = Some(error);
+    while let Some(e) = cause {
+        if e.is::<rustls::Error>()
+            || e.downcast_ref::<std::io::Error>()
+                .and_then(|io| io.get_ref())
+                .is_some_and(|inner| inner.is::<rustls::Error>())
+        {
+            return true;
+        }
+        cause = e.source();
+    }
+    false
 }
 
 /// Whether the client is connected to NATS now.

@@ -49,7 +49,7 @@ pub async fn connect(options: &StationOptions) -> Result<async_nats::Client, Lab
     super::connect(
         &options.nats,
         format!("softhaptic station {}", options.name),
-        "station",
+        super::Party::Station(&options.name),
     )
     .await
 }

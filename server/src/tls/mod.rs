@@ -11,7 +11,8 @@
 //! Why a client that does not speak TLS cannot hold the port: every connection is handled by its
 //! own task, and that task gives the client [`HANDSHAKE_TIMEOUT`] to send its first byte and as
 //! long again to finish the handshake, then [`FIRST_REQUEST_TIMEOUT`] to send a request and
-//! [`HEADER_READ_TIMEOUT`] for each request's headers (plain http alike), so a slow or silent
+//! [`HEADER_READ_TIMEOUT`] for each request's headers (plain http alike), an HTTP/2 connection
+//! [`HTTP2_IDLE_TIMEOUT`] without traffic, so a slow, silent or idle
 //! client holds one socket for a bounded time and never the accept loop; and the sockets held
 //! open are capped per client address and in all ([`ConnectionCaps`]). A client
 //! whose first byte is not a TLS handshake record (a browser or a `ws://` viewer pointed at the
@@ -29,8 +30,10 @@
 //!   directory, the rustls configuration and the fingerprint.
 //! - `pem.rs`: reading certificates and keys from PEM files, and writing the kept ones.
 //! - `serve.rs`: [`serve`], plainly or over TLS, and the refusal of a plain-text client.
+//! - `idle.rs`: the idle timeout of HTTP/2 connections.
 
 mod certificate;
+mod idle;
 mod pem;
 mod serve;
 
@@ -64,6 +67,9 @@ pub const FIRST_REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
 /// them: a client that sends them a byte at a time, or holds a keep-alive connection idle, is
 /// closed after this. Browsers reopen idle connections as they need them.
 pub const HEADER_READ_TIMEOUT: Duration = Duration::from_secs(30);
+/// How long an HTTP/2 connection may go without a byte either way before it is closed: as long
+/// as an HTTP/1.1 keep-alive connection may stay idle ([`HEADER_READ_TIMEOUT`]).
+pub const HTTP2_IDLE_TIMEOUT: Duration = Duration::from_secs(30);
 /// A kept self-signed certificate with less than this left is replaced at start, so that it does
 /// not expire in the middle of a course, between two starts.
 pub const SELF_SIGNED_RENEW_BEFORE: Duration = Duration::from_secs(30 * 24 * 3600);

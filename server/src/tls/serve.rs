@@ -21,7 +21,8 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
-use super::{FIRST_REQUEST_TIMEOUT, HANDSHAKE_TIMEOUT, HEADER_READ_TIMEOUT};
+use super::idle::{Http2Guard, OnHttp2};
+use super::{FIRST_REQUEST_TIMEOUT, HANDSHAKE_TIMEOUT, HEADER_READ_TIMEOUT, HTTP2_IDLE_TIMEOUT};
 use crate::access::ConnectionLimits;
 
 /// The first byte of every TLS connection: the record type of a handshake (RFC 8446 §5.1).
@@ -37,13 +38,14 @@ const PLAIN_TEXT_REFUSAL: &str =
 /// every socket the process may open: per client address, and in all. Loopback is not capped
 /// per address: a reverse proxy's connections all come from it.
 /// With them, how long a connection may take to send its first request and each request's
-/// headers.
+/// headers, and how long an HTTP/2 connection may stay without traffic.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ConnectionCaps {
     pub per_address: usize,
     pub total: usize,
     pub first_request_timeout: Duration,
     pub header_read_timeout: Duration,
+    pub http2_idle_timeout: Duration,
 }
 
 /// Files the process keeps open besides its connections: the listening socket, the device, the
@@ -106,23 +108,27 @@ pub fn ensure_open_file_limit(caps: &ConnectionCaps) {
 
 impl ConnectionCaps {
     /// Room for the viewers `limits` admits, each with the few connections a browser opens for
-    /// the page beside its WebSocket; [`FIRST_REQUEST_TIMEOUT`] and [`HEADER_READ_TIMEOUT`].
+    /// the page beside its WebSocket; [`FIRST_REQUEST_TIMEOUT`], [`HEADER_READ_TIMEOUT`] and
+    /// [`HTTP2_IDLE_TIMEOUT`].
     pub fn for_limits(limits: &ConnectionLimits) -> ConnectionCaps {
         ConnectionCaps {
             per_address: 2 * limits.max_per_address as usize + 16,
             total: 2 * (limits.max_viewers as usize + limits.max_pending as usize) + 64,
             first_request_timeout: FIRST_REQUEST_TIMEOUT,
             header_read_timeout: HEADER_READ_TIMEOUT,
+            http2_idle_timeout: HTTP2_IDLE_TIMEOUT,
         }
     }
 }
 
 /// Serves `app` on `listener` until `shutdown` turns true (or its sender is dropped), then stops
-/// accepting and lets open requests finish. Without `tls` it is plain http and ws; with it,
-/// https and wss on the same port (HTTP/1.1 and HTTP/2, WebSocket upgrades over HTTP/1.1), a
-/// plain-text client refused as [`crate::tls`] says. Either way a connection has `caps`' time
-/// to send its first request and each request's headers (an idle keep-alive connection is
-/// closed after as long), and no more connections than `caps` are held open.
+/// accepting and lets open requests finish. Without `tls` it is plain http and ws, HTTP/1.1 only
+/// (cleartext HTTP/2, h2c, is refused: nothing needs it, and it would bring HTTP/2's costs to
+/// a port without TLS); with it, https and wss on the same port (HTTP/1.1 and HTTP/2, WebSocket
+/// upgrades over HTTP/1.1), a plain-text client refused as [`crate::tls`] says. Either way a
+/// connection has `caps`' time to send its first request and each request's headers (an idle
+/// keep-alive connection is closed after as long, an HTTP/2 one after `caps`'
+/// `http2_idle_timeout` without traffic), and no more connections than `caps` are held open.
 ///
 /// Requests carry [`axum::extract::ConnectInfo<SocketAddr>`] either way.
 pub fn serve(
@@ -136,13 +142,20 @@ pub fn serve(
     let handle = axum_server::Handle::new();
     let guard = ConnectionGuard::new(caps);
     let served: Pin<Box<dyn Future<Output = io::Result<()>> + Send>> = match tls {
-        None => Box::pin(
-            server(listener, guard.wrap(DefaultAcceptor::new()), &handle, caps).serve(service),
-        ),
+        None => {
+            let acceptor = Http2Guard {
+                inner: guard.wrap(DefaultAcceptor::new()),
+                http2: OnHttp2::Refuse,
+            };
+            Box::pin(server(listener, acceptor, &handle, caps).serve(service))
+        }
         Some(config) => {
-            let acceptor = RustlsAcceptor::new(RustlsConfig::from_config(config))
-                .handshake_timeout(HANDSHAKE_TIMEOUT)
-                .acceptor(guard.wrap(RefusePlainText));
+            let acceptor = Http2Guard {
+                inner: RustlsAcceptor::new(RustlsConfig::from_config(config))
+                    .handshake_timeout(HANDSHAKE_TIMEOUT)
+                    .acceptor(guard.wrap(RefusePlainText)),
+                http2: OnHttp2::CloseWhenIdle(caps.http2_idle_timeout),
+            };
             Box::pin(server(listener, acceptor, &handle, caps).serve(service))
         }
     };
@@ -523,6 +536,7 @@ mod tests {
             total,
             first_request_timeout: Duration::from_millis(300),
             header_read_timeout: Duration::from_millis(300),
+            http2_idle_timeout: Duration::from_millis(300),
         }
     }
 

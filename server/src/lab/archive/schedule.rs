@@ -101,7 +101,7 @@ impl StationArchive {
             // NATS may be back a moment after the port is: the store is asked again until the
             // deadline, not once.
             let store = loop {
-                match super::store(&self.client).await {
+                match super::store(&self.client, &self.station).await {
                     Ok(store) => break store,
                     Err(e) => {
                         tracing::debug!("the lab's archive is not reachable yet: {e}");

@@ -48,7 +48,7 @@ use sha2::{Digest, Sha256};
 use tokio::io::{AsyncReadExt, AsyncSeekExt};
 use tokio::sync::mpsc;
 
-use super::{BUCKET, Store, object_name, same_digest};
+use super::{Store, object_name, same_digest};
 
 /// The header with a part's index (0-based, decimal).
 pub const PART_HEADER: &str = "Softhaptic-Part";
@@ -178,8 +178,8 @@ pub fn chunk_id(name: &str, digest: &str, part_bytes: usize) -> String {
     hex(&h.finalize()[..16])
 }
 
-pub(super) fn chunk_subject(id: &str) -> String {
-    format!("$O.{BUCKET}.C.{id}")
+pub(super) fn chunk_subject(bucket: &str, id: &str) -> String {
+    format!("$O.{bucket}.C.{id}")
 }
 
 /// Uploads `path` as `STATION/FILE` unless the store already has it, resuming whatever part of
@@ -200,6 +200,15 @@ pub async fn upload_with(
         return Err(format!(
             "part_bytes {}: use 1 to {MAX_PART_BYTES}",
             options.part_bytes
+        ));
+    }
+    // A station's store takes only its own recordings (and NATS lets its credentials write
+    // no other).
+    if station != store.station {
+        return Err(format!(
+            "{}: station {station}'s recording cannot go into station {}'s store",
+            path.display(),
+            store.station
         ));
     }
     let name = object_name(station, &file);
@@ -225,7 +234,7 @@ pub async fn upload_with(
         name: &name,
         path,
         plan: &plan,
-        subject: chunk_subject(&id),
+        subject: store.chunk_subject(&id),
         options,
     };
     upload.send_all().await?;
@@ -247,7 +256,11 @@ pub async fn upload_with(
     if let Some(old) = existing
         && old.nuid != id
         && !old.nuid.is_empty()
-        && let Err(e) = store.stream.purge().filter(chunk_subject(&old.nuid)).await
+        && let Err(e) = store
+            .stream
+            .purge()
+            .filter(store.chunk_subject(&old.nuid))
+            .await
     {
         tracing::warn!(object = %name, "the replaced object's chunks stay in the store: {e}");
     }
@@ -568,7 +581,7 @@ impl Upload<'_> {
                 link: None,
                 max_chunk_size: Some(self.plan.part_bytes),
             }),
-            bucket: BUCKET.to_owned(),
+            bucket: self.store.bucket.clone(),
             nuid: id.to_owned(),
             size: self.plan.bytes as usize,
             chunks: self.plan.total(),
@@ -578,7 +591,8 @@ impl Upload<'_> {
         };
         let payload = serde_json::to_vec(&info).map_err(|e| format!("{}: {e}", self.name))?;
         let subject = format!(
-            "$O.{BUCKET}.M.{}",
+            "$O.{}.M.{}",
+            self.store.bucket,
             base64::engine::general_purpose::URL_SAFE.encode(self.name)
         );
         let mut headers = async_nats::HeaderMap::new();
