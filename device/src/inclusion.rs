@@ -1,0 +1,332 @@
+//! Stiffer inclusions felt through the tissue (palpation): the FEM's force ratio, interpolated
+//! at run time.
+//!
+//! The calibration's FEM tabulates, for a sphere of tissue `stiffness_ratio` times stiffer
+//! buried in the block, the force on the tool over the homogeneous block's force at the same
+//! indentation ([`softhaptic_proto::InclusionTable`]). Here that ratio is read back for the
+//! tool's contact: the lateral offset of the contact point from each inclusion's centre (in
+//! the plane of the contact's surface) and the centre's depth below that plane come from the
+//! collision's contact point and normal, the inclusion's radius and ratio are fixed when the
+//! field is built, and the indentation is the contact's depth. The renderer multiplies its
+//! contact model by the ratio ([`crate::force::ForceRenderer::set_inclusion`]).
+//!
+//! # Interpolation
+//! Linear in the indentation, the centre's depth and the radius; linear in ln(stiffness ratio),
+//! because the force ratio grows ever more slowly with the inclusion's stiffness (a rigid
+//! inclusion is the limit) and a straight line in the logarithm follows that bend with fewer
+//! table entries. In the lateral offset it is a cubic Hermite spline (Catmull–Rom slopes, zero
+//! slope on the axis, where the ratio is symmetric, and at the table's last offset, beyond which
+//! it is held): the renderer pushes the tool sideways down the ratio's slope
+//! (the potential's gradient, [`crate::force`]), and that push must itself be continuous in
+//! position, which piecewise-linear interpolation would not give at the grid lines.
+//!
+//! # Several inclusions
+//! Their excess ratios add: 1 + Σ (ratio_i − 1). Exact for one; for several it treats them as
+//! independent, which the FEM supports when they are apart by more than the contact's width
+//! (the table's far offsets are within a percent of 1).
+//!
+//! # Cost
+//! A contact farther from an inclusion than the table's last offset skips it after a dot
+//! product; a near one costs at most 64 table reads. No allocation: the field is built once.
+//! A scene without inclusions builds no field, and the world calls nothing.
+
+use glam::DVec3;
+use softhaptic_proto::{Inclusion, InclusionTable};
+
+/// One inclusion with its fixed table coordinates precomputed.
+#[derive(Debug, Clone)]
+struct Placed {
+    centre_m: DVec3,
+    /// Bracketing indices and upper weight on the radius and ratio axes.
+    radius: (usize, usize, f64),
+    ratio: (usize, usize, f64),
+}
+
+/// The inclusions of one object and their table.
+#[derive(Debug, Clone)]
+pub struct InclusionField {
+    table: InclusionTable,
+    inclusions: Vec<Placed>,
+    /// Lateral offset beyond which an inclusion is held at the table's last offset.
+    max_offset_m: f64,
+}
+
+/// The field's value for one contact.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InclusionLoad {
+    /// Force over the homogeneous model's force at this contact.
+    pub ratio: f64,
+    /// Gradient of `ratio` with respect to the contact point, object frame, 1/m (in the
+    /// contact's tangent plane).
+    pub gradient_1_per_m: DVec3,
+}
+
+impl InclusionLoad {
+    /// No inclusion near: the homogeneous model.
+    pub const NONE: InclusionLoad = InclusionLoad {
+        ratio: 1.0,
+        gradient_1_per_m: DVec3::ZERO,
+    };
+}
+
+/// Lower index, upper index and the upper weight of `x` on `axis`, clamped to its ends.
+fn bracket(axis: &[f64], x: f64) -> (usize, usize, f64) {
+    let n = axis.len();
+    if n < 2 || x <= axis[0] || x.is_nan() {
+        return (0, 0, 0.0);
+    }
+    if x >= axis[n - 1] {
+        return (n - 1, n - 1, 0.0);
+    }
+    let upper = axis.partition_point(|&a| a <= x).clamp(1, n - 1);
+    let lower = upper - 1;
+    (
+        lower,
+        upper,
+        (x - axis[lower]) / (axis[upper] - axis[lower]),
+    )
+}
+
+/// Value and slope at `x` of the cubic Hermite spline through (`xs`, `ys`) with Catmull–Rom
+/// slopes inside and zero slopes at both ends (module docs); held beyond the ends.
+fn hermite(xs: &[f64], ys: impl Fn(usize) -> f64, x: f64) -> (f64, f64) {
+    let n = xs.len();
+    if n == 1 {
+        return (ys(0), 0.0);
+    }
+    if x <= xs[0] {
+        return (ys(0), 0.0);
+    }
+    if x >= xs[n - 1] {
+        return (ys(n - 1), 0.0);
+    }
+    let slope = |i: usize| {
+        if i == 0 || i == n - 1 {
+            0.0
+        } else {
+            (ys(i + 1) - ys(i - 1)) / (xs[i + 1] - xs[i - 1])
+        }
+    };
+    let (i0, i1, t) = bracket(xs, x);
+    let h = xs[i1] - xs[i0];
+    let (y0, y1, m0, m1) = (ys(i0), ys(i1), slope(i0) * h, slope(i1) * h);
+    let (t2, t3) = (t * t, t * t * t);
+    let value = (2.0 * t3 - 3.0 * t2 + 1.0) * y0
+        + (t3 - 2.0 * t2 + t) * m0
+        + (-2.0 * t3 + 3.0 * t2) * y1
+        + (t3 - t2) * m1;
+    let d_dt = (6.0 * t2 - 6.0 * t) * y0
+        + (3.0 * t2 - 4.0 * t + 1.0) * m0
+        + (-6.0 * t2 + 6.0 * t) * y1
+        + (3.0 * t2 - 2.0 * t) * m1;
+    (value, d_dt / h)
+}
+
+impl InclusionField {
+    /// The field of `inclusions` (object frame) read from `table`. Refuses an inclusion whose
+    /// radius or ratio the table does not cover, naming it by its index.
+    pub fn new(table: InclusionTable, inclusions: &[Inclusion]) -> Result<Self, String> {
+        let mut placed = Vec::with_capacity(inclusions.len());
+        for (i, inc) in inclusions.iter().enumerate() {
+            if let Some(reason) = table.refuses(inc.radius_m, inc.stiffness_ratio) {
+                return Err(format!("inclusion {i}: {reason}"));
+            }
+            let log_ratios: Vec<f64> = table.stiffness_ratios().iter().map(|r| r.ln()).collect();
+            placed.push(Placed {
+                centre_m: DVec3::from_array(inc.centre_in_object_m),
+                radius: bracket(table.radii_m(), inc.radius_m),
+                ratio: bracket(&log_ratios, inc.stiffness_ratio.ln()),
+            });
+        }
+        let max_offset_m = table.offsets_m().last().copied().unwrap_or(0.0);
+        Ok(InclusionField {
+            table,
+            inclusions: placed,
+            max_offset_m,
+        })
+    }
+
+    pub fn table(&self) -> &InclusionTable {
+        &self.table
+    }
+
+    pub fn len(&self) -> usize {
+        self.inclusions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.inclusions.is_empty()
+    }
+
+    /// The force ratio of inclusion `index` alone and its slope with respect to the lateral
+    /// offset, 1/m, at indentation `depth_m`, lateral offset `offset_m` and centre depth
+    /// `centre_depth_m` (what the validation holds against the FEM).
+    pub fn single(
+        &self,
+        index: usize,
+        depth_m: f64,
+        offset_m: f64,
+        centre_depth_m: f64,
+    ) -> (f64, f64) {
+        let Some(p) = self.inclusions.get(index) else {
+            return (1.0, 0.0);
+        };
+        let t = &self.table;
+        let d = bracket(t.depths_m(), depth_m);
+        let c = bracket(t.centre_depths_m(), centre_depth_m);
+        let (mut value, mut slope) = (0.0, 0.0);
+        for (ratio, w_ratio) in [(p.ratio.0, 1.0 - p.ratio.2), (p.ratio.1, p.ratio.2)] {
+            for (radius, w_radius) in [(p.radius.0, 1.0 - p.radius.2), (p.radius.1, p.radius.2)] {
+                for (centre, w_centre) in [(c.0, 1.0 - c.2), (c.1, c.2)] {
+                    for (depth, w_depth) in [(d.0, 1.0 - d.2), (d.1, d.2)] {
+                        let w = w_ratio * w_radius * w_centre * w_depth;
+                        if w == 0.0 {
+                            continue;
+                        }
+                        let (v, s) = hermite(
+                            t.offsets_m(),
+                            |o| t.at(ratio, radius, centre, o, depth),
+                            offset_m,
+                        );
+                        value += w * v;
+                        slope += w * s;
+                    }
+                }
+            }
+        }
+        (value, slope)
+    }
+
+    /// The field at a contact: `contact_point_m` on the undeformed surface and its outward unit
+    /// `normal`, object frame, at indentation `depth_m`.
+    pub fn load(&self, contact_point_m: DVec3, normal: DVec3, depth_m: f64) -> InclusionLoad {
+        let mut load = InclusionLoad::NONE;
+        for (index, p) in self.inclusions.iter().enumerate() {
+            let to_centre = p.centre_m - contact_point_m;
+            let centre_depth_m = -to_centre.dot(normal);
+            let lateral = to_centre + centre_depth_m * normal;
+            let offset_m = lateral.length();
+            if offset_m >= self.max_offset_m {
+                // Held at the table's last offset, whose slope is zero: only its value counts.
+                let (v, _) = self.single(index, depth_m, self.max_offset_m, centre_depth_m);
+                load.ratio += v - 1.0;
+                continue;
+            }
+            let (v, slope) = self.single(index, depth_m, offset_m, centre_depth_m);
+            load.ratio += v - 1.0;
+            // Moving the contact point toward the centre shrinks the offset.
+            if offset_m > 0.0 {
+                load.gradient_1_per_m -= slope * lateral / offset_m;
+            }
+        }
+        load
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
+mod tests {
+    use super::*;
+    use softhaptic_proto::{Material, ToolShape};
+
+    /// A table whose excess ratio falls off with the offset as exp(−(s/5 mm)²), grows with the
+    /// indentation, shrinks with the centre's depth and grows as ln(ratio).
+    fn table() -> InclusionTable {
+        let depths = vec![0.001, 0.003, 0.006];
+        let offsets: Vec<f64> = (0..9).map(|i| i as f64 * 0.0025).collect();
+        let centres = vec![0.008, 0.012];
+        let radii = vec![0.005];
+        let ratios = vec![2.0, 4.0, 8.0];
+        let mut values = Vec::new();
+        for &k in &ratios {
+            for _ in &radii {
+                for &c in &centres {
+                    for &s in &offsets {
+                        for &d in &depths {
+                            values.push(excess(k, c, s, d) + 1.0);
+                        }
+                    }
+                }
+            }
+        }
+        InclusionTable::new(
+            "test".into(),
+            ToolShape::sphere(0.01).unwrap(),
+            Material::PAPER_SOFT,
+            [0.08, 0.08, 0.04],
+            depths,
+            offsets,
+            centres,
+            radii,
+            ratios,
+            values,
+        )
+        .unwrap()
+    }
+
+    fn excess(k: f64, c: f64, s: f64, d: f64) -> f64 {
+        0.2 * (k as f64).ln() * (d / 0.006) * (0.008 / c) * (-(s / 0.005).powi(2)).exp()
+    }
+
+    fn inclusion(centre: [f64; 3], ratio: f64) -> Inclusion {
+        Inclusion {
+            centre_in_object_m: centre,
+            radius_m: 0.005,
+            stiffness_ratio: ratio,
+            centre_depth_m: -centre[1],
+        }
+    }
+
+    #[test]
+    fn the_table_is_read_back_at_its_nodes_and_between_them() {
+        let field = InclusionField::new(table(), &[inclusion([0.0, -0.008, 0.0], 4.0)]).unwrap();
+        let up = DVec3::Y;
+        // On a node: exact.
+        let l = field.load(DVec3::new(0.005, 0.0, 0.0), up, 0.003);
+        assert!((l.ratio - 1.0 - excess(4.0, 0.008, 0.005, 0.003)).abs() < 1e-12);
+        // The gradient points toward the centre (the ratio grows that way).
+        assert!(l.gradient_1_per_m.x < 0.0 && l.gradient_1_per_m.y.abs() < 1e-12);
+        // Between ratios, in ln: ratio 2√2 is halfway between 2 and 4.
+        let f =
+            InclusionField::new(table(), &[inclusion([0.0, -0.008, 0.0], 8f64.sqrt())]).unwrap();
+        let at = |f: &InclusionField| f.load(DVec3::ZERO, up, 0.003).ratio - 1.0;
+        let want = 0.5 * (excess(2.0, 0.008, 0.0, 0.003) + excess(4.0, 0.008, 0.0, 0.003));
+        assert!((at(&f) - want).abs() < 1e-12);
+        // Off the table's radius: refused, naming the inclusion.
+        let mut bad = inclusion([0.0, -0.008, 0.0], 4.0);
+        bad.radius_m = 0.007;
+        let err = InclusionField::new(table(), &[bad]).unwrap_err();
+        assert!(err.starts_with("inclusion 0: radius 0.007"), "{err}");
+    }
+
+    #[test]
+    fn the_ratio_and_its_slope_are_continuous_across_the_grid_lines() {
+        let field = InclusionField::new(table(), &[inclusion([0.0, -0.01, 0.0], 4.0)]).unwrap();
+        let step = 1e-6;
+        let (mut last, mut last_slope) = field.single(0, 0.004, 0.0, 0.01);
+        let mut s = step;
+        while s < 0.025 {
+            let (v, slope) = field.single(0, 0.004, s, 0.01);
+            // A step of 1 µm changes the value by at most slope × step, and the slope by a
+            // bounded curvature × step: no jump anywhere, grid lines included.
+            assert!((v - last).abs() <= 1.5 * last_slope.abs().max(slope.abs()) * step + 1e-12);
+            assert!((slope - last_slope).abs() < 1.0, "slope jumps at {s}");
+            (last, last_slope) = (v, slope);
+            s += step;
+        }
+        // Beyond the last offset: held, no slope.
+        assert_eq!(field.single(0, 0.004, 0.05, 0.01).1, 0.0);
+    }
+
+    #[test]
+    fn excesses_of_several_inclusions_add() {
+        let a = inclusion([0.0, -0.008, 0.0], 4.0);
+        let b = inclusion([0.006, -0.008, 0.0], 2.0);
+        let both = InclusionField::new(table(), &[a, b]).unwrap();
+        let one = InclusionField::new(table(), &[a]).unwrap();
+        let two = InclusionField::new(table(), &[b]).unwrap();
+        let p = DVec3::new(0.002, 0.0, 0.001);
+        let r = |f: &InclusionField| f.load(p, DVec3::Y, 0.003).ratio;
+        assert!((r(&both) - (r(&one) + r(&two) - 1.0)).abs() < 1e-12);
+    }
+}
