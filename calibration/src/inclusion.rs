@@ -366,6 +366,46 @@ pub fn perceptibility(
     Ok(rows)
 }
 
+/// The study the scenes' table comes from (`softhaptic-calibrate inclusion`): the default
+/// scene's 10 mm sphere on 50 kPa tissue, inclusions of 5 mm radius 8 to 16 mm deep, ratios 2
+/// to 8, in the R_d calibration's block. `quick` is a coarse mesh for checking the command.
+pub fn scene_study(quick: bool) -> InclusionStudy {
+    const MM: f64 = 1e-3;
+    let mm = |v: &[f64]| v.iter().map(|x| x * MM).collect::<Vec<f64>>();
+    InclusionStudy {
+        tool: ToolShape::Sphere { radius_m: 0.01 },
+        material: Material::PAPER_SOFT,
+        block_m: [0.1, 0.1, 0.05],
+        fine_cell_m: if quick { 4.0 * MM } else { 3.0 * MM },
+        coarse_cells: if quick { 2 } else { 4 },
+        depths_m: mm(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
+        offsets_m: mm(&[0.0, 3.0, 6.0, 9.0, 12.0, 16.0, 22.0]),
+        centre_depths_m: mm(&[8.0, 12.0, 16.0]),
+        radii_m: mm(&[5.0]),
+        stiffness_ratios: vec![2.0, 4.0, 8.0],
+    }
+}
+
+/// Cases between the scene study's tabulated values: offsets, centre depths and ratios none of
+/// which is on the grid, and the centre with ratios between the grid's.
+pub fn held_out_cases() -> Vec<Case> {
+    const MM: f64 = 1e-3;
+    let case = |offset: f64, centre: f64, ratio: f64| Case {
+        offset_m: offset * MM,
+        centre_depth_m: centre * MM,
+        radius_m: 5.0 * MM,
+        stiffness_ratio: ratio,
+    };
+    vec![
+        case(0.0, 10.0, 3.0),
+        case(0.0, 14.0, 5.5),
+        case(4.5, 10.0, 3.0),
+        case(4.5, 8.0, 5.5),
+        case(7.5, 12.0, 6.0),
+        case(10.5, 10.0, 2.8),
+    ]
+}
+
 #[cfg(test)]
 #[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
