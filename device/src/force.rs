@@ -190,6 +190,8 @@ pub struct ForceRenderer {
     /// respect to the contact point, world frame, 1/m ([`ForceRenderer::set_inclusion`]).
     inclusion_ratio: f64,
     inclusion_gradient_1_per_m: DVec3,
+    /// The ratio's derivative with respect to the indentation, 1/m.
+    inclusion_ratio_per_depth_1_per_m: f64,
     /// The ratio δ* was found for.
     cap_inclusion_ratio: f64,
 }
@@ -254,6 +256,7 @@ impl ForceRenderer {
             warm_last_ns: None,
             inclusion_ratio: 1.0,
             inclusion_gradient_1_per_m: DVec3::ZERO,
+            inclusion_ratio_per_depth_1_per_m: 0.0,
             cap_inclusion_ratio: 1.0,
         }
     }
@@ -332,15 +335,27 @@ impl ForceRenderer {
         }
     }
 
-    /// Sets the inclusions' force ratio at this tick's contact and its gradient with respect to
-    /// the contact point (world frame, 1/m); call before [`ForceRenderer::render`]. The model's
+    /// Sets the inclusions' force ratio at this tick's contact, its gradient with respect to
+    /// the contact point (world frame, 1/m) and its derivative with respect to the indentation
+    /// (1/m); call before [`ForceRenderer::render`]. The normal force gains U_model ∂ratio/∂δ,
+    /// the potential's own derivative along the normal. The model's
     /// force and its energy are scaled by the ratio, so the elastic potential is
     /// U = ratio(x) · U_model(δ); its sideways part −U_model ∇ratio is added to the force, which
     /// makes the field conservative in position (sliding from soft to stiff tissue at one depth
     /// and back creates no energy), and is what a trainee feels as a lump's edge pushing the
     /// tool off it. δ* is found again for K_max / ratio when the ratio has moved past
     /// [`CAP_INCLUSION_TOLERANCE`]. A non-finite or non-positive ratio counts as 1.
-    pub fn set_inclusion(&mut self, ratio: f64, gradient_1_per_m: DVec3) {
+    pub fn set_inclusion(
+        &mut self,
+        ratio: f64,
+        gradient_1_per_m: DVec3,
+        ratio_per_depth_1_per_m: f64,
+    ) {
+        self.inclusion_ratio_per_depth_1_per_m = if ratio_per_depth_1_per_m.is_finite() {
+            ratio_per_depth_1_per_m
+        } else {
+            0.0
+        };
         let ratio = if ratio.is_finite() && ratio > 0.0 {
             ratio
         } else {
@@ -571,7 +586,11 @@ impl ForceRenderer {
         }
         self.set_geometry(contact.curvature_1_per_m, inclination_rad);
 
-        let (elastic_n, capped) = self.elastic_force_n(depth_m);
+        let (mut elastic_n, capped) = self.elastic_force_n(depth_m);
+        if self.inclusion_ratio_per_depth_1_per_m != 0.0 {
+            elastic_n += self.inclusion_ratio_per_depth_1_per_m * self.elastic_energy_j(depth_m)
+                / self.inclusion_ratio;
+        }
         if capped {
             flags |= ContactFlags::STIFFNESS_CAPPED;
         }

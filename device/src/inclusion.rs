@@ -59,6 +59,8 @@ pub struct InclusionLoad {
     /// Gradient of `ratio` with respect to the contact point, object frame, 1/m (in the
     /// contact's tangent plane).
     pub gradient_1_per_m: DVec3,
+    /// Derivative of `ratio` with respect to the indentation, 1/m.
+    pub ratio_per_depth_1_per_m: f64,
 }
 
 impl InclusionLoad {
@@ -66,6 +68,7 @@ impl InclusionLoad {
     pub const NONE: InclusionLoad = InclusionLoad {
         ratio: 1.0,
         gradient_1_per_m: DVec3::ZERO,
+        ratio_per_depth_1_per_m: 0.0,
     };
 }
 
@@ -168,19 +171,43 @@ impl InclusionField {
         offset_m: f64,
         centre_depth_m: f64,
     ) -> (f64, f64) {
+        let (value, slope, _) =
+            self.single_with_depth_slope(index, depth_m, offset_m, centre_depth_m);
+        (value, slope)
+    }
+
+    /// [`InclusionField::single`] and the ratio's derivative with respect to the indentation,
+    /// 1/m (piecewise constant: the interpolation is linear in the indentation).
+    pub fn single_with_depth_slope(
+        &self,
+        index: usize,
+        depth_m: f64,
+        offset_m: f64,
+        centre_depth_m: f64,
+    ) -> (f64, f64, f64) {
         let Some(p) = self.inclusions.get(index) else {
-            return (1.0, 0.0);
+            return (1.0, 0.0, 0.0);
         };
         let t = &self.table;
         let d = bracket(t.depths_m(), depth_m);
+        let span = if d.1 > d.0 {
+            t.depths_m()[d.1] - t.depths_m()[d.0]
+        } else {
+            0.0
+        };
         let c = bracket(t.centre_depths_m(), centre_depth_m);
-        let (mut value, mut slope) = (0.0, 0.0);
+        let (mut value, mut slope, mut per_depth) = (0.0, 0.0, 0.0);
         for (ratio, w_ratio) in [(p.ratio.0, 1.0 - p.ratio.2), (p.ratio.1, p.ratio.2)] {
             for (radius, w_radius) in [(p.radius.0, 1.0 - p.radius.2), (p.radius.1, p.radius.2)] {
                 for (centre, w_centre) in [(c.0, 1.0 - c.2), (c.1, c.2)] {
-                    for (depth, w_depth) in [(d.0, 1.0 - d.2), (d.1, d.2)] {
+                    for (depth, w_depth, dw) in [(d.0, 1.0 - d.2, -1.0), (d.1, d.2, 1.0)] {
                         let w = w_ratio * w_radius * w_centre * w_depth;
-                        if w == 0.0 {
+                        let w_slope = if span > 0.0 {
+                            w_ratio * w_radius * w_centre * dw / span
+                        } else {
+                            0.0
+                        };
+                        if w == 0.0 && w_slope == 0.0 {
                             continue;
                         }
                         let (v, s) = hermite(
@@ -190,11 +217,12 @@ impl InclusionField {
                         );
                         value += w * v;
                         slope += w * s;
+                        per_depth += w_slope * v;
                     }
                 }
             }
         }
-        (value, slope)
+        (value, slope, per_depth)
     }
 
     /// The field at a contact: `contact_point_m` on the undeformed surface and its outward unit
@@ -206,14 +234,18 @@ impl InclusionField {
             let centre_depth_m = -to_centre.dot(normal);
             let lateral = to_centre + centre_depth_m * normal;
             let offset_m = lateral.length();
+            // Held beyond the table's last offset, where its slope is zero.
+            let (v, slope, per_depth) = self.single_with_depth_slope(
+                index,
+                depth_m,
+                offset_m.min(self.max_offset_m),
+                centre_depth_m,
+            );
+            load.ratio += v - 1.0;
+            load.ratio_per_depth_1_per_m += per_depth;
             if offset_m >= self.max_offset_m {
-                // Held at the table's last offset, whose slope is zero: only its value counts.
-                let (v, _) = self.single(index, depth_m, self.max_offset_m, centre_depth_m);
-                load.ratio += v - 1.0;
                 continue;
             }
-            let (v, slope) = self.single(index, depth_m, offset_m, centre_depth_m);
-            load.ratio += v - 1.0;
             // Moving the contact point toward the centre shrinks the offset.
             if offset_m > 0.0 {
                 load.gradient_1_per_m -= slope * lateral / offset_m;
@@ -265,7 +297,7 @@ mod tests {
     }
 
     fn excess(k: f64, c: f64, s: f64, d: f64) -> f64 {
-        0.2 * (k as f64).ln() * (d / 0.006) * (0.008 / c) * (-(s / 0.005).powi(2)).exp()
+        0.2 * k.ln() * (d / 0.006) * (0.008 / c) * (-(s / 0.005).powi(2)).exp()
     }
 
     fn inclusion(centre: [f64; 3], ratio: f64) -> Inclusion {

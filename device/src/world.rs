@@ -213,8 +213,11 @@ impl HapticWorld {
         });
         if let (Some(field), Some(g)) = (&self.inclusions, geometry) {
             let load = field.load(g.contact_point_m, g.normal, g.depth_m);
-            self.renderer
-                .set_inclusion(load.ratio, o.orientation * load.gradient_1_per_m);
+            self.renderer.set_inclusion(
+                load.ratio,
+                o.orientation * load.gradient_1_per_m,
+                load.ratio_per_depth_1_per_m,
+            );
         }
         let tool_axis = sample.tip_in_world.orientation * DVec3::Y;
         self.renderer.set_motors_warm(

@@ -62,11 +62,20 @@
 //!                                  # with a model thickness, the half-space on that rigid base
 //! limits = "my_limits.json"        # measured limits of the models; when absent, the default
 //!                                  # calibration/model_limits.json, which may be missing
+//! inclusions = "calibration/inclusion_sphere10_50kpa.json" # the inclusions' FEM table
+//!                                  # (needed with [[inclusion]]; `softhaptic-calibrate inclusion`)
 //!
 //! [haptics]
 //! collision = "continuous"         # or "paper_vertices"
 //! damping_n_s_per_m = 1.0
 //! safe_force_n = 2.0               # the trainee's metrics count the time above this force
+//!
+//! [[inclusion]]                    # a stiffer sphere inside the object (palpation); repeat
+//! shape = "sphere"                 # for several, omit for none (nothing computed per tick)
+//! near_m = [0.0, 0.08, 0.0]        # object frame: it lies under the surface point closest to this
+//! centre_depth_m = 0.010           # its centre below that point, along the surface normal
+//! radius_m = 0.005                 # within the table's radii
+//! stiffness_ratio = 4.0            # its modulus over the tissue's, 1.5 to 10, within the table's
 //!
 //! [render]                         # what the viewers draw; never changes the force
 //! profile = "fem"                  # the calibration's FEM surface (needs a table that carries
@@ -116,15 +125,18 @@ use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::DeviceLimits;
 use softhaptic_device::force::ForceConfig;
+use softhaptic_device::inclusion::InclusionField;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::sim::HandScript;
 use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::deformation::RenderProfile;
-use softhaptic_proto::record::{RecordedMeshes, SceneRecord};
+use softhaptic_proto::record::{RecordedInclusions, RecordedMeshes, SceneRecord};
 use softhaptic_proto::wire::{ContactModelInfo, shm1};
-use softhaptic_proto::{CalibrationTable, Material, Pose, ToolShape, ValidityLimits};
+use softhaptic_proto::{
+    CalibrationTable, Inclusion, InclusionTable, Material, Pose, ToolShape, ValidityLimits,
+};
 
 use crate::files::{self, FileKind, ReadError};
 
@@ -137,8 +149,9 @@ mod obj;
 pub use calibration::{DEFAULT_LIMITS_FILE, validate_limits};
 pub use file::{
     Builtin, CalibrationSection, CollisionModeName, DeviceChoice, DeviceKind, DeviceModel,
-    DeviceSection, HapticsSection, MaterialSection, ObjectSection, RateSection, RenderSection,
-    SceneFile, ToolKind, ToolSection, WorldFromDeviceSection,
+    DeviceSection, HapticsSection, InclusionSection, InclusionShape, MaterialSection,
+    ObjectSection, RateSection, RenderSection, SceneFile, ToolKind, ToolSection,
+    WorldFromDeviceSection,
 };
 pub use obj::parse_obj;
 
@@ -296,6 +309,11 @@ pub struct Scene {
     /// The scene text this scene was built from, as read: what a recording keeps, so that a
     /// check rebuilds the scene that ran, not the file as it is later.
     pub source_toml: String,
+    /// The object's inclusions as placed, object frame (empty: none, and the world computes
+    /// nothing for them).
+    pub inclusions: Vec<Inclusion>,
+    /// Their FEM force-ratio table; `Some` exactly when there are inclusions.
+    pub inclusion_table: Option<InclusionTable>,
 }
 
 impl Scene {
@@ -359,6 +377,15 @@ impl Scene {
         })
     }
 
+    /// The inclusions and their table for the recording (`None` without inclusions).
+    pub fn recorded_inclusions(&self) -> Option<RecordedInclusions> {
+        let table = self.inclusion_table.clone()?;
+        Some(RecordedInclusions {
+            placed: self.inclusions.clone(),
+            table,
+        })
+    }
+
     /// Replaces the scene's device with `--device`'s choice.
     pub fn choose_device(&mut self, choice: &DeviceChoice) {
         if choice.kind != self.device_kind || choice.name.is_some() {
@@ -383,6 +410,12 @@ impl Scene {
             self.force,
             self.device_limits,
         );
+        if let Some(table) = &self.inclusion_table {
+            // The loader checked that the table covers every inclusion.
+            if let Ok(field) = InclusionField::new(table.clone(), &self.inclusions) {
+                world = world.with_inclusions(field);
+            }
+        }
         world.set_safe_force(self.safe_force_n);
         world
     }
@@ -519,6 +552,7 @@ mod tests {
             scene_file: None,
             period_ns: 1_000_000,
             meshes: scene.recorded_meshes(),
+            inclusions: scene.recorded_inclusions(),
         }
     }
 }

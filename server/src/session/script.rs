@@ -137,6 +137,7 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
         scene_file: None,
         period_ns: params.period_ns,
         meshes: scene.recorded_meshes(),
+        inclusions: scene.recorded_inclusions(),
     };
     let mut writer = SessionWriter::create(out, &build, &scene_record)?;
 
