@@ -59,7 +59,11 @@ enum Command {
     /// as inclusion_sphere10_50kpa.json), its error on held-out FEM cases and the
     /// perceptibility table, printed beside their goals and written to `<out>/inclusion.md`.
     /// Not part of `all`.
-    Inclusion,
+    Inclusion {
+        /// Validate the table already written (same study) instead of solving it again.
+        #[arg(long)]
+        reuse_table: bool,
+    },
 }
 
 impl Command {
@@ -73,7 +77,7 @@ impl Command {
             Command::Verify => "verify",
             Command::Poisson => "poisson",
             Command::All => "all",
-            Command::Inclusion => "inclusion",
+            Command::Inclusion { .. } => "inclusion",
         }
     }
 }
@@ -154,8 +158,9 @@ fn main() -> Result<()> {
             .map(|n| n.get())
             .unwrap_or(1)
     });
-    if cli.command == Command::Inclusion {
-        let report = inclusion_command(mode == Mode::Quick, &tables_dir, &out, threads)?;
+    if let Command::Inclusion { reuse_table } = cli.command {
+        let report =
+            inclusion_command(mode == Mode::Quick, reuse_table, &tables_dir, &out, threads)?;
         println!("{report}");
         return Ok(());
     }
@@ -297,6 +302,7 @@ fn main() -> Result<()> {
 /// `softhaptic_calibration::inclusion`); returns the markdown it wrote.
 fn inclusion_command(
     quick: bool,
+    reuse_table: bool,
     tables_dir: &std::path::Path,
     out: &std::path::Path,
     threads: usize,
@@ -306,21 +312,43 @@ fn inclusion_command(
     };
     let study = inc::scene_study(quick);
     let started = Instant::now();
-    let table = inc::build_table(&study, threads).context("inclusion table")?;
-    let table_s = started.elapsed().as_secs_f64();
-    std::fs::create_dir_all(tables_dir)?;
     let path = tables_dir.join("inclusion_sphere10_50kpa.json");
-    report::write_json(&path, &table)?;
-    tracing::info!(path = %path.display(), seconds = table_s, "inclusion table written");
+    let table = if reuse_table {
+        let table: softhaptic_proto::InclusionTable = serde_json::from_str(
+            &std::fs::read_to_string(&path).with_context(|| path.display().to_string())?,
+        )
+        .with_context(|| path.display().to_string())?;
+        anyhow::ensure!(
+            table.depths_m() == study.depths_m.as_slice()
+                && table.offsets_m() == study.offsets_m.as_slice()
+                && table.centre_depths_m() == study.centre_depths_m.as_slice()
+                && table.stiffness_ratios() == study.stiffness_ratios.as_slice(),
+            "{} is not this study's table (was it written with or without --quick?)",
+            path.display()
+        );
+        table
+    } else {
+        let table = inc::build_table(&study, threads).context("inclusion table")?;
+        std::fs::create_dir_all(tables_dir)?;
+        report::write_json(&path, &table)?;
+        tracing::info!(path = %path.display(), "inclusion table written");
+        table
+    };
+    let table_s = started.elapsed().as_secs_f64();
     let started = Instant::now();
     let held =
         inc::validate(&study, &table, &inc::held_out_cases(), threads).context("held-out cases")?;
     let held_s = started.elapsed().as_secs_f64();
     let mut md = String::from("# Palpation: inclusion table, validation, perceptibility\n\n");
     md += &format!(
-        "{}{} FEM cases tabulated in {table_s:.0} s; {} held-out cases solved in {held_s:.0} s on {threads} threads.\n\n",
+        "{}{}{} FEM cases tabulated in {table_s:.0} s; {} held-out cases solved in {held_s:.0} s on {threads} threads.\n\n",
         if quick {
             "QUICK MODE (coarse mesh, not to quote). "
+        } else {
+            ""
+        },
+        if reuse_table {
+            "Table reused, not solved again: "
         } else {
             ""
         },
