@@ -18,7 +18,10 @@ use softhaptic_proto::{
 };
 
 use super::calibration;
-use super::file::{Builtin, DeviceKind, SceneFile, WorldFromDeviceSection, identity_quaternion};
+use super::file::{
+    Builtin, DeviceKind, Drawn, InclusionSection, SceneFile, WorldFromDeviceSection,
+    identity_quaternion,
+};
 use super::{FileBase, ModelSource, RenderSurface, Scene, SceneError, obj};
 
 impl Scene {
@@ -538,8 +541,9 @@ fn place_inclusions(
     }
     let mut collider = Collider::new(haptic_mesh.clone(), CollisionMode::Continuous);
     let mut placed = Vec::with_capacity(file.inclusion.len());
-    for (i, inc) in file.inclusion.iter().enumerate() {
+    for (i, section) in file.inclusion.iter().enumerate() {
         let name = |f: &str| format!("inclusion[{i}].{f}");
+        let inc = draw(section).map_err(|(f, reason)| (name(f), reason))?;
         let positive = |f: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
@@ -585,6 +589,70 @@ fn place_inclusions(
         });
     }
     Ok((placed, Some(table)))
+}
+
+/// An inclusion's values as drawn.
+struct DrawnInclusion {
+    near_m: [f64; 3],
+    centre_depth_m: f64,
+    radius_m: f64,
+    stiffness_ratio: f64,
+}
+
+/// Draws an inclusion's ranges from its seed (in the order of the fields, so a seed always
+/// draws the same values), or the field and why it cannot.
+fn draw(section: &InclusionSection) -> Result<DrawnInclusion, (&'static str, String)> {
+    use rand::{Rng, SeedableRng};
+    let any_range = section.near_m.is_range()
+        || section.centre_depth_m.is_range()
+        || section.radius_m.is_range()
+        || section.stiffness_ratio.is_range();
+    let mut rng = match (section.seed, any_range) {
+        (Some(seed), _) => rand_chacha::ChaCha8Rng::seed_from_u64(seed),
+        (None, false) => rand_chacha::ChaCha8Rng::seed_from_u64(0),
+        (None, true) => {
+            return Err((
+                "seed",
+                "a value given as a range is drawn from a seed: add seed = <integer>".into(),
+            ));
+        }
+    };
+    let mut one = |field: &'static str, v: Drawn<f64>| match v {
+        Drawn::Fixed(x) => Ok(x),
+        Drawn::Range { min, max } if min.is_finite() && max.is_finite() && min <= max => {
+            Ok(if min == max {
+                min
+            } else {
+                rng.random_range(min..=max)
+            })
+        }
+        Drawn::Range { min, max } => Err((
+            field,
+            format!("range {{ min = {min}, max = {max} }} needs finite min <= max"),
+        )),
+    };
+    let near_m = match section.near_m {
+        Drawn::Fixed(p) => p,
+        Drawn::Range { min, max } => {
+            let mut p = [0.0; 3];
+            for a in 0..3 {
+                p[a] = one(
+                    "near_m",
+                    Drawn::Range {
+                        min: min[a],
+                        max: max[a],
+                    },
+                )?;
+            }
+            p
+        }
+    };
+    Ok(DrawnInclusion {
+        near_m,
+        centre_depth_m: one("centre_depth_m", section.centre_depth_m)?,
+        radius_m: one("radius_m", section.radius_m)?,
+        stiffness_ratio: one("stiffness_ratio", section.stiffness_ratio)?,
+    })
 }
 
 #[cfg(test)]
