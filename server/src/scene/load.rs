@@ -619,13 +619,12 @@ fn draw(section: &InclusionSection) -> Result<DrawnInclusion, (&'static str, Str
     };
     let mut one = |field: &'static str, v: Drawn<f64>| match v {
         Drawn::Fixed(x) => Ok(x),
-        Drawn::Range { min, max } if min.is_finite() && max.is_finite() && min <= max => {
-            Ok(if min == max {
-                min
-            } else {
-                rng.random_range(min..=max)
-            })
-        }
+        // A finite width too: the sampler refuses (panics on) a range wider than f64 holds.
+        Drawn::Range { min, max } if (max - min).is_finite() && min <= max => Ok(if min == max {
+            min
+        } else {
+            rng.random_range(min..=max)
+        }),
         Drawn::Range { min, max } => Err((
             field,
             format!("range {{ min = {min}, max = {max} }} needs finite min <= max"),
