@@ -209,6 +209,16 @@ fn solve_all<T: Send>(
                         all[i] = Some(r);
                     }
                     bar.inc(1);
+                    if bar.is_hidden() {
+                        // Not a terminal (a log, CI): a line per case instead of the bar.
+                        tracing::info!(
+                            label,
+                            done = bar.position(),
+                            of = jobs,
+                            elapsed_s = start.elapsed().as_secs_f64(),
+                            "FEM case solved"
+                        );
+                    }
                 }
             });
         }
