@@ -57,7 +57,7 @@ enum Command {
     All,
     /// Palpation: the force-ratio table of a stiffer inclusion (written beside the R_d tables
     /// as inclusion_sphere10_50kpa.json), its error on held-out FEM cases and the
-    /// perceptibility table, printed beside their goals and written to `<out>/inclusion.md`.
+    /// perceptibility table, printed beside their goals and written to `<out>` as `<command>.md`, like one study's report.
     /// Not part of `all`.
     Inclusion {
         /// Validate the table already written (same study) instead of solving it again.
@@ -402,6 +402,10 @@ fn inclusion_command(
         md += "\n";
     }
     std::fs::create_dir_all(out)?;
-    std::fs::write(out.join("inclusion.md"), &md)?;
+    // `<command>.md`, as one study of the other commands writes its report.
+    std::fs::write(
+        out.join(format!("{}.md", Command::Inclusion { reuse_table }.name())),
+        &md,
+    )?;
     Ok(md)
 }
