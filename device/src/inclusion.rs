@@ -11,17 +11,18 @@
 //! contact model by the ratio ([`crate::force::ForceRenderer::set_inclusion`]).
 //!
 //! # Interpolation
-//! Linear in the indentation and the radius; in the centre's depth d, linear in 1/d³, the
-//! decay of a small stiff region's effect under a load on the surface (a straight line in d
-//! overestimates between the rows by a quarter, measured on held-out FEM cases); linear in
-//! ln(stiffness ratio),
-//! because the force ratio grows ever more slowly with the inclusion's stiffness (a rigid
-//! inclusion is the limit) and a straight line in the logarithm follows that bend with fewer
-//! table entries. In the lateral offset it is a cubic Hermite spline (Catmull–Rom slopes, zero
-//! slope on the axis, where the ratio is symmetric, and at the table's last offset, beyond which
-//! it is held): the renderer pushes the tool sideways down the ratio's slope
-//! (the potential's gradient, [`crate::force`]), and that push must itself be continuous in
-//! position, which piecewise-linear interpolation would not give at the grid lines.
+//! Linear in the radius; in the centre's depth d, linear in 1/d³, the decay of a small stiff
+//! region's effect under a load on the surface (a straight line in d overestimates between the
+//! rows by a quarter, measured on held-out FEM cases); linear in ln(stiffness ratio), because
+//! the force ratio grows ever more slowly with the inclusion's stiffness (a rigid inclusion is
+//! the limit) and a straight line in the logarithm follows that bend with fewer table entries.
+//! In the lateral offset and the indentation it is a bicubic Hermite patch (Catmull–Rom slopes;
+//! in the offset a zero slope on the axis, where the ratio is symmetric, and at the table's last
+//! offset, and at the first and last indentation, so that the derivative is continuous where
+//! the ratio is held beyond them): the renderer
+//! applies the ratio's derivatives as force (the potential's gradient, [`crate::force`]), and
+//! they must be continuous in position and depth, which piecewise-linear interpolation would
+//! not give at the grid lines.
 //!
 //! # Several inclusions
 //! Their excess ratios add: 1 + Σ (ratio_i − 1). Exact for one; for several it treats them as
@@ -101,39 +102,57 @@ fn bracket(axis: &[f64], x: f64) -> (usize, usize, f64) {
     )
 }
 
-/// Value and slope at `x` of the cubic Hermite spline through (`xs`, `ys`) with Catmull–Rom
-/// slopes inside and zero slopes at both ends (module docs); held beyond the ends.
-fn hermite(xs: &[f64], ys: impl Fn(usize) -> f64, x: f64) -> (f64, f64) {
+/// Weights of the cubic Hermite spline through the values at `xs` (Catmull–Rom slopes inside,
+/// zero slopes at the ends), evaluated at `x`:
+/// four node indices, the weights giving the value and those giving its derivative in `x`.
+/// Held (value of the end node, zero derivative) beyond the ends. The spline is linear in the
+/// node values, which is what lets two of them nest into a bicubic patch.
+fn hermite_weights(xs: &[f64], x: f64) -> ([usize; 4], [f64; 4], [f64; 4]) {
     let n = xs.len();
-    if n == 1 {
-        return (ys(0), 0.0);
+    if n == 1 || x.is_nan() || x <= xs[0] || x >= xs[n - 1] {
+        let end = if n > 1 && x >= xs[n - 1] { n - 1 } else { 0 };
+        return ([end; 4], [1.0, 0.0, 0.0, 0.0], [0.0; 4]);
     }
-    if x <= xs[0] {
-        return (ys(0), 0.0);
-    }
-    if x >= xs[n - 1] {
-        return (ys(n - 1), 0.0);
-    }
-    let slope = |i: usize| {
-        if i == 0 || i == n - 1 {
-            0.0
-        } else {
-            (ys(i + 1) - ys(i - 1)) / (xs[i + 1] - xs[i - 1])
-        }
-    };
     let (i0, i1, t) = bracket(xs, x);
+    let idx = [i0.saturating_sub(1), i0, i1, (i1 + 1).min(n - 1)];
     let h = xs[i1] - xs[i0];
-    let (y0, y1, m0, m1) = (ys(i0), ys(i1), slope(i0) * h, slope(i1) * h);
+    // Slope at i0 and at i1 as weights on the four nodes.
+    let mut a0 = [0.0; 4];
+    if i0 > 0 {
+        let d = xs[i1] - xs[i0 - 1];
+        a0[0] = -1.0 / d;
+        a0[2] = 1.0 / d;
+    }
+    let mut a1 = [0.0; 4];
+    if i1 < n - 1 {
+        let d = xs[i1 + 1] - xs[i0];
+        a1[1] = -1.0 / d;
+        a1[3] = 1.0 / d;
+    }
     let (t2, t3) = (t * t, t * t * t);
-    let value = (2.0 * t3 - 3.0 * t2 + 1.0) * y0
-        + (t3 - 2.0 * t2 + t) * m0
-        + (-2.0 * t3 + 3.0 * t2) * y1
-        + (t3 - t2) * m1;
-    let d_dt = (6.0 * t2 - 6.0 * t) * y0
-        + (3.0 * t2 - 4.0 * t + 1.0) * m0
-        + (-6.0 * t2 + 6.0 * t) * y1
-        + (3.0 * t2 - 2.0 * t) * m1;
-    (value, d_dt / h)
+    let (h00, h10, h01, h11) = (
+        2.0 * t3 - 3.0 * t2 + 1.0,
+        t3 - 2.0 * t2 + t,
+        -2.0 * t3 + 3.0 * t2,
+        t3 - t2,
+    );
+    let (d00, d10, d01, d11) = (
+        6.0 * t2 - 6.0 * t,
+        3.0 * t2 - 4.0 * t + 1.0,
+        -6.0 * t2 + 6.0 * t,
+        3.0 * t2 - 2.0 * t,
+    );
+    let mut w = [0.0; 4];
+    let mut dw = [0.0; 4];
+    for k in 0..4 {
+        w[k] = h * (h10 * a0[k] + h11 * a1[k]);
+        dw[k] = d10 * a0[k] + d11 * a1[k];
+    }
+    w[1] += h00;
+    w[2] += h01;
+    dw[1] += d00 / h;
+    dw[2] += d01 / h;
+    (idx, w, dw)
 }
 
 impl InclusionField {
@@ -194,7 +213,7 @@ impl InclusionField {
     }
 
     /// [`InclusionField::single`] and the ratio's derivative with respect to the indentation,
-    /// 1/m (piecewise constant: the interpolation is linear in the indentation).
+    /// 1/m.
     pub fn single_with_depth_slope(
         &self,
         index: usize,
@@ -206,12 +225,8 @@ impl InclusionField {
             return (1.0, 0.0, 0.0);
         };
         let t = &self.table;
-        let d = bracket(t.depths_m(), depth_m);
-        let span = if d.1 > d.0 {
-            t.depths_m()[d.1] - t.depths_m()[d.0]
-        } else {
-            0.0
-        };
+        let (depth_index, depth_w, depth_dw) = hermite_weights(t.depths_m(), depth_m);
+        let (offset_index, offset_w, offset_dw) = hermite_weights(t.offsets_m(), offset_m);
         // Clamped before the change of coordinate, which is monotonic only for d > 0.
         let axis = t.centre_depths_m();
         let c = bracket(
@@ -222,24 +237,24 @@ impl InclusionField {
         for (ratio, w_ratio) in [(p.ratio.0, 1.0 - p.ratio.2), (p.ratio.1, p.ratio.2)] {
             for (radius, w_radius) in [(p.radius.0, 1.0 - p.radius.2), (p.radius.1, p.radius.2)] {
                 for (centre, w_centre) in [(c.0, 1.0 - c.2), (c.1, c.2)] {
-                    for (depth, w_depth, dw) in [(d.0, 1.0 - d.2, -1.0), (d.1, d.2, 1.0)] {
-                        let w = w_ratio * w_radius * w_centre * w_depth;
-                        let w_slope = if span > 0.0 {
-                            w_ratio * w_radius * w_centre * dw / span
-                        } else {
-                            0.0
-                        };
-                        if w == 0.0 && w_slope == 0.0 {
+                    let w_corner = w_ratio * w_radius * w_centre;
+                    if w_corner == 0.0 {
+                        continue;
+                    }
+                    for a in 0..4 {
+                        if depth_w[a] == 0.0 && depth_dw[a] == 0.0 {
                             continue;
                         }
-                        let (v, s) = hermite(
-                            t.offsets_m(),
-                            |o| t.at(ratio, radius, centre, o, depth),
-                            offset_m,
-                        );
-                        value += w * v;
-                        slope += w * s;
-                        per_depth += w_slope * v;
+                        for b in 0..4 {
+                            if offset_w[b] == 0.0 && offset_dw[b] == 0.0 {
+                                continue;
+                            }
+                            let y = w_corner
+                                * t.at(ratio, radius, centre, offset_index[b], depth_index[a]);
+                            value += depth_w[a] * offset_w[b] * y;
+                            slope += depth_w[a] * offset_dw[b] * y;
+                            per_depth += depth_dw[a] * offset_w[b] * y;
+                        }
                     }
                 }
             }
@@ -374,6 +389,17 @@ mod tests {
         }
         // Beyond the last offset: held, no slope.
         assert_eq!(field.single(0, 0.004, 0.05, 0.01).1, 0.0);
+        // Along the indentation too, between the table's first and last depths.
+        let at = |d: f64| field.single_with_depth_slope(0, d, 0.003, 0.01);
+        let (mut last, mut last_slope) = (at(0.001).0, at(0.001).2);
+        let mut d = 0.001 + step;
+        while d < 0.006 {
+            let (v, _, per_depth) = at(d);
+            assert!((v - last).abs() <= 1.5 * last_slope.abs().max(per_depth.abs()) * step + 1e-12);
+            assert!((per_depth - last_slope).abs() < 1.0, "slope jumps at {d}");
+            (last, last_slope) = (v, per_depth);
+            d += step;
+        }
     }
 
     #[test]
