@@ -21,6 +21,8 @@
 //!   score and time them.
 //! - [`experiments`]: the FEM runs each experiment needs, solved once and in parallel, and the
 //!   experiments' figures (including the hyperelastic fit and the model limits).
+//! - [`inclusion`]: palpation: the FEM with a stiffer sphere inside the block, the force-ratio
+//!   table the runtime interpolates, its held-out validation and the perceptibility table.
 //! - [`report`]: markdown, CSV and SVG output.
 //!
 //! # Frame
@@ -35,6 +37,7 @@
 pub mod analytic;
 pub mod element;
 pub mod experiments;
+pub mod inclusion;
 pub mod indenter;
 pub mod mesh;
 pub mod models;

@@ -55,6 +55,15 @@ enum Command {
     Poisson,
     /// Everything, then the report.
     All,
+    /// Palpation: the force-ratio table of a stiffer inclusion (written beside the R_d tables
+    /// as inclusion_sphere10_50kpa.json), its error on held-out FEM cases and the
+    /// perceptibility table, printed beside their goals and written to `<out>` as `<command>.md`, like one study's report.
+    /// Not part of `all`.
+    Inclusion {
+        /// Validate the table already written (same study) instead of solving it again.
+        #[arg(long)]
+        reuse_table: bool,
+    },
 }
 
 impl Command {
@@ -68,6 +77,7 @@ impl Command {
             Command::Verify => "verify",
             Command::Poisson => "poisson",
             Command::All => "all",
+            Command::Inclusion { .. } => "inclusion",
         }
     }
 }
@@ -148,6 +158,12 @@ fn main() -> Result<()> {
             .map(|n| n.get())
             .unwrap_or(1)
     });
+    if let Command::Inclusion { reuse_table } = cli.command {
+        let report =
+            inclusion_command(mode == Mode::Quick, reuse_table, &tables_dir, &out, threads)?;
+        println!("{report}");
+        return Ok(());
+    }
     let plan = Plan::of(cli.command);
     let mut results = Results {
         command: cli.command.name().to_owned(),
@@ -280,4 +296,116 @@ fn main() -> Result<()> {
     );
     println!("{}", path.display());
     Ok(())
+}
+
+/// `inclusion`: the table, its held-out validation and the perceptibility table (module
+/// `softhaptic_calibration::inclusion`); returns the markdown it wrote.
+fn inclusion_command(
+    quick: bool,
+    reuse_table: bool,
+    tables_dir: &std::path::Path,
+    out: &std::path::Path,
+    threads: usize,
+) -> Result<String> {
+    use softhaptic_calibration::inclusion::{
+        self as inc, CONTRAST_GOAL_PERCENT, DISCRIMINATION_THRESHOLD, FORCE_GOAL_PERCENT,
+    };
+    let study = inc::scene_study(quick);
+    let started = Instant::now();
+    let path = tables_dir.join("inclusion_sphere10_50kpa.json");
+    let table = if reuse_table {
+        let table: softhaptic_proto::InclusionTable = serde_json::from_str(
+            &std::fs::read_to_string(&path).with_context(|| path.display().to_string())?,
+        )
+        .with_context(|| path.display().to_string())?;
+        anyhow::ensure!(
+            table.depths_m() == study.depths_m.as_slice()
+                && table.offsets_m() == study.offsets_m.as_slice()
+                && table.centre_depths_m() == study.centre_depths_m.as_slice()
+                && table.stiffness_ratios() == study.stiffness_ratios.as_slice(),
+            "{} is not this study's table (was it written with or without --quick?)",
+            path.display()
+        );
+        table
+    } else {
+        let table = inc::build_table(&study, threads).context("inclusion table")?;
+        std::fs::create_dir_all(tables_dir)?;
+        report::write_json(&path, &table)?;
+        tracing::info!(path = %path.display(), "inclusion table written");
+        table
+    };
+    let table_s = started.elapsed().as_secs_f64();
+    let started = Instant::now();
+    let held =
+        inc::validate(&study, &table, &inc::held_out_cases(), threads).context("held-out cases")?;
+    let held_s = started.elapsed().as_secs_f64();
+    let mut md = String::from("# Palpation: inclusion table, validation, perceptibility\n\n");
+    md += &format!(
+        "{}{}{} FEM cases tabulated in {table_s:.0} s; {} held-out cases solved in {held_s:.0} s on {threads} threads.\n\n",
+        if quick {
+            "QUICK MODE (coarse mesh, not to quote). "
+        } else {
+            ""
+        },
+        if reuse_table {
+            "Table reused, not solved again: "
+        } else {
+            ""
+        },
+        study.cases().len() + 1,
+        held.len()
+    );
+    md += &format!(
+        "## Held-out cases (goal: force within {FORCE_GOAL_PERCENT} %, contrast within {CONTRAST_GOAL_PERCENT} % where it is at least 0.05)\n\n| offset mm | centre depth mm | ratio | max force error % | max contrast error % | FEM contrast at 1..6 mm |\n|---|---|---|---|---|---|\n"
+    );
+    let (mut worst_force, mut worst_contrast) = (0.0_f64, 0.0_f64);
+    for h in &held {
+        let f = h.max_force_error_percent();
+        let c = h.max_contrast_error_percent(0.05);
+        worst_force = worst_force.max(f);
+        worst_contrast = worst_contrast.max(c);
+        let contrasts: Vec<String> = h.fem_contrast.iter().map(|v| format!("{v:.3}")).collect();
+        md += &format!(
+            "| {:.1} | {:.1} | {:.1} | {f:.2} | {c:.1} | {} |\n",
+            h.case.offset_m * 1e3,
+            h.case.centre_depth_m * 1e3,
+            h.case.stiffness_ratio,
+            contrasts.join(" ")
+        );
+    }
+    md += &format!(
+        "\nWorst force error {worst_force:.2} % (goal {FORCE_GOAL_PERCENT} %), worst contrast error {worst_contrast:.1} % (goal {CONTRAST_GOAL_PERCENT} %).\n\n"
+    );
+    for depth_mm in [2.0, 4.0, 6.0] {
+        let rows = inc::perceptibility(&table, depth_mm * 1e-3).context("perceptibility")?;
+        md += &format!(
+            "## Contrast above the centre at {depth_mm} mm indentation (perceptible at >= {DISCRIMINATION_THRESHOLD}; * marks perceptible)\n\n| centre depth mm |"
+        );
+        for k in table.stiffness_ratios() {
+            md += &format!(" ratio {k} |");
+        }
+        md += "\n|---|";
+        md += &"---|".repeat(table.stiffness_ratios().len());
+        md += "\n";
+        for (row, centre) in rows.iter().zip(table.centre_depths_m()) {
+            md += &format!("| {:.0} |", centre * 1e3);
+            for v in row {
+                let mark = if *v >= DISCRIMINATION_THRESHOLD {
+                    "*"
+                } else {
+                    ""
+                };
+                md += &format!(" {v:.3}{mark} |");
+            }
+            md += "\n";
+        }
+        md += "\n";
+    }
+    std::fs::create_dir_all(out)?;
+    // `<command>.md`, as one study of the other commands writes its report.
+    std::fs::write(
+        out.join(format!("{}.md", Command::Inclusion { reuse_table }.name())),
+        &md,
+    )?;
+    Ok(md)
 }

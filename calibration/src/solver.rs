@@ -205,6 +205,10 @@ pub struct ContactModel {
     /// The linear laws' stiffness without contact, factorised once (built by the first solve).
     constant: Option<ConstantStiffness>,
     steps_done: usize,
+    /// Per element, its modulus over the law's (empty: every element has the law's own). Both
+    /// laws are linear in (μ, λ) at a fixed ν, so scaling the two scales the element's force
+    /// and tangent exactly: how a stiffer inclusion is put inside the block.
+    modulus_ratio: Vec<f64>,
 }
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -239,7 +243,39 @@ impl ContactModel {
             factor: None,
             constant: None,
             steps_done: 0,
+            modulus_ratio: Vec::new(),
         })
+    }
+
+    /// Gives each element `ratio(corners)` times the law's modulus (same ν), from its four
+    /// corners in the FEM frame. Call before the first solve: the linear laws factorise their
+    /// stiffness once.
+    pub fn with_element_moduli(mut self, ratio: impl Fn([[f64; 3]; 4]) -> f64) -> Self {
+        self.modulus_ratio = self
+            .mesh
+            .elements
+            .iter()
+            .map(|e| ratio(std::array::from_fn(|a| self.mesh.nodes_m[e[a] as usize])))
+            .collect();
+        self.constant = None;
+        self
+    }
+
+    /// How many elements have a modulus other than the law's.
+    pub fn stiffened_elements(&self) -> usize {
+        self.modulus_ratio.iter().filter(|&&r| r != 1.0).count()
+    }
+
+    /// The law of element `index`, its modulus ratio applied.
+    fn element_law(&self, index: usize) -> Constitutive {
+        match self.modulus_ratio.get(index) {
+            Some(&r) if r != 1.0 => Constitutive {
+                mu_pa: self.law.mu_pa * r,
+                lambda_pa: self.law.lambda_pa * r,
+                ..self.law
+            },
+            _ => self.law,
+        }
     }
 
     pub fn mesh(&self) -> &TetMesh {
@@ -281,9 +317,9 @@ impl ContactModel {
     fn internal_forces(&self, u: &[[f64; 3]], out: &mut [[f64; 3]]) -> Result<(), Inverted> {
         out.iter_mut().for_each(|v| *v = [0.0; 3]);
         let mut f = [0.0; 30];
-        for (e, geom) in self.mesh.elements.iter().zip(&self.geometry) {
+        for (index, (e, geom)) in self.mesh.elements.iter().zip(&self.geometry).enumerate() {
             let ue: [[f64; 3]; 10] = std::array::from_fn(|a| u[e[a] as usize]);
-            element_response(&self.law, geom, &ue, &mut f, None)?;
+            element_response(&self.element_law(index), geom, &ue, &mut f, None)?;
             for a in 0..10 {
                 let o = &mut out[e[a] as usize];
                 for i in 0..3 {
@@ -916,10 +952,11 @@ impl ContactModel {
         rhs.iter_mut().for_each(|v| *v = 0.0);
         let mut f = [0.0; 30];
         let mut k = [[0.0; 30]; 30];
-        for (e, geom) in self.mesh.elements.iter().zip(&self.geometry) {
+        for (index, (e, geom)) in self.mesh.elements.iter().zip(&self.geometry).enumerate() {
             let ue: [[f64; 3]; 10] = std::array::from_fn(|a| self.u[e[a] as usize]);
+            let law = self.element_law(index);
             // Inversion was ruled out by the force evaluation at this very state.
-            if element_response(&self.law, geom, &ue, &mut f, Some(&mut k)).is_err() {
+            if element_response(&law, geom, &ue, &mut f, Some(&mut k)).is_err() {
                 continue;
             }
             // Rotate rows and columns of rotated nodes: K' = Qᵀ K Q, f' = Qᵀ f.

@@ -4,6 +4,10 @@
 //! 1000² vertices, a 10 mm sphere 5 mm deep, in both collision modes. The tip circles 1 mm
 //! around the grid centre so consecutive steps do not repeat the same pose.
 //!
+//! `palpation_step` is the whole world step (collision, model, safety) on a 100² grid with 0, 1
+//! and 5 stiffer inclusions from the committed FEM table, the tip sliding 1 mm around the first
+//! one's centre, where every inclusion is read.
+//!
 //! `cargo bench -p softhaptic-device --bench haptic_step`; the step report
 //! (`cargo run --release -p softhaptic-device --features tools --bin step-report`) prints the same step side by
 //! side with the paper's figures. Measurement windows are short: CI machines have two cores.
@@ -14,8 +18,12 @@ use std::time::Duration;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode, timing_step_force_n};
+use softhaptic_device::device::{DeviceLimits, DeviceSample};
+use softhaptic_device::force::ForceConfig;
+use softhaptic_device::inclusion::InclusionField;
 use softhaptic_device::mesh::HapticMesh;
-use softhaptic_proto::{Material, Pose, ToolShape};
+use softhaptic_device::world::HapticWorld;
+use softhaptic_proto::{ContactFlags, Inclusion, InclusionTable, Material, Pose, ToolShape};
 
 /// Vertices per side: the paper's Table 1, then ≈ 10⁵ and 10⁶ vertices.
 const SIDES: [usize; 9] = [40, 50, 60, 70, 80, 90, 100, 316, 1000];
@@ -73,5 +81,66 @@ fn haptic_step(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, haptic_step);
+fn palpation_step(c: &mut Criterion) {
+    let table: InclusionTable = serde_json::from_str(include_str!(
+        "../../scenes/calibration/inclusion_sphere10_50kpa.json"
+    ))
+    .expect("the committed inclusion table parses");
+    let tool = ToolShape::sphere(0.01).expect("a 10 mm sphere is a valid tool");
+    let collider = Collider::new(HapticMesh::grid(100, 0.1), CollisionMode::Continuous);
+    // Five inclusions 5 mm apart around the path, so that each is within the table's reach.
+    let inclusions: Vec<Inclusion> = (0..5)
+        .map(|k| Inclusion {
+            centre_in_object_m: [0.005 * k as f64 - 0.01, -0.01, 0.002],
+            radius_m: 0.005,
+            stiffness_ratio: 4.0,
+            centre_depth_m: 0.01,
+        })
+        .collect();
+    let path: Vec<Pose> = (0..64)
+        .map(|k| {
+            let a = k as f64 / 64.0 * std::f64::consts::TAU;
+            Pose::from_position(DVec3::new(0.001 * a.cos(), -0.003, 0.001 * a.sin()))
+        })
+        .collect();
+    let mut group = c.benchmark_group("palpation_step");
+    group
+        .sample_size(20)
+        .warm_up_time(Duration::from_millis(300))
+        .measurement_time(Duration::from_secs(1));
+    for count in [0usize, 1, 5] {
+        let world = HapticWorld::new(
+            collider.clone(),
+            Pose::IDENTITY,
+            tool,
+            Material::PAPER_SOFT,
+            ForceConfig::for_tool(&tool),
+            DeviceLimits::PHANTOM_DESKTOP,
+        );
+        let mut world = if count == 0 {
+            world
+        } else {
+            let field = InclusionField::new(table.clone(), &inclusions[..count])
+                .expect("the table covers the inclusions");
+            world.with_inclusions(field)
+        };
+        let mut k = 0u64;
+        group.bench_function(BenchmarkId::new("inclusions", count), |b| {
+            b.iter(|| {
+                k += 1;
+                let pose = path[(k % 64) as usize];
+                black_box(world.step(Ok(DeviceSample {
+                    time_ns: k * 1_000_000,
+                    tip_in_world: black_box(pose),
+                    tip_velocity_m_s: DVec3::new(0.01, 0.0, 0.0),
+                    buttons: 0,
+                    flags: ContactFlags::empty(),
+                })))
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, haptic_step, palpation_step);
 criterion_main!(benches);

@@ -20,6 +20,10 @@
 //!    when a long hard press would hold more than the device's continuous rating
 //!    (`CONTINUOUS_FORCE_LIMITED`, see [`crate::thermal`]).
 //!
+//! An object with stiffer inclusions scales step 1 by the FEM's force ratio at the contact
+//! ([`crate::inclusion`], [`ForceRenderer::set_inclusion`]) and adds the potential's sideways
+//! part (below); an object without them never calls it, and the ratio stays exactly 1.
+//!
 //! Validity bounds of the model (`BEYOND_VALID_DEPTH`, `BEYOND_VALID_INCLINATION`) are reported,
 //! not enforced: the force stays continuous, and the viewer shows that it is extrapolated. The
 //! scene sets them to the measured limits of its model ([`softhaptic_proto::ValidityLimits`]).
@@ -51,6 +55,11 @@ pub const CAP_CURVATURE_TOLERANCE: f64 = 1e-3;
 
 /// δ* is found again when the cone's inclination has changed by more than this, radians.
 pub const CAP_INCLINATION_TOLERANCE_RAD: f64 = 1e-3;
+
+/// δ* is found again when an inclusion's force ratio has changed by more than this fraction:
+/// the slope at δ* then differs from K_max by at most about as much, far inside the margin of
+/// the passivity bound, and a tool sliding over an inclusion does not search δ* every tick.
+pub const CAP_INCLUSION_TOLERANCE: f64 = 1e-2;
 
 /// How the force is rendered and which safety layers are on.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -180,6 +189,14 @@ pub struct ForceRenderer {
     /// A late tick limited the force, which may still lag the law's: the next ticks settle it
     /// under the same limit at the nominal stiffness.
     late_lag: bool,
+    /// The inclusions' force ratio at the contact (1 without inclusions) and its gradient with
+    /// respect to the contact point, world frame, 1/m ([`ForceRenderer::set_inclusion`]).
+    inclusion_ratio: f64,
+    inclusion_gradient_1_per_m: DVec3,
+    /// The ratio's derivative with respect to the indentation, 1/m.
+    inclusion_ratio_per_depth_1_per_m: f64,
+    /// The ratio δ* was found for.
+    cap_inclusion_ratio: f64,
 }
 
 /// The servo period the devices' stable stiffness K_max is rated at (1 kHz). A tick whose
@@ -254,6 +271,10 @@ impl ForceRenderer {
             thermal_time_ns: None,
             warm_last_ns: None,
             late_lag: false,
+            inclusion_ratio: 1.0,
+            inclusion_gradient_1_per_m: DVec3::ZERO,
+            inclusion_ratio_per_depth_1_per_m: 0.0,
+            cap_inclusion_ratio: 1.0,
         }
     }
 
@@ -318,15 +339,64 @@ impl ForceRenderer {
             > CAP_INCLINATION_TOLERANCE_RAD;
         let cap_moved = curvature_moved || inclination_moved;
         if cap_moved {
-            self.cap_depth_m = self
-                .model
-                .depth_at_stiffness_m(self.limits.max_stiffness_n_per_m, &geometry);
+            self.cap_depth_m = self.model.depth_at_stiffness_m(
+                self.limits.max_stiffness_n_per_m / self.cap_inclusion_ratio,
+                &geometry,
+            );
             self.cap_geometry = geometry;
         }
         if cap_moved || geometry != self.geometry {
             self.geometry = geometry;
-            self.cap_force_n = self.model.force_n(self.cap_depth_m, &geometry);
+            self.cap_force_n =
+                self.inclusion_ratio * self.model.force_n(self.cap_depth_m, &geometry);
         }
+    }
+
+    /// Sets the inclusions' force ratio at this tick's contact, its gradient with respect to
+    /// the contact point (world frame, 1/m) and its derivative with respect to the indentation
+    /// (1/m); call before [`ForceRenderer::render`]. The normal force gains U_model ∂ratio/∂δ,
+    /// the potential's own derivative along the normal. The model's
+    /// force and its energy are scaled by the ratio, so the elastic potential is
+    /// U = ratio(x) · U_model(δ); its sideways part −U_model ∇ratio is added to the force, which
+    /// makes the field conservative in position (sliding from soft to stiff tissue at one depth
+    /// and back creates no energy), and is what a trainee feels as a lump's edge pushing the
+    /// tool off it. δ* is found again for K_max / ratio when the ratio has moved past
+    /// [`CAP_INCLUSION_TOLERANCE`]. A non-finite or non-positive ratio counts as 1.
+    pub fn set_inclusion(
+        &mut self,
+        ratio: f64,
+        gradient_1_per_m: DVec3,
+        ratio_per_depth_1_per_m: f64,
+    ) {
+        self.inclusion_ratio_per_depth_1_per_m = if ratio_per_depth_1_per_m.is_finite() {
+            ratio_per_depth_1_per_m
+        } else {
+            0.0
+        };
+        let ratio = if ratio.is_finite() && ratio > 0.0 {
+            ratio
+        } else {
+            1.0
+        };
+        self.inclusion_gradient_1_per_m = if gradient_1_per_m.is_finite() {
+            gradient_1_per_m
+        } else {
+            DVec3::ZERO
+        };
+        if ratio == self.inclusion_ratio {
+            return;
+        }
+        self.inclusion_ratio = ratio;
+        if (ratio - self.cap_inclusion_ratio).abs()
+            > CAP_INCLUSION_TOLERANCE * self.cap_inclusion_ratio
+        {
+            self.cap_inclusion_ratio = ratio;
+            self.cap_depth_m = self
+                .model
+                .depth_at_stiffness_m(self.limits.max_stiffness_n_per_m / ratio, &self.geometry);
+            self.cap_geometry = self.geometry;
+        }
+        self.cap_force_n = ratio * self.model.force_n(self.cap_depth_m, &self.geometry);
     }
 
     /// Energy the environment has absorbed in the current contact (passivity observer).
@@ -364,7 +434,10 @@ impl ForceRenderer {
             let extension = (depth_m - self.cap_depth_m) * self.limits.max_stiffness_n_per_m;
             (self.cap_force_n + extension, true)
         } else {
-            (self.model.force_n(depth_m, &self.geometry), false)
+            (
+                self.inclusion_ratio * self.model.force_n(depth_m, &self.geometry),
+                false,
+            )
         }
     }
 
@@ -385,11 +458,11 @@ impl ForceRenderer {
     fn law_energy_j(&self, depth_m: f64) -> f64 {
         if self.config.stiffness_cap && depth_m > self.cap_depth_m {
             let extra = depth_m - self.cap_depth_m;
-            self.model.energy_j(self.cap_depth_m, &self.geometry)
+            self.inclusion_ratio * self.model.energy_j(self.cap_depth_m, &self.geometry)
                 + self.cap_force_n * extra
                 + 0.5 * self.limits.max_stiffness_n_per_m * extra * extra
         } else {
-            self.model.energy_j(depth_m, &self.geometry)
+            self.inclusion_ratio * self.model.energy_j(depth_m, &self.geometry)
         }
     }
 
@@ -577,7 +650,11 @@ impl ForceRenderer {
         }
         self.set_geometry(contact.curvature_1_per_m, inclination_rad);
 
-        let (elastic_n, capped) = self.elastic_force_n(depth_m);
+        let (mut elastic_n, capped) = self.elastic_force_n(depth_m);
+        if self.inclusion_ratio_per_depth_1_per_m != 0.0 {
+            elastic_n += self.inclusion_ratio_per_depth_1_per_m * self.elastic_energy_j(depth_m)
+                / self.inclusion_ratio;
+        }
         if capped {
             flags |= ContactFlags::STIFFNESS_CAPPED;
         }
@@ -614,6 +691,12 @@ impl ForceRenderer {
         }
         self.previous_ramp_scale = ramp_scale;
         let mut force_n = normal * magnitude_n;
+        if self.inclusion_gradient_1_per_m != DVec3::ZERO {
+            // The potential's sideways part (ForceRenderer::set_inclusion), ramped with the rest.
+            let model_energy_j = self.elastic_energy_j(depth_m) / self.inclusion_ratio;
+            let sideways = -model_energy_j * ramp_scale * self.inclusion_gradient_1_per_m;
+            force_n += sideways - sideways.dot(normal) * normal;
+        }
 
         if self.config.passivity {
             let c = self.observer.correct(

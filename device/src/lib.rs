@@ -30,6 +30,9 @@
 //!   inclination) + damping, then the safety layer (stiffness cap at the model's δ*, ramp,
 //!   passivity, saturation, fault guard) with a flag for every limit that acts, and the validity
 //!   flags at the active model's limits.
+//! - [`inclusion`]: stiffer inclusions inside the object (palpation): the FEM's force ratio at
+//!   the contact, interpolated from the calibration's table; built only for a scene that has
+//!   inclusions.
 //! - [`metrics`]: the trainee's metrics (peak force, time above the safe force, time in
 //!   contact, path, smoothness, pushes, faults, flags) from every tick, in constant time.
 //! - [`exercise`]: [`Scorer`](exercise::Scorer), an exercise's score (press, trace) from the
@@ -55,6 +58,7 @@ pub mod device;
 pub mod exercise;
 pub mod force;
 pub mod haptic_loop;
+pub mod inclusion;
 pub mod law;
 pub mod liver;
 pub mod mesh;

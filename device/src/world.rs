@@ -17,6 +17,7 @@ use crate::metrics::{MetricsAccumulator, TickInput, TraineeMetrics};
 /// The safe force of a world whose scene sets none, N.
 pub const DEFAULT_SAFE_FORCE_N: f64 = 2.0;
 use crate::force::{ForceConfig, ForceRenderer, RenderedForce, WorldContact};
+use crate::inclusion::InclusionField;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::tracking::ContactTracker;
 
@@ -46,6 +47,8 @@ pub struct HapticWorld {
     last_good: Option<DeviceSample>,
     /// The trainee's metrics, updated by every [`HapticWorld::tick`].
     metrics: MetricsAccumulator,
+    /// The object's stiffer inclusions; `None` (nothing computed per tick) without any.
+    inclusions: Option<InclusionField>,
 }
 
 impl HapticWorld {
@@ -92,7 +95,20 @@ impl HapticWorld {
             tick: 0,
             last_good: None,
             metrics: MetricsAccumulator::new(DEFAULT_SAFE_FORCE_N),
+            inclusions: None,
         }
+    }
+
+    /// Puts the object's stiffer inclusions into the world ([`crate::inclusion`]); an empty
+    /// field is dropped, so a world without inclusions does no work for them.
+    pub fn with_inclusions(mut self, field: InclusionField) -> Self {
+        self.inclusions = (!field.is_empty()).then_some(field);
+        self
+    }
+
+    /// The object's inclusions, if it has any.
+    pub fn inclusions(&self) -> Option<&InclusionField> {
+        self.inclusions.as_ref()
     }
 
     pub fn tool(&self) -> &ToolShape {
@@ -195,6 +211,14 @@ impl HapticWorld {
             degenerate_normal: g.degenerate_normal,
             curvature_1_per_m: g.curvature_1_per_m,
         });
+        if let (Some(field), Some(g)) = (&self.inclusions, geometry) {
+            let load = field.load(g.contact_point_m, g.normal, g.depth_m);
+            self.renderer.set_inclusion(
+                load.ratio,
+                o.orientation * load.gradient_1_per_m,
+                load.ratio_per_depth_1_per_m,
+            );
+        }
         let tool_axis = sample.tip_in_world.orientation * DVec3::Y;
         self.renderer.set_motors_warm(
             sample.flags.contains(ContactFlags::MOTORS_WARM),

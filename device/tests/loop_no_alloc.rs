@@ -8,15 +8,19 @@
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
+use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::{DeviceLimits, HapticDevice};
 use softhaptic_device::force::ForceConfig;
 use softhaptic_device::haptic_loop::{HapticLoop, TickRecord};
+use softhaptic_device::inclusion::InclusionField;
 use softhaptic_device::liver;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_device::world::HapticWorld;
-use softhaptic_proto::{ContactFlags, Material, ModelSpec, Pose, ToolShape};
+use softhaptic_proto::{
+    ContactFlags, Inclusion, InclusionTable, Material, ModelSpec, Pose, ToolShape,
+};
 
 #[path = "common/counting_allocator.rs"]
 mod counting_allocator;
@@ -109,6 +113,39 @@ fn ticks_do_not_allocate() {
         assert_eq!(ALLOCATIONS.load(Ordering::Relaxed), before, "{mode:?}");
         assert!(held > 1000, "{mode:?}: held {held} ticks");
     }
+
+    // Palpation: the combined model with five stiffer inclusions under the press and slide,
+    // read from the committed FEM table; the field is built before the ticks and read on them.
+    let table: InclusionTable = serde_json::from_str(include_str!(
+        "../../scenes/calibration/inclusion_sphere10_50kpa.json"
+    ))
+    .unwrap();
+    let top = liver::top_contact();
+    let inclusions: Vec<Inclusion> = (0..5)
+        .map(|k| Inclusion {
+            centre_in_object_m: (top.point_m - 0.01 * top.normal
+                + DVec3::new(0.004 * k as f64, 0.0, 0.0))
+            .to_array(),
+            radius_m: 0.005,
+            stiffness_ratio: 4.0,
+            centre_depth_m: 0.01,
+        })
+        .collect();
+    let (mut device, world) = setup(Material::PAPER_SOFT, combined);
+    let mut world = world.with_inclusions(InclusionField::new(table, &inclusions).unwrap());
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let mut touched = 0;
+    for _ in 0..3000 {
+        let state = world.step(device.read());
+        touched += state.in_contact as u32;
+        device.command_force(state.force_n).unwrap();
+    }
+    assert_eq!(
+        ALLOCATIONS.load(Ordering::Relaxed),
+        before,
+        "with inclusions"
+    );
+    assert!(touched > 500);
 
     // The loop thread, with a tick ring: count only between two points of its steady state.
     let (device, world) = setup(Material::PAPER_SOFT, combined);

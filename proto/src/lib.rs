@@ -15,6 +15,8 @@
 //! - [`contact`]: poses, the per-tick [`ContactState`] and its [`ContactFlags`].
 //! - [`calibration`]: the δ → R_d calibration table (JSON file format), its piecewise fit and
 //!   the analytical half-space table used when no FEM table exists.
+//! - [`inclusion`]: stiffer inclusions inside an object (palpation) and the FEM table of the
+//!   force ratio they cause (never sent to the viewers).
 //! - [`deformation`]: the reference Bézier deformation profile the viewer mirrors (proto/WIRE.md).
 //! - [`exercise`]: exercises (press, trace), the metrics each kind scores with the direction
 //!   that is better, pass marks, and an attempt's result.
@@ -31,6 +33,7 @@ pub mod calibration;
 pub mod contact;
 pub mod deformation;
 pub mod exercise;
+pub mod inclusion;
 pub mod material;
 pub mod model;
 pub mod record;
@@ -40,6 +43,7 @@ pub mod wire;
 pub use calibration::{CalibrationError, CalibrationSource, CalibrationTable};
 pub use contact::{ContactFlags, ContactState, Pose};
 pub use deformation::DeformationProfile;
+pub use inclusion::{Inclusion, InclusionTable, InclusionTableError};
 pub use material::{Material, MaterialError};
 pub use model::{LayerSpec, ModelError, ModelLimitsFile, ModelSpec, ValidityLimits};
 pub use tool::{ToolError, ToolShape};

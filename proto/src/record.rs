@@ -192,6 +192,19 @@ pub struct SceneRecord {
     /// kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meshes: Option<RecordedMeshes>,
+    /// The scene's inclusions as placed (values drawn from a seed included) and the FEM table
+    /// the force used, so a check rebuilds the same force without reading a file. Absent for a
+    /// scene without inclusions. Kept out of `message`: viewers never see where they are.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inclusions: Option<RecordedInclusions>,
+}
+
+/// A session's inclusions and their table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordedInclusions {
+    pub placed: Vec<crate::Inclusion>,
+    pub table: crate::InclusionTable,
 }
 
 /// The meshes of a session's object.
@@ -450,7 +463,9 @@ pub mod schema {
     "period_ns": {"type": "integer", "minimum": 1, "description": "haptic loop period"},
     "meshes": {"type": "object", "description": "the object's meshes as the session loaded them from files (absent for a built-in object)", "properties": {
       "haptic": {"type": "object", "properties": {"positions_m": {"type": "array"}, "triangles": {"type": "array"}, "sha256": {"type": "string"}}, "required": ["positions_m", "triangles", "sha256"]},
-      "render": {"type": ["object", "null"]}}, "required": ["haptic", "render"]}
+      "render": {"type": ["object", "null"]}}, "required": ["haptic", "render"]},
+    "inclusions": {"type": "object", "description": "the inclusions as placed and their FEM force-ratio table (absent without inclusions)", "properties": {
+      "placed": {"type": "array"}, "table": {"type": "object"}}, "required": ["placed", "table"]}
   },
   "required": ["message", "scene_toml", "scene_file", "period_ns"]
 }"##;
@@ -780,6 +795,7 @@ mod tests {
                 scene_file: Some("/lab/scenes/liver.toml".into()),
                 period_ns: 1_000_000,
                 meshes,
+                inclusions: None,
             })
             .unwrap()
         })

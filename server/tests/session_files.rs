@@ -78,6 +78,7 @@ fn scene_record() -> SceneRecord {
         scene_file: None,
         period_ns: 1_000_000,
         meshes: None,
+        inclusions: None,
     }
 }
 
@@ -655,6 +656,7 @@ fn a_recording_keeps_its_meshes_and_checks_without_reading_the_files_its_scene_n
         scene_file: Some(scene_path.display().to_string()),
         period_ns: 1_000_000,
         meshes: Some(meshes),
+        inclusions: None,
     };
     let recording_path = dir.join("press.mcap");
     record_press(&scene, &record, &recording_path);
@@ -682,6 +684,7 @@ fn a_recording_keeps_its_meshes_and_checks_without_reading_the_files_its_scene_n
         &scene,
         &SceneRecord {
             meshes: None,
+            inclusions: None,
             ..record.clone()
         },
         &older_path,

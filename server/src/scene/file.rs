@@ -130,6 +130,48 @@ pub struct SceneFile {
     pub haptics: HapticsSection,
     #[serde(default)]
     pub render: RenderSection,
+    /// `[[inclusion]]`: stiffer spheres inside the object (palpation); none when absent.
+    #[serde(default)]
+    pub inclusion: Vec<InclusionSection>,
+}
+
+/// One `[[inclusion]]`: a sphere under the surface point closest to `near_m`. Each value is a
+/// number, or a range `{ min = .., max = .. }` drawn from `seed` (so a class gets different
+/// cases, and the recording keeps the values drawn).
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InclusionSection {
+    pub shape: InclusionShape,
+    /// Object frame: the inclusion lies under the surface point closest to this point.
+    pub near_m: Drawn<[f64; 3]>,
+    /// Depth of the centre below that surface point, along its normal.
+    pub centre_depth_m: Drawn<f64>,
+    pub radius_m: Drawn<f64>,
+    /// The inclusion's Young's modulus over the tissue's, 1.5 to 10.
+    pub stiffness_ratio: Drawn<f64>,
+    /// Seeds the draw of the values given as ranges; required when one is.
+    pub seed: Option<u64>,
+}
+
+/// A value as written: fixed, or a range to draw it from.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum Drawn<T> {
+    Fixed(T),
+    Range { min: T, max: T },
+}
+
+impl<T> Drawn<T> {
+    pub fn is_range(&self) -> bool {
+        matches!(self, Drawn::Range { .. })
+    }
+}
+
+/// The shape of an inclusion (a sphere; the FEM table is measured for spheres).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InclusionShape {
+    Sphere,
 }
 
 /// `[render]`: what the viewers draw. Nothing here reaches the haptic loop, so a recording
@@ -384,6 +426,9 @@ pub struct CalibrationSection {
     /// The measured limits of the contact models (a `ModelLimitsFile`), relative to the scene;
     /// [`DEFAULT_LIMITS_FILE`](super::DEFAULT_LIMITS_FILE) when absent.
     pub limits: Option<PathBuf>,
+    /// The inclusions' FEM force-ratio table (written by `softhaptic-calibrate inclusion`),
+    /// relative to the scene; required when the scene has an `[[inclusion]]`.
+    pub inclusions: Option<PathBuf>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]

@@ -7,15 +7,21 @@ use std::path::Path;
 use std::sync::{Arc, OnceLock};
 
 use glam::{DQuat, DVec3};
+use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::force::ForceConfig;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_proto::record::MeshRecord;
-use softhaptic_proto::{ModelError, Pose, ToolShape, ValidityLimits};
+use softhaptic_proto::{
+    Inclusion, InclusionTable, Material, ModelError, Pose, ToolShape, ValidityLimits,
+};
 
 use super::calibration;
-use super::file::{Builtin, DeviceKind, SceneFile, WorldFromDeviceSection, identity_quaternion};
+use super::file::{
+    Builtin, DeviceKind, Drawn, InclusionSection, SceneFile, WorldFromDeviceSection,
+    identity_quaternion,
+};
 use super::{FileBase, ModelSource, RenderSurface, Scene, SceneError, obj};
 
 impl Scene {
@@ -359,7 +365,20 @@ impl Scene {
             .profile(&calibration)
             .map_err(|reason| field("render.profile", reason))?;
 
+        let (inclusions, inclusion_table) = place_inclusions(
+            &file,
+            &haptic_mesh,
+            &tool,
+            &material,
+            model_source,
+            &resolve,
+            base.is_some(),
+        )
+        .map_err(|(name, reason)| field(&name, reason))?;
+
         Ok(Scene {
+            inclusions,
+            inclusion_table,
             source: base.map(|_| path.to_owned()),
             object_name: object.name.clone(),
             object_in_world,
@@ -459,6 +478,180 @@ fn liver_render_surface() -> Arc<RenderSurface> {
             ))
         })
         .clone()
+}
+
+/// The scene's inclusions placed in the object and their table, or the field and the reason a
+/// value is refused. From a recording, the placed inclusions and the table it kept (no file is
+/// read); from files, each under the surface point closest to its `near_m`.
+fn place_inclusions(
+    file: &SceneFile,
+    haptic_mesh: &HapticMesh,
+    tool: &ToolShape,
+    material: &Material,
+    model_source: ModelSource<'_>,
+    resolve: &dyn Fn(&Path) -> std::path::PathBuf,
+    has_files: bool,
+) -> Result<(Vec<Inclusion>, Option<InclusionTable>), (String, String)> {
+    if file.inclusion.is_empty() {
+        return Ok((Vec::new(), None));
+    }
+    if let ModelSource::Recorded(record) = model_source {
+        let Some(kept) = &record.inclusions else {
+            return Err((
+                "inclusion".into(),
+                "the recording keeps no inclusions, and a check never reads a file a recording names".into(),
+            ));
+        };
+        return Ok((kept.placed.clone(), Some(kept.table.clone())));
+    }
+    let Some(table_path) = &file.calibration.inclusions else {
+        return Err((
+            "calibration.inclusions".into(),
+            "a scene with [[inclusion]] names the inclusions' FEM table (`softhaptic-calibrate inclusion` writes it)".into(),
+        ));
+    };
+    if !has_files {
+        return Err((
+            "calibration.inclusions".into(),
+            "the built-in scene cannot name files".into(),
+        ));
+    }
+    let full = resolve(table_path);
+    let table: InclusionTable = crate::files::read_text(&full, crate::files::FileKind::Table)
+        .map_err(|e| e.to_string())
+        .and_then(|text| serde_json::from_str(&text).map_err(|e| e.to_string()))
+        .map_err(|e| {
+            (
+                "calibration.inclusions".to_owned(),
+                format!("{}: {e}", table_path.display()),
+            )
+        })?;
+    if table.tool() != tool || table.material() != material {
+        return Err((
+            "calibration.inclusions".into(),
+            format!(
+                "{} was measured for {:?} on {:?}, not the scene's {:?} on {:?}",
+                table_path.display(),
+                table.tool(),
+                table.material(),
+                tool,
+                material
+            ),
+        ));
+    }
+    let mut collider = Collider::new(haptic_mesh.clone(), CollisionMode::Continuous);
+    let mut placed = Vec::with_capacity(file.inclusion.len());
+    for (i, section) in file.inclusion.iter().enumerate() {
+        let name = |f: &str| format!("inclusion[{i}].{f}");
+        let inc = draw(section).map_err(|(f, reason)| (name(f), reason))?;
+        let positive = |f: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err((name(f), format!("must be finite and > 0, got {v}")))
+            }
+        };
+        positive("radius_m", inc.radius_m)?;
+        positive("centre_depth_m", inc.centre_depth_m)?;
+        if !softhaptic_proto::inclusion::STIFFNESS_RATIO_RANGE.contains(&inc.stiffness_ratio) {
+            return Err((
+                name("stiffness_ratio"),
+                format!("must be 1.5 to 10, got {}", inc.stiffness_ratio),
+            ));
+        }
+        if let Some(reason) = table.refuses(inc.radius_m, inc.stiffness_ratio) {
+            let f = if reason.starts_with("radius") {
+                "radius_m"
+            } else {
+                "stiffness_ratio"
+            };
+            return Err((
+                name(f),
+                format!("{reason}: run `softhaptic-calibrate inclusion` for it"),
+            ));
+        }
+        let near = DVec3::from_array(inc.near_m);
+        let Some(surface) = collider
+            .closest_surface_point(near, 1.0)
+            .filter(|s| s.normal != DVec3::ZERO)
+        else {
+            return Err((
+                name("near_m"),
+                format!("{:?}: no surface point near it", inc.near_m),
+            ));
+        };
+        let centre = surface.point_m - inc.centre_depth_m * surface.normal;
+        placed.push(Inclusion {
+            centre_in_object_m: centre.to_array(),
+            radius_m: inc.radius_m,
+            stiffness_ratio: inc.stiffness_ratio,
+            centre_depth_m: inc.centre_depth_m,
+        });
+    }
+    Ok((placed, Some(table)))
+}
+
+/// An inclusion's values as drawn.
+struct DrawnInclusion {
+    near_m: [f64; 3],
+    centre_depth_m: f64,
+    radius_m: f64,
+    stiffness_ratio: f64,
+}
+
+/// Draws an inclusion's ranges from its seed (in the order of the fields, so a seed always
+/// draws the same values), or the field and why it cannot.
+fn draw(section: &InclusionSection) -> Result<DrawnInclusion, (&'static str, String)> {
+    use rand::{Rng, SeedableRng};
+    let any_range = section.near_m.is_range()
+        || section.centre_depth_m.is_range()
+        || section.radius_m.is_range()
+        || section.stiffness_ratio.is_range();
+    let mut rng = match (section.seed, any_range) {
+        (Some(seed), _) => rand_chacha::ChaCha8Rng::seed_from_u64(seed),
+        (None, false) => rand_chacha::ChaCha8Rng::seed_from_u64(0),
+        (None, true) => {
+            return Err((
+                "seed",
+                "a value given as a range is drawn from a seed: add seed = <integer>".into(),
+            ));
+        }
+    };
+    let mut one = |field: &'static str, v: Drawn<f64>| match v {
+        Drawn::Fixed(x) => Ok(x),
+        // A finite width too: the sampler refuses (panics on) a range wider than f64 holds.
+        Drawn::Range { min, max } if (max - min).is_finite() && min <= max => Ok(if min == max {
+            min
+        } else {
+            rng.random_range(min..=max)
+        }),
+        Drawn::Range { min, max } => Err((
+            field,
+            format!("range {{ min = {min}, max = {max} }} needs finite min <= max"),
+        )),
+    };
+    let near_m = match section.near_m {
+        Drawn::Fixed(p) => p,
+        Drawn::Range { min, max } => {
+            let mut p = [0.0; 3];
+            for a in 0..3 {
+                p[a] = one(
+                    "near_m",
+                    Drawn::Range {
+                        min: min[a],
+                        max: max[a],
+                    },
+                )?;
+            }
+            p
+        }
+    };
+    Ok(DrawnInclusion {
+        near_m,
+        centre_depth_m: one("centre_depth_m", section.centre_depth_m)?,
+        radius_m: one("radius_m", section.radius_m)?,
+        stiffness_ratio: one("stiffness_ratio", section.stiffness_ratio)?,
+    })
 }
 
 #[cfg(test)]

@@ -62,11 +62,24 @@
 //!                                  # with a model thickness, the half-space on that rigid base
 //! limits = "my_limits.json"        # measured limits of the models; when absent, the default
 //!                                  # calibration/model_limits.json, which may be missing
+//! inclusions = "calibration/inclusion_sphere10_50kpa.json" # the inclusions' FEM table
+//!                                  # (needed with [[inclusion]]; `softhaptic-calibrate inclusion`)
 //!
 //! [haptics]
 //! collision = "continuous"         # or "paper_vertices"
 //! damping_n_s_per_m = 1.0
 //! safe_force_n = 2.0               # the trainee's metrics count the time above this force
+//!
+//! [[inclusion]]                    # a stiffer sphere inside the object (palpation); repeat
+//! shape = "sphere"                 # for several, omit for none (nothing computed per tick)
+//! near_m = [0.0, 0.08, 0.0]        # object frame: it lies under the surface point closest to this
+//! centre_depth_m = 0.010           # its centre below that point, along the surface normal
+//! radius_m = 0.005                 # within the table's radii
+//! stiffness_ratio = 4.0            # its modulus over the tissue's, 1.5 to 10, within the table's
+//! # Any value may be a range drawn from a seed instead (the recording keeps what was drawn):
+//! # near_m = { min = [-0.02, 0.08, -0.02], max = [0.02, 0.08, 0.02] }
+//! # stiffness_ratio = { min = 2.0, max = 8.0 }
+//! # seed = 7
 //!
 //! [render]                         # what the viewers draw; never changes the force
 //! profile = "fem"                  # the calibration's FEM surface (needs a table that carries
@@ -116,15 +129,18 @@ use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::DeviceLimits;
 use softhaptic_device::force::ForceConfig;
+use softhaptic_device::inclusion::InclusionField;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
 use softhaptic_device::sim::HandScript;
 use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::deformation::RenderProfile;
-use softhaptic_proto::record::{RecordedMeshes, SceneRecord};
+use softhaptic_proto::record::{RecordedInclusions, RecordedMeshes, SceneRecord};
 use softhaptic_proto::wire::{ContactModelInfo, shm1};
-use softhaptic_proto::{CalibrationTable, Material, Pose, ToolShape, ValidityLimits};
+use softhaptic_proto::{
+    CalibrationTable, Inclusion, InclusionTable, Material, Pose, ToolShape, ValidityLimits,
+};
 
 use crate::files::{self, FileKind, ReadError};
 
@@ -137,8 +153,9 @@ mod obj;
 pub use calibration::{DEFAULT_LIMITS_FILE, validate_limits};
 pub use file::{
     Builtin, CalibrationSection, CollisionModeName, DeviceChoice, DeviceKind, DeviceModel,
-    DeviceSection, HapticsSection, MaterialSection, ObjectSection, RateSection, RenderSection,
-    SceneFile, ToolKind, ToolSection, WorldFromDeviceSection,
+    DeviceSection, Drawn, HapticsSection, InclusionSection, InclusionShape, MaterialSection,
+    ObjectSection, RateSection, RenderSection, SceneFile, ToolKind, ToolSection,
+    WorldFromDeviceSection,
 };
 pub use obj::parse_obj;
 
@@ -296,6 +313,11 @@ pub struct Scene {
     /// The scene text this scene was built from, as read: what a recording keeps, so that a
     /// check rebuilds the scene that ran, not the file as it is later.
     pub source_toml: String,
+    /// The object's inclusions as placed, object frame (empty: none, and the world computes
+    /// nothing for them).
+    pub inclusions: Vec<Inclusion>,
+    /// Their FEM force-ratio table; `Some` exactly when there are inclusions.
+    pub inclusion_table: Option<InclusionTable>,
 }
 
 impl Scene {
@@ -359,6 +381,15 @@ impl Scene {
         })
     }
 
+    /// The inclusions and their table for the recording (`None` without inclusions).
+    pub fn recorded_inclusions(&self) -> Option<RecordedInclusions> {
+        let table = self.inclusion_table.clone()?;
+        Some(RecordedInclusions {
+            placed: self.inclusions.clone(),
+            table,
+        })
+    }
+
     /// Replaces the scene's device with `--device`'s choice.
     pub fn choose_device(&mut self, choice: &DeviceChoice) {
         if choice.kind != self.device_kind || choice.name.is_some() {
@@ -383,6 +414,12 @@ impl Scene {
             self.force,
             self.device_limits,
         );
+        if let Some(table) = &self.inclusion_table {
+            // The loader checked that the table covers every inclusion.
+            if let Ok(field) = InclusionField::new(table.clone(), &self.inclusions) {
+                world = world.with_inclusions(field);
+            }
+        }
         world.set_safe_force(self.safe_force_n);
         world
     }
@@ -507,6 +544,96 @@ mod tests {
         );
     }
 
+    /// The palpation scene's text and the directory its files resolve in.
+    fn palpation() -> (String, PathBuf) {
+        let dir = source_tree_scenes_dir();
+        let text = files::read_text(&dir.join("palpation.toml"), FileKind::Scene).unwrap();
+        (text, dir)
+    }
+
+    #[test]
+    fn the_palpation_scene_places_its_inclusions_and_keeps_them_from_the_viewers() {
+        let (text, dir) = palpation();
+        let load = |t: &str| Scene::from_toml(t, Path::new("palpation.toml"), Some(&dir));
+        let s = load(&text).unwrap();
+        assert_eq!(s.inclusions.len(), 2);
+        let fixed = s.inclusions[0];
+        assert_eq!((fixed.radius_m, fixed.stiffness_ratio), (0.005, 4.0));
+        // 10 mm under the liver's top: below the point asked for.
+        assert!(fixed.centre_in_object_m[1] < 0.09 - 0.01);
+        let drawn = s.inclusions[1];
+        assert!((2.0..=6.0).contains(&drawn.stiffness_ratio));
+        assert!((0.008..=0.014).contains(&drawn.centre_depth_m));
+        assert_eq!(s.haptic_world().inclusions().map(|f| f.len()), Some(2));
+        // The same seed draws the same lump; another seed another one.
+        assert_eq!(load(&text).unwrap().inclusions[1], drawn);
+        let other = load(&text.replace("seed = 7", "seed = 8")).unwrap();
+        assert_ne!(other.inclusions[1], drawn);
+        // Nothing the viewers get names them.
+        let message = serde_json::to_string(&s.message()).unwrap();
+        assert!(!message.contains("inclusion"), "{message}");
+        let x = format!("{}", fixed.centre_in_object_m[0]);
+        assert!(!message.contains(&x));
+        // The recording keeps them, and a check rebuilds them from it without the files.
+        let record = SceneRecord {
+            message: s.message(),
+            scene_toml: text.replace("seed = 7", "seed = 9"),
+            scene_file: None,
+            period_ns: 1_000_000,
+            meshes: s.recorded_meshes(),
+            inclusions: s.recorded_inclusions(),
+        };
+        let again = Scene::from_recording(&record, Path::new("<recording>")).unwrap();
+        assert_eq!(again.inclusions, s.inclusions);
+        assert_eq!(again.inclusion_table, s.inclusion_table);
+        // A scene without inclusions has no field.
+        let plain = Scene::builtin_default().unwrap();
+        assert!(plain.inclusions.is_empty() && plain.haptic_world().inclusions().is_none());
+        assert!(plain.recorded_inclusions().is_none());
+    }
+
+    #[test]
+    fn a_bad_inclusion_is_refused_naming_the_file_the_field_and_the_value() {
+        let (text, dir) = palpation();
+        let err = |t: String| {
+            Scene::from_toml(&t, Path::new("palpation.toml"), Some(&dir))
+                .unwrap_err()
+                .to_string()
+        };
+        let e = err(text.replacen("stiffness_ratio = 4.0", "stiffness_ratio = 12.0", 1));
+        assert!(
+            e.starts_with("palpation.toml: inclusion[0].stiffness_ratio:") && e.contains("12"),
+            "{e}"
+        );
+        let e = err(text.replacen("radius_m = 0.005", "radius_m = 0.009", 1));
+        assert!(
+            e.contains("inclusion[0].radius_m") && e.contains("0.009"),
+            "{e}"
+        );
+        let e = err(text.replacen("centre_depth_m = 0.010", "centre_depth_m = -0.01", 1));
+        assert!(
+            e.contains("inclusion[0].centre_depth_m") && e.contains("-0.01"),
+            "{e}"
+        );
+        let e = err(text.replace("seed = 7", ""));
+        assert!(e.contains("inclusion[1].seed"), "{e}");
+        let e = err(text.replace("max = 0.014", "max = 0.004"));
+        assert!(
+            e.contains("inclusion[1].centre_depth_m") && e.contains("0.004"),
+            "{e}"
+        );
+        let e = err(text.replace(
+            "inclusions = \"calibration/inclusion_sphere10_50kpa.json\"",
+            "",
+        ));
+        assert!(e.contains("calibration.inclusions"), "{e}");
+        let e = err(text.replace("youngs_modulus_pa = 50000.0", "youngs_modulus_pa = 60000.0"));
+        assert!(
+            e.contains("calibration.inclusions") && e.contains("60000"),
+            "{e}"
+        );
+    }
+
     /// The scene record a session of `text` (a built-in-object scene) writes, with the recorded
     /// model `model`.
     pub(super) fn recording_of(text: &str, model: ContactModelInfo) -> SceneRecord {
@@ -519,6 +646,7 @@ mod tests {
             scene_file: None,
             period_ns: 1_000_000,
             meshes: scene.recorded_meshes(),
+            inclusions: scene.recorded_inclusions(),
         }
     }
 }

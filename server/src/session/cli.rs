@@ -322,6 +322,7 @@ impl LiveRecording {
             scene_file,
             period_ns: 1_000_000,
             meshes: scene.recorded_meshes(),
+            inclusions: scene.recorded_inclusions(),
         };
         let path = dir.join(recording_file_name(started_unix_ns, &session_id));
         let (producer, consumer) = rtrb::RingBuffer::new(TICK_RING_CAPACITY);

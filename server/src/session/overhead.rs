@@ -69,6 +69,7 @@ fn run_once(
                 scene_file: None,
                 period_ns: params.period_ns,
                 meshes: scene.recorded_meshes(),
+                inclusions: scene.recorded_inclusions(),
             };
             let (producer, consumer) = rtrb::RingBuffer::new(TICK_RING_CAPACITY);
             let recorder = Recorder::start(path, &build, &scene_record, consumer)?;

@@ -161,6 +161,7 @@ pub fn record_hand(
         scene_file: None,
         period_ns: params.period_ns,
         meshes: scene.recorded_meshes(),
+        inclusions: scene.recorded_inclusions(),
     };
     let mut writer = SessionWriter::create(out, &build, &scene_record)?;
 
