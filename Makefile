@@ -15,13 +15,15 @@ PACKAGE_PROFILE ?= release
 PACKAGE_DEB_FLAGS ?= --dbgsym
 TARGET_DIR := $(or $(CARGO_TARGET_DIR),target)
 PACKAGE_BUILD := $(TARGET_DIR)/$(if $(filter dev,$(PACKAGE_PROFILE)),debug,$(PACKAGE_PROFILE))
+# How `make package` compiles the binary it packages.
+PACKAGE_COMPILE ?= $(CARGO) build --profile $(PACKAGE_PROFILE) -p softhaptic-server --bin softhaptic
 PACKAGE_GEN := $(PACKAGE_BUILD)/softhaptic-package
 # Ports of `make lab`: NATS, the two stations, the hub.
 LAB_NATS_PORT ?= 4222
 LAB_PORTS ?= 8081 8082
 LAB_HUB_PORT ?= 8090
 
-.PHONY: run test lint test-rust test-web test-package package cargo-deb rust-tools web-deps chromium nats lab
+.PHONY: run test lint test-rust test-bin test-web test-package package cargo-deb rust-tools web-deps chromium nats lab
 
 run: rust-tools web-deps
 	$(CARGO) run --release -p softhaptic-server --bin softhaptic -- $(ARGS)
@@ -40,15 +42,24 @@ test-rust: rust-tools web-deps nats
 	# Every feature, so the report commands' own tests (their command lines) run too.
 	$(CARGO) test --workspace --all-features
 
-test-web: web-deps chromium nats
+# The browser and package tests run the binaries `cargo test --workspace --all-features` builds
+# (the server's and the tests crate's own tests need them): a plain `cargo build` resolves
+# features differently and would compile the device and server crates a second time.
+TEST_BIN_DIR := $(abspath $(TARGET_DIR))/debug
+TEST_BIN_BUILD := $(CARGO) test --workspace --all-features --no-run
+
+test-bin: rust-tools web-deps
+	$(TEST_BIN_BUILD)
+
+test-web: web-deps chromium nats test-bin
 	cd web && npm test
-	cd web && npm run test:e2e
+	cd web && SOFTHAPTIC_BIN=$(TEST_BIN_DIR)/softhaptic SOFTHAPTIC_HD_STANDIN="$$($(TEST_BIN_DIR)/hd-standin-path)" npm run test:e2e
 
 # The Debian package, from one command: the binary, then the manual pages and completions it
 # writes, then cargo-deb (installed from crates.io when missing) with server/Cargo.toml's
 # [package.metadata.deb]. The .deb's path is the last line cargo-deb prints.
 package: rust-tools web-deps cargo-deb
-	$(CARGO) build --profile $(PACKAGE_PROFILE) -p softhaptic-server --bin softhaptic
+	$(PACKAGE_COMPILE)
 	rm -rf $(PACKAGE_GEN) && mkdir -p $(PACKAGE_GEN)
 	$(PACKAGE_BUILD)/softhaptic manpages --out $(PACKAGE_GEN)/man
 	gzip -9n $(PACKAGE_GEN)/man/*.1
@@ -62,8 +73,8 @@ cargo-deb:
 
 # The package as an operator gets it: unpacked and run with no source tree in reach, its units
 # checked by systemd, its file list held to docs/install.md (web/tests/package.test.mjs).
-test-package: chromium
-	$(MAKE) package PACKAGE_PROFILE=dev PACKAGE_DEB_FLAGS=
+test-package: chromium test-bin
+	$(MAKE) package PACKAGE_PROFILE=dev PACKAGE_DEB_FLAGS= PACKAGE_COMPILE="$(TEST_BIN_BUILD)"
 	cd web && SOFTHAPTIC_DEB="$(abspath $(TARGET_DIR))/debian/$$(cd $(abspath $(TARGET_DIR))/debian && ls -t softhaptic_*.deb | head -1)" npm run test:package
 
 rust-tools:

@@ -42,11 +42,20 @@ export function buildServer({ release = false } = {}) {
 let standin = null;
 
 /**
- * The path of the stand-in for OpenHaptics' libHD (built by the `softhaptic-tests` crate), as
- * `cargo run -q -p softhaptic-tests --bin hd-standin-path` prints it; asked once per process.
+ * The path of the stand-in for OpenHaptics' libHD (built by the `softhaptic-tests` crate):
+ * SOFTHAPTIC_HD_STANDIN, else what `cargo run -q -p softhaptic-tests --bin hd-standin-path`
+ * prints; asked once per process.
  */
 export function hdStandinPath() {
   if (standin !== null) return standin;
+  // `make test-web` passes the one its test build made, so that cargo compiles nothing more.
+  if (process.env.SOFTHAPTIC_HD_STANDIN) {
+    if (!existsSync(process.env.SOFTHAPTIC_HD_STANDIN)) {
+      throw new Error(`SOFTHAPTIC_HD_STANDIN=${process.env.SOFTHAPTIC_HD_STANDIN} is not a file`);
+    }
+    standin = process.env.SOFTHAPTIC_HD_STANDIN;
+    return standin;
+  }
   const args = ['run', '-q', '-p', 'softhaptic-tests', '--bin', 'hd-standin-path'];
   const result = spawnSync('cargo', args, { cwd: REPO, encoding: 'utf8', stdio: ['ignore', 'pipe', 'pipe'] });
   if (result.error) throw new Error(`cannot run cargo: ${result.error.message}`);
