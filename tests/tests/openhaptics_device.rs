@@ -595,9 +595,16 @@ fn assert_holds_on_the_side_it_entered(recording: &Recording, scene: &Scene, col
                 d.tick,
                 below_m * 1e3
             );
-            // Zero only on the way out, where the damping may cancel the spring (paper Fig. 9b).
+            // Zero only on the way out, where the damping may cancel the spring (paper Fig. 9b),
+            // or where the motors' heat limit holds it after a long press at the peak (the hand
+            // here outpushes the device for seconds; how long depends on the machine's pace).
+            let cooling = flags(d).contains(ContactFlags::CONTINUOUS_FORCE_LIMITED);
             assert!(
-                f.length() > 0.0 || moving_out || ramp_start || d.command_error.is_some(),
+                f.length() > 0.0
+                    || moving_out
+                    || ramp_start
+                    || cooling
+                    || d.command_error.is_some(),
                 "{collision}: tick {}: no force {} mm below the surface, pressing in ({:?}, {:?}, \
                  flags {:?})",
                 d.tick,
@@ -727,7 +734,8 @@ async fn a_tick_that_overruns_its_servo_period_sends_zero_instead_of_a_late_forc
         .iter()
         .filter(|d| d.command_error == Some(DeviceErrorRecord::Overrun))
         .collect();
-    assert_eq!(overran.len(), 5);
+    // The five delayed ticks, and on a loaded machine (a debug build) perhaps one of its own.
+    assert!(overran.len() >= 5, "{} overruns", overran.len());
     for d in &overran {
         assert_eq!(d.force_n, [0.0; 3]);
         assert!(flags(d).contains(ContactFlags::DEVICE_FAULT));
