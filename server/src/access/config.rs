@@ -429,7 +429,7 @@ mod tests {
     #[test]
     fn a_new_connection_waits_at_most_5_s_for_its_token_and_holds_no_place_longer() {
         // A page sends its token as the socket opens; the wait only bounds how long one that
-        // never will holds a waiting place (WIRE.md says 5 s).
+        // never will holds a waiting place (proto/WIRE.md says 5 s).
         let limits = ConnectionLimits::default();
         assert_eq!(limits.auth_timeout, std::time::Duration::from_secs(5));
         assert!(limits.max_pending_per_address < limits.max_pending);
