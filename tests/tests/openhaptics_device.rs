@@ -704,15 +704,12 @@ async fn a_force_the_driver_refuses_is_zero_on_that_tick_and_ramps_in_after() {
     assert!(s.force_output_enabled(), "force output was enabled again");
     let (stats, recording) = finish(live).await;
     let device = &recording.device;
+    // A loaded machine may add an overrun of its own before the trip: look for the refusal.
     let first = device
         .iter()
-        .position(|d| d.command_error.is_some())
+        .position(|d| d.command_error == Some(DeviceErrorRecord::ForceDisabled))
         .expect("a refused command");
     let refused = &device[first];
-    assert_eq!(
-        refused.command_error,
-        Some(DeviceErrorRecord::ForceDisabled)
-    );
     assert_eq!(refused.force_n, [0.0; 3], "zero on the refused tick itself");
     assert!(refused.device_fault && flags(refused).contains(ContactFlags::DEVICE_FAULT));
     assert!(stats.command_errors >= 1);
@@ -740,11 +737,21 @@ async fn a_tick_that_overruns_its_servo_period_sends_zero_instead_of_a_late_forc
         assert_eq!(d.force_n, [0.0; 3]);
         assert!(flags(d).contains(ContactFlags::DEVICE_FAULT));
     }
+    // The delayed ticks are five in a row, after the press began; an overrun the load adds
+    // on its own is usually alone, and may come before the press (at zero force).
     let first = device
+        .windows(5)
+        .position(|w| {
+            w.iter()
+                .all(|d| d.command_error == Some(DeviceErrorRecord::Overrun))
+        })
+        .expect("five overruns in a row");
+    let before = device[first.saturating_sub(20)..first]
         .iter()
-        .position(|d| d.command_error.is_some())
-        .unwrap();
-    assert_ramps_in_after(device, first, force(&device[first - 1]));
+        .map(force)
+        .fold(0.0, f64::max);
+    assert!(before > 0.5, "{before} N before the delayed ticks");
+    assert_ramps_in_after(device, first, before);
     assert_replays(&recording);
 }
 
