@@ -16,6 +16,7 @@
 //! | [`topic::LOOP_STATS`] | the `stats` wire message, verbatim | each 1 Hz stats message as sent |
 //! | [`topic::MARKS`] | the `mark` wire message, verbatim | each instructor's mark as sent |
 //! | [`topic::METRICS`] | the `metrics` wire message, verbatim | each 1 Hz message as sent, and the final one at the end |
+//! | [`topic::EXERCISE`] | the `exercise` wire message, with the exercise file on an attempt's first | each as sent to viewers (stations running exercises) |
 //!
 //! The build and scene records are written once more right after the first chunk, in an
 //! attachment named [`START_COPY_ATTACHMENT`]: its data is a chunk record of its own holding the
@@ -73,6 +74,9 @@ pub mod topic {
     /// The trainee's `metrics` wire messages: the 1 Hz ones as sent to viewers, and the final
     /// one over every tick of the session, written when it ends.
     pub const METRICS: &str = "/metrics";
+    /// The `exercise` wire messages of a station running exercises, as sent to viewers; the
+    /// one that starts an attempt carries the exercise file's name and text as well.
+    pub const EXERCISE: &str = "/exercise";
 }
 
 /// The schema name of each channel (the MCAP schema record's `name`).
@@ -85,6 +89,7 @@ pub mod schema_name {
     pub const LOOP_STATS: &str = "softhaptic.StatsMessage";
     pub const MARKS: &str = "softhaptic.MarkMessage";
     pub const METRICS: &str = "softhaptic.MetricsMessage";
+    pub const EXERCISE: &str = "softhaptic.ExerciseMessage";
 }
 
 /// One device sample as recorded (mirrors the device crate's sample; kept here so the file format
@@ -565,8 +570,32 @@ pub mod schema {
   "required": ["type", "peak_force_n", "safe_force_n", "time_above_safe_s", "time_in_contact_s", "path_length_in_contact_m", "pushes", "ticks"]
 }"##;
 
+    /// Schema of the `exercise` wire message (and its recorded form).
+    pub const EXERCISE: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.ExerciseMessage",
+  "description": "The exercise a station runs and where its attempt stands, as sent to viewers (protocol version 1); the recorded message that starts an attempt also holds the exercise file.",
+  "type": "object",
+  "properties": {
+    "type": {"type": "string", "const": "exercise"},
+    "trainee": {"type": "string"},
+    "index": {"type": "integer", "minimum": 0, "description": "the exercise's place in the station's list, from 0"},
+    "count": {"type": "integer", "minimum": 1, "description": "exercises in the list"},
+    "attempt": {"type": "integer", "minimum": 1, "description": "1 for the first attempt at this exercise in the session"},
+    "state": {"type": "string", "enum": ["running", "ended"]},
+    "exercise": {"type": "object", "description": "name, instructions, time_limit_s, task (world frame, SI units), pass marks"},
+    "time_ns": {"type": "integer", "minimum": 0, "description": "device time, ns"},
+    "remaining_s": {"type": "number", "minimum": 0},
+    "result": {"type": ["object", "null"], "description": "the attempt's scores, pass marks and outcome, once ended"},
+    "next_in_s": {"type": ["number", "null"], "description": "seconds until the next exercise starts by itself"},
+    "exercise_file": {"type": "string", "description": "recorded on an attempt's first message: the file's name"},
+    "exercise_toml": {"type": "string", "description": "recorded on an attempt's first message: the file's text"}
+  },
+  "required": ["type", "trainee", "index", "count", "attempt", "state", "exercise", "time_ns", "remaining_s", "result", "next_in_s"]
+}"##;
+
     /// `(topic, schema name, schema)` of every channel.
-    pub const ALL: [(&str, &str, &str); 8] = [
+    pub const ALL: [(&str, &str, &str); 9] = [
         (super::topic::BUILD, super::schema_name::BUILD, BUILD),
         (super::topic::SCENE, super::schema_name::SCENE, SCENE),
         (super::topic::DEVICE, super::schema_name::DEVICE, DEVICE),
@@ -579,6 +608,11 @@ pub mod schema {
         ),
         (super::topic::MARKS, super::schema_name::MARKS, MARKS),
         (super::topic::METRICS, super::schema_name::METRICS, METRICS),
+        (
+            super::topic::EXERCISE,
+            super::schema_name::EXERCISE,
+            EXERCISE,
+        ),
     ];
 }
 
@@ -842,6 +876,7 @@ mod tests {
                 Some("stats") => schema::LOOP_STATS,
                 Some("mark") => schema::MARKS,
                 Some("metrics") => schema::METRICS,
+                Some("exercise") => schema::EXERCISE,
                 _ => continue,
             };
             let schema: Value = serde_json::from_str(schema).unwrap();

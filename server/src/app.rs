@@ -121,6 +121,9 @@ pub struct ServerOptions {
     pub tls: Option<Arc<rustls::ServerConfig>>,
     /// Publish the session to a teaching lab's NATS as this station (`--nats`, `--station`).
     pub lab: Option<crate::lab::station::StationOptions>,
+    /// The exercises' feed, when the station runs exercises (`--exercises`): their scorer
+    /// publishes to it and instructors' controls reach the scorer through it.
+    pub exercises: Option<Arc<stream::ExerciseFeed>>,
 }
 
 impl ServerOptions {
@@ -143,6 +146,7 @@ impl ServerOptions {
             access: AccessConfig::default(),
             tls: None,
             lab: None,
+            exercises: None,
         }
     }
 }
@@ -355,7 +359,8 @@ pub async fn start(
             what: "hello",
             source,
         })?
-        .with_rearm(rearm),
+        .with_rearm(rearm)
+        .with_exercises(options.exercises.take()),
     );
     let meshes = Arc::new(meshes);
     let mut tasks = vec![

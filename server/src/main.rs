@@ -167,6 +167,43 @@ struct RunArgs {
     /// TLS to NATS, the server's certificate verified against this CA's (PEM) alone.
     #[arg(long, value_name = "FILE", requires = "nats")]
     nats_ca: Option<PathBuf>,
+    /// Run these exercises (exercises/*.toml, made for this station's scene) for --trainee, in
+    /// order: the first starts with the session, each next one after the pause that follows the
+    /// last one's result; an instructor's viewer may start the next, repeat or stop one. Every
+    /// attempt's result is recorded (so not with --no-record).
+    #[arg(long, value_name = "FILE", num_args = 1.., requires = "trainee")]
+    exercises: Vec<PathBuf>,
+    /// The trainee the exercises are run for: shown on the viewers, written into every result.
+    #[arg(long, value_name = "NAME", requires = "exercises")]
+    trainee: Option<String>,
+    /// Seconds between an attempt's result and the next exercise starting by itself; `wait`
+    /// leaves it to an instructor's viewer.
+    #[arg(
+        long,
+        default_value = "10",
+        value_name = "SECONDS|wait",
+        requires = "exercises"
+    )]
+    exercise_pause: ExercisePause,
+}
+
+/// `--exercise-pause`: seconds, or `wait` for an instructor.
+#[derive(Debug, Clone, Copy)]
+struct ExercisePause(Option<f64>);
+
+impl std::str::FromStr for ExercisePause {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "wait" {
+            return Ok(Self(None));
+        }
+        match s.parse::<f64>() {
+            Ok(v) if v.is_finite() && (0.0..=3600.0).contains(&v) => Ok(Self(Some(v))),
+            _ => Err(format!(
+                "{s:?}: seconds from 0 to 3600, or `wait` for an instructor"
+            )),
+        }
+    }
 }
 
 #[derive(Args, Debug, Clone)]
@@ -394,6 +431,8 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         let _context = runtime.enter();
         app::StopSignals::listen().context("could not listen for the stop signals")?
     };
+    // Before the device is opened: exercises that cannot run here start nothing.
+    let (exercise_run, exercise_feed) = exercise_run(&args, &scene, scene_file.as_deref())?;
     // Opened before the recording starts, so that the recording and the viewers are told the
     // limits the device really runs with; a device that cannot be opened stops here.
     let device = devices::open(&mut scene)?;
@@ -405,8 +444,12 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         limits = %scene.validity.source,
         "scene loaded"
     );
-    let mut recording =
-        session::cli::LiveRecording::start(&args.record, &scene, scene_file.as_deref())?;
+    let mut recording = session::cli::LiveRecording::start_observed(
+        &args.record,
+        &scene,
+        scene_file.as_deref(),
+        exercise_run,
+    )?;
     runtime.block_on(async move {
         let mut options = ServerOptions::new(args.addr);
         options.viewer = viewer;
@@ -418,6 +461,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.device = Some(device);
         options.access = access.clone();
         options.tls = tls.map(|t| t.config);
+        options.exercises = exercise_feed;
         let lab = args
             .nats
             .clone()
@@ -508,4 +552,41 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+/// The station's exercises (`--exercises`, `--trainee`), checked against its scene before
+/// anything starts: the scorer the recorder runs, and the feed the viewers see it through.
+#[allow(clippy::type_complexity)]
+fn exercise_run(
+    args: &RunArgs,
+    scene: &Scene,
+    scene_file: Option<&std::path::Path>,
+) -> anyhow::Result<(
+    Option<Box<dyn softhaptic_server::session::writer::TickObserver>>,
+    Option<std::sync::Arc<softhaptic_server::stream::ExerciseFeed>>,
+)> {
+    use softhaptic_server::exercise::run::{ExerciseRun, check_trainee, station_exercises};
+    if args.exercises.is_empty() {
+        return Ok((None, None));
+    }
+    if args.record.no_record {
+        anyhow::bail!(
+            "--exercises with --no-record: every attempt's result is kept in the session's \
+             recording; drop --no-record"
+        );
+    }
+    let trainee = check_trainee(args.trainee.as_deref().unwrap_or_default())?;
+    let exercises = station_exercises(&args.exercises, scene, scene_file)?;
+    let (feed, controls) = softhaptic_server::stream::ExerciseFeed::with_controls();
+    let feed = std::sync::Arc::new(feed);
+    let names: Vec<&str> = exercises.iter().map(|e| e.exercise.name.as_str()).collect();
+    tracing::info!(trainee = %trainee, exercises = ?names, "running exercises");
+    let run = ExerciseRun::new(
+        trainee,
+        exercises,
+        std::sync::Arc::clone(&feed),
+        controls,
+        args.exercise_pause.0,
+    )?;
+    Ok((Some(Box::new(run)), Some(feed)))
 }

@@ -316,3 +316,41 @@ fn results_are_a_csv_row_per_attempt_and_a_report_with_a_plot_per_metric() {
     );
     assert_eq!(html.matches("<svg").count(), 5);
 }
+
+/// `run --exercises` refuses, before anything starts, what would lose results or score the
+/// wrong scene: no recording, no trainee, an exercise set in another scene.
+#[test]
+fn a_station_refuses_exercises_it_cannot_record_or_that_are_for_another_scene() {
+    let os = |s: &str| std::ffi::OsString::from(s);
+    let press = repo("exercises/press-hold.toml");
+    let base = [
+        os("run"),
+        os("--addr"),
+        os("127.0.0.1:0"),
+        os("--no-realtime"),
+        os("--exercises"),
+        press.clone().into_os_string(),
+    ];
+    let default = repo("scenes/default.toml");
+    let default = default.to_str().unwrap();
+    let refused = |extra: &[&str]| {
+        let mut args: Vec<std::ffi::OsString> = base.to_vec();
+        args.extend(extra.iter().map(|s| os(s)));
+        let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+        let out = softhaptic(&refs);
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let e = refused(&["--trainee", "ana", "--no-record", "--scene", default]);
+    assert!(e.contains("--exercises with --no-record"), "{e}");
+    let e = refused(&["--scene", default]);
+    assert!(e.contains("--trainee"), "{e}");
+    let cone = repo("scenes/cone.toml");
+    let e = refused(&["--trainee", "ana", "--scene", cone.to_str().unwrap()]);
+    assert!(
+        e.contains("press-hold.toml: scene: set in ") && e.contains("but this station runs"),
+        "{e}"
+    );
+    let e = refused(&["--trainee", " ", "--scene", default]);
+    assert!(e.contains("--trainee: \"\""), "{e}");
+}

@@ -75,15 +75,27 @@ pub struct RecordedServer {
 pub async fn start_recorded(
     scene: Scene,
     record_dir: &std::path::Path,
+    options: ServerOptions,
+) -> RecordedServer {
+    start_recorded_observed(scene, record_dir, options, None).await
+}
+
+/// [`start_recorded`], with every recorded tick shown to `observer` (a station's exercises).
+pub async fn start_recorded_observed(
+    scene: Scene,
+    record_dir: &std::path::Path,
     mut options: ServerOptions,
+    observer: Option<Box<dyn softhaptic_server::session::writer::TickObserver>>,
 ) -> RecordedServer {
     let args = softhaptic_server::session::cli::RecordArgs {
         no_record: false,
         record_dir: record_dir.to_path_buf(),
     };
-    let mut recording = softhaptic_server::session::cli::LiveRecording::start(&args, &scene, None)
-        .expect("the recording starts")
-        .expect("recording is on");
+    let mut recording = softhaptic_server::session::cli::LiveRecording::start_observed(
+        &args, &scene, None, observer,
+    )
+    .expect("the recording starts")
+    .expect("recording is on");
     options.tick_sink = recording.take_tick_sink();
     options.session_id = Some(recording.session_id().to_owned());
     let server = app::start(scene, options).await.expect("the server starts");

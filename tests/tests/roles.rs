@@ -15,7 +15,8 @@ use softhaptic_server::access::AccessConfig;
 use softhaptic_server::session::reader::Recording;
 use softhaptic_server::session::replay;
 use softhaptic_server::stream::{
-    REFUSED_LIVE, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_OBSERVER,
+    REFUSED_EXERCISE_NONE, REFUSED_LIVE, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER,
+    REFUSED_MARK_REPLAY, REFUSED_OBSERVER,
 };
 use softhaptic_tests::nats::{
     NatsServer, archive_sessions, options as nats, start_hub, start_station,
@@ -126,6 +127,7 @@ async fn refused(viewer: &mut Viewer, text: &str, reason: &str) {
 
 const MARK: &str = r#"{"type":"add_mark","note":"roles"}"#;
 const SEEK: &str = r#"{"type":"replay_control","action":"seek","time_s":1.5}"#;
+const NEXT: &str = r#"{"type":"exercise_control","action":"next"}"#;
 
 /// The WebSocket as nobody: closed with 4401 before anything is sent.
 async fn refused_without_a_role(addr: SocketAddr, query: &str) {
@@ -165,6 +167,8 @@ async fn a_station_and_a_replay_server_answer_each_route_and_message_by_role() {
         let mut viewer = connect(addr, "", who).await;
         assert_eq!(greeted(&mut viewer).await, (role, Mode::Live));
         refused(&mut viewer, SEEK, REFUSED_LIVE).await;
+        // A station started without exercises (one with them: tests/tests/exercises_live.rs).
+        refused(&mut viewer, NEXT, REFUSED_EXERCISE_NONE).await;
         if who == As::Observer {
             refused(&mut viewer, MARK, REFUSED_MARK_OBSERVER).await;
         } else {
@@ -195,12 +199,14 @@ async fn a_station_and_a_replay_server_answer_each_route_and_message_by_role() {
     assert_eq!(greeted(&mut observer).await, (Role::Observer, Mode::Replay));
     refused(&mut observer, SEEK, REFUSED_OBSERVER).await;
     refused(&mut observer, MARK, REFUSED_MARK_REPLAY).await;
+    refused(&mut observer, NEXT, REFUSED_EXERCISE_NONE).await;
     let mut instructor = connect(addr, "", As::Instructor).await;
     assert_eq!(
         greeted(&mut instructor).await,
         (Role::Instructor, Mode::Replay)
     );
     refused(&mut instructor, MARK, REFUSED_MARK_REPLAY).await;
+    refused(&mut instructor, NEXT, REFUSED_EXERCISE_NONE).await;
     instructor.send_text(SEEK).await;
     // The observer sees the instructor's seek.
     loop {
@@ -235,6 +241,7 @@ async fn a_hub_answers_each_route_and_message_by_role() {
         assert_eq!(greeted(&mut viewer).await, (role, Mode::Live));
         refused(&mut viewer, MARK, REFUSED_MARK_HUB).await;
         refused(&mut viewer, SEEK, REFUSED_LIVE).await;
+        refused(&mut viewer, NEXT, REFUSED_EXERCISE_NONE).await;
     }
 
     // The archive: listing and downloading are an instructor's.

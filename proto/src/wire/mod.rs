@@ -23,9 +23,11 @@ use crate::material::Material;
 use crate::model::{ModelSpec, ValidityLimits};
 use crate::tool::ToolShape;
 
+mod exercise;
 mod replay;
 pub mod shm1;
 mod vectors;
+pub use exercise::{ExerciseAction, ExerciseControl, ExerciseMessage, ExerciseState};
 pub use replay::{
     GapCause, ReplayAction, ReplayControl, ReplayControlError, ReplayGap, ReplayMark, ReplaySpan,
     ReplayStatus,
@@ -36,13 +38,19 @@ pub use vectors::{MessageVector, message_vectors, vector_files};
 pub const PROTOCOL_VERSION: u32 = 1;
 
 /// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
-pub const SERVER_MESSAGE_TYPES: [&str; 8] = [
-    "hello", "scene", "contact", "stats", "metrics", "mark", "refused", "replay",
+pub const SERVER_MESSAGE_TYPES: [&str; 9] = [
+    "hello", "scene", "contact", "stats", "metrics", "mark", "refused", "replay", "exercise",
 ];
 
 /// The `type` names of every viewer → server message: [`Auth`], [`ReplayControl`] and
-/// [`MarkRequest`].
-pub const CLIENT_MESSAGE_TYPES: [&str; 4] = ["auth", "replay_control", "add_mark", "rearm_device"];
+/// [`MarkRequest`], [`RearmRequest`] and [`ExerciseControl`].
+pub const CLIENT_MESSAGE_TYPES: [&str; 5] = [
+    "auth",
+    "replay_control",
+    "add_mark",
+    "rearm_device",
+    "exercise_control",
+];
 
 /// A message from the server to a viewer.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -65,6 +73,8 @@ pub enum ServerMessage {
     Refused(Refused),
     /// Where a replay stands: once a second and after every control (replays only).
     Replay(ReplayStatus),
+    /// The exercise a station runs and where its attempt stands (stations with exercises).
+    Exercise(Box<ExerciseMessage>),
 }
 
 /// What a connection may do, decided by the token it presented (proto/WIRE.md, "Roles and
@@ -728,6 +738,7 @@ impl ServerMessage {
             ServerMessage::Mark(_) => "mark",
             ServerMessage::Refused(_) => "refused",
             ServerMessage::Replay(_) => "replay",
+            ServerMessage::Exercise(_) => "exercise",
         }
     }
 
@@ -807,6 +818,9 @@ mod tests {
                                 let mark: MarkRequest = serde_json::from_str(&text).unwrap();
                                 assert_eq!(mark.problem(), None);
                                 assert_eq!(serde_json::to_value(&mark).unwrap(), json);
+                            } else if name == "exercise_control" {
+                                let control: ExerciseControl = serde_json::from_str(&text).unwrap();
+                                assert_eq!(serde_json::to_value(control).unwrap(), json);
                             } else if name.starts_with("replay_control") {
                                 let control: ReplayControl = serde_json::from_str(&text).unwrap();
                                 control.validate().unwrap();

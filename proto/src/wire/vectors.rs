@@ -226,6 +226,8 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 accepts_marks: true,
             }),
         ),
+        ("exercise_running", exercise_vector(false)),
+        ("exercise_ended", exercise_vector(true)),
         (
             "refused_replay_control",
             ServerMessage::Refused(Refused {
@@ -393,6 +395,13 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             point_m: Some([-0.0297, 0.0681, 0.0068]),
         })?,
     });
+    // An instructor starting the next exercise, as the viewer's encoder writes it.
+    out.push(MessageVector::Valid {
+        name: "exercise_control".into(),
+        json: serde_json::to_value(ExerciseControl {
+            action: ExerciseAction::Next,
+        })?,
+    });
     // Well-formed but of a type no viewer knows: to be ignored and counted, not refused.
     out.push(MessageVector::Valid {
         name: "unknown_type".into(),
@@ -413,4 +422,85 @@ pub fn vector_files() -> Result<Vec<(&'static str, String)>, serde_json::Error> 
         ("surface_profile.json", surface + "\n"),
         ("messages.json", messages + "\n"),
     ])
+}
+
+/// An `exercise` message of a press exercise: running (1.5 s into its 20 s), or ended with its
+/// result (passed, the hold complete at 4.2 s).
+fn exercise_vector(ended: bool) -> ServerMessage {
+    use crate::exercise::{
+        AttemptEnd, AttemptResult, Exercise, ExpertSpread, PassMark, PressTask, Score, Task,
+    };
+    let exercise = Exercise {
+        name: "Press and hold 2 N".into(),
+        instructions: "Press the marked site with 2 N and hold it for 3 s.".into(),
+        time_limit_s: 20.0,
+        task: Task::Press(PressTask {
+            site_m: [0.0, 0.03, 0.0],
+            normal: [0.0, 1.0, 0.0],
+            site_radius_m: 0.005,
+            target_force_n: 2.0,
+            tolerance_n: 0.3,
+            hold_s: 3.0,
+            safe_force_n: 4.0,
+        }),
+        pass: vec![PassMark {
+            metric: "hold_force_sd_n".into(),
+            at_least: None,
+            at_most: Some(0.15),
+            experts: Some(ExpertSpread {
+                recordings: 5,
+                mean: 0.08,
+                sd: 0.03,
+                min: 0.05,
+                max: 0.12,
+            }),
+        }],
+    };
+    let start_ns = 2_000_000_000;
+    let result = ended.then(|| {
+        let score = Score {
+            completed: true,
+            safe: true,
+            metrics: [
+                ("hold_force_sd_n", 0.0625),
+                ("hold_s", 3.0),
+                ("peak_force_n", 2.25),
+                ("time_above_safe_s", 0.0),
+                ("time_to_hold_s", 4.25),
+            ]
+            .into_iter()
+            .map(|(k, v)| (k.to_owned(), v))
+            .collect(),
+        };
+        AttemptResult::judge(
+            &exercise,
+            "ana",
+            1,
+            (start_ns, start_ns + 4_250_000_000),
+            AttemptEnd::Completed,
+            score,
+        )
+    });
+    ServerMessage::Exercise(Box::new(ExerciseMessage {
+        trainee: "ana".into(),
+        index: 0,
+        count: 2,
+        attempt: 1,
+        state: if ended {
+            ExerciseState::Ended
+        } else {
+            ExerciseState::Running
+        },
+        exercise,
+        time_ns: if ended {
+            start_ns + 4_250_000_000
+        } else {
+            start_ns + 1_500_000_000
+        },
+        remaining_s: if ended { 0.0 } else { 18.5 },
+        result,
+        next_in_s: ended.then_some(10.0),
+        exercise_file: None,
+        exercise_toml: None,
+    }))
 }

@@ -25,6 +25,8 @@ pub enum Action {
     Mark,
     /// Switch a live device's force output back on after it latched off (`rearm_device`).
     RearmDevice,
+    /// Start the next exercise, repeat one or stop one at a station (`exercise_control`).
+    ControlExercise,
     /// List a lab's archived recordings (`GET /api/archive`).
     ListArchive,
     /// Download an archived recording's file (`GET /stations/NAME/archive/FILE`).
@@ -33,13 +35,14 @@ pub enum Action {
 
 impl Action {
     /// Every action, for tables and tests.
-    pub const ALL: [Action; 8] = [
+    pub const ALL: [Action; 9] = [
         Action::WatchLive,
         Action::WatchOpenReplay,
         Action::OpenReplay,
         Action::ControlReplay,
         Action::Mark,
         Action::RearmDevice,
+        Action::ControlExercise,
         Action::ListArchive,
         Action::DownloadArchive,
     ];
@@ -56,6 +59,7 @@ impl Action {
             }
             Action::Mark => "only an instructor marks the session",
             Action::RearmDevice => "only an instructor re-arms the device",
+            Action::ControlExercise => "only an instructor starts, repeats or stops an exercise",
             Action::ListArchive => "only an instructor lists the archive",
             Action::DownloadArchive => "only an instructor downloads archived recordings",
         }

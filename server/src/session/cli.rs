@@ -39,22 +39,23 @@ pub struct RecordArgs {
 #[derive(clap::Subcommand, Debug, Clone)]
 pub enum SessionCommand {
     /// What a recording holds: duration, ticks, losses, contacts, peak force, flags, the trainee's
-    /// metrics, the instructors' marks, and whether the file is complete or was recovered from a
+    /// metrics, the instructors' marks, the attempts at exercises, and whether the file is complete or was recovered from a
     /// truncated one.
     Info {
         /// The recording (.mcap).
         file: PathBuf,
     },
     /// Write the device and contact channels of a recording as CSV (device.csv, contact.csv), the
-    /// trainee's metrics (metrics.json) and the instructors' marks (marks.json).
+    /// trainee's metrics (metrics.json), the instructors' marks (marks.json) and the results of
+    /// the attempts at exercises (attempts.json).
     Export {
         /// The recording (.mcap).
         file: PathBuf,
         /// Output directory (created).
         #[arg(long, value_name = "DIR")]
         out: PathBuf,
-        /// Write over device.csv, contact.csv, metrics.json and marks.json already in the directory
-        /// (without it they are kept and the export refused).
+        /// Write over the files above already in the directory (without it they are kept and the
+        /// export refused).
         #[arg(long)]
         replace: bool,
     },
@@ -155,6 +156,7 @@ pub fn run(command: SessionCommand) -> anyhow::Result<()> {
                 &written.contact,
                 &written.metrics,
                 &written.marks,
+                &written.attempts,
             ] {
                 println!("wrote {}", path.display());
             }
@@ -294,6 +296,17 @@ impl LiveRecording {
         scene: &Scene,
         scene_file: Option<&Path>,
     ) -> anyhow::Result<Option<LiveRecording>> {
+        Self::start_observed(args, scene, scene_file, None)
+    }
+
+    /// [`LiveRecording::start`], showing every recorded tick to `observer` (a station's
+    /// exercises) and recording what it says on the exercise channel.
+    pub fn start_observed(
+        args: &RecordArgs,
+        scene: &Scene,
+        scene_file: Option<&Path>,
+        observer: Option<Box<dyn super::writer::TickObserver>>,
+    ) -> anyhow::Result<Option<LiveRecording>> {
         if args.no_record {
             return Ok(None);
         }
@@ -326,7 +339,7 @@ impl LiveRecording {
         };
         let path = dir.join(recording_file_name(started_unix_ns, &session_id));
         let (producer, consumer) = rtrb::RingBuffer::new(TICK_RING_CAPACITY);
-        let recorder = Recorder::start(&path, &build, &scene_record, consumer)?;
+        let recorder = Recorder::start_observed(&path, &build, &scene_record, consumer, observer)?;
         tracing::info!(file = %path.display(), "recording the session");
         Ok(Some(LiveRecording {
             recorder,

@@ -404,7 +404,8 @@ pub fn metrics_timeline(recording: &Recording) -> Vec<RecordedMessage> {
 /// The replay clock and cursor.
 struct Player {
     contacts: Vec<RecordedMessage>,
-    /// The recorded `stats` messages and the replay's `metrics` ones, in device-time order.
+    /// The recorded `stats` and `exercise` messages and the replay's `metrics` ones, in
+    /// device-time order.
     loop_stats: Vec<RecordedMessage>,
     /// The `metrics` messages alone, in device-time order, and those before any tick (all
     /// zero): what a seek sends for the new position.
@@ -449,6 +450,16 @@ impl Player {
             })
             .collect();
         loop_stats.extend(metrics.iter().cloned());
+        // The station's exercises as its viewers saw them start and end (without the files,
+        // which were never sent to a viewer).
+        loop_stats.extend(recording.exercises.iter().filter_map(|m| {
+            let mut m = m.clone();
+            m.exercise_file = None;
+            m.exercise_toml = None;
+            let time_ns = m.time_ns.min(end_ns);
+            let json = ServerMessage::Exercise(Box::new(m)).encode().ok()?;
+            Some(RecordedMessage { time_ns, json })
+        }));
         // Stable: a stats and a metrics message at the same time keep that order.
         loop_stats.sort_by_key(|m| m.time_ns);
         let safe_force_n = super::tools::recorded_safe_force_n(recording);
@@ -618,6 +629,12 @@ impl Player {
             Ok(ServerMessage::Stats(stats)) => stats,
             Ok(ServerMessage::Metrics(_)) => {
                 let _ = hub.stats.send(Utf8Bytes::from(recorded.json.as_str()));
+                return;
+            }
+            // On the exercise feed, which keeps the latest for a viewer that connects later.
+            Ok(ServerMessage::Exercise(_)) => {
+                hub.exercise
+                    .publish(Utf8Bytes::from(recorded.json.as_str()));
                 return;
             }
             _ => return,

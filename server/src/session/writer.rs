@@ -67,6 +67,7 @@ struct Channels {
     loop_stats: u16,
     marks: u16,
     metrics: u16,
+    exercise: u16,
 }
 
 /// Writes one session to one MCAP file. Not thread-safe by itself; see [`Recorder`].
@@ -134,6 +135,7 @@ impl SessionWriter {
             loop_stats_id,
             marks_id,
             metrics_id,
+            exercise_id,
         ] = ids;
         let mut w = SessionWriter {
             mcap,
@@ -147,6 +149,7 @@ impl SessionWriter {
                 loop_stats: loop_stats_id,
                 marks: marks_id,
                 metrics: metrics_id,
+                exercise: exercise_id,
             },
             buf: Vec::with_capacity(1024),
             sequences: [0; 16],
@@ -219,6 +222,12 @@ impl SessionWriter {
     /// Writes one `mark` wire message exactly as it was sent, at the latest device time.
     pub fn write_mark(&mut self, json: &str) -> Result<(), SessionError> {
         self.write_raw(self.channels.marks, self.last_time_ns, json.as_bytes())
+    }
+
+    /// Writes one `exercise` message (wire text, with the exercise file on an attempt's
+    /// first), at the latest device time.
+    pub fn write_exercise(&mut self, json: &str) -> Result<(), SessionError> {
+        self.write_raw(self.channels.exercise, self.last_time_ns, json.as_bytes())
     }
 
     /// Writes one `metrics` wire message exactly as it was sent, at the latest device time.
@@ -329,8 +338,8 @@ impl SessionWriter {
 /// [`schema::ALL`], and returns their ids in that order.
 fn add_channels<W: Write + std::io::Seek>(
     mcap: &mut mcap::Writer<W>,
-) -> Result<[u16; 8], mcap::McapError> {
-    let mut ids = [0u16; 8];
+) -> Result<[u16; 9], mcap::McapError> {
+    let mut ids = [0u16; 9];
     for (slot, (topic, name, schema)) in ids.iter_mut().zip(schema::ALL) {
         let schema_id = mcap.add_schema(name, record::SCHEMA_ENCODING, schema.as_bytes())?;
         *slot = mcap.add_channel(
@@ -349,7 +358,7 @@ fn add_channels<W: Write + std::io::Seek>(
 /// memory, whose first chunk it is.
 fn start_copy(
     path: &Path,
-    ids: [u16; 8],
+    ids: [u16; 9],
     build: &[u8],
     scene: &[u8],
 ) -> Result<Vec<u8>, SessionError> {
@@ -496,6 +505,16 @@ impl StreamTap {
     }
 }
 
+/// Shown every tick the recorder writes, in order, on the recorder's thread, with what it
+/// returns written on the exercise channel: a station's exercises are scored here, from exactly
+/// the ticks its recording holds, off the haptic loop and off the async runtime.
+pub trait TickObserver: Send {
+    /// One tick, as recorded; the `exercise` records (JSON) to write after it, if any.
+    fn tick(&mut self, record: &DeviceRecord) -> Vec<String>;
+    /// The session ends after the last tick: what to write last.
+    fn finish(&mut self) -> Vec<String>;
+}
+
 /// A recording in progress on its own thread.
 pub struct Recorder {
     path: PathBuf,
@@ -512,6 +531,17 @@ impl Recorder {
         scene: &SceneRecord,
         ticks: rtrb::Consumer<TickRecord>,
     ) -> Result<Self, SessionError> {
+        Self::start_observed(path, build, scene, ticks, None)
+    }
+
+    /// [`Recorder::start`], showing every tick to `observer` and recording what it says.
+    pub fn start_observed(
+        path: &Path,
+        build: &BuildRecord,
+        scene: &SceneRecord,
+        ticks: rtrb::Consumer<TickRecord>,
+        observer: Option<Box<dyn TickObserver>>,
+    ) -> Result<Self, SessionError> {
         let writer = SessionWriter::create(path, build, scene)?;
         let (tx, rx) = std::sync::mpsc::sync_channel(CONTACT_QUEUE_FRAMES);
         let dropped = Arc::new(AtomicU64::new(0));
@@ -522,7 +552,7 @@ impl Recorder {
                 let stop = stop.clone();
                 let dropped = dropped.clone();
                 move || {
-                    let result = run_recorder(writer, ticks, rx, dropped, stop);
+                    let result = run_recorder(writer, ticks, rx, dropped, stop, observer);
                     // Said at once: the session goes on unrecorded (the loop drops its ticks
                     // into a full ring) until the server stops and reports it again.
                     if let Err(e) = &result {
@@ -602,6 +632,7 @@ fn run_recorder(
     contacts: Receiver<StreamMessage>,
     contacts_dropped: Arc<AtomicU64>,
     stop: Arc<AtomicBool>,
+    mut observer: Option<Box<dyn TickObserver>>,
 ) -> Result<RecordingStats, SessionError> {
     let wall_chunk = Duration::from_nanos(CHUNK_SPAN_NS);
     let mut last_chunk_end = std::time::Instant::now();
@@ -611,7 +642,13 @@ fn run_recorder(
         let stopping = stop.load(Ordering::Acquire);
         let mut idle = true;
         while let Ok(tick) = ticks.pop() {
-            writer.write_tick(&tick)?;
+            let record = tick_device_record(&tick);
+            writer.write_device(&record)?;
+            if let Some(o) = observer.as_mut() {
+                for json in o.tick(&record) {
+                    writer.write_exercise(&json)?;
+                }
+            }
             idle = false;
         }
         while let Ok(message) = contacts.try_recv() {
@@ -626,6 +663,11 @@ fn run_recorder(
         let lost = contacts_dropped.swap(0, Ordering::Relaxed);
         writer.count_dropped_contacts(lost);
         if stopping {
+            if let Some(o) = observer.as_mut() {
+                for json in o.finish() {
+                    writer.write_exercise(&json)?;
+                }
+            }
             return writer.finish();
         }
         if !writer.has_open_chunk() {

@@ -26,9 +26,12 @@
 //! - `frame.rs`: [`EncodedFrame`], a frame encoded once with each viewer's `dropped` spliced in.
 //! - `tasks.rs`: [`frame_task`] and [`stats_task`] (with the `metrics` and the device's state),
 //!   and [`send_final_metrics`], the session's last `metrics`, sent once the loop has stopped.
+//! - `exercise.rs`: [`ExerciseFeed`], the `exercise` messages of a station running exercises
+//!   and the instructors' `exercise_control` on their way to its scorer.
 //! - `viewer.rs`: [`serve_viewer`], one viewer's connection: its role, what it is sent, what it
 //!   may ask, and how it is closed.
 
+mod exercise;
 mod frame;
 mod tasks;
 mod viewer;
@@ -44,14 +47,16 @@ use tokio::sync::{broadcast, watch};
 
 use crate::access::Access;
 
+pub use exercise::{ControlRefusal, EXERCISE_BACKLOG, ExerciseFeed};
 pub use frame::EncodedFrame;
 pub use tasks::{
     device_status, frame_task, metrics_message, send_final_metrics, stats_message, stats_task,
 };
 pub use viewer::{
-    REASON_FLOOD, REFUSED_LIVE, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY,
-    REFUSED_MARKS_FULL, REFUSED_OBSERVER, REFUSED_REARM_NONE, REFUSED_REARM_OBSERVER, ViewerEnd,
-    refuse_connection, serve_viewer,
+    REASON_FLOOD, REFUSED_EXERCISE_BUSY, REFUSED_EXERCISE_NONE, REFUSED_EXERCISE_OBSERVER,
+    REFUSED_LIVE, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_MARKS_FULL,
+    REFUSED_OBSERVER, REFUSED_REARM_NONE, REFUSED_REARM_OBSERVER, ViewerEnd, refuse_connection,
+    serve_viewer,
 };
 
 /// Frames a viewer may fall behind before it skips to the newest (80 ms at 50 Hz): enough to
@@ -167,6 +172,8 @@ pub struct StreamHub {
     /// Where an instructor's `rearm_device` goes: the live device's handle, `None` on a replay,
     /// a lab hub's relay, and a device whose force output cannot latch off.
     rearm: Option<softhaptic_device::device::RearmHandle>,
+    /// The exercise the station runs, if it runs any ([`StreamHub::with_exercises`]).
+    pub exercise: Arc<ExerciseFeed>,
 }
 
 impl StreamHub {
@@ -206,12 +213,22 @@ impl StreamHub {
             latest_time_ns: AtomicU64::new(0),
             held_frame: std::sync::Mutex::new(None),
             rearm: None,
+            exercise: Arc::new(ExerciseFeed::none()),
         })
     }
 
     /// The hub of a live session whose device an instructor may re-arm through `handle`.
     pub fn with_rearm(mut self, handle: Option<softhaptic_device::device::RearmHandle>) -> Self {
         self.rearm = handle;
+        self
+    }
+
+    /// The hub of a live station running exercises, whose scorer publishes to `feed` (`None`:
+    /// none run here).
+    pub fn with_exercises(mut self, feed: Option<Arc<ExerciseFeed>>) -> Self {
+        if let Some(feed) = feed {
+            self.exercise = feed;
+        }
         self
     }
 

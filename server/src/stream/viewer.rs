@@ -20,11 +20,11 @@ use std::time::{Duration, Instant};
 
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, close_code};
 use softhaptic_proto::wire::{
-    Auth, MarkRequest, Refused, ReplayControl, Role, ServerMessage, message_type,
+    Auth, ExerciseControl, MarkRequest, Refused, ReplayControl, Role, ServerMessage, message_type,
 };
 use tokio::sync::{broadcast, watch};
 
-use super::{StreamCounters, StreamHub, ViewerLimits};
+use super::{ControlRefusal, StreamCounters, StreamHub, ViewerLimits};
 use crate::access::roles::{Action, may};
 use crate::access::{
     Access, CLOSE_UNAUTHORIZED, Connection, LimitRefusal, MessageRate, REASON_BAD_TOKEN,
@@ -116,6 +116,14 @@ pub const REFUSED_MARK_HUB: &str =
     "marks are not taken through the lab hub: mark the session on its station's own page";
 /// The `refused` reason of an `add_mark` once the session has all the marks it keeps.
 pub const REFUSED_MARKS_FULL: &str = "this session has all the marks it can keep (1000)";
+/// The `refused` reason of an `exercise_control` from an observer.
+pub const REFUSED_EXERCISE_OBSERVER: &str = Action::ControlExercise.observer_refusal();
+/// The `refused` reason of an `exercise_control` where no exercises run (a session started
+/// without `--exercises`, a replay, a lab hub's relay).
+pub const REFUSED_EXERCISE_NONE: &str =
+    "no exercises run here: a station runs them when started with --exercises";
+/// The `refused` reason of an `exercise_control` sent faster than the station takes them.
+pub const REFUSED_EXERCISE_BUSY: &str = "the station is still taking the previous control";
 /// The `refused` reason of a `rearm_device` from an observer.
 pub const REFUSED_REARM_OBSERVER: &str = Action::RearmDevice.observer_refusal();
 /// The `refused` reason of a `rearm_device` where there is no device to re-arm (a replay, a lab
@@ -254,6 +262,7 @@ async fn serve_role(
     let mut frames = hub.frames.subscribe();
     let mut stats = hub.stats.subscribe();
     let mut marks = hub.marks.subscribe();
+    let mut exercise = hub.exercise.messages.subscribe();
     let mut shutdown = hub.shutdown.clone();
 
     for greeting in [hub.hello(role), &hub.scene] {
@@ -275,6 +284,12 @@ async fn serve_role(
             return ViewerEnd::SendFailed;
         }
     }
+    // Where the station's exercise stands (a newer message already queued is sent after it).
+    if let Some(latest) = hub.exercise.latest()
+        && !send(&mut socket, Message::Text(latest), timeout, &hub.counters).await
+    {
+        return ViewerEnd::SendFailed;
+    }
     // A replay's current frame, unless a newer one is already queued for this viewer.
     if frames.is_empty()
         && let Some(held) = hub.held_frame()
@@ -292,7 +307,13 @@ async fn serve_role(
     let mut dropped: u64 = 0;
     loop {
         if *shutdown.borrow() {
-            drain_queued(&mut socket, &mut stats, &mut marks, &hub.counters, timeout).await;
+            drain_queued(
+                &mut socket,
+                [&mut marks, &mut exercise, &mut stats],
+                &hub.counters,
+                timeout,
+            )
+            .await;
             close(
                 &mut socket,
                 close_code::AWAY,
@@ -306,7 +327,7 @@ async fn serve_role(
             changed = shutdown.changed() => {
                 // An error means the server was dropped without an orderly shutdown: leave too.
                 if changed.is_err() {
-                    drain_queued(&mut socket, &mut stats, &mut marks, &hub.counters, timeout).await;
+                    drain_queued(&mut socket, [&mut marks, &mut exercise, &mut stats], &hub.counters, timeout).await;
                     close(&mut socket, close_code::AWAY, "server shutting down", timeout).await;
                     return ViewerEnd::Shutdown;
                 }
@@ -363,6 +384,13 @@ async fn serve_role(
                     return ViewerEnd::SendFailed;
                 }
             },
+            text = exercise.recv() => {
+                if let Ok(text) = text
+                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
+                {
+                    return ViewerEnd::SendFailed;
+                }
+            },
         }
     }
 }
@@ -370,20 +398,19 @@ async fn serve_role(
 /// Longest a closing viewer spends sending what was queued for it before the shutdown.
 const SHUTDOWN_DRAIN: Duration = Duration::from_secs(1);
 
-/// Sends the stats, metrics and marks already queued for this viewer (the session's final
+/// Sends the marks, exercise messages, stats and metrics already queued for this viewer (the session's final
 /// `metrics` among them), in the order each channel received them, for at most
 /// [`SHUTDOWN_DRAIN`]: the shutdown flag and the last messages arrive together, and the
 /// viewer's `select!` may see the flag first. A viewer that stopped reading costs the drain's
 /// bound, no more; one that lagged gets the newest (the channels keep those).
 async fn drain_queued(
     socket: &mut WebSocket,
-    stats: &mut broadcast::Receiver<Utf8Bytes>,
-    marks: &mut broadcast::Receiver<Utf8Bytes>,
+    channels: [&mut broadcast::Receiver<Utf8Bytes>; 3],
     counters: &StreamCounters,
     timeout: Duration,
 ) {
     let drain = async {
-        for channel in [marks, stats] {
+        for channel in channels {
             loop {
                 let text = match channel.try_recv() {
                     Ok(text) => text,
@@ -642,6 +669,33 @@ async fn handle_incoming(
                 role = role.as_str(),
                 "an instructor re-armed the haptic device's force output"
             );
+        }
+        Ok(kind) if kind == "exercise_control" => {
+            if !hub.exercise.takes_controls() {
+                return refuse(socket, hub, connection, &kind, REFUSED_EXERCISE_NONE).await;
+            }
+            if !may(role, Action::ControlExercise) {
+                return refuse(socket, hub, connection, &kind, REFUSED_EXERCISE_OBSERVER).await;
+            }
+            let control = match serde_json::from_str::<ExerciseControl>(&text) {
+                Ok(c) => c,
+                Err(e) => return refuse(socket, hub, connection, &kind, &e.to_string()).await,
+            };
+            match hub.exercise.control(control.action) {
+                // The audit line: who moved the trainee's exercises on, and how.
+                Ok(()) => tracing::warn!(
+                    client = %connection.peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string()),
+                    role = role.as_str(),
+                    action = control.action.as_str(),
+                    "an instructor moved the station's exercises on"
+                ),
+                Err(ControlRefusal::NoExercises) => {
+                    return refuse(socket, hub, connection, &kind, REFUSED_EXERCISE_NONE).await;
+                }
+                Err(ControlRefusal::Busy) => {
+                    return refuse(socket, hub, connection, &kind, REFUSED_EXERCISE_BUSY).await;
+                }
+            }
         }
         // The connection has its role already (or the server has no tokens): a later `auth`
         // changes nothing and is ignored.

@@ -26,8 +26,14 @@ enum Kind {
     LoopStats,
     Marks,
     Metrics,
+    Exercise,
     Unknown,
 }
+
+/// Most bytes of `exercise` messages a recording's reader keeps: a station writes one when an
+/// attempt starts or ends (a few kilobytes, the exercise file with the first), so a day of
+/// exercises is far below it; a file made to hold many large ones costs no more than this.
+const MAX_EXERCISE_BYTES: usize = 64 << 20;
 
 impl Kind {
     /// The largest message of this kind read, bytes: a few times the largest this build writes
@@ -41,6 +47,9 @@ impl Kind {
             Kind::Build | Kind::Contact | Kind::LoopStats | Kind::Metrics => 64 << 10,
             Kind::Device | Kind::Stats => 4 << 10,
             Kind::Marks => 8 << 10,
+            // A traced path of up to a thousand points, and the exercise file on an attempt's
+            // first message.
+            Kind::Exercise => 1 << 20,
             // Not parsed and not kept: bounded by its chunk.
             Kind::Unknown => u64::MAX,
         }
@@ -113,6 +122,8 @@ impl Recording {
         let mut unknown_messages = 0;
         let mut marks = Vec::new();
         let mut metrics = Vec::new();
+        let mut exercises = Vec::new();
+        let mut exercise_bytes = 0usize;
         let mut ending = match &scanned.tail {
             Some(reason) => Ending::Truncated {
                 reason: reason.clone(),
@@ -260,6 +271,25 @@ impl Recording {
                         _ => unknown_messages += 1,
                     }
                 }
+                Kind::Exercise if exercise_bytes + message.data.len() > MAX_EXERCISE_BYTES => {
+                    unknown_messages += 1;
+                }
+                Kind::Exercise => {
+                    exercise_bytes += message.data.len();
+                    let json = String::from_utf8_lossy(&message.data);
+                    match ServerMessage::decode(&json) {
+                        Ok(ServerMessage::Exercise(m)) => exercises.push(*m),
+                        _ => {
+                            return Err(SessionError::BadMessage {
+                                path: path_buf.clone(),
+                                topic: channel.topic.clone(),
+                                sequence: message.sequence,
+                                log_time_ns: message.log_time,
+                                reason: "not an exercise message of the wire protocol".into(),
+                            });
+                        }
+                    }
+                }
                 Kind::Unknown => unknown_messages += 1,
             }
         }
@@ -306,6 +336,7 @@ impl Recording {
         loop_stats.shrink_to_fit();
         marks.shrink_to_fit();
         metrics.shrink_to_fit();
+        exercises.shrink_to_fit();
         Ok(Recording {
             path: path_buf,
             file_len,
@@ -320,6 +351,7 @@ impl Recording {
             lost: scanned.lost,
             marks,
             metrics,
+            exercises,
         })
     }
 }
@@ -422,6 +454,7 @@ fn classify(path: &Path, channel: &mcap::Channel<'_>) -> Result<Kind, SessionErr
         topic::LOOP_STATS => (Kind::LoopStats, schema_name::LOOP_STATS),
         topic::MARKS => (Kind::Marks, schema_name::MARKS),
         topic::METRICS => (Kind::Metrics, schema_name::METRICS),
+        topic::EXERCISE => (Kind::Exercise, schema_name::EXERCISE),
         _ => return Ok(Kind::Unknown),
     };
     let found_schema = channel

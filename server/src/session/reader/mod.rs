@@ -88,6 +88,8 @@ pub struct Recording {
     /// final one over the whole session (absent from a recording cut short, and from recordings
     /// made before the metrics were kept).
     pub metrics: Vec<softhaptic_proto::wire::MetricsMessage>,
+    /// A station's `exercise` messages, as recorded when each attempt started and ended.
+    pub exercises: Vec<softhaptic_proto::wire::ExerciseMessage>,
 }
 
 /// A stretch of a recording that could not be read and was skipped.
@@ -157,6 +159,19 @@ impl Recording {
         self.metrics.iter().rev().find(|m| m.is_final)
     }
 
+    /// The results of the attempts at exercises the session ran, in the order they ended.
+    pub fn attempts(&self) -> impl Iterator<Item = &softhaptic_proto::exercise::AttemptResult> {
+        self.exercises.iter().filter_map(|m| m.result.as_ref())
+    }
+
+    /// The text of the exercise file an attempt at `exercise` (its name) started with.
+    pub fn exercise_toml(&self, exercise: &str) -> Option<(&str, &str)> {
+        self.exercises
+            .iter()
+            .filter(|m| m.exercise.name == exercise)
+            .find_map(|m| Some((m.exercise_file.as_deref()?, m.exercise_toml.as_deref()?)))
+    }
+
     /// File name without directories, for messages and the replay status.
     pub fn file_name(&self) -> String {
         self.path
@@ -214,6 +229,21 @@ impl Recording {
             + texts(&self.loop_stats)
             + self.marks.len() * (size_of::<softhaptic_proto::wire::MarkMessage>() + 1024)
             + self.metrics.len() * size_of::<softhaptic_proto::wire::MetricsMessage>()
+            + self
+                .exercises
+                .iter()
+                .map(|m| {
+                    let path = match &m.exercise.task {
+                        softhaptic_proto::exercise::Task::Trace(t) => t.path_m.len() * 24,
+                        softhaptic_proto::exercise::Task::Press(_) => 0,
+                    };
+                    size_of::<softhaptic_proto::wire::ExerciseMessage>()
+                        + m.exercise_toml.as_ref().map_or(0, String::len)
+                        + m.exercise.instructions.len()
+                        + path
+                        + 1024
+                })
+                .sum::<usize>()
             + self.scene.scene_toml.len()
             + meshes;
         bytes as u64

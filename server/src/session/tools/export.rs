@@ -1,4 +1,5 @@
-//! [`export`]: a recording's channels as CSV, its trainee metrics and marks as JSON.
+//! [`export`]: a recording's channels as CSV, its trainee metrics, marks and exercise attempts
+//! as JSON.
 
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -21,10 +22,13 @@ pub struct Exported {
     /// The instructors' marks as the `mark` messages carry them, a JSON list (empty when the
     /// session has none).
     pub marks: PathBuf,
+    /// The results of the attempts at exercises, a JSON list (empty when none ran).
+    pub attempts: PathBuf,
 }
 
 /// Writes `device.csv`, `contact.csv`, `metrics.json` (the trainee's metrics as the `metrics`
-/// message carries them) and `marks.json` (the instructors' marks) into `out_dir` (created).
+/// message carries them), `marks.json` (the instructors' marks) and `attempts.json` (the results
+/// of the attempts at exercises) into `out_dir` (created).
 pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, SessionError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
@@ -35,10 +39,17 @@ pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, 
     let contact_path = out_dir.join("contact.csv");
     let metrics_path = out_dir.join("metrics.json");
     let marks_path = out_dir.join("marks.json");
+    let attempts_path = out_dir.join("attempts.json");
     // Checked before anything is written: an earlier export (another session's, say) is kept
     // whole unless it is to be replaced.
     if !replace {
-        for path in [&device_path, &contact_path, &metrics_path, &marks_path] {
+        for path in [
+            &device_path,
+            &contact_path,
+            &metrics_path,
+            &marks_path,
+            &attempts_path,
+        ] {
             if std::fs::symlink_metadata(path).is_ok() {
                 return Err(SessionError::ExportExists { path: path.clone() });
             }
@@ -65,11 +76,14 @@ pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, 
     let metrics = crate::stream::metrics_message(&recording_metrics(r), true);
     write_json(&metrics_path, &metrics)?;
     write_json(&marks_path, &r.marks)?;
+    let attempts: Vec<_> = r.attempts().collect();
+    write_json(&attempts_path, &attempts)?;
     Ok(Exported {
         device: device_path,
         contact: contact_path,
         metrics: metrics_path,
         marks: marks_path,
+        attempts: attempts_path,
     })
 }
 

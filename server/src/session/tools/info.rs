@@ -64,6 +64,8 @@ pub struct Info {
     /// Device time of the recording's first tick, ns: marks are printed in seconds from it, as
     /// the fault gaps are.
     pub start_time_ns: u64,
+    /// The results of the attempts at exercises the station ran, in the order they ended.
+    pub attempts: Vec<softhaptic_proto::exercise::AttemptResult>,
 }
 
 /// A run of consecutive ticks the device faulted on (zero force throughout).
@@ -210,6 +212,7 @@ impl Info {
             recorded_metrics: None,
             marks: r.marks.clone(),
             start_time_ns: r.device.first().map_or(0, |d| d.time_ns),
+            attempts: r.attempts().cloned().collect(),
         }
         .with_recorded_metrics(r)
     }
@@ -375,6 +378,7 @@ impl fmt::Display for Info {
             )?,
         }
         self.fmt_marks(f)?;
+        self.fmt_attempts(f)?;
         let status = match (&self.ending, self.damaged_stretches) {
             (Ending::Complete, 0) => "complete".to_owned(),
             (Ending::Complete, n) => format!("DAMAGED, recovered around {n} damaged stretches"),
@@ -389,6 +393,56 @@ impl fmt::Display for Info {
 }
 
 impl Info {
+    /// The exercises line: how many attempts, then each one's outcome and the metrics its pass
+    /// marks hold (at most [`MARKS_LISTED`]).
+    fn fmt_attempts(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.attempts.is_empty() {
+            return writeln!(f, "exercises:         none");
+        }
+        let passed = self.attempts.iter().filter(|a| a.passed).count();
+        writeln!(
+            f,
+            "exercises:         {} attempts, {passed} passed",
+            self.attempts.len()
+        )?;
+        for a in self.attempts.iter().take(MARKS_LISTED) {
+            let start_s = a.start_ns.saturating_sub(self.start_time_ns) as f64 * 1e-9;
+            let took_s = a.end_ns.saturating_sub(a.start_ns) as f64 * 1e-9;
+            let ended = match a.ended {
+                softhaptic_proto::exercise::AttemptEnd::Completed => "completed",
+                softhaptic_proto::exercise::AttemptEnd::TimeLimit => "time limit",
+                softhaptic_proto::exercise::AttemptEnd::Stopped => "stopped",
+            };
+            let trainee: String = a.trainee.chars().filter(|c| !c.is_control()).collect();
+            let exercise: String = a.exercise.chars().filter(|c| !c.is_control()).collect();
+            write!(
+                f,
+                "  {trainee}, {exercise} #{} at {start_s:.3} s: {} ({ended} after {took_s:.3} s{})",
+                a.attempt,
+                if a.passed { "passed" } else { "not passed" },
+                if a.score.safe {
+                    ""
+                } else {
+                    ", above the safe force"
+                }
+            )?;
+            for m in &a.marks {
+                write!(
+                    f,
+                    "; {} {:.4} {}",
+                    m.mark.metric,
+                    m.value,
+                    if m.met { "met" } else { "missed" }
+                )?;
+            }
+            writeln!(f)?;
+        }
+        if self.attempts.len() > MARKS_LISTED {
+            writeln!(f, "  … and {} more", self.attempts.len() - MARKS_LISTED)?;
+        }
+        Ok(())
+    }
+
     /// The marks line: how many, then each one's time and note (at most [`MARKS_LISTED`], each
     /// note cut at [`MARK_NOTE_PRINTED`] characters, on one line whatever it holds).
     fn fmt_marks(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
