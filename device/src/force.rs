@@ -16,9 +16,12 @@
 //!    device comes back after a fault (`RAMPING`);
 //! 4. the passivity controller (`PASSIVITY_DAMPING`, see [`crate::passivity`]);
 //! 5. saturation at the device's peak force (`SATURATED`);
-//! 6. the continuous-force limit: a model of the motors' heating scales the force down, smoothly,
+//! 6. the late-tick bound: a tick whose interval spans more than 1.5 nominal periods changes the
+//!    force of the stages above by at most (K_max / r)|Δx| + 0.25 N from the last tick's force at
+//!    this stage, and the lag it leaves settles on the next ticks (`LATE_TICK_LIMITED`);
+//! 7. the continuous-force limit: a model of the motors' heating scales the force down, smoothly,
 //!    when a long hard press would hold more than the device's continuous rating
-//!    (`CONTINUOUS_FORCE_LIMITED`, see [`crate::thermal`]).
+//!    (`CONTINUOUS_FORCE_LIMITED`, see [`crate::thermal`]), and the warm-motors limit after it.
 //!
 //! An object with stiffer inclusions scales step 1 by the FEM's force ratio at the contact
 //! ([`crate::inclusion`], [`ForceRenderer::set_inclusion`]) and adds the potential's sideways
@@ -189,6 +192,11 @@ pub struct ForceRenderer {
     /// A late tick limited the force, which may still lag the law's: the next ticks settle it
     /// under the same limit at the nominal stiffness.
     late_lag: bool,
+    /// Last tick's force as the late-tick bound left it, before the heating and warm-motors
+    /// limits scaled it: the bound compares this tick's force with it, like with like. Compared
+    /// with the force those limits left, a press they hold down would read as a lag that never
+    /// settles, and the bound would hold the force lower still for as long as they act.
+    previous_bounded_n: DVec3,
     /// The inclusions' force ratio at the contact (1 without inclusions) and its gradient with
     /// respect to the contact point, world frame, 1/m ([`ForceRenderer::set_inclusion`]).
     inclusion_ratio: f64,
@@ -271,6 +279,7 @@ impl ForceRenderer {
             thermal_time_ns: None,
             warm_last_ns: None,
             late_lag: false,
+            previous_bounded_n: DVec3::ZERO,
             inclusion_ratio: 1.0,
             inclusion_gradient_1_per_m: DVec3::ZERO,
             inclusion_ratio_per_depth_1_per_m: 0.0,
@@ -476,6 +485,7 @@ impl ForceRenderer {
         self.previous_force_n = DVec3::ZERO;
         self.previous_position_m = None;
         self.late_lag = false;
+        self.previous_bounded_n = DVec3::ZERO;
         self.observer.reset();
         RenderedForce {
             force_n: DVec3::ZERO,
@@ -510,6 +520,7 @@ impl ForceRenderer {
         if let Some(d) = displacement_m {
             self.limit_late_step(&mut rendered, d, interval_ns);
         }
+        self.previous_bounded_n = rendered.force_n;
         if let Some(thermal) = self.thermal.as_mut() {
             // Last in the pipeline, after the saturation: it books what the device delivers. The
             // force is held until the next tick, estimated as long as the last interval; after a
@@ -553,7 +564,7 @@ impl ForceRenderer {
         let lateness = interval_ns as f64 / NOMINAL_PERIOD_NS as f64;
         let late = lateness > LATE_TICK_PERIODS;
         let both_in_contact =
-            rendered.force_n != DVec3::ZERO && self.previous_force_n != DVec3::ZERO;
+            rendered.force_n != DVec3::ZERO && self.previous_bounded_n != DVec3::ZERO;
         if !both_in_contact
             || rendered.flags.contains(ContactFlags::DEVICE_FAULT)
             || !(late || self.late_lag)
@@ -563,10 +574,10 @@ impl ForceRenderer {
         }
         let stiffness_n_per_m = self.beyond_tip_stiffness_n_per_m / lateness.max(1.0);
         let allowed_n = stiffness_n_per_m * displacement_m.length() + LATE_SETTLE_STEP_N;
-        let step_n = rendered.force_n - self.previous_force_n;
+        let step_n = rendered.force_n - self.previous_bounded_n;
         let size_n = step_n.length();
         if size_n > allowed_n && size_n.is_finite() {
-            rendered.force_n = self.previous_force_n + step_n * (allowed_n / size_n);
+            rendered.force_n = self.previous_bounded_n + step_n * (allowed_n / size_n);
             rendered.flags |= ContactFlags::LATE_TICK_LIMITED;
             self.late_lag = true;
         } else {
@@ -1088,6 +1099,49 @@ mod tests {
             late_ns + 41 * MS,
         );
         assert!(!g.flags.contains(ContactFlags::LATE_TICK_LIMITED));
+    }
+
+    #[test]
+    fn the_lag_a_late_tick_leaves_settles_while_the_heating_limit_holds_the_press_down() {
+        let mut r = renderer(Material::PAPER_STIFF, |c| c.passivity = false);
+        let depth = 0.004;
+        // A hard press held for 3 s: the heating model holds it down to the continuous rating.
+        let mut t = 0;
+        let mut held = RenderedForce::ZERO;
+        for _ in 0..3_000 {
+            held = r.render(Some(&contact(depth)), at(depth), DVec3::ZERO, DVec3::Y, t);
+            t += MS;
+        }
+        assert!(
+            held.flags.contains(ContactFlags::CONTINUOUS_FORCE_LIMITED),
+            "{held:?}"
+        );
+        // 10 ms late and 2 mm deeper, then on time and still.
+        let deeper = depth + 0.002;
+        t += 9 * MS;
+        let f = r.render(Some(&contact(deeper)), at(deeper), DVec3::ZERO, DVec3::Y, t);
+        assert!(f.flags.contains(ContactFlags::LATE_TICK_LIMITED), "{f:?}");
+        let mut settled_after = None;
+        for k in 1..=100u64 {
+            let g = r.render(
+                Some(&contact(deeper)),
+                at(deeper),
+                DVec3::ZERO,
+                DVec3::Y,
+                t + k * MS,
+            );
+            assert!(g.flags.contains(ContactFlags::CONTINUOUS_FORCE_LIMITED));
+            let limited = g.flags.contains(ContactFlags::LATE_TICK_LIMITED);
+            match settled_after {
+                None if !limited => settled_after = Some(k),
+                Some(_) => assert!(!limited, "limited again at tick {k}"),
+                None => {}
+            }
+        }
+        // The lag is the law's force less the bounded one (before the heating limit scales
+        // either): settled at the settling step per tick, not held by the heating limit's gain.
+        let settled_after = settled_after.expect("the lag never settles");
+        assert!(settled_after <= 40, "{settled_after} ticks");
     }
 
     #[test]

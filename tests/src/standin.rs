@@ -55,6 +55,26 @@ pub struct HandState {
     pub velocity_mm_s: [f64; 3],
 }
 
+/// How the built-in hand holds the stylus ([`StandIn::set_grip`]): a spring-damper toward the
+/// press's target, acting on the mass that moves with the tip.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Grip {
+    pub stiffness_n_per_m: f64,
+    pub damping_n_s_per_m: f64,
+    /// The device's apparent mass at the tip and the part of the hand moving with it.
+    pub mass_kg: f64,
+}
+
+impl Grip {
+    /// The stand-in's default, the simulator's relaxed pen grip (`SimParams::default`): 300 N/m,
+    /// 2 N·s/m, the PHANTOM Desktop's 45 g at the tip and 100 g of hand.
+    pub const RELAXED: Grip = Grip {
+        stiffness_n_per_m: 300.0,
+        damping_n_s_per_m: 2.0,
+        mass_kg: 0.145,
+    };
+}
+
 /// A hand the test installs: called on the servo thread at the start of every tick with the
 /// force the stand-in sent at the last `hdEndFrame` (N, device frame); it updates the position
 /// (mm) and velocity (mm/s), which hold the previous tick's values on entry.
@@ -103,6 +123,7 @@ pub struct StandIn {
     fail_scheduler_start: unsafe extern "C" fn(c_int),
     stall_callbacks: unsafe extern "C" fn(c_int),
     late_ticks: unsafe extern "C" fn(c_int, c_double),
+    set_grip: unsafe extern "C" fn(c_double, c_double, c_double),
     set_calibration_styles: unsafe extern "C" fn(c_int),
     set_workspace: unsafe extern "C" fn(*const c_double, *const c_double),
     inject_error: unsafe extern "C" fn(c_uint, c_int),
@@ -158,6 +179,7 @@ impl StandIn {
             fail_scheduler_start: control!(library, "hdStandinFailSchedulerStart"),
             stall_callbacks: control!(library, "hdStandinStallCallbacks"),
             late_ticks: control!(library, "hdStandinLateTicks"),
+            set_grip: control!(library, "hdStandinSetGrip"),
             set_calibration_styles: control!(library, "hdStandinSetCalibrationStyles"),
             set_workspace: control!(library, "hdStandinSetWorkspace"),
             inject_error: control!(library, "hdStandinInjectError"),
@@ -184,8 +206,9 @@ impl StandIn {
 
     /// Back to a fresh stand-in: the scheduler stopped and its callbacks gone, the device closed
     /// and plugged in, errors, injected faults, calibration, buttons, rotation, limits and
-    /// statistics cleared, the built-in hand back at the start of its press. Only the tick count
-    /// since load survives. Call it from the test's thread, never from a callback.
+    /// statistics cleared, the built-in hand back at the start of its press with its default
+    /// grip. Only the tick count since load survives. Call it from the test's thread, never from
+    /// a callback.
     pub fn reset(&self) {
         // SAFETY: no arguments; the stand-in stops and joins its scheduler itself.
         unsafe { (self.reset)() };
@@ -245,6 +268,16 @@ impl StandIn {
     pub fn late_ticks(&self, ticks: u32, tick_s: f64) {
         // SAFETY: plain values.
         unsafe { (self.late_ticks)(c_ticks(ticks), tick_s) };
+    }
+
+    /// The built-in hand's grip until the next [`reset`](Self::reset): the stiffness (N/m) and
+    /// damping (N·s/m) holding the stylus toward the press's target, and the mass moving with the
+    /// tip (kg: the device's and the hand's). The default is [`Grip::RELAXED`]. A value that is
+    /// not finite, a negative stiffness or damping, or a mass that is not positive changes
+    /// nothing.
+    pub fn set_grip(&self, grip: Grip) {
+        // SAFETY: plain values.
+        unsafe { (self.set_grip)(grip.stiffness_n_per_m, grip.damping_n_s_per_m, grip.mass_kg) };
     }
 
     /// The calibration styles the device reports and accepts ([`hd::HD_CALIBRATION_AUTO`], ...).
