@@ -68,8 +68,11 @@ package: rust-tools web-deps cargo-deb
 	$(PACKAGE_BUILD)/softhaptic completions fish > $(PACKAGE_GEN)/softhaptic.fish
 	$(CARGO) deb -p softhaptic-server --no-build --profile $(PACKAGE_PROFILE) $(PACKAGE_DEB_FLAGS) --output $(TARGET_DIR)/debian/
 
+# cargo-deb's debug build: its own dev profile optimises its compression (lzma-sys, xz2, zopfli),
+# so it packages no slower and makes the same .deb byte for byte, and it compiles in about 1 min
+# 10 s on two cores where its release build takes about 2 min.
 cargo-deb:
-	@command -v cargo-deb >/dev/null 2>&1 || $(CARGO) install cargo-deb --locked
+	@command -v cargo-deb >/dev/null 2>&1 || $(CARGO) install cargo-deb --locked --debug
 
 # The package as an operator gets it: unpacked and run with no source tree in reach, its units
 # checked by systemd, its file list held to docs/install.md (web/tests/package.test.mjs).

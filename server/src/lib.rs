@@ -26,6 +26,8 @@
 //! - [`lab`]: the teaching lab on NATS: a station publishes its stream (`--nats`, `--station`),
 //!   a hub (`softhaptic hub`) lists the stations and relays any of them to browsers.
 //! - [`files`]: reading the files users name: regular files only, each kind bounded in size.
+//! - [`toml_file`]: the checked TOML files (scenes, exercises) read and parsed, and their
+//!   errors, which name the file and, for a refused value, its field and the value.
 //! - [`logging`]: the process's log, which never writes the libraries' payload traces (tokens,
 //!   NATS credentials), whatever `RUST_LOG` asks for.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
@@ -52,5 +54,6 @@ pub mod scene;
 pub mod session;
 pub mod stream;
 pub mod tls;
+pub mod toml_file;
 pub mod vectors;
 pub mod viewer;

@@ -11,6 +11,8 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
+#[path = "../../tests/src/lab_ca.rs"]
+mod lab_ca;
 mod support;
 
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
@@ -28,6 +30,7 @@ use clap::Parser;
 use futures_util::{SinkExt, StreamExt};
 use http_body_util::{BodyExt, Empty};
 use hyper_util::rt::{TokioExecutor, TokioIo};
+use lab_ca::LabCa;
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, ServerName};
 use rustls::{ClientConfig, RootCertStore};
@@ -670,47 +673,10 @@ async fn without_tls_options_the_server_is_plain_http_and_ws() {
     server.stop().await;
 }
 
-/// A certificate authority and a server certificate it signed, as a lab's CA would issue them.
-struct LabCa {
-    ca_der: CertificateDer<'static>,
-    ca_pem: String,
-    server_pem: String,
-    server_key_pem: String,
-    server_der: CertificateDer<'static>,
-}
-
-fn lab_ca() -> LabCa {
-    let ca_key = rcgen::KeyPair::generate().unwrap();
-    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
-    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
-    ca_params
-        .distinguished_name
-        .push(rcgen::DnType::CommonName, "Lab CA");
-    ca_params.key_usages = vec![
-        rcgen::KeyUsagePurpose::KeyCertSign,
-        rcgen::KeyUsagePurpose::CrlSign,
-    ];
-    let ca_cert = ca_params.self_signed(&ca_key).unwrap();
-    let issuer = rcgen::Issuer::new(ca_params, ca_key);
-    let server_key = rcgen::KeyPair::generate().unwrap();
-    let mut server_params =
-        rcgen::CertificateParams::new(vec!["lab-pc.local".to_owned(), "localhost".to_owned()])
-            .unwrap();
-    server_params.extended_key_usages = vec![rcgen::ExtendedKeyUsagePurpose::ServerAuth];
-    let server_cert = server_params.signed_by(&server_key, &issuer).unwrap();
-    LabCa {
-        ca_der: ca_cert.der().clone(),
-        ca_pem: ca_cert.pem(),
-        server_pem: server_cert.pem(),
-        server_key_pem: server_key.serialize_pem(),
-        server_der: server_cert.der().clone(),
-    }
-}
-
 #[tokio::test]
 async fn a_certificate_and_key_from_pem_files_serve_wss_to_a_client_that_trusts_the_ca() {
     let dir = tempfile::tempdir().unwrap();
-    let ca = lab_ca();
+    let ca = LabCa::new(&["lab-pc.local", "localhost"]);
     let cert_path = dir.path().join("lab-pc.crt");
     let key_path = dir.path().join("lab-pc.key");
     // The server's certificate, then the chain, as a CA delivers it.
@@ -729,14 +695,14 @@ async fn a_certificate_and_key_from_pem_files_serve_wss_to_a_client_that_trusts_
     assert_eq!(setup.certificate_path, cert_path);
     assert_eq!(
         setup.fingerprint_sha256,
-        tls::fingerprint_sha256(ca.server_der.as_ref())
+        tls::fingerprint_sha256(&ca.server_der)
     );
 
     let server = Server::start(Some(setup.config.clone())).await;
     wss_round_trip(
         server.addr,
         "lab-pc.local",
-        client_trusting(std::slice::from_ref(&ca.ca_der), &[]),
+        client_trusting(&[CertificateDer::from(ca.ca_der.clone())], &[]),
     )
     .await;
     server.stop().await;
@@ -766,11 +732,11 @@ fn write(dir: &Path, name: &str, contents: impl AsRef<[u8]>) -> PathBuf {
 #[test]
 fn bad_files_give_errors_that_name_the_file_and_what_is_wrong() {
     let dir = tempfile::tempdir().unwrap();
-    let ca = lab_ca();
+    let ca = LabCa::new(&["lab-pc.local", "localhost"]);
     let cert = write(dir.path(), "server.crt", &ca.server_pem);
     let key = write(dir.path(), "server.key", &ca.server_key_pem);
     let missing = dir.path().join("missing.crt");
-    let der = write(dir.path(), "server.der", ca.server_der.as_ref());
+    let der = write(dir.path(), "server.der", &ca.server_der);
     let other_key = write(
         dir.path(),
         "other.key",

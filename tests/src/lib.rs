@@ -16,11 +16,14 @@
 //! - [`fuzz`]: a mutation fuzzer of every parser that takes outside input (scene, OBJ,
 //!   calibration and limits JSON, recordings, wire messages), run offline by `fuzz-report` and
 //!   briefly by `tests/fuzz_seeded.rs`.
+//! - [`lab_ca`]: a lab's certificate authority and a server certificate it signed, for the TLS
+//!   tests (the server's `tests/tls.rs` includes the file by its path).
 //! - [`crafted`]: recordings made to hurt their reader (valid, but padded to decode to far more
 //!   than their size), for `tests/recording_limits.rs` and `padded-recording`.
 
 pub mod crafted;
 pub mod fuzz;
+pub mod lab_ca;
 pub mod nats;
 pub mod standin;
 

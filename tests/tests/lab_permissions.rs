@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 
 use softhaptic_server::lab::permissions::{HUB_SEED_FILE, station_seed_file, write_lab_config};
 use softhaptic_server::lab::{NatsOptions, Party};
+use softhaptic_tests::lab_ca::LabCa;
 use softhaptic_tests::nats::{NatsServer, archive_sessions, start_hub, start_station};
 use softhaptic_tests::{Viewer, http_request, scratch_dir, wait_until};
 use tokio::sync::mpsc;
@@ -248,33 +249,16 @@ struct TlsFiles {
 }
 
 fn tls_files(dir: &Path) -> TlsFiles {
-    let ca_key = rcgen::KeyPair::generate().unwrap();
-    let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
-    ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
-    ca_params
-        .distinguished_name
-        .push(rcgen::DnType::CommonName, "Lab CA");
-    ca_params.key_usages = vec![
-        rcgen::KeyUsagePurpose::KeyCertSign,
-        rcgen::KeyUsagePurpose::CrlSign,
-    ];
-    let ca_cert = ca_params.self_signed(&ca_key).unwrap();
-    let issuer = rcgen::Issuer::new(ca_params, ca_key);
-    let server_key = rcgen::KeyPair::generate().unwrap();
-    let mut server_params =
-        rcgen::CertificateParams::new(vec!["127.0.0.1".to_owned(), "localhost".to_owned()])
-            .unwrap();
-    server_params.extended_key_usages = vec![rcgen::ExtendedKeyUsagePurpose::ServerAuth];
-    let server_cert = server_params.signed_by(&server_key, &issuer).unwrap();
+    let ca = LabCa::new(&["127.0.0.1", "localhost"]);
     std::fs::create_dir_all(dir).unwrap();
     let files = TlsFiles {
         ca: dir.join("lab-ca.pem"),
         cert: dir.join("nats-cert.pem"),
         key: dir.join("nats-key.pem"),
     };
-    std::fs::write(&files.ca, ca_cert.pem()).unwrap();
-    std::fs::write(&files.cert, server_cert.pem()).unwrap();
-    std::fs::write(&files.key, server_key.serialize_pem()).unwrap();
+    std::fs::write(&files.ca, &ca.ca_pem).unwrap();
+    std::fs::write(&files.cert, &ca.server_pem).unwrap();
+    std::fs::write(&files.key, &ca.server_key_pem).unwrap();
     files
 }
 

@@ -31,25 +31,16 @@ use softhaptic_proto::exercise::{
     Better, Exercise, ExpertSpread, PassMark, PressTask, Task, TraceTask,
 };
 
-use crate::files::{self, FileKind};
+use crate::files::FileKind;
 use crate::scene::{Scene, SceneError};
+use crate::toml_file::{self, TomlFileError};
 
 /// Why an exercise file was refused. Every variant names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum ExerciseError {
-    #[error("{path}: {reason}")]
-    Read {
-        path: PathBuf,
-        reason: files::ReadError,
-    },
-    #[error("{path}: {message}")]
-    Parse { path: PathBuf, message: String },
-    #[error("{path}: {field}: {reason}")]
-    Field {
-        path: PathBuf,
-        field: String,
-        reason: String,
-    },
+    /// Not read, not TOML of an exercise file, or a value refused.
+    #[error(transparent)]
+    File(#[from] TomlFileError),
     #[error("{path}: scene: {source}")]
     Scene {
         path: PathBuf,
@@ -135,11 +126,7 @@ pub struct LoadedExercise {
 impl LoadedExercise {
     /// Reads, checks and places the exercise file at `path`, loading the scene it names.
     pub fn load(path: &Path) -> Result<Self, ExerciseError> {
-        let text =
-            files::read_text(path, FileKind::Exercise).map_err(|reason| ExerciseError::Read {
-                path: path.to_owned(),
-                reason,
-            })?;
+        let text = toml_file::read(path, FileKind::Exercise)?;
         let file = parse(&text, path)?;
         let base = path.parent().unwrap_or(Path::new("."));
         let scene_path = file.scene.as_ref().map(|p| base.join(p));
@@ -177,10 +164,7 @@ impl LoadedExercise {
 }
 
 fn parse(text: &str, path: &Path) -> Result<ExerciseFile, ExerciseError> {
-    toml::from_str(text).map_err(|e| ExerciseError::Parse {
-        path: path.to_owned(),
-        message: e.to_string().trim_end().to_owned(),
-    })
+    Ok(toml_file::parse(text, path)?)
 }
 
 /// The checks of one file, with the error constructor that names it.
@@ -190,11 +174,7 @@ struct Checker<'a> {
 
 impl Checker<'_> {
     fn refuse(&self, field: &str, reason: String) -> ExerciseError {
-        ExerciseError::Field {
-            path: self.path.to_owned(),
-            field: field.to_owned(),
-            reason,
-        }
+        TomlFileError::field(self.path, field, reason).into()
     }
 
     /// A finite value in `(low, high]` (or `[low, high]` when `low_inclusive`).

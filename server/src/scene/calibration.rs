@@ -9,6 +9,7 @@ use softhaptic_proto::{CalibrationError, CalibrationTable, Material, ModelLimits
 use super::file::SceneFile;
 use super::{FileBase, ModelSource, SceneError};
 use crate::files::{self, FileKind, ReadError};
+use crate::toml_file::TomlFileError;
 
 /// The limits file a scene uses when it names none, relative to the scene file.
 pub const DEFAULT_LIMITS_FILE: &str = "calibration/model_limits.json";
@@ -108,11 +109,8 @@ pub(super) fn calibration_table(
     model_source: ModelSource<'_>,
     path: &Path,
 ) -> Result<CalibrationTable, SceneError> {
-    let field = |field: &str, reason: String| SceneError::Field {
-        path: path.to_owned(),
-        field: field.to_owned(),
-        reason,
-    };
+    let field =
+        |field: &str, reason: String| SceneError::from(TomlFileError::field(path, field, reason));
     let table = if let ModelSource::Recorded(record) = model_source {
         // The table the session ran with, as its viewers were sent it.
         record.message.calibration.clone()
@@ -223,14 +221,15 @@ fn check_poisson_ratio(
         ),
         None => "use a table made at the scene's ν, or table = \"half_space\"".to_owned(),
     };
-    Err(SceneError::Field {
-        path: path.to_owned(),
-        field: "material.poisson_ratio".to_owned(),
-        reason: format!(
+    Err(TomlFileError::field(
+        path,
+        "material.poisson_ratio",
+        format!(
             "{scene_nu} differs from the ν = {table_nu} of calibration.table {table_name:?} (more \
              than {POISSON_TOLERANCE}): {suggestion}"
         ),
-    })
+    )
+    .into())
 }
 
 /// The name the calibration gives the table of `table_name`'s tool and stiffness at

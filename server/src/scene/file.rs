@@ -13,6 +13,7 @@ use softhaptic_proto::deformation::RenderProfile;
 use softhaptic_proto::{CalibrationTable, Material, ModelSpec, ToolShape};
 
 use super::SceneError;
+use crate::toml_file::{self, TomlFileError};
 
 /// A value refused where it stands in the file: its byte range and why.
 type Refusal = (std::ops::Range<usize>, String);
@@ -463,12 +464,8 @@ impl SceneFile {
     /// Parses scene text; `path` names it in errors. Syntax, an unknown field, a wrong type and
     /// a material or tool its type refuses are errors here, each shown on its line.
     pub(super) fn parse(text: &str, path: &Path) -> Result<SceneFile, SceneError> {
-        let refused = |message: String| SceneError::Parse {
-            path: path.to_owned(),
-            message,
-        };
-        let file: SceneFile =
-            toml::from_str(text).map_err(|e| refused(e.to_string().trim_end().to_owned()))?;
+        let refused = |message: String| SceneError::from(TomlFileError::parse(path, message));
+        let file: SceneFile = toml_file::parse(text, path)?;
         // Checked here, where the text is, so that a refused value is shown on its line.
         file.material
             .material()

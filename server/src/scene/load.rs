@@ -23,6 +23,7 @@ use super::file::{
     identity_quaternion,
 };
 use super::{FileBase, ModelSource, RenderSurface, Scene, SceneError, obj};
+use crate::toml_file::TomlFileError;
 
 impl Scene {
     /// Validates a parsed scene file and loads what it names; `path` names the scene in errors,
@@ -34,10 +35,8 @@ impl Scene {
         base: Option<&Path>,
         model_source: ModelSource<'_>,
     ) -> Result<Scene, SceneError> {
-        let field = |field: &str, reason: String| SceneError::Field {
-            path: path.to_owned(),
-            field: field.to_owned(),
-            reason,
+        let field = |field: &str, reason: String| {
+            SceneError::from(TomlFileError::field(path, field, reason))
         };
         let files = match base {
             Some(b) => FileBase::Dir(b),

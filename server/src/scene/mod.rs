@@ -142,7 +142,8 @@ use softhaptic_proto::{
     CalibrationTable, Inclusion, InclusionTable, Material, Pose, ToolShape, ValidityLimits,
 };
 
-use crate::files::{self, FileKind, ReadError};
+use crate::files::FileKind;
+use crate::toml_file::{self, TomlFileError};
 
 mod calibration;
 mod file;
@@ -163,20 +164,9 @@ pub use obj::parse_obj;
 /// field and the value.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
-    /// The file could not be read. The OS's text is part of this message, not a separate
-    /// cause, so that an error chain prints it once.
-    #[error("{path}: {reason}")]
-    Read { path: PathBuf, reason: ReadError },
-    /// Syntax, an unknown field, a wrong type, or a value refused by its type (material, tool):
-    /// toml's message shows the line, the column and the offending text.
-    #[error("{path}: {message}")]
-    Parse { path: PathBuf, message: String },
-    #[error("{path}: {field}: {reason}")]
-    Field {
-        path: PathBuf,
-        field: String,
-        reason: String,
-    },
+    /// Not read, not TOML of a scene file, or a value refused.
+    #[error(transparent)]
+    File(#[from] TomlFileError),
     #[error("{path}: {field}: mesh {mesh}: {reason}")]
     Mesh {
         path: PathBuf,
@@ -332,10 +322,7 @@ impl Scene {
 
     /// Reads and loads a scene file. Relative mesh and table paths are relative to the file.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let text = files::read_text(path, FileKind::Scene).map_err(|reason| SceneError::Read {
-            path: path.to_owned(),
-            reason,
-        })?;
+        let text = toml_file::read(path, FileKind::Scene)?;
         let base = path.parent().unwrap_or(Path::new("."));
         Self::from_toml(&text, path, Some(base))
     }
@@ -450,6 +437,7 @@ mod tests {
     use softhaptic_proto::{ModelLimitsFile, ModelSpec};
 
     use super::*;
+    use crate::files;
 
     #[test]
     fn builtin_default_scene_is_the_liver_with_the_combined_model_and_the_fem_table() {

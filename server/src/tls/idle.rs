@@ -16,13 +16,11 @@
 //! prior-knowledge HTTP/2 whenever it serves upgrades, whatever version it is limited to, and
 //! nothing needs h2c (browsers speak HTTP/2 only over TLS).
 
-use std::future::Future;
 use std::io;
 use std::pin::Pin;
 use std::task::{Context, Poll};
 use std::time::Duration;
 
-use axum_server::accept::Accept;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::time::{Instant, Sleep};
 
@@ -41,40 +39,10 @@ pub(super) enum OnHttp2 {
     CloseWhenIdle(Duration),
 }
 
-/// An acceptor in front of `inner` whose HTTP/2 connections are treated as `http2` says.
-#[derive(Debug, Clone)]
-pub(super) struct Http2Guard<A> {
-    pub inner: A,
-    pub http2: OnHttp2,
-}
-
 /// The error an h2c connection ends with.
 #[derive(Debug, thiserror::Error)]
 #[error("cleartext HTTP/2 (h2c) is not served: HTTP/1.1, or HTTP/2 over TLS")]
 pub(super) struct H2cRefused;
-
-impl<A, I, S> Accept<I, S> for Http2Guard<A>
-where
-    A: Accept<I, S> + Clone + Send + Sync + 'static,
-    A::Future: Send,
-    A::Stream: AsyncRead + AsyncWrite + Unpin + Send,
-    A::Service: Send,
-    I: Send + 'static,
-    S: Send + 'static,
-{
-    type Stream = IdleStream<A::Stream>;
-    type Service = A::Service;
-    type Future = Pin<Box<dyn Future<Output = io::Result<(Self::Stream, A::Service)>> + Send>>;
-
-    fn accept(&self, stream: I, service: S) -> Self::Future {
-        let inner = self.inner.clone();
-        let http2 = self.http2;
-        Box::pin(async move {
-            let (stream, service) = inner.accept(stream, service).await?;
-            Ok((IdleStream::new(stream, http2), service))
-        })
-    }
-}
 
 /// Whether a connection is HTTP/2, from its first bytes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -89,18 +57,20 @@ enum Protocol {
 }
 
 /// A connection's stream that, once it is known to be HTTP/2, fails ([`OnHttp2::Refuse`]) or
-/// ends (end of file) after `idle` without a byte read or written.
+/// ends (end of file) after `idle` without a byte read or written. `held` lives as long as the
+/// connection (its slot in the connection caps).
 #[derive(Debug)]
-pub(super) struct IdleStream<T> {
+pub(super) struct IdleStream<T, H> {
     stream: T,
+    _held: H,
     protocol: Protocol,
     refuse: bool,
     idle: Duration,
     deadline: Pin<Box<Sleep>>,
 }
 
-impl<T> IdleStream<T> {
-    fn new(stream: T, http2: OnHttp2) -> Self {
+impl<T, H> IdleStream<T, H> {
+    pub(super) fn new(stream: T, http2: OnHttp2, held: H) -> Self {
         let (refuse, idle) = match http2 {
             // The deadline is never watched then.
             OnHttp2::Refuse => (true, Duration::MAX),
@@ -108,6 +78,7 @@ impl<T> IdleStream<T> {
         };
         IdleStream {
             stream,
+            _held: held,
             protocol: Protocol::Unknown { matched: 0 },
             refuse,
             idle,
@@ -143,7 +114,7 @@ impl<T> IdleStream<T> {
     }
 }
 
-impl<T: AsyncRead + Unpin> AsyncRead for IdleStream<T> {
+impl<T: AsyncRead + Unpin, H: Unpin> AsyncRead for IdleStream<T, H> {
     fn poll_read(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -184,7 +155,7 @@ impl<T: AsyncRead + Unpin> AsyncRead for IdleStream<T> {
     }
 }
 
-impl<T: AsyncWrite + Unpin> AsyncWrite for IdleStream<T> {
+impl<T: AsyncWrite + Unpin, H: Unpin> AsyncWrite for IdleStream<T, H> {
     fn poll_write(
         mut self: Pin<&mut Self>,
         cx: &mut Context<'_>,
@@ -229,16 +200,16 @@ mod tests {
 
     #[tokio::test]
     async fn the_preface_is_followed_across_reads_and_anything_else_is_left_alone() {
-        let mut h2 = IdleStream::new((), OnHttp2::Refuse);
+        let mut h2 = IdleStream::new((), OnHttp2::Refuse, ());
         h2.sniff(&HTTP2_PREFACE[..5]);
         assert_eq!(h2.protocol, Protocol::Unknown { matched: 5 });
         h2.sniff(&[&HTTP2_PREFACE[5..], b"\0\0\0\x04"].concat());
         assert_eq!(h2.protocol, Protocol::Http2);
-        let mut http1 = IdleStream::new((), OnHttp2::Refuse);
+        let mut http1 = IdleStream::new((), OnHttp2::Refuse, ());
         http1.sniff(b"GET / HTTP/1.1\r\n");
         assert_eq!(http1.protocol, Protocol::Other);
         // A request that starts like the preface but is not it.
-        let mut pri = IdleStream::new((), OnHttp2::Refuse);
+        let mut pri = IdleStream::new((), OnHttp2::Refuse, ());
         pri.sniff(b"PRI * HTTP/1.1\r\n");
         assert_eq!(pri.protocol, Protocol::Other);
     }

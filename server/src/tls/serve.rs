@@ -9,19 +9,18 @@ use std::io;
 use std::net::{IpAddr, SocketAddr};
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, PoisonError};
-use std::task::{Context, Poll};
 use std::time::Duration;
 
 use axum::Router;
 use axum_server::accept::{Accept, DefaultAcceptor};
 use axum_server::tls_rustls::{RustlsAcceptor, RustlsConfig};
 use rustls::ServerConfig;
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
-use super::idle::{Http2Guard, OnHttp2};
+use super::idle::{IdleStream, OnHttp2};
 use super::{FIRST_REQUEST_TIMEOUT, HANDSHAKE_TIMEOUT, HEADER_READ_TIMEOUT, HTTP2_IDLE_TIMEOUT};
 use crate::access::ConnectionLimits;
 
@@ -143,19 +142,16 @@ pub fn serve(
     let guard = ConnectionGuard::new(caps);
     let served: Pin<Box<dyn Future<Output = io::Result<()>> + Send>> = match tls {
         None => {
-            let acceptor = Http2Guard {
-                inner: guard.wrap(DefaultAcceptor::new()),
-                http2: OnHttp2::Refuse,
-            };
+            let acceptor = guard.wrap(DefaultAcceptor::new(), OnHttp2::Refuse);
             Box::pin(server(listener, acceptor, &handle, caps).serve(service))
         }
         Some(config) => {
-            let acceptor = Http2Guard {
-                inner: RustlsAcceptor::new(RustlsConfig::from_config(config))
+            let acceptor = guard.wrap(
+                RustlsAcceptor::new(RustlsConfig::from_config(config))
                     .handshake_timeout(HANDSHAKE_TIMEOUT)
-                    .acceptor(guard.wrap(RefusePlainText)),
-                http2: OnHttp2::CloseWhenIdle(caps.http2_idle_timeout),
-            };
+                    .acceptor(RefusePlainText),
+                OnHttp2::CloseWhenIdle(caps.http2_idle_timeout),
+            );
             Box::pin(server(listener, acceptor, &handle, caps).serve(service))
         }
     };
@@ -229,10 +225,11 @@ impl ConnectionGuard {
         }
     }
 
-    fn wrap<A>(&self, inner: A) -> Guarded<A> {
+    fn wrap<A>(&self, inner: A, http2: OnHttp2) -> Guarded<A> {
         Guarded {
             guard: self.clone(),
             inner,
+            http2,
         }
     }
 
@@ -284,23 +281,25 @@ impl Drop for Slot {
     }
 }
 
-/// An acceptor in front of `inner` that admits a connection only within the caps and keeps its
-/// slot for as long as the connection lives.
+/// An acceptor in front of `inner` that admits a connection only within the caps, keeps its
+/// slot for as long as the connection lives, and treats its HTTP/2 as `http2` says
+/// ([`IdleStream`]).
 #[derive(Debug, Clone)]
 struct Guarded<A> {
     guard: ConnectionGuard,
     inner: A,
+    http2: OnHttp2,
 }
 
 impl<A, S> Accept<TcpStream, S> for Guarded<A>
 where
     A: Accept<TcpStream, S> + Clone + Send + Sync + 'static,
     A::Future: Send,
-    A::Stream: Send,
+    A::Stream: AsyncRead + AsyncWrite + Unpin + Send,
     A::Service: Send,
     S: Send + 'static,
 {
-    type Stream = SlotStream<A::Stream>;
+    type Stream = IdleStream<A::Stream, Slot>;
     type Service = A::Service;
     type Future = Pin<Box<dyn Future<Output = io::Result<(Self::Stream, A::Service)>> + Send>>;
 
@@ -310,65 +309,13 @@ where
             .map_err(|e| io::Error::new(e.kind(), e))
             .and_then(|peer| self.guard.admit(peer.ip()).map_err(io::Error::other));
         let inner = self.inner.clone();
+        let http2 = self.http2;
         Box::pin(async move {
             // Over the caps, the stream is dropped here: closed before anything is read.
             let slot = admitted?;
             let (stream, service) = inner.accept(stream, service).await?;
-            Ok((
-                SlotStream {
-                    stream,
-                    _slot: slot,
-                },
-                service,
-            ))
+            Ok((IdleStream::new(stream, http2, slot), service))
         })
-    }
-}
-
-/// A connection's stream with its slot in the count.
-#[derive(Debug)]
-struct SlotStream<T> {
-    stream: T,
-    _slot: Slot,
-}
-
-impl<T: AsyncRead + Unpin> AsyncRead for SlotStream<T> {
-    fn poll_read(
-        mut self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        buf: &mut ReadBuf<'_>,
-    ) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.stream).poll_read(cx, buf)
-    }
-}
-
-impl<T: AsyncWrite + Unpin> AsyncWrite for SlotStream<T> {
-    fn poll_write(
-        mut self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        buf: &[u8],
-    ) -> Poll<io::Result<usize>> {
-        Pin::new(&mut self.stream).poll_write(cx, buf)
-    }
-
-    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.stream).poll_flush(cx)
-    }
-
-    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.stream).poll_shutdown(cx)
-    }
-
-    fn poll_write_vectored(
-        mut self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        bufs: &[io::IoSlice<'_>],
-    ) -> Poll<io::Result<usize>> {
-        Pin::new(&mut self.stream).poll_write_vectored(cx, bufs)
-    }
-
-    fn is_write_vectored(&self) -> bool {
-        self.stream.is_write_vectored()
     }
 }
 
