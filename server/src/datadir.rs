@@ -1,6 +1,6 @@
 //! Where an installed `softhaptic` finds its shared files without a source tree: the scenes and
-//! the calibration tables beside them (`scenes/calibration/`), which the Debian package installs
-//! under `/usr/share/softhaptic/scenes/`.
+//! the calibration tables beside them (`scenes/calibration/`), and the exercises, which the
+//! Debian package installs under `/usr/share/softhaptic/scenes/` and `…/exercises/`.
 //!
 //! A scene named on the command line is looked for, in order: as given (absolute, or relative
 //! to the working directory, as a developer in a checkout names `scenes/cone.toml`); then in
@@ -8,17 +8,21 @@
 //! scenes/cone.toml` both name the installed scene). The data directories are
 //! `<the executable's directory>/../share/softhaptic` (an install under another prefix, or a
 //! package unpacked with `dpkg-deb -x`), then [`SYSTEM_DATA_DIR`]. A scene's own files (its
-//! table, its meshes) are then relative to the scene file, wherever it was found.
+//! table, its meshes) are then relative to the scene file, wherever it was found. An exercise
+//! named by `--exercises` is looked for the same way, under `exercises/`; the scene it names is
+//! relative to it (the installed exercises name `../scenes/…`).
 
 use std::path::{Path, PathBuf};
 
 /// The packaged data directory.
 pub const SYSTEM_DATA_DIR: &str = "/usr/share/softhaptic";
 
-/// A scene found nowhere, with every place looked.
+/// A scene or an exercise found nowhere, with every place looked.
 #[derive(Debug, thiserror::Error)]
-#[error("--scene {}: no such file; looked at {}", given.display(), tried_list(tried))]
-pub struct SceneNotFound {
+#[error("{option} {}: no such file; looked at {}", given.display(), tried_list(tried))]
+pub struct NotFound {
+    /// The command-line option that named it.
+    pub option: &'static str,
     pub given: PathBuf,
     pub tried: Vec<PathBuf>,
 }
@@ -51,21 +55,32 @@ fn data_dirs_from(beside_exe: Option<PathBuf>) -> Vec<PathBuf> {
 }
 
 /// The scene file `given` names (see the module's search order).
-pub fn find_scene(given: &Path) -> Result<PathBuf, SceneNotFound> {
-    find_scene_in(given, &data_dirs())
+pub fn find_scene(given: &Path) -> Result<PathBuf, NotFound> {
+    find_in(given, &data_dirs(), "scenes", "--scene")
 }
 
-fn find_scene_in(given: &Path, data_dirs: &[PathBuf]) -> Result<PathBuf, SceneNotFound> {
+/// The exercise file `given` names (the same search, under `exercises/`).
+pub fn find_exercise(given: &Path) -> Result<PathBuf, NotFound> {
+    find_in(given, &data_dirs(), "exercises", "--exercises")
+}
+
+fn find_in(
+    given: &Path,
+    data_dirs: &[PathBuf],
+    subdir: &str,
+    option: &'static str,
+) -> Result<PathBuf, NotFound> {
     let mut tried = vec![given.to_path_buf()];
     if given.is_relative() {
         for dir in data_dirs {
             tried.push(dir.join(given));
-            tried.push(dir.join("scenes").join(given));
+            tried.push(dir.join(subdir).join(given));
         }
     }
     match tried.iter().find(|p| p.is_file()) {
         Some(found) => Ok(found.clone()),
-        None => Err(SceneNotFound {
+        None => Err(NotFound {
+            option,
             given: given.to_path_buf(),
             tried,
         }),
@@ -76,6 +91,10 @@ fn find_scene_in(given: &Path, data_dirs: &[PathBuf]) -> Result<PathBuf, SceneNo
 #[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
+
+    fn find_scene_in(given: &Path, data_dirs: &[PathBuf]) -> Result<PathBuf, NotFound> {
+        find_in(given, data_dirs, "scenes", "--scene")
+    }
 
     #[test]
     fn the_executables_share_comes_before_the_systems_and_neither_twice() {

@@ -167,8 +167,8 @@ struct RunArgs {
     /// TLS to NATS, the server's certificate verified against this CA's (PEM) alone.
     #[arg(long, value_name = "FILE", requires = "nats")]
     nats_ca: Option<PathBuf>,
-    /// Run these exercises (exercises/*.toml, made for this station's scene) for --trainee, in
-    /// order: the first starts with the session, each next one after the pause that follows the
+    /// Run these exercises (exercises/*.toml, made for this station's scene; as given, else
+    /// under the installed exercises: `--exercises press-hold.toml`) for --trainee, in order: the first starts with the session, each next one after the pause that follows the
     /// last one's result; an instructor's viewer may start the next, repeat or stop one. Every
     /// attempt's result is recorded (so not with --no-record).
     #[arg(long, value_name = "FILE", num_args = 1.., requires = "trainee")]
@@ -576,7 +576,12 @@ fn exercise_run(
         );
     }
     let trainee = check_trainee(args.trainee.as_deref().unwrap_or_default())?;
-    let exercises = station_exercises(&args.exercises, scene, scene_file)?;
+    let paths = args
+        .exercises
+        .iter()
+        .map(|p| softhaptic_server::datadir::find_exercise(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let exercises = station_exercises(&paths, scene, scene_file)?;
     let (feed, controls) = softhaptic_server::stream::ExerciseFeed::with_controls();
     let feed = std::sync::Arc::new(feed);
     let names: Vec<&str> = exercises.iter().map(|e| e.exercise.name.as_str()).collect();

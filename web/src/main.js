@@ -17,6 +17,7 @@
 import { AccessPrompt, TokenKeeper } from './access.js';
 import { buffer, dom, frameTimes, rendered, state, timings, view } from './context.js';
 import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
+import { ExercisePanel } from './exercise.js';
 import { ForcePlot } from './forceplot.js';
 import { parseRenderMesh } from './mesh.js';
 import { ViewerConnection, webSocketUrl } from './connection.js';
@@ -66,6 +67,7 @@ import { StationList, withStation } from './lab.js';
 const STATION_LIST_REFRESH_MS = 2000;
 
 let plot = null;
+let exercisePanel = null;
 let connection = null;
 let timeline = null;
 let stationList = null;
@@ -105,6 +107,9 @@ function testHookParts() {
     get plot() {
       return plot;
     },
+    get exercisePanel() {
+      return exercisePanel;
+    },
     get stationList() {
       return stationList;
     },
@@ -125,6 +130,11 @@ function testHookParts() {
 function init() {
   bindPanels();
   plot = new ForcePlot(dom['force-plot'], { pixelRatio: Math.min(window.devicePixelRatio || 1, 2) });
+  exercisePanel = new ExercisePanel({
+    dom,
+    scene: () => view.scene,
+    send: (text) => connection?.send(text) ?? false,
+  });
 
   initThree();
   // Only under automation (the browser tests, whose pages wait for `window.__softhaptic`): see
@@ -394,6 +404,7 @@ function onMessage(message, receivedAtMs) {
         plot.reset();
         // Another session: a replay's timeline stays only if this one is a replay too.
         timeline.hide();
+        exercisePanel.reset();
         buffer.restartClock(receivedAtMs, 1);
         setMode(false);
       }
@@ -411,6 +422,7 @@ function onMessage(message, receivedAtMs) {
         );
         showForceFeedback(forceFeedbackOf(message));
         timeline.setControllable(access.role === 'instructor');
+        exercisePanel.setAccess(access.role, access.mode);
         if (access.mode === 'replay') {
           timeline.show();
           setMode(true);
@@ -422,6 +434,7 @@ function onMessage(message, receivedAtMs) {
       break;
     case 'refused':
       if (message.request === 'replay_control') timeline.showRefused(message.reason, receivedAtMs);
+      else if (message.request === 'exercise_control') exercisePanel.showRefused(message.reason);
       else console.warn(`softhaptic: the server refused ${message.request}: ${message.reason}`);
       break;
     case 'replay':
@@ -448,6 +461,9 @@ function onMessage(message, receivedAtMs) {
     case 'mark':
       addMark(message);
       break;
+    case 'exercise':
+      exercisePanel.onMessage(message, receivedAtMs);
+      break;
     default:
       break;
   }
@@ -465,6 +481,7 @@ function animate(nowMs) {
     deformMeshes();
   }
   timeline.frame(now);
+  exercisePanel.tick(now);
   placeToolAndMarkers();
   placeSection();
   plot.draw();

@@ -77,6 +77,22 @@ const DOM_IDS = [
   'w-moved',
   'w-delay',
   'force-plot',
+  'exercise-panel',
+  'ex-progress',
+  'ex-name',
+  'ex-instructions',
+  'ex-target',
+  'ex-countdown',
+  'ex-result',
+  'ex-verdict',
+  'ex-ended',
+  'ex-marks',
+  'ex-next-in',
+  'ex-controls',
+  'ex-next',
+  'ex-repeat',
+  'ex-stop',
+  'ex-refused',
 ];
 
 /** Finds the page's elements and makes the flag chips. */

@@ -457,6 +457,69 @@ function validateMetrics(m) {
   return m;
 }
 
+const EXERCISE_STATES = ['running', 'ended'];
+const EXERCISE_KINDS = ['press', 'trace'];
+
+/**
+ * `exercise`: the exercise a station runs for its trainee and where the attempt stands (the
+ * task in the world frame for drawing, the time left, the result once ended).
+ */
+function validateExercise(m) {
+  string(m.trainee, 'exercise.trainee');
+  count(m.index, 'exercise.index');
+  count(m.count, 'exercise.count');
+  count(m.attempt, 'exercise.attempt');
+  if (!EXERCISE_STATES.includes(m.state)) {
+    throw new ProtocolError('exercise.state', `expected one of ${EXERCISE_STATES.join(', ')}, got ${show(m.state)}`);
+  }
+  count(m.time_ns, 'exercise.time_ns');
+  nonNegative(m.remaining_s, 'exercise.remaining_s');
+  if (m.next_in_s !== null) nonNegative(m.next_in_s, 'exercise.next_in_s');
+  const e = object(m.exercise, 'exercise.exercise');
+  string(e.name, 'exercise.exercise.name');
+  string(e.instructions, 'exercise.exercise.instructions');
+  positive(e.time_limit_s, 'exercise.exercise.time_limit_s');
+  const task = object(e.task, 'exercise.exercise.task');
+  if (!EXERCISE_KINDS.includes(task.kind)) {
+    throw new ProtocolError(
+      'exercise.exercise.task.kind',
+      `expected one of ${EXERCISE_KINDS.join(', ')}, got ${show(task.kind)}`,
+    );
+  }
+  if (task.kind === 'press') {
+    vector(task.site_m, 3, 'exercise.exercise.task.site_m');
+    vector(task.normal, 3, 'exercise.exercise.task.normal');
+    positive(task.site_radius_m, 'exercise.exercise.task.site_radius_m');
+  } else {
+    if (!Array.isArray(task.path_m) || task.path_m.length < 2) {
+      throw new ProtocolError('exercise.exercise.task.path_m', 'expected a path of at least 2 points');
+    }
+    task.path_m.forEach((p, i) => vector(p, 3, `exercise.exercise.task.path_m[${i}]`));
+    vector(task.normal, 3, 'exercise.exercise.task.normal');
+  }
+  if (m.result !== null) {
+    const r = object(m.result, 'exercise.result');
+    boolean(r.passed, 'exercise.result.passed');
+    object(r.score, 'exercise.result.score');
+    if (!Array.isArray(r.marks)) throw new ProtocolError('exercise.result.marks', 'expected a list');
+  }
+  return m;
+}
+
+/** What an instructor may ask of a station's exercises (`ExerciseAction`). */
+export const EXERCISE_ACTIONS = Object.freeze(['next', 'repeat', 'stop']);
+
+/** The `exercise_control` an instructor sends: start the next exercise, repeat or stop one. */
+export function encodeExerciseControl(action) {
+  if (!EXERCISE_ACTIONS.includes(action)) {
+    throw new ProtocolError(
+      'exercise_control.action',
+      `expected one of ${EXERCISE_ACTIONS.join(', ')}, got ${show(action)}`,
+    );
+  }
+  return JSON.stringify({ type: 'exercise_control', action });
+}
+
 const VALIDATORS = {
   hello: validateHello,
   scene: validateScene,
@@ -466,6 +529,7 @@ const VALIDATORS = {
   mark: validateMark,
   replay: validateReplay,
   refused: validateRefused,
+  exercise: validateExercise,
 };
 
 /**

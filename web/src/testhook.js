@@ -224,6 +224,12 @@ export function installTestHook(ctx) {
       listed: [...dom['mark-list'].children].map((li) => li.textContent),
       formShown: !dom['mark-form'].hidden,
     }),
+    /** The exercise panel as shown, and the task as drawn in the 3-D view. */
+    exercise: () => ctx.exercisePanel.snapshot(performance.now()),
+    /** Presses an exercise button (`next`, `repeat`, `stop`), as an instructor does. */
+    exerciseButton: (action) => ctx.dom[`ex-${action}`].click(),
+    /** Sends an exercise control whether or not the page offers its button (an observer's). */
+    sendExerciseControl: (action) => ctx.exercisePanel.control(action),
     /** Types a note and submits the mark form, as an instructor does. */
     submitMark: (note) => {
       dom['mark-note'].value = note;

@@ -173,6 +173,13 @@ test('the package holds exactly the files docs/install.md promises, its settings
       scene,
     );
   }
+  // Every exercise, beside the scenes it names.
+  for (const exercise of readdirSync(path.join(REPO, 'exercises')).filter((f) => f.endsWith('.toml'))) {
+    assert.ok(
+      files.some((f) => f.path === `/usr/share/softhaptic/exercises/${exercise}`),
+      exercise,
+    );
+  }
   const bin = files.find((f) => f.path === '/usr/bin/softhaptic');
   assert.equal(bin.mode, '-rwxr-xr-x');
   assert.deepEqual(readFileSync(path.join(control, 'conffiles'), 'utf8').trim().split('\n').sort(), [

@@ -17,6 +17,7 @@ import {
   forceFeedbackOf,
   marksAcceptedOf,
   ProtocolError,
+  encodeExerciseControl,
 } from '../src/protocol.js';
 import { contact, contactModel, hello, legacyHello, scene, stats } from './fixtures.mjs';
 
@@ -36,7 +37,7 @@ test('every shared message vector decodes or is refused as the Rust side says', 
     const decoded = decodeMessage(text);
     const type = (v.json ?? JSON.parse(v.raw)).type;
     if (decoded.kind === 'unknown') {
-      assert.ok(!['hello', 'scene', 'contact', 'stats', 'replay', 'refused'].includes(type), `${v.name}`);
+      assert.ok(!['hello', 'scene', 'contact', 'stats', 'replay', 'refused', 'exercise'].includes(type), `${v.name}`);
     } else {
       assert.equal(decoded.message.type, type, v.name);
       seen.add(type);
@@ -53,7 +54,7 @@ test('every shared message vector decodes or is refused as the Rust side says', 
       }
     }
   }
-  for (const type of ['hello', 'scene', 'contact', 'stats', 'replay', 'refused'])
+  for (const type of ['hello', 'scene', 'contact', 'stats', 'replay', 'refused', 'exercise'])
     assert.ok(seen.has(type), `vectors cover ${type}`);
 });
 
@@ -83,6 +84,22 @@ test('the auth message is encoded exactly as the Rust side reads it; the hello a
   assert.equal(decoded.kind, 'message');
   assert.equal(decoded.message.request, 'replay_control');
   assert.ok(decoded.message.reason.length > 0);
+});
+
+test('exercise controls are encoded exactly as the Rust side reads them; others are refused here', () => {
+  const list = JSON.parse(readFileSync(VECTORS, 'utf8'));
+  const control = list.find((v) => v.json?.type === 'exercise_control');
+  assert.ok(control, 'the vectors hold an exercise control');
+  assert.deepEqual(JSON.parse(encodeExerciseControl(control.json.action)), control.json);
+  assert.throws(() => encodeExerciseControl('skip'), ProtocolError);
+  // An ended exercise carries its result; a running one none, and the time left.
+  const [running, ended] = ['exercise_running', 'exercise_ended'].map(
+    (name) => decodeMessage(JSON.stringify(list.find((v) => v.name === name).json)).message,
+  );
+  assert.equal(running.result, null);
+  assert.ok(running.remaining_s > 0);
+  assert.equal(ended.result.passed, true);
+  assert.equal(ended.exercise.task.kind, 'press');
 });
 
 test('replay controls are encoded exactly as the Rust side writes them', () => {
