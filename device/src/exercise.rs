@@ -20,18 +20,36 @@
 //!   too (a fast stroke skips none). `coverage` is the fraction of bins marked; the deviations
 //!   are over the ticks in contact; `force_cv` is σ/μ of |F| over them; `in_window_fraction` is
 //!   Σ dt in the window / Σ dt in contact.
-//! - both: `peak_force_n` is the largest |F|; `time_above_safe_s` is Σ dt with |F| above the
+//! - **palpation**: a *mark* is a press of the device's first button (its rising edge, at
+//!   most one per [`MARK_DEBOUNCE_NS`]) with the tip's position. A mark finds an inclusion when
+//!   it lies within the inclusion's radius plus `tolerance_m` of its centre, across the
+//!   surface; `found` counts the inclusions some mark found, `missed` the rest, `false_marks`
+//!   the marks that found none; `localisation_error_m` is the mean over the found inclusions of
+//!   the distance across from its centre to its nearest mark (when none is found: the largest
+//!   radius plus the tolerance). The search area (a disc around its centre, across the surface)
+//!   is cut into [`PALPATION_PATCH_M`] squares; a tick in contact at least `coverage_depth_m`
+//!   deep marks the square under the tip, and `coverage` is the fraction of the disc's squares
+//!   marked; `mean_force_n` is the mean |F| over the ticks in contact. The attempt is
+//!   *completed* when no inclusion is missed and the false marks are within the allowed; it
+//!   never ends by itself before its time limit (that would tell the trainee the answer).
+//! - all: `peak_force_n` is the largest |F|; `time_above_safe_s` is Σ dt with |F| above the
 //!   safe force; the attempt is *safe* when that is zero.
 
 use std::collections::BTreeMap;
 
 use glam::DVec3;
-use softhaptic_proto::exercise::{PressTask, Score, Task, TraceTask};
+use softhaptic_proto::exercise::{PalpationTask, PressTask, Score, Task, TraceTask};
 
 use crate::metrics::{MAX_DT_S, TickInput};
 
 /// Length of one coverage bin along a traced path.
 pub const COVERAGE_BIN_M: f64 = 0.001;
+/// Side of one square of a palpation's search area.
+pub const PALPATION_PATCH_M: f64 = 0.002;
+/// A button pressed again within this time of a mark makes no second mark (a contact bounce).
+pub const MARK_DEBOUNCE_NS: u64 = 200_000_000;
+/// Most marks an attempt keeps (a stuck or hammered button must not grow the scorer).
+pub const MAX_MARKS: usize = 100;
 
 /// Scores one attempt, tick by tick.
 #[derive(Debug, Clone)]
@@ -48,6 +66,7 @@ pub struct Scorer {
 enum Kind {
     Press(PressScorer),
     Trace(TraceScorer),
+    Palpation(Box<PalpationScorer>),
 }
 
 /// Running sums of a force: count, Σ|F|, Σ|F|².
@@ -257,11 +276,132 @@ impl TraceScorer {
     }
 }
 
+#[derive(Debug, Clone)]
+struct PalpationScorer {
+    task: PalpationTask,
+    centre_m: DVec3,
+    normal: DVec3,
+    /// Two axes across the surface, for the squares.
+    u: DVec3,
+    v: DVec3,
+    /// Squares per side, and which are inside the disc and which are searched.
+    side: usize,
+    inside: Vec<bool>,
+    searched: Vec<bool>,
+    marks_m: Vec<DVec3>,
+    last_mark_ns: Option<u64>,
+    button_was_down: bool,
+    force: Moments,
+}
+
+impl PalpationScorer {
+    fn new(task: &PalpationTask) -> Self {
+        let normal = unit(task.normal);
+        let u = normal.any_orthonormal_vector();
+        let v = normal.cross(u);
+        let side = ((2.0 * task.area_radius_m / PALPATION_PATCH_M).ceil() as usize).clamp(1, 1000);
+        let half = side as f64 * PALPATION_PATCH_M / 2.0;
+        let mut inside = vec![false; side * side];
+        for (k, cell) in inside.iter_mut().enumerate() {
+            let x = -half + ((k % side) as f64 + 0.5) * PALPATION_PATCH_M;
+            let y = -half + ((k / side) as f64 + 0.5) * PALPATION_PATCH_M;
+            *cell = x.hypot(y) <= task.area_radius_m;
+        }
+        Self {
+            centre_m: DVec3::from_array(task.area_centre_m),
+            task: task.clone(),
+            normal,
+            u,
+            v,
+            side,
+            searched: vec![false; side * side],
+            inside,
+            marks_m: Vec::with_capacity(MAX_MARKS),
+            last_mark_ns: None,
+            button_was_down: false,
+            force: Moments::default(),
+        }
+    }
+
+    fn tick(&mut self, t: &TickInput, force_n: f64) {
+        let down = t.buttons & 1 != 0;
+        if down
+            && !self.button_was_down
+            && let Some(tip) = t.tip_position_m
+            && self
+                .last_mark_ns
+                .is_none_or(|last| t.time_ns.saturating_sub(last) >= MARK_DEBOUNCE_NS)
+            && self.marks_m.len() < MAX_MARKS
+        {
+            self.marks_m.push(tip);
+            self.last_mark_ns = Some(t.time_ns);
+        }
+        self.button_was_down = down;
+        if t.in_contact {
+            self.force.add(force_n);
+            if t.depth_m >= self.task.coverage_depth_m
+                && let Some(tip) = t.tip_position_m
+            {
+                let d = tip - self.centre_m;
+                let half = self.side as f64 * PALPATION_PATCH_M / 2.0;
+                let i = ((d.dot(self.u) + half) / PALPATION_PATCH_M).floor();
+                let j = ((d.dot(self.v) + half) / PALPATION_PATCH_M).floor();
+                let n = self.side as f64;
+                if (0.0..n).contains(&i) && (0.0..n).contains(&j) {
+                    let k = j as usize * self.side + i as usize;
+                    if self.inside[k] {
+                        self.searched[k] = true;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Per inclusion, the distance across from its centre to its nearest mark that finds it.
+    fn found(&self) -> Vec<Option<f64>> {
+        self.task
+            .targets
+            .iter()
+            .map(|target| {
+                let c = DVec3::from_array(target.centre_m);
+                self.marks_m
+                    .iter()
+                    .map(|m| across(*m, c, self.normal))
+                    .filter(|d| *d <= target.radius_m + self.task.tolerance_m)
+                    .min_by(f64::total_cmp)
+            })
+            .collect()
+    }
+
+    fn false_marks(&self) -> usize {
+        self.marks_m
+            .iter()
+            .filter(|m| {
+                !self.task.targets.iter().any(|target| {
+                    across(**m, DVec3::from_array(target.centre_m), self.normal)
+                        <= target.radius_m + self.task.tolerance_m
+                })
+            })
+            .count()
+    }
+
+    fn coverage(&self) -> f64 {
+        let inside = self.inside.iter().filter(|c| **c).count().max(1);
+        self.searched.iter().filter(|c| **c).count() as f64 / inside as f64
+    }
+
+    fn completed(&self) -> bool {
+        self.found().iter().all(Option::is_some)
+            && self.false_marks() <= self.task.max_false_marks as usize
+    }
+}
+
 impl Scorer {
     pub fn new(task: &Task) -> Self {
         let kind = match task {
             Task::Press(p) => Kind::Press(PressScorer::new(p)),
             Task::Trace(t) => Kind::Trace(TraceScorer::new(t)),
+            Task::Palpation(p) => Kind::Palpation(Box::new(PalpationScorer::new(p))),
         };
         Self {
             kind,
@@ -291,14 +431,25 @@ impl Scorer {
         match &mut self.kind {
             Kind::Press(p) => p.tick(t, force_n, gap),
             Kind::Trace(s) => s.tick(t, force_n, dt_s, gap),
+            Kind::Palpation(s) => s.tick(t, force_n),
         }
     }
 
-    /// Whether the task's goal has been reached (the attempt may end there).
+    /// Whether the task's goal has been reached and the attempt ends there (a palpation's
+    /// never does before its time limit: ending would give the answer away).
     pub fn completed(&self) -> bool {
         match &self.kind {
             Kind::Press(p) => p.held_at_ns.is_some(),
             Kind::Trace(s) => s.coverage() >= s.task.min_coverage,
+            Kind::Palpation(_) => false,
+        }
+    }
+
+    /// Whether the goal was reached, for the score.
+    fn goal_reached(&self) -> bool {
+        match &self.kind {
+            Kind::Palpation(p) => p.completed(),
+            _ => self.completed(),
         }
     }
 
@@ -347,9 +498,32 @@ impl Scorer {
                     if mean > 0.0 { s.force.sd() / mean } else { 0.0 },
                 );
             }
+            Kind::Palpation(p) => {
+                let found = p.found();
+                let hits: Vec<f64> = found.iter().flatten().copied().collect();
+                put("found", hits.len() as f64);
+                put("missed", (found.len() - hits.len()) as f64);
+                put("false_marks", p.false_marks() as f64);
+                let worst = p
+                    .task
+                    .targets
+                    .iter()
+                    .map(|t| t.radius_m + p.task.tolerance_m)
+                    .fold(p.task.tolerance_m, f64::max);
+                put(
+                    "localisation_error_m",
+                    if hits.is_empty() {
+                        worst
+                    } else {
+                        hits.iter().sum::<f64>() / hits.len() as f64
+                    },
+                );
+                put("coverage", p.coverage());
+                put("mean_force_n", p.force.mean());
+            }
         }
         Score {
-            completed: self.completed(),
+            completed: self.goal_reached(),
             safe: self.time_above_safe_s == 0.0,
             metrics,
         }
@@ -381,8 +555,10 @@ mod tests {
             time_ns: ms * MS,
             tip_position_m: Some(tip),
             in_contact: force > 0.0,
+            depth_m: 0.0,
             force_n: DVec3::new(0.0, force, 0.0),
             flags: ContactFlags::empty(),
+            buttons: 0,
         }
     }
 
@@ -515,5 +691,81 @@ mod tests {
         let score = s.score();
         assert_eq!(score.metrics["coverage"], 1.0);
         assert!(score.completed);
+    }
+
+    fn palpation_task() -> Task {
+        use softhaptic_proto::exercise::PalpationTarget;
+        Task::Palpation(PalpationTask {
+            area_centre_m: [0.0, 0.0, 0.0],
+            normal: [0.0, 1.0, 0.0],
+            area_radius_m: 0.01,
+            tolerance_m: 0.002,
+            coverage_depth_m: 0.003,
+            max_false_marks: 1,
+            safe_force_n: 4.0,
+            targets: vec![
+                PalpationTarget {
+                    centre_m: [0.004, -0.01, 0.0],
+                    radius_m: 0.003,
+                },
+                PalpationTarget {
+                    centre_m: [-0.005, -0.008, 0.0],
+                    radius_m: 0.002,
+                },
+            ],
+        })
+    }
+
+    fn palpating(ms: u64, tip: DVec3, depth_m: f64, force: f64, button: bool) -> TickInput {
+        TickInput {
+            depth_m,
+            buttons: u32::from(button),
+            ..tick(ms, tip, force)
+        }
+    }
+
+    #[test]
+    fn a_palpation_counts_found_missed_and_false_marks_and_the_area_pressed() {
+        let mut s = Scorer::new(&palpation_task());
+        let over_a = DVec3::new(0.005, -0.004, 0.0);
+        let elsewhere = DVec3::new(0.0, -0.004, 0.008);
+        for ms in 0..600 {
+            let t = match ms {
+                // Free, 20 mm above.
+                0..100 => tick(ms, DVec3::new(0.0, 0.02, 0.0), 0.0),
+                // 4 mm deep over the first lump, 1 N, the button down from 200 to 249 ms.
+                100..300 => palpating(ms, over_a, 0.004, 1.0, (200..250).contains(&ms)),
+                // 2 mm deep elsewhere, 0.5 N; the button down at 450 ms, up at 455, down again
+                // at 460 (a bounce: no third mark).
+                _ => palpating(
+                    ms,
+                    elsewhere,
+                    0.002,
+                    0.5,
+                    (450..455).contains(&ms) || (460..470).contains(&ms),
+                ),
+            };
+            s.update(&t);
+            // It never ends by itself: that would say the answer.
+            assert!(!s.completed());
+        }
+        let score = s.score();
+        let m = &score.metrics;
+        // The first mark lies 1 mm across from the first lump's centre (within 3 + 2 mm); the
+        // second, 8.9 mm from the first and 9.4 mm from the second (beyond 5 and 4 mm), finds
+        // nothing.
+        assert_eq!(m["found"], 1.0);
+        assert_eq!(m["missed"], 1.0);
+        assert_eq!(m["false_marks"], 1.0);
+        assert!((m["localisation_error_m"] - 0.001).abs() < 1e-12);
+        // 200 ticks at 1 N and 300 at 0.5 N in contact.
+        assert!((m["mean_force_n"] - 350.0 / 500.0).abs() < 1e-12);
+        // Only the ticks at least 3 mm deep search: one 2 mm square of the 80 whose centres lie
+        // within the 10 mm disc (20 + 20 + 16 + 16 + 8 for columns 1, 3, 5, 7, 9 mm out).
+        assert_eq!(m["coverage"], 1.0 / 80.0);
+        assert_eq!(m["peak_force_n"], 1.0);
+        assert!(score.safe);
+        // A lump missed: not completed.
+        assert!(!score.completed);
     }
 }

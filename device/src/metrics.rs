@@ -48,8 +48,12 @@ pub struct TickInput {
     /// The tip, world frame; `None` on a fault tick.
     pub tip_position_m: Option<DVec3>,
     pub in_contact: bool,
+    /// How far the tool is pressed in, m (0 when free).
+    pub depth_m: f64,
     pub force_n: DVec3,
     pub flags: ContactFlags,
+    /// The device's buttons (bit 0: the first), 0 on a fault tick.
+    pub buttons: u32,
 }
 
 impl TickInput {
@@ -64,8 +68,14 @@ impl TickInput {
                 .filter(|_| !fault)
                 .map(|s| DVec3::from_array(s.tip_position_m)),
             in_contact: r.in_contact,
+            depth_m: if r.depth_m.is_finite() {
+                r.depth_m
+            } else {
+                0.0
+            },
             force_n: DVec3::from_array(r.force_n),
             flags,
+            buttons: r.sample.filter(|_| !fault).map_or(0, |s| s.buttons),
         }
     }
 }
@@ -283,8 +293,10 @@ mod tests {
             time_ns: time_ms * MS,
             tip_position_m: Some(DVec3::new(0.0, y_m, 0.0)),
             in_contact,
+            depth_m: 0.0,
             force_n: DVec3::new(0.0, force, 0.0),
             flags: ContactFlags::empty(),
+            buttons: 0,
         }
     }
 

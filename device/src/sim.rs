@@ -41,6 +41,9 @@ pub struct HandScript {
     pub release_s: f64,
     /// Start over after the release (the server's demonstration runs forever).
     pub repeat: bool,
+    /// Hold the first button down through the hold phase (a trainee marking where the tool
+    /// presses, as in a palpation).
+    pub button_in_hold: bool,
 }
 
 impl HandScript {
@@ -62,7 +65,19 @@ impl HandScript {
             slide_s: 1.0,
             release_s: 0.5,
             repeat: false,
+            button_in_hold: false,
         }
+    }
+
+    /// The buttons held down at `time_s`: the first through the hold when `button_in_hold`.
+    pub fn buttons_at(&self, time_s: f64) -> u32 {
+        let total = self.duration_s();
+        let mut t = time_s.max(0.0);
+        if self.repeat && total > 0.0 {
+            t %= total;
+        }
+        let (from, until) = self.hold_window_s();
+        u32::from(self.button_in_hold && (from..until).contains(&t))
     }
 
     /// Length of one pass of the script.
@@ -311,7 +326,7 @@ impl HapticDevice for SimulatedPhantom {
                 orientation: self.orientation,
             },
             tip_velocity_m_s: self.reported_velocity_m_s,
-            buttons: 0,
+            buttons: self.script.buttons_at(self.time_ns as f64 * 1e-9),
             flags: softhaptic_proto::ContactFlags::empty(),
         };
         if let Some((from, until, fault)) = self.fault

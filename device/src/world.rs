@@ -286,8 +286,10 @@ impl HapticWorld {
             time_ns: state.time_ns,
             tip_position_m: (!fault && read.is_ok()).then_some(state.tip_in_world.position_m),
             in_contact: state.in_contact,
+            depth_m: state.depth_m,
             force_n: state.force_n,
             flags: state.flags,
+            buttons: if fault { 0 } else { state.buttons },
         });
         TickOutcome {
             state,

@@ -1,6 +1,8 @@
 //! Exercises: a task with a goal, a time limit and pass marks, scored from the 1 kHz ticks.
 //!
-//! An exercise file (`exercises/*.toml`, loaded and validated by the server) becomes an
+//! Three kinds: press a site to a force window and hold it, trace a path, and palpate (find the
+//! scene's hidden inclusions and mark them). An exercise file (`exercises/*.toml`, loaded and
+//! validated by the server) becomes an
 //! [`Exercise`]: its geometry in the world frame, ready for the scorer
 //! (`softhaptic_device::exercise`). Each [`Task`] kind names its metrics once
 //! ([`Task::metrics`]), with the direction that is better: the pass marks, the benchmark that
@@ -35,6 +37,7 @@ pub struct Exercise {
 pub enum Task {
     Press(PressTask),
     Trace(TraceTask),
+    Palpation(PalpationTask),
 }
 
 /// Reach a force window at a marked site and hold it, without exceeding a safe force.
@@ -73,6 +76,37 @@ pub struct TraceTask {
     /// The task is complete once this fraction of the path's length has been traced.
     pub min_coverage: f64,
     pub safe_force_n: f64,
+}
+
+/// Find the scene's hidden inclusions by touch, and mark each with the device's button.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PalpationTask {
+    /// The centre of the area to search, on the surface, world frame.
+    pub area_centre_m: [f64; 3],
+    /// The surface's outward normal over the area, world frame (unit): marks and coverage are
+    /// measured across it.
+    pub normal: [f64; 3],
+    /// The area to search: a disc of this radius around its centre.
+    pub area_radius_m: f64,
+    /// A mark finds an inclusion within its radius plus this, across the surface.
+    pub tolerance_m: f64,
+    /// A patch of the area counts as searched once pressed at least this deep.
+    pub coverage_depth_m: f64,
+    /// Marks that find nothing an attempt may make and still pass.
+    pub max_false_marks: u32,
+    pub safe_force_n: f64,
+    /// The inclusions to find, placed from the scene. Never written: an exercise is sent to
+    /// every viewer (the trainee's among them) and recorded with each attempt, while the answer
+    /// stays with the scene (whose record keeps the inclusions).
+    #[serde(skip)]
+    pub targets: Vec<PalpationTarget>,
+}
+
+/// One inclusion to find, world frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PalpationTarget {
+    pub centre_m: [f64; 3],
+    pub radius_m: f64,
 }
 
 /// Which way a metric is better.
@@ -173,12 +207,64 @@ const TRACE_METRICS: &[MetricDef] = &[
     },
 ];
 
+const PALPATION_METRICS: &[MetricDef] = &[
+    MetricDef {
+        name: "found",
+        unit: "1",
+        better: Better::Higher,
+        what: "inclusions marked: a mark within the inclusion's radius plus the tolerance of its centre, across the surface",
+    },
+    MetricDef {
+        name: "missed",
+        unit: "1",
+        better: Better::Lower,
+        what: "inclusions no mark found",
+    },
+    MetricDef {
+        name: "false_marks",
+        unit: "1",
+        better: Better::Lower,
+        what: "marks that found no inclusion",
+    },
+    MetricDef {
+        name: "localisation_error_m",
+        unit: "m",
+        better: Better::Lower,
+        what: "mean distance across the surface from each found inclusion's centre to its nearest mark (when none is found, the farthest a mark could be and still find one)",
+    },
+    MetricDef {
+        name: "coverage",
+        unit: "1",
+        better: Better::Higher,
+        what: "fraction of the search area pressed at least the coverage depth (2 mm patches)",
+    },
+    MetricDef {
+        name: "mean_force_n",
+        unit: "N",
+        better: Better::Lower,
+        what: "mean force while in contact",
+    },
+    MetricDef {
+        name: "peak_force_n",
+        unit: "N",
+        better: Better::Lower,
+        what: "largest force during the attempt",
+    },
+    MetricDef {
+        name: "time_above_safe_s",
+        unit: "s",
+        better: Better::Lower,
+        what: "time spent above the safe force",
+    },
+];
+
 impl Task {
     /// The kind's name in exercise files.
     pub fn kind(&self) -> &'static str {
         match self {
             Task::Press(_) => "press",
             Task::Trace(_) => "trace",
+            Task::Palpation(_) => "palpation",
         }
     }
 
@@ -187,6 +273,7 @@ impl Task {
         match self {
             Task::Press(_) => PRESS_METRICS,
             Task::Trace(_) => TRACE_METRICS,
+            Task::Palpation(_) => PALPATION_METRICS,
         }
     }
 
@@ -200,6 +287,7 @@ impl Task {
         match self {
             Task::Press(p) => p.safe_force_n,
             Task::Trace(t) => t.safe_force_n,
+            Task::Palpation(p) => p.safe_force_n,
         }
     }
 }
@@ -404,5 +492,34 @@ mod tests {
         let e_text = serde_json::to_string(&e).unwrap();
         assert!(e_text.contains("\"kind\":\"press\""), "{e_text}");
         assert_eq!(serde_json::from_str::<Exercise>(&e_text).unwrap(), e);
+    }
+
+    #[test]
+    fn a_palpation_never_writes_where_its_inclusions_are() {
+        let task = Task::Palpation(PalpationTask {
+            area_centre_m: [0.0, 0.09, 0.0],
+            normal: [0.0, 1.0, 0.0],
+            area_radius_m: 0.035,
+            tolerance_m: 0.003,
+            coverage_depth_m: 0.002,
+            max_false_marks: 1,
+            safe_force_n: 2.0,
+            targets: vec![PalpationTarget {
+                centre_m: [-0.0123, 0.0812, 0.0067],
+                radius_m: 0.005,
+            }],
+        });
+        let json = serde_json::to_string(&task).unwrap();
+        assert!(
+            !json.contains("targets") && !json.contains("0.0123"),
+            "{json}"
+        );
+        // Read back (a recording's, a viewer's), it has none.
+        let Task::Palpation(back) = serde_json::from_str::<Task>(&json).unwrap() else {
+            unreachable!()
+        };
+        assert!(back.targets.is_empty());
+        assert_eq!(task.kind(), "palpation");
+        assert!(task.metric("found").is_some());
     }
 }

@@ -81,12 +81,15 @@ fn the_shipped_exercises_check() {
     let files = [
         repo("exercises/press-hold.toml"),
         repo("exercises/trace-line.toml"),
+        repo("exercises/palpation.toml"),
     ];
     let mut args: Vec<&std::ffi::OsStr> = vec!["exercise".as_ref(), "check".as_ref()];
     args.extend(files.iter().map(|f| f.as_os_str()));
     let out = ok(&softhaptic(&args));
     assert!(out.contains("Press and hold 1 N (press, 20 s)"), "{out}");
     assert!(out.contains("Trace a line at 1 N (trace, 30 s)"), "{out}");
+    assert!(out.contains("Find the lumps (palpation, 90 s)"), "{out}");
+    assert!(out.contains("for 2 inclusions"), "{out}");
 }
 
 fn score(recording: &Path, exercise: &Path) -> String {
@@ -353,4 +356,78 @@ fn a_station_refuses_exercises_it_cannot_record_or_that_are_for_another_scene() 
     );
     let e = refused(&["--trainee", " ", "--scene", default]);
     assert!(e.contains("--trainee: \"\""), "{e}");
+}
+
+/// A press `depth_m` deep at `surface_world_m` (its normal +y), the button held through the hold.
+fn marking_press(surface_world_m: DVec3, depth_m: f64) -> HandScript {
+    let mut s = HandScript::press(surface_world_m, DVec3::Y, depth_m);
+    s.hold_s = 1.0;
+    s.slide_distance_m = 0.0;
+    s.slide_s = 0.0;
+    s.button_in_hold = true;
+    s
+}
+
+#[test]
+fn a_palpation_scores_the_lump_marked_the_one_missed_and_a_mark_over_nothing() {
+    let d = dir("palpation");
+    let scene_path = repo("scenes/palpation.toml");
+    let scene = Scene::load(&scene_path).unwrap();
+    let scene_toml = std::fs::read_to_string(&scene_path).unwrap();
+    let exercise = repo("exercises/palpation.toml");
+    // Over the first lump: the surface point it was placed under (its centre, `centre_depth_m`
+    // up along +y, the top's normal there), the hand sent 7 mm in (the tip stops shallower), and marked.
+    let lump = scene.inclusions[0];
+    let centre = scene
+        .object_in_world
+        .transform_point(DVec3::from_array(lump.centre_in_object_m));
+    let over_lump = centre + DVec3::Y * lump.centre_depth_m;
+    let found = d.join("found.mcap");
+    record_hand(
+        &scene,
+        &scene_toml,
+        marking_press(over_lump, 0.007),
+        "palpation-found",
+        &found,
+        |_| {},
+    )
+    .unwrap();
+    let out = score(&found, &exercise);
+    assert_eq!(metric(&out, "found"), 1.0, "{out}");
+    assert_eq!(metric(&out, "missed"), 1.0, "{out}");
+    assert_eq!(metric(&out, "false_marks"), 0.0, "{out}");
+    // The tip stays within a millimetre of where it was sent, across the surface.
+    assert!(metric(&out, "localisation_error_m") < 0.001, "{out}");
+    assert!(metric(&out, "coverage") > 0.0, "{out}");
+    // A lump missed: not completed, so not passed; and it ends by its time limit only.
+    assert!(out.contains("— not passed (not completed, safe"), "{out}");
+
+    // 30 mm away across the top, over neither lump: a false mark, both missed.
+    let second = scene
+        .object_in_world
+        .transform_point(DVec3::from_array(scene.inclusions[1].centre_in_object_m));
+    let mut away = over_lump + DVec3::X * 0.03;
+    if (away - second).with_y(0.0).length() < 0.012 {
+        away = over_lump - DVec3::Z * 0.03;
+    }
+    let wrong = d.join("wrong.mcap");
+    record_hand(
+        &scene,
+        &scene_toml,
+        marking_press(away, 0.007),
+        "palpation-wrong",
+        &wrong,
+        |_| {},
+    )
+    .unwrap();
+    let out = score(&wrong, &exercise);
+    assert_eq!(metric(&out, "found"), 0.0, "{out}");
+    assert_eq!(metric(&out, "missed"), 2.0, "{out}");
+    assert_eq!(metric(&out, "false_marks"), 1.0, "{out}");
+    // No lump found: the farthest a finding mark could be, 5 + 3 mm.
+    assert!(
+        (metric(&out, "localisation_error_m") - 0.008).abs() < 1e-9,
+        "{out}"
+    );
+    let _ = std::fs::remove_dir_all(&d);
 }

@@ -260,3 +260,86 @@ fn an_exercise_made_for_another_scene_is_refused_naming_both() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A palpation at a station: the trainee's viewer (an observer) is sent nothing that says where
+/// the lumps are — not in the scene, not in a frame, not in the exercise — until the attempt
+/// ends, and then only how many were found.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_palpation_never_tells_the_trainee_where_the_lumps_are() {
+    let dir = scratch_dir("exercises-palpation");
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let scene_file = root.join("scenes/palpation.toml");
+    let scene = Scene::load(&scene_file).unwrap();
+    // Every coordinate of every lump, as JSON would write it (world frame, and object frame).
+    let secrets: Vec<String> = scene
+        .inclusions
+        .iter()
+        .flat_map(|i| {
+            let world = scene
+                .object_in_world
+                .transform_point(glam::DVec3::from_array(i.centre_in_object_m));
+            i.centre_in_object_m
+                .into_iter()
+                .chain(world.to_array())
+                .filter(|v| v.abs() > 1e-6)
+                .map(|v| serde_json::to_string(&v).unwrap())
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    assert_eq!(secrets.len(), 12);
+    let exercises = station_exercises(
+        &[root.join("exercises/palpation.toml")],
+        &scene,
+        Some(&scene_file),
+    )
+    .unwrap();
+    let (feed, controls) = ExerciseFeed::with_controls();
+    let feed = Arc::new(feed);
+    let run = ExerciseRun::new("ana".into(), exercises, Arc::clone(&feed), controls, None).unwrap();
+    let mut options = test_options();
+    options.access.tokens = Some(softhaptic_tests::test_tokens());
+    options.exercises = Some(feed);
+    let live = start_recorded_observed(scene, &dir, options, Some(Box::new(run))).await;
+    let addr = live.server.local_addr();
+    let mut trainee = viewer(addr, O).await;
+
+    // Everything the trainee's viewer is sent while the attempt runs: the scene, frames while
+    // the scripted hand presses, stats, the exercise.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let (mut frames, mut exercise) = (0, None);
+    while frames < 100 || exercise.is_none() {
+        assert!(
+            Instant::now() < deadline,
+            "{frames} frames, exercise {exercise:?}"
+        );
+        let Ok(Some(Ok(Message::Text(t)))) =
+            tokio::time::timeout(Duration::from_secs(10), trainee.socket.next()).await
+        else {
+            continue;
+        };
+        for secret in &secrets {
+            assert!(!t.contains(secret.as_str()), "{secret} in {t}");
+        }
+        if t.starts_with(r#"{"type":"contact""#) {
+            frames += 1;
+        } else if t.starts_with(r#"{"type":"exercise""#) {
+            let ServerMessage::Exercise(m) = ServerMessage::decode(&t).unwrap() else {
+                unreachable!()
+            };
+            assert_eq!(m.exercise.task.kind(), "palpation");
+            exercise = Some(m.state);
+        }
+    }
+    assert_eq!(exercise, Some(ExerciseState::Running));
+
+    // Stopped, the result says how many were found (none: the hand pressed no button).
+    let mut instructor = viewer(addr, I).await;
+    instructor.send_text(&control("stop")).await;
+    let ended = next_exercise(&mut trainee, |m| m.state == ExerciseState::Ended).await;
+    let score = &ended.result.as_ref().unwrap().score;
+    assert_eq!(score.metrics["found"], 0.0);
+    assert_eq!(score.metrics["missed"], 2.0);
+    assert!(!score.completed);
+    live.finish().await;
+    let _ = std::fs::remove_dir_all(&dir);
+}

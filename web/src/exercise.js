@@ -5,6 +5,7 @@
 // view it draws the task: the press site's ring (its radius is how near the tool must be) or
 // the path to trace. An instructor on a live station also gets the buttons that start the next
 // exercise, repeat this one or stop it; an observer (a trainee's own screen, a class) does not.
+// A palpation's lumps are never drawn: the message holds only the area to search.
 
 import * as THREE from 'three';
 
@@ -24,6 +25,12 @@ export function targetText(task) {
     return (
       `press ${task.target_force_n} ± ${task.tolerance_n} N within ${(task.site_radius_m * 1e3).toFixed(0)} mm ` +
       `of the ring, hold ${task.hold_s} s; stay below ${task.safe_force_n} N`
+    );
+  }
+  if (task.kind === 'palpation') {
+    return (
+      `find the lumps within the ${(task.area_radius_m * 1e3).toFixed(0)} mm circle and mark each with ` +
+      `the button; stay below ${task.safe_force_n} N`
     );
   }
   const force = task.target_force_n == null ? '' : ` at ${task.target_force_n} ± ${task.force_tolerance_n} N`;
@@ -95,7 +102,13 @@ export class ExercisePanel {
         { completed: 'goal reached', time_limit: 'time up', stopped: 'stopped' }[result.ended] ?? result.ended;
       d['ex-verdict'].textContent = result.passed ? 'passed' : 'not passed';
       d['ex-verdict'].className = `badge ${result.passed ? 'ok' : 'bad'}`;
-      d['ex-ended'].textContent = `${ended}${result.score.safe ? '' : ', above the safe force'}`;
+      let how = `${ended}${result.score.safe ? '' : ', above the safe force'}`;
+      if (m.exercise.task.kind === 'palpation') {
+        // Said once the time is up, to the trainee too: which were found.
+        const sm = result.score.metrics;
+        how += ` · found ${sm.found} of ${sm.found + sm.missed}, ${sm.false_marks} false marks`;
+      }
+      d['ex-ended'].textContent = how;
       d['ex-marks'].replaceChildren(
         ...result.marks.map((mark) => {
           const li = document.createElement('li');
@@ -163,9 +176,12 @@ export class ExercisePanel {
     let points;
     let object;
     const material = new THREE.LineBasicMaterial({ color: TASK_COLOR, depthTest: false });
-    if (task.kind === 'press') {
-      // A circle of the site's radius around the site, in the plane of the surface there.
-      const centre = new THREE.Vector3(...task.site_m).add(lift);
+    if (task.kind === 'press' || task.kind === 'palpation') {
+      // A circle around the site (of its radius), or around the area to search (of the
+      // area's), in the plane of the surface there. Never the lumps: the task has none.
+      const palpation = task.kind === 'palpation';
+      const radius = palpation ? task.area_radius_m : task.site_radius_m;
+      const centre = new THREE.Vector3(...(palpation ? task.area_centre_m : task.site_m)).add(lift);
       const u = new THREE.Vector3(1, 0, 0);
       if (Math.abs(u.dot(n)) > 0.9) u.set(0, 0, 1);
       u.sub(n.clone().multiplyScalar(u.dot(n))).normalize();
@@ -176,8 +192,8 @@ export class ExercisePanel {
         points.push(
           centre
             .clone()
-            .addScaledVector(u, task.site_radius_m * Math.cos(a))
-            .addScaledVector(v, task.site_radius_m * Math.sin(a)),
+            .addScaledVector(u, radius * Math.cos(a))
+            .addScaledVector(v, radius * Math.sin(a)),
         );
       }
       object = new THREE.LineLoop(new THREE.BufferGeometry().setFromPoints(points), material);
@@ -206,6 +222,7 @@ export class ExercisePanel {
       attempt: this.last?.attempt ?? null,
       resultShown: !d['ex-result'].hidden,
       verdict: d['ex-verdict'].textContent,
+      ended: d['ex-ended'].textContent,
       marks: [...d['ex-marks'].children].map((li) => li.textContent),
       nextIn: d['ex-next-in'].textContent,
       controlsShown: !d['ex-controls'].hidden,

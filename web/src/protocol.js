@@ -458,7 +458,7 @@ function validateMetrics(m) {
 }
 
 const EXERCISE_STATES = ['running', 'ended'];
-const EXERCISE_KINDS = ['press', 'trace'];
+const EXERCISE_KINDS = ['press', 'trace', 'palpation'];
 
 /**
  * `exercise`: the exercise a station runs for its trainee and where the attempt stands (the
@@ -490,6 +490,10 @@ function validateExercise(m) {
     vector(task.site_m, 3, 'exercise.exercise.task.site_m');
     vector(task.normal, 3, 'exercise.exercise.task.normal');
     positive(task.site_radius_m, 'exercise.exercise.task.site_radius_m');
+  } else if (task.kind === 'palpation') {
+    vector(task.area_centre_m, 3, 'exercise.exercise.task.area_centre_m');
+    vector(task.normal, 3, 'exercise.exercise.task.normal');
+    positive(task.area_radius_m, 'exercise.exercise.task.area_radius_m');
   } else {
     if (!Array.isArray(task.path_m) || task.path_m.length < 2) {
       throw new ProtocolError('exercise.exercise.task.path_m', 'expected a path of at least 2 points');

@@ -136,6 +136,7 @@ fn summary(loaded: &LoadedExercise) -> String {
                 p.safe_force_n
             );
         }
+        softhaptic_proto::exercise::Task::Palpation(_) => {}
         softhaptic_proto::exercise::Task::Trace(t) => {
             let _ = writeln!(
                 out,
@@ -148,6 +149,20 @@ fn summary(loaded: &LoadedExercise) -> String {
                 t.safe_force_n
             );
         }
+    }
+    if let softhaptic_proto::exercise::Task::Palpation(p) = &e.task {
+        let _ = writeln!(
+            out,
+            "  palpate {} mm around {} (world) for {} inclusions, marking each within its radius + {} mm; \
+             searched once {} mm deep; at most {} false marks; safe force {} N",
+            p.area_radius_m * 1e3,
+            mm(p.area_centre_m),
+            p.targets.len(),
+            p.tolerance_m * 1e3,
+            p.coverage_depth_m * 1e3,
+            p.max_false_marks,
+            p.safe_force_n
+        );
     }
     if e.pass.is_empty() {
         out.push_str("  pass marks: none (complete the task without passing the safe force)\n");

@@ -28,7 +28,8 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 use serde::Deserialize;
 use softhaptic_proto::exercise::{
-    Better, Exercise, ExpertSpread, PassMark, PressTask, Task, TraceTask,
+    Better, Exercise, ExpertSpread, PalpationTarget, PalpationTask, PassMark, PressTask, Task,
+    TraceTask,
 };
 
 use crate::files::FileKind;
@@ -69,9 +70,31 @@ struct ExerciseFile {
     time_limit_s: f64,
     press: Option<PressSection>,
     trace: Option<TraceSection>,
+    palpation: Option<PalpationSection>,
     #[serde(default)]
     pass: BTreeMap<String, PassSection>,
 }
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PalpationSection {
+    area_centre_m: Option<[f64; 3]>,
+    normal: Option<[f64; 3]>,
+    area_radius_m: f64,
+    tolerance_m: f64,
+    #[serde(default = "default_coverage_depth_m")]
+    coverage_depth_m: f64,
+    #[serde(default)]
+    max_false_marks: u32,
+    safe_force_n: Option<f64>,
+}
+
+fn default_coverage_depth_m() -> f64 {
+    0.002
+}
+
+/// Most false marks a palpation may allow (a mark is a deliberate press of the button).
+const MAX_FALSE_MARKS: u32 = 20;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -257,14 +280,27 @@ fn check(file: ExerciseFile, path: &Path, scene: &Scene) -> Result<Exercise, Exe
         Some(v) => c.range(field, v, 0.0, MAX_FORCE_N, false),
         None => Ok(scene.safe_force_n),
     };
+    // Each kind has its own section and no other's.
+    for (section, present) in [
+        ("press", file.press.is_some()),
+        ("trace", file.trace.is_some()),
+        ("palpation", file.palpation.is_some()),
+    ] {
+        if present
+            && section != file.kind
+            && ["press", "trace", "palpation"].contains(&file.kind.as_str())
+        {
+            return Err(c.refuse(
+                section,
+                format!(
+                    "a {kind} exercise has a [{kind}] section, not [{section}]",
+                    kind = file.kind
+                ),
+            ));
+        }
+    }
     let task = match file.kind.as_str() {
         "press" => {
-            if file.trace.is_some() {
-                return Err(c.refuse(
-                    "trace",
-                    "a press exercise has a [press] section, not [trace]".into(),
-                ));
-            }
             let Some(p) = file.press else {
                 return Err(c.refuse("press", "a press exercise needs its [press] section".into()));
             };
@@ -310,12 +346,6 @@ fn check(file: ExerciseFile, path: &Path, scene: &Scene) -> Result<Exercise, Exe
             })
         }
         "trace" => {
-            if file.press.is_some() {
-                return Err(c.refuse(
-                    "press",
-                    "a trace exercise has a [trace] section, not [press]".into(),
-                ));
-            }
             let Some(t) = file.trace else {
                 return Err(c.refuse("trace", "a trace exercise needs its [trace] section".into()));
             };
@@ -378,10 +408,77 @@ fn check(file: ExerciseFile, path: &Path, scene: &Scene) -> Result<Exercise, Exe
                 safe_force_n,
             })
         }
+        "palpation" => {
+            let Some(p) = file.palpation else {
+                return Err(c.refuse(
+                    "palpation",
+                    "a palpation exercise needs its [palpation] section".into(),
+                ));
+            };
+            if scene.inclusions.is_empty() {
+                return Err(c.refuse(
+                    "kind",
+                    "a palpation exercise needs a scene with inclusions to find ([[inclusion]], as scenes/palpation.toml)".into(),
+                ));
+            }
+            let centre = match p.area_centre_m {
+                Some(v) => c.point("palpation.area_centre_m", v)?,
+                None => site_in_object,
+            };
+            let normal = match p.normal {
+                Some(v) => c.normal("palpation.normal", v)?,
+                None => site_normal,
+            };
+            Task::Palpation(PalpationTask {
+                area_centre_m: to_world(centre).to_array(),
+                normal: rotate(normal).to_array(),
+                area_radius_m: c.range(
+                    "palpation.area_radius_m",
+                    p.area_radius_m,
+                    0.0,
+                    MAX_DISTANCE_M,
+                    false,
+                )?,
+                tolerance_m: c.range(
+                    "palpation.tolerance_m",
+                    p.tolerance_m,
+                    0.0,
+                    MAX_DISTANCE_M,
+                    true,
+                )?,
+                coverage_depth_m: c.range(
+                    "palpation.coverage_depth_m",
+                    p.coverage_depth_m,
+                    0.0,
+                    MAX_DISTANCE_M,
+                    false,
+                )?,
+                max_false_marks: if p.max_false_marks <= MAX_FALSE_MARKS {
+                    p.max_false_marks
+                } else {
+                    return Err(c.refuse(
+                        "palpation.max_false_marks",
+                        format!(
+                            "must be at most {MAX_FALSE_MARKS}, got {}",
+                            p.max_false_marks
+                        ),
+                    ));
+                },
+                safe_force_n: safe("palpation.safe_force_n", p.safe_force_n)?,
+                targets: scene
+                    .inclusions
+                    .iter()
+                    .map(|i| PalpationTarget {
+                        centre_m: to_world(DVec3::from_array(i.centre_in_object_m)).to_array(),
+                        radius_m: i.radius_m,
+                    })
+                    .collect(),
+            })
+        }
         other => {
             return Err(c.refuse(
                 "kind",
-                format!("must be \"press\" or \"trace\", got {other:?}"),
+                format!("must be \"press\", \"trace\" or \"palpation\", got {other:?}"),
             ));
         }
     };

@@ -235,7 +235,8 @@ impl Recording {
                 .map(|m| {
                     let path = match &m.exercise.task {
                         softhaptic_proto::exercise::Task::Trace(t) => t.path_m.len() * 24,
-                        softhaptic_proto::exercise::Task::Press(_) => 0,
+                        softhaptic_proto::exercise::Task::Press(_)
+                        | softhaptic_proto::exercise::Task::Palpation(_) => 0,
                     };
                     size_of::<softhaptic_proto::wire::ExerciseMessage>()
                         + m.exercise_toml.as_ref().map_or(0, String::len)
