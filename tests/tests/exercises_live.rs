@@ -221,6 +221,41 @@ async fn a_station_runs_its_exercises_for_a_trainee_and_records_every_attempt() 
     assert_eq!(exported.len(), 3);
     assert_eq!(exported[0], result);
 
+    // `results` gathers the recorded attempts, at both exercises, into one CSV and a page with
+    // a section per exercise.
+    let (csv, html) = (dir.join("results.csv"), dir.join("results.html"));
+    softhaptic_server::exercise::cli::run_results(softhaptic_server::exercise::cli::ResultsArgs {
+        recordings: vec![path.clone()],
+        exercise: None,
+        trainee: None,
+        csv: csv.clone(),
+        html: Some(html.clone()),
+        replace: false,
+    })
+    .unwrap();
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let cells = |name: &str| rows.iter().map(|r| r[column(name)]).collect::<Vec<_>>();
+    assert_eq!(
+        cells("exercise"),
+        ["Press and hold 1.8 N", "Trace a line", "Trace a line"]
+    );
+    assert_eq!(cells("attempt"), ["1", "1", "2"]);
+    assert_eq!(cells("ended"), ["time_limit", "stopped", "stopped"]);
+    // Each kind's metrics, empty where the other kind has none.
+    assert_eq!(cells("hold_s")[1], "");
+    assert_eq!(cells("mean_deviation_m")[0], "");
+    assert_eq!(
+        cells("hold_s")[0],
+        result.score.metrics["hold_s"].to_string()
+    );
+    let page = std::fs::read_to_string(&html).unwrap();
+    assert_eq!(page.matches("<section class=\"exercise\">").count(), 2);
+    assert!(page.contains("data-metric=\"hold_s\"") && page.contains("data-metric=\"coverage\""));
+
     // A replay shows the attempts as the station's viewers saw them, and takes no controls.
     let replay = replay::start(r, softhaptic_tests::replay_options(4.0, true))
         .await

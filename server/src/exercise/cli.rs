@@ -60,13 +60,16 @@ pub struct BenchmarkArgs {
 /// `softhaptic results …`
 #[derive(clap::Args, Debug, Clone)]
 pub struct ResultsArgs {
-    /// Recordings of attempts (.mcap), in the order they were made.
+    /// Recordings (.mcap), in the order they were made: of stations that ran exercises (their
+    /// recorded attempts are gathered), or, with --exercise, each scored as one attempt.
     #[arg(required = true)]
     pub recordings: Vec<PathBuf>,
-    /// The exercise file (.toml) the attempts were at.
+    /// Score each recording as one attempt at this exercise file (.toml) [default: the
+    /// attempts the recordings hold, at every exercise they ran].
     #[arg(long, value_name = "FILE")]
-    pub exercise: PathBuf,
-    /// The trainee of every recording [default: each recording's file name].
+    pub exercise: Option<PathBuf>,
+    /// With --exercise: the trainee of every recording [default: each recording's file name].
+    /// Without: only this trainee's attempts [default: everyone's].
     #[arg(long, value_name = "NAME")]
     pub trainee: Option<String>,
     /// Write one row per attempt here (CSV).
@@ -419,41 +422,91 @@ pub fn run_results(args: ResultsArgs) -> anyhow::Result<()> {
             );
         }
     }
-    let mut exercise = None;
-    let mut rows = Vec::new();
-    for path in &args.recordings {
-        let (e, r) = score_recording(path, &args.exercise, args.trainee.as_deref())?;
-        exercise.get_or_insert(e);
-        rows.push((path.clone(), r));
-    }
-    let Some(exercise) = exercise else {
-        bail!("no recordings given");
+    let mut groups: Vec<(Exercise, Vec<(PathBuf, AttemptResult)>)> = Vec::new();
+    let mut add = |exercise: Exercise, path: &Path, result: AttemptResult| match groups
+        .iter_mut()
+        .find(|(e, _)| e.name == exercise.name)
+    {
+        Some((_, rows)) => rows.push((path.to_path_buf(), result)),
+        None => groups.push((exercise, vec![(path.to_path_buf(), result)])),
     };
-    // Attempts are numbered per trainee in the order given.
-    let mut seen: std::collections::HashMap<String, u32> = std::collections::HashMap::new();
-    for (_, r) in &mut rows {
-        let n = seen.entry(r.trainee.clone()).or_insert(0);
-        *n += 1;
-        r.attempt = *n;
+    for path in &args.recordings {
+        match &args.exercise {
+            Some(file) => {
+                let (e, r) = score_recording(path, file, args.trainee.as_deref())?;
+                add(e, path, r);
+            }
+            None => {
+                let recording = Recording::open(path)?;
+                let mut found = 0;
+                for m in &recording.exercises {
+                    let Some(r) = &m.result else { continue };
+                    if args.trainee.as_ref().is_some_and(|t| *t != r.trainee) {
+                        continue;
+                    }
+                    add(m.exercise.clone(), path, r.clone());
+                    found += 1;
+                }
+                if found == 0 {
+                    eprintln!(
+                        "{}: no attempts at exercises{} (score it as one with --exercise FILE)",
+                        path.display(),
+                        args.trainee
+                            .as_ref()
+                            .map_or_else(String::new, |t| format!(" by {t}"))
+                    );
+                }
+            }
+        }
     }
-    let csv = results_csv(&exercise, &rows)?;
+    if groups.is_empty() {
+        bail!("no attempts in the recordings given");
+    }
+    // Attempts are numbered per trainee and exercise, in the order given.
+    let mut seen: std::collections::HashMap<(String, String), u32> =
+        std::collections::HashMap::new();
+    let mut total = 0;
+    for (e, rows) in &mut groups {
+        for (_, r) in rows.iter_mut() {
+            let n = seen.entry((r.trainee.clone(), e.name.clone())).or_insert(0);
+            *n += 1;
+            r.attempt = *n;
+            total += 1;
+        }
+    }
+    let csv = results_csv(&groups)?;
     std::fs::write(&args.csv, csv).with_context(|| format!("writing {}", args.csv.display()))?;
-    println!("wrote {} ({} attempts)", args.csv.display(), rows.len());
+    println!(
+        "wrote {} ({total} attempts at {} exercises)",
+        args.csv.display(),
+        groups.len()
+    );
     if let Some(html) = &args.html {
-        std::fs::write(html, results_html(&exercise, &rows)?)
+        std::fs::write(html, results_html(&groups)?)
             .with_context(|| format!("writing {}", html.display()))?;
         println!("wrote {}", html.display());
     }
     Ok(())
 }
 
-/// One row per attempt: who, which, whether it passed, then every metric of the kind and, for
-/// each pass mark, whether it was met. Columns described once, here.
-pub fn results_csv(
-    exercise: &Exercise,
-    rows: &[(PathBuf, AttemptResult)],
-) -> anyhow::Result<String> {
-    let metrics = exercise.task.metrics();
+/// One row per attempt: who, which, whether it passed, then every metric of the exercises'
+/// kinds and, for each pass mark, whether it was met (empty where an exercise has no such
+/// metric or mark). Columns described once, here.
+pub fn results_csv(groups: &[(Exercise, Vec<(PathBuf, AttemptResult)>)]) -> anyhow::Result<String> {
+    let mut metrics: Vec<&str> = Vec::new();
+    let mut marks: Vec<&str> = Vec::new();
+    for (e, _) in groups {
+        for m in e.task.metrics() {
+            if !metrics.contains(&m.name) {
+                metrics.push(m.name);
+            }
+        }
+        for p in &e.pass {
+            if !marks.contains(&p.metric.as_str()) {
+                marks.push(&p.metric);
+            }
+        }
+    }
     let mut w = csv::Writer::from_writer(Vec::new());
     let mut header: Vec<String> = [
         "recording",
@@ -468,10 +521,10 @@ pub fn results_csv(
     ]
     .map(str::to_owned)
     .into();
-    header.extend(metrics.iter().map(|m| m.name.to_owned()));
-    header.extend(exercise.pass.iter().map(|p| format!("{}_met", p.metric)));
+    header.extend(metrics.iter().map(|m| (*m).to_owned()));
+    header.extend(marks.iter().map(|m| format!("{m}_met")));
     w.write_record(&header)?;
-    for (path, r) in rows {
+    for (path, r) in groups.iter().flat_map(|(_, rows)| rows) {
         let mut record = vec![
             path.display().to_string(),
             r.trainee.clone(),
@@ -489,10 +542,15 @@ pub fn results_csv(
         record.extend(metrics.iter().map(|m| {
             r.score
                 .metrics
-                .get(m.name)
+                .get(*m)
                 .map_or_else(String::new, |v| v.to_string())
         }));
-        record.extend(r.marks.iter().map(|m| m.met.to_string()));
+        record.extend(marks.iter().map(|name| {
+            r.marks
+                .iter()
+                .find(|o| o.mark.metric == *name)
+                .map_or_else(String::new, |o| o.met.to_string())
+        }));
         w.write_record(&record)?;
     }
     Ok(String::from_utf8(w.into_inner()?)?)
@@ -505,17 +563,36 @@ fn escape(text: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// A self-contained page: the attempts as a table, then one SVG plot per metric (each trainee's
-/// attempts in order, the pass mark as a line).
+/// A self-contained page: for each exercise, the attempts as a table, then one SVG plot per
+/// metric (each trainee's attempts in order, the pass mark as a line).
 pub fn results_html(
+    groups: &[(Exercise, Vec<(PathBuf, AttemptResult)>)],
+) -> anyhow::Result<String> {
+    let title = groups
+        .iter()
+        .map(|(e, _)| escape(&e.name))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let mut page = format!(
+        "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{title}: results</title>\n\
+         <style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}\
+         td,th{{border:1px solid #ccc;padding:2px 6px}}.fail{{color:#b00}}.pass{{color:#070}}</style>\n\
+         </head><body>\n"
+    );
+    for (exercise, rows) in groups {
+        page.push_str(&exercise_section(exercise, rows)?);
+    }
+    page.push_str("</body></html>\n");
+    Ok(page)
+}
+
+/// One exercise's part of the results page.
+fn exercise_section(
     exercise: &Exercise,
     rows: &[(PathBuf, AttemptResult)],
 ) -> anyhow::Result<String> {
     let mut page = format!(
-        "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{name}: results</title>\n\
-         <style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse}}\
-         td,th{{border:1px solid #ccc;padding:2px 6px}}.fail{{color:#b00}}.pass{{color:#070}}</style>\n\
-         </head><body>\n<h1>{name}</h1>\n<p>{n} attempts. {instructions}</p>\n<table>\n\
+        "<section class=\"exercise\">\n<h1>{name}</h1>\n<p>{n} attempts. {instructions}</p>\n<table>\n\
          <tr><th>trainee</th><th>attempt</th><th>result</th><th>ended</th>",
         name = escape(&exercise.name),
         n = rows.len(),
@@ -563,7 +640,7 @@ pub fn results_html(
             plot(m, mark, rows)?
         );
     }
-    page.push_str("</body></html>\n");
+    page.push_str("</section>\n");
     Ok(page)
 }
 
