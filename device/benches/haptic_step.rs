@@ -8,6 +8,9 @@
 //! and 5 stiffer inclusions from the committed FEM table, the tip sliding 1 mm around the first
 //! one's centre, where every inclusion is read.
 //!
+//! `guide_step` is one tick of haptic guidance (the target's search near the previous one and
+//! the pull) on a 1 m expert path resampled every 1 mm, the tip moving along it.
+//!
 //! `cargo bench -p softhaptic-device --bench haptic_step`; the step report
 //! (`cargo run --release -p softhaptic-device --features tools --bin step-report`) prints the same step side by
 //! side with the paper's figures. Measurement windows are short: CI machines have two cores.
@@ -142,5 +145,36 @@ fn palpation_step(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, haptic_step, palpation_step);
+fn guide_step(c: &mut Criterion) {
+    use softhaptic_device::guide::{Guide, GuideParams, GuidePath};
+    // A 1 m wavy path (1000 points): the search must stay local for the cost to stay flat.
+    let path = GuidePath::resample(
+        (0..=2000).map(|i| {
+            let x = i as f64 * 0.0005;
+            (DVec3::new(x, 0.0, 0.01 * (x * 40.0).sin()), 0.002)
+        }),
+        0.001,
+    )
+    .expect("the path guides");
+    let mut guide = Guide::new(path, GuideParams::default());
+    let mut t: u64 = 0;
+    let mut group = c.benchmark_group("guide_step");
+    group.measurement_time(Duration::from_secs(2));
+    group.bench_function("1000_points", |b| {
+        b.iter(|| {
+            t += 1;
+            let x = (t % 1_000_000) as f64 * 1e-6;
+            let tip = DVec3::new(x, 0.002, 0.01 * (x * 40.0).sin() + 0.003);
+            black_box(guide.step(
+                black_box(tip),
+                DVec3::new(0.1, 0.0, 0.0),
+                None,
+                t * 1_000_000,
+            ))
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, haptic_step, palpation_step, guide_step);
 criterion_main!(benches);

@@ -35,8 +35,10 @@
 //!   inclusions.
 //! - [`metrics`]: the trainee's metrics (peak force, time above the safe force, time in
 //!   contact, path, smoothness, pushes, faults, flags) from every tick, in constant time.
-//! - [`exercise`]: [`Scorer`](exercise::Scorer), an exercise's score (press, trace) from the
+//! - [`exercise`]: [`Scorer`](exercise::Scorer), an exercise's score (press, trace, palpation) from the
 //!   same ticks as the metrics, live or from a recording.
+//! - [`guide`]: haptic guidance along an expert's recorded path (a spring–damper toward a
+//!   target that advances with the trainee's progress), and its fading across attempts.
 //! - [`passivity`]: the passivity observer and controller (Hannaford & Ryu 2002).
 //! - [`thermal`]: [`ContinuousForceLimiter`](thermal::ContinuousForceLimiter), a model of the
 //!   motors' heating that holds the RMS force at the device's continuous rating.
@@ -57,6 +59,7 @@ pub mod curvature;
 pub mod device;
 pub mod exercise;
 pub mod force;
+pub mod guide;
 pub mod haptic_loop;
 pub mod inclusion;
 pub mod law;
