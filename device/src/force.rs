@@ -15,7 +15,9 @@
 //! 3. a linear ramp from zero when contact begins with a force that would jump, or when the
 //!    device comes back after a fault (`RAMPING`);
 //! 4. the passivity controller (`PASSIVITY_DAMPING`, see [`crate::passivity`]);
-//! 5. saturation at the device's peak force (`SATURATED`);
+//! 5. saturation at the device's peak force (`SATURATED`); then a guiding force, when an
+//!    expert's path guides the trainee ([`crate::guide`], [`ForceRenderer::set_guidance`]), is
+//!    added and the sum saturated at the peak again;
 //! 6. the late-tick bound: a tick whose interval spans more than 1.5 nominal periods changes the
 //!    force of the stages above by at most (K_max / r)|Δx| + 0.25 N from the last tick's force at
 //!    this stage, and the lag it leaves settles on the next ticks (`LATE_TICK_LIMITED`);
@@ -184,6 +186,8 @@ pub struct ForceRenderer {
     /// motors keep their heat through a fault. `None` when the configuration switches it off or
     /// the device's limits do not define a continuous rating below the peak.
     thermal: Option<ContinuousForceLimiter>,
+    /// This tick's guiding force ([`ForceRenderer::set_guidance`]), zero without guidance.
+    guidance_n: DVec3,
     /// Device time of the last tick the heating model booked.
     thermal_time_ns: Option<u64>,
     /// Device time of the last tick whose device reported its motors warm, while the limit they
@@ -280,6 +284,7 @@ impl ForceRenderer {
             warm_last_ns: None,
             late_lag: false,
             previous_bounded_n: DVec3::ZERO,
+            guidance_n: DVec3::ZERO,
             inclusion_ratio: 1.0,
             inclusion_gradient_1_per_m: DVec3::ZERO,
             inclusion_ratio_per_depth_1_per_m: 0.0,
@@ -493,6 +498,18 @@ impl ForceRenderer {
         }
     }
 
+    /// The guiding force of this tick ([`crate::guide`]), world frame: added to the contact's
+    /// before the late-tick, heating and warm-motors limits, and the sum saturated at the
+    /// device's peak. A non-finite force is taken as zero. Call it before
+    /// [`ForceRenderer::render`]; it holds until the next call.
+    pub fn set_guidance(&mut self, force_n: DVec3) {
+        self.guidance_n = if force_n.is_finite() {
+            force_n
+        } else {
+            DVec3::ZERO
+        };
+    }
+
     /// Renders one tick. `contact` is `None` out of contact; `position_m` and `velocity_m_s` are
     /// the tip's; `tool_axis` is the tool's +y axis (tip toward shaft), all in the world frame;
     /// `time_ns` is the sample's device time.
@@ -517,6 +534,18 @@ impl ForceRenderer {
             _ => 0,
         };
         let mut rendered = self.render_force(contact, velocity_m_s, tool_axis, time_ns);
+        if self.guidance_n != DVec3::ZERO && !rendered.flags.contains(ContactFlags::DEVICE_FAULT) {
+            // The guide has its own cap below the peak; the sum with the contact's is held to
+            // the peak here, before every later limit, which then bounds the whole.
+            let mut total_n = rendered.force_n + self.guidance_n;
+            let size = total_n.length();
+            let peak = self.limits.peak_force_n;
+            if size > peak {
+                total_n *= peak / size;
+                rendered.flags |= ContactFlags::SATURATED;
+            }
+            rendered.force_n = total_n;
+        }
         if let Some(d) = displacement_m {
             self.limit_late_step(&mut rendered, d, interval_ns);
         }

@@ -287,6 +287,14 @@ impl Guide {
         self.last_time_ns = None;
     }
 
+    /// Lets go at once (a device fault): the pull ramps in again from zero once the trainee is
+    /// captured again, as the contact's force does after a fault.
+    pub fn release(&mut self) {
+        self.engaged = false;
+        self.ramp = 0.0;
+        self.last_time_ns = None;
+    }
+
     /// One tick: the tip's position and velocity, the contact (outward normal and depth) when
     /// in contact, and the sample's device time.
     pub fn step(

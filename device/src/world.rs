@@ -17,6 +17,7 @@ use crate::metrics::{MetricsAccumulator, TickInput, TraineeMetrics};
 /// The safe force of a world whose scene sets none, N.
 pub const DEFAULT_SAFE_FORCE_N: f64 = 2.0;
 use crate::force::{ForceConfig, ForceRenderer, RenderedForce, WorldContact};
+use crate::guide::{Guide, GuideOutput};
 use crate::inclusion::InclusionField;
 use crate::model::{ForceModel, LocalGeometry};
 use crate::tracking::ContactTracker;
@@ -49,6 +50,10 @@ pub struct HapticWorld {
     metrics: MetricsAccumulator,
     /// The object's stiffer inclusions; `None` (nothing computed per tick) without any.
     inclusions: Option<InclusionField>,
+    /// Guidance along an expert's path; `None` (nothing computed per tick) without it.
+    guide: Option<Guide>,
+    /// What the guide did on the last tick it ran.
+    guide_output: Option<GuideOutput>,
 }
 
 impl HapticWorld {
@@ -96,7 +101,26 @@ impl HapticWorld {
             last_good: None,
             metrics: MetricsAccumulator::new(DEFAULT_SAFE_FORCE_N),
             inclusions: None,
+            guide: None,
+            guide_output: None,
         }
+    }
+
+    /// Guides the trainee along an expert's path from the next tick (`None`: no guidance).
+    pub fn set_guide(&mut self, guide: Option<Guide>) {
+        self.guide = guide;
+        self.guide_output = None;
+        self.renderer.set_guidance(DVec3::ZERO);
+    }
+
+    /// The guide, to set its gain or restart it between attempts.
+    pub fn guide_mut(&mut self) -> Option<&mut Guide> {
+        self.guide.as_mut()
+    }
+
+    /// What the guide did on the last tick it ran (`None` without guidance).
+    pub fn guide_output(&self) -> Option<GuideOutput> {
+        self.guide_output
     }
 
     /// Puts the object's stiffer inclusions into the world ([`crate::inclusion`]); an empty
@@ -220,6 +244,16 @@ impl HapticWorld {
             );
         }
         let tool_axis = sample.tip_in_world.orientation * DVec3::Y;
+        if let Some(guide) = self.guide.as_mut() {
+            let out = guide.step(
+                sample.tip_in_world.position_m,
+                sample.tip_velocity_m_s,
+                contact.map(|c| (c.normal, c.depth_m)),
+                sample.time_ns,
+            );
+            self.guide_output = Some(out);
+            self.renderer.set_guidance(out.force_n);
+        }
         self.renderer.set_motors_warm(
             sample.flags.contains(ContactFlags::MOTORS_WARM),
             sample.time_ns,
@@ -308,6 +342,9 @@ impl HapticWorld {
 
     fn fault_state(&mut self, tick: u64, time_ns: Option<u64>) -> ContactState {
         let RenderedForce { force_n, flags } = self.renderer.fault();
+        if let Some(guide) = self.guide.as_mut() {
+            guide.release();
+        }
         let (tip_in_world, last_time_ns) = match self.last_good {
             Some(s) => (s.tip_in_world, s.time_ns),
             None => (Pose::IDENTITY, 0),
@@ -463,5 +500,75 @@ mod tests {
                 .all(|(x, y)| x.to_array().map(f64::to_bits) == y.to_array().map(f64::to_bits))
         );
         assert!(a.iter().any(|f| f.y > 0.1));
+    }
+
+    /// A guide along x at height `y_m` and `z_m`, 2 mm deep at the expert's ticks.
+    fn guide_along_x(y_m: f64, z_m: f64) -> Guide {
+        use crate::guide::{GuideParams, GuidePath};
+        let path = GuidePath::resample(
+            (0..=10).map(|i| (DVec3::new(-0.01 + 0.002 * i as f64, y_m, z_m), 0.002)),
+            0.001,
+        )
+        .unwrap();
+        Guide::new(path, GuideParams::default())
+    }
+
+    #[test]
+    fn the_guiding_force_is_added_in_free_space_and_ramps_in_again_after_a_fault() {
+        let mut w = world(Pose::IDENTITY);
+        // 10 mm above the grid, in free space.
+        w.set_guide(Some(guide_along_x(0.01, 0.0)));
+        // 5 mm above the path, free of the grid: pulled down, ramped in over 0.2 s.
+        let tip = DVec3::new(0.0, 0.015, 0.0);
+        let mut s = ContactState::IDLE;
+        for k in 0..300 {
+            s = w.step(Ok(sample_at(k * MS, tip)));
+        }
+        assert!(!s.in_contact);
+        // k × 5 mm = 0.75 N, straight toward the path.
+        assert!(
+            (s.force_n - DVec3::new(0.0, -0.75, 0.0)).length() < 1e-9,
+            "{:?}",
+            s.force_n
+        );
+        assert!(w.guide_output().unwrap().engaged);
+        // A fault: zero, and the pull starts again from zero afterwards.
+        let s = w.step(Err(DeviceError::Disconnected));
+        assert_eq!(s.force_n, DVec3::ZERO);
+        let s = w.step(Ok(sample_at(301 * MS, tip)));
+        assert!(s.force_n.length() < 0.01, "{:?}", s.force_n);
+        // Without the guide, nothing in free space.
+        w.set_guide(None);
+        let s = w.step(Ok(sample_at(302 * MS, tip)));
+        assert_eq!(s.force_n, DVec3::ZERO);
+    }
+
+    #[test]
+    fn guidance_and_contact_together_stay_within_the_devices_peak() {
+        let mut w = world(Pose::IDENTITY);
+        // A path 5 mm down in the object and 8 mm to the side: the guide pulls sideways at its
+        // cap (inward only until the tool is as deep as the expert's 2 mm), while the press
+        // goes on to where the contact's force alone is at the peak.
+        w.set_guide(Some(guide_along_x(-0.005, 0.008)));
+        let peak = w.limits().peak_force_n;
+        let mut both_at_peak = 0;
+        for k in 0..3000u64 {
+            // Pressing ever deeper, 10 µm per tick, to 30 mm.
+            let y = -1e-5 * k as f64;
+            let s = w.step(Ok(sample_at(k * MS, DVec3::new(0.0, y, 0.0))));
+            assert!(
+                s.force_n.length() <= peak + 1e-9,
+                "tick {k}: {:?}",
+                s.force_n
+            );
+            let guided = w.guide_output().unwrap();
+            if guided.engaged
+                && guided.force_n.length() > 1.0
+                && s.flags.contains(ContactFlags::SATURATED)
+            {
+                both_at_peak += 1;
+            }
+        }
+        assert!(both_at_peak > 100, "{both_at_peak} ticks with both");
     }
 }
