@@ -470,10 +470,13 @@ function paintColors(positions, rest, colors, list, count) {
 /** A small marker at a mark's point on the object, when it has one. */
 export function addMarker(m) {
   if (m.point_m === null || !view.scene) return;
+  // Drawn over the object: a mark made during a press sits at the bottom of the dent, inside the
+  // surface once it springs back, and would otherwise be hidden.
   const marker = new THREE.Mesh(
     new THREE.SphereGeometry(0.0025, 16, 8),
-    new THREE.MeshStandardMaterial({ color: 0xffd33d, emissive: 0x664d00 }),
+    new THREE.MeshStandardMaterial({ color: 0xffd33d, emissive: 0x664d00, depthTest: false }),
   );
+  marker.renderOrder = 10;
   marker.position.set(m.point_m[0], m.point_m[1], m.point_m[2]);
   view.scene.add(marker);
   view.markers.push({ id: m.id, mesh: marker });
