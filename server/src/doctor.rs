@@ -303,7 +303,7 @@ fn report(args: &DoctorArgs) -> anyhow::Result<i32> {
     } else {
         render(&report, &tree)
     };
-    crate::session::cli::print_report(format_args!("{text}"))?;
+    crate::logging::print_report(format_args!("{text}"))?;
     Ok(report.exit_code)
 }
 

@@ -29,7 +29,10 @@
 //! - [`toml_file`]: the checked TOML files (scenes, exercises) read and parsed, and their
 //!   errors, which name the file and, for a refused value, its field and the value.
 //! - [`logging`]: the process's log, which never writes the libraries' payload traces (tokens,
-//!   NATS credentials), whatever `RUST_LOG` asks for.
+//!   NATS credentials), whatever `RUST_LOG` asks for; the reports commands print on stdout.
+//! - [`routes`]: the HTTP side the live server, the replay server and the lab's hub share: the
+//!   routes of proto/WIRE.md over a stream hub, served over TCP or TLS within the connection
+//!   caps; the server's name in `hello`.
 //! - [`stream`]: the 50 Hz frame task, the 1 Hz stats task and each viewer's connection task;
 //!   why a slow viewer never delays anyone.
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
@@ -50,6 +53,7 @@ pub mod exercise;
 pub mod files;
 pub mod lab;
 pub mod logging;
+pub mod routes;
 pub mod scene;
 pub mod session;
 pub mod stream;

@@ -72,6 +72,18 @@ pub fn init() {
     tracing_subscriber::registry().with(layer).init();
 }
 
+/// Prints a report on stdout. A reader that stops early (`softhaptic info FILE | head`) ends
+/// the output, not the program with a panic, as with other command-line tools.
+pub fn print_report(text: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
+    use anyhow::Context as _;
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    match out.write_fmt(text).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other.context("could not write to stdout"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -57,7 +57,7 @@ use super::{
 };
 use crate::access::roles::{Action, may};
 use crate::access::{self, Access, AccessConfig, Connection};
-use crate::app::SERVER_NAME;
+use crate::routes::SERVER_NAME;
 use crate::stream::{EncodedFrame, StreamCounters, StreamHub, ViewerEnd, ViewerLimits};
 
 /// How to run a hub.
@@ -1244,7 +1244,7 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         source,
     })?;
     let tls = options.tls.is_some();
-    let http = crate::app::serve_http(listener, app, options.tls, caps, shutdown_rx);
+    let http = crate::routes::serve_http(listener, app, options.tls, caps, shutdown_rx);
     Ok(RunningHub {
         local_addr,
         shutdown_tx,

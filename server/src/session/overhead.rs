@@ -19,7 +19,7 @@ use softhaptic_proto::wire::PROTOCOL_VERSION;
 use super::check::haptic_world;
 use super::writer::Recorder;
 use super::writer::TICK_RING_CAPACITY;
-use crate::app::SERVER_NAME;
+use crate::routes::SERVER_NAME;
 use crate::scene::Scene;
 
 /// One run's figures.

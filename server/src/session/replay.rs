@@ -4,7 +4,7 @@
 //! lines are its tests.
 //!
 //! The replay serves the same routes with the same code as the live server
-//! ([`crate::app::viewer_router`], [`crate::stream::serve_viewer`]); only the source of the
+//! ([`crate::routes::viewer_router`], [`crate::stream::serve_viewer`]); only the source of the
 //! frames differs: instead of the haptic loop, a player task walks the recorded `/contact` frames
 //! and `/loop_stats` messages on the recording's device-time axis, at `speed` times real time.
 //! Viewers send `replay_control` messages (pause, play, seek, speed) and receive `replay` status
@@ -39,7 +39,7 @@ use tokio::time::Instant;
 use super::check::recorded_scene;
 use super::reader::{RecordedMessage, Recording};
 use crate::access::{Access, AccessConfig, AccessError};
-use crate::app::{SERVER_NAME, serve_http, viewer_router};
+use crate::routes::{SERVER_NAME, serve_http, viewer_router};
 use crate::stream::{EncodedFrame, FRAME_BACKLOG, StreamHub, ViewerLimits};
 
 /// How often the player sends a `replay` status while playing.
@@ -125,7 +125,7 @@ impl RunningReplay {
         let _ = self.shutdown_tx.send(true);
         let _ = self.player.await;
         let _ = tokio::time::timeout(
-            crate::app::VIEWERS_CLOSE_WAIT,
+            crate::routes::VIEWERS_CLOSE_WAIT,
             self.hub.access.until_no_connections(),
         )
         .await;

@@ -148,7 +148,7 @@ pub fn record_hand(
     let build = BuildRecord {
         session_format_version: softhaptic_proto::record::SESSION_FORMAT_VERSION,
         protocol_version: softhaptic_proto::wire::PROTOCOL_VERSION,
-        writer: crate::app::SERVER_NAME.into(),
+        writer: crate::routes::SERVER_NAME.into(),
         git_commit: super::git_commit(),
         session_id: session_id.to_owned(),
         // No wall clock in a scripted session: the same script and build write the same bytes,

@@ -2,8 +2,8 @@
 //! publication, and the 1 Hz stats task with the trainee's metrics and the device's state.
 //!
 //! Both stop on their own signal (`stop`), before the viewers are closed: the session's final
-//! metrics are those of the stopped loop, which only the server's shutdown has
-//! ([`crate::app::RunningServer::shutdown_with_metrics`]), and it sends them
+//! metrics are those of the stopped loop, which only the live server's shutdown has
+//! (`app::RunningServer::shutdown_with_metrics`, in the crate above), and it sends them
 //! ([`send_final_metrics`]) to viewers that are still connected. Were this task to send the
 //! loop's latest publication when the viewers' shutdown comes, it would send metrics up to 100
 //! ticks old while the loop still ran, on a channel the viewers were leaving at that moment.
