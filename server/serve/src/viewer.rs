@@ -33,7 +33,7 @@ use crate::files::{self, FileKind};
 /// `controls/OrbitControls.js`): a test fetches every module the page imports from a binary run
 /// outside the source tree.
 #[derive(RustEmbed)]
-#[folder = "../web/"]
+#[folder = "../../web/"]
 #[include = "index.html"]
 #[include = "src/*.js"]
 #[include = "src/*.css"]
@@ -171,7 +171,7 @@ impl Viewer {
     }
 
     /// The routes of the viewer's files: `/`, `/src/*`, `/vendor/three/*`. They need no token.
-    pub(crate) fn routes<S: Clone + Send + Sync + 'static>(&self) -> Router<S> {
+    pub fn routes<S: Clone + Send + Sync + 'static>(&self) -> Router<S> {
         match &self.dir {
             None => Router::new()
                 .route("/", get(embedded_file))
