@@ -8,7 +8,9 @@
 //! - `softhaptic-io` (`server/io/`): the files users name, the checked TOML files, the log.
 //! - `softhaptic-serve` (`server/serve/`): serving viewers: access, TLS, the viewer's files, the
 //!   stream, the HTTP routes every server shares.
-//! - this crate, on top: the scene, the live server, sessions, the lab, the doctor, exercises.
+//! - `softhaptic-scene` (`server/scene/`): scenes checked and loaded, and the device a scene
+//!   names, opened.
+//! - this crate, on top: the live server, sessions, the lab, the doctor, exercises.
 //!
 //! The modules of the crates below are re-exported here under their own names
 //! (`softhaptic_server::access`, `softhaptic_server::stream`, …).
@@ -39,17 +41,20 @@
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
 //! - From `softhaptic-io`: [`files`], [`toml_file`], [`logging`].
 //! - From `softhaptic-serve`: [`access`], [`tls`], [`viewer`], [`stream`], [`routes`].
+//! - From `softhaptic-scene`: [`scene`] and [`devices`].
 
 pub mod app;
 pub mod datadir;
-pub mod devices;
 pub mod doctor;
 pub mod exercise;
 pub mod lab;
-pub mod scene;
 pub mod session;
 pub mod vectors;
 
 // The layers below, under the names their modules had here.
 pub use softhaptic_io::{files, logging, toml_file};
+pub use softhaptic_scene::devices;
 pub use softhaptic_serve::{access, routes, stream, tls, viewer};
+
+/// Scenes, from `softhaptic-scene`.
+pub use softhaptic_scene as scene;

@@ -1,4 +1,8 @@
-//! Scenes: what the server simulates, described in a TOML file.
+//! Scenes: what the server simulates, described in a TOML file; and the device a scene names,
+//! opened.
+//!
+//! The crate is below the sessions, the doctor and the live server, which all load scenes; the
+//! files it reads go through `softhaptic_io::files`, imported here as `files`.
 //!
 //! A scene names one object (haptic and render meshes, pose, material, contact model), the
 //! tool, the device, the calibration table that gives R_d and the measured limits of the
@@ -115,6 +119,8 @@
 //!   recording's) and the model-limits file.
 //! - `obj`: the OBJ reader.
 //! - `message`: the `scene` message the viewers are sent for a scene ([`Scene::message`]).
+//! - [`devices`]: opening the scene's device (simulated, or OpenHaptics with the limits it
+//!   reports) and the `softhaptic devices` listing.
 //! - here: the [`Scene`] itself, its errors, and what `load` and `calibration` both ask: where a
 //!   scene's files resolve (`FileBase`) and whether its model comes from the files or from a
 //!   recording (`ModelSource`).
@@ -142,10 +148,12 @@ use softhaptic_proto::{
     CalibrationTable, Inclusion, InclusionTable, Material, Pose, ToolShape, ValidityLimits,
 };
 
-use crate::files::FileKind;
-use crate::toml_file::{self, TomlFileError};
+use softhaptic_io::files;
+use softhaptic_io::files::FileKind;
+use softhaptic_io::toml_file::{self, TomlFileError};
 
 mod calibration;
+pub mod devices;
 mod file;
 mod load;
 mod message;
@@ -188,12 +196,14 @@ pub enum SceneError {
     },
 }
 
-/// The `scenes/` directory of the source tree this binary was built from.
+/// The `scenes/` directory of the source tree this binary was built from (this crate is
+/// `server/scene/` in it).
 pub fn source_tree_scenes_dir() -> PathBuf {
-    let server = Path::new(env!("CARGO_MANIFEST_DIR"));
-    server
-        .parent()
-        .map_or_else(|| server.join(".."), Path::to_path_buf)
+    let crate_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
+    crate_dir
+        .ancestors()
+        .nth(2)
+        .map_or_else(|| crate_dir.join("../.."), Path::to_path_buf)
         .join("scenes")
 }
 

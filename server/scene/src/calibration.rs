@@ -355,7 +355,7 @@ mod tests {
 
     #[test]
     fn a_table_made_at_another_poisson_ratio_is_refused_with_the_one_to_use() {
-        let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+        let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
         // The ν = 0.49 scene with its own table loads.
         let scene_path = scenes.join("incompressible.toml");
         let text = crate::files::read_text(&scene_path, crate::files::FileKind::Scene).unwrap();

@@ -59,7 +59,7 @@ fn spacemouse_advice(e: &SpaceMouseError) -> &'static str {
     }
 }
 
-use crate::scene::{DeviceKind, Scene};
+use crate::{DeviceKind, Scene};
 
 /// The OpenHaptics configuration a scene describes.
 pub fn openhaptics_config(scene: &Scene) -> OpenHapticsConfig {
@@ -255,7 +255,7 @@ mod tests {
         let e = DeviceOpenError::from(SpaceMouseError::Transport(TransportError::NotFound(
             "no 3Dconnexion device among the HID devices".into(),
         )));
-        let text = crate::logging::error_text(&e);
+        let text = softhaptic_io::logging::error_text(&e);
         assert_eq!(text.matches("no SpaceMouse found").count(), 1, "{text}");
         assert_eq!(text.matches("no 3Dconnexion device").count(), 1, "{text}");
         assert!(
@@ -266,7 +266,7 @@ mod tests {
         let e = DeviceOpenError::from(SpaceMouseError::Config(
             "dead_band must be in [0, 1)".into(),
         ));
-        let text = crate::logging::error_text(&e);
+        let text = softhaptic_io::logging::error_text(&e);
         assert!(!text.contains("plug one in"), "{text}");
         assert_eq!(text.matches("dead_band").count(), 1, "{text}");
     }
