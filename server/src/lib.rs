@@ -10,7 +10,8 @@
 //!   stream, the HTTP routes every server shares.
 //! - `softhaptic-scene` (`server/scene/`): scenes checked and loaded, and the device a scene
 //!   names, opened.
-//! - this crate, on top: the live server, sessions, the lab, the doctor, exercises.
+//! - `softhaptic-doctor` (`server/doctor/`): the host's readiness for the loop, on the scenes.
+//! - this crate, on top: the live server, sessions, the lab, exercises.
 //!
 //! The modules of the crates below are re-exported here under their own names
 //! (`softhaptic_server::access`, `softhaptic_server::stream`, …).
@@ -41,11 +42,10 @@
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
 //! - From `softhaptic-io`: [`files`], [`toml_file`], [`logging`].
 //! - From `softhaptic-serve`: [`access`], [`tls`], [`viewer`], [`stream`], [`routes`].
-//! - From `softhaptic-scene`: [`scene`] and [`devices`].
+//! - From `softhaptic-scene`: [`scene`] and [`devices`]; from `softhaptic-doctor`: [`doctor`].
 
 pub mod app;
 pub mod datadir;
-pub mod doctor;
 pub mod exercise;
 pub mod lab;
 pub mod session;
@@ -56,5 +56,7 @@ pub use softhaptic_io::{files, logging, toml_file};
 pub use softhaptic_scene::devices;
 pub use softhaptic_serve::{access, routes, stream, tls, viewer};
 
+/// The host doctor, from `softhaptic-doctor`.
+pub use softhaptic_doctor as doctor;
 /// Scenes, from `softhaptic-scene`.
 pub use softhaptic_scene as scene;

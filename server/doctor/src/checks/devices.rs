@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use softhaptic_device::spacemouse::hid;
 
 use super::Tree;
-use crate::doctor::{Check, Verdict};
+use crate::{Check, Verdict};
 
 /// What OpenHaptics gave on this machine, reduced to text.
 #[derive(Debug, Clone, PartialEq, Eq)]

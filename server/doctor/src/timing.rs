@@ -13,8 +13,7 @@ use softhaptic_device::haptic_loop::{HapticLoop, LoopConfig};
 use softhaptic_device::stats::LoopStats;
 
 use super::{LoopPlan, Verdict};
-use crate::devices;
-use crate::scene::Scene;
+use softhaptic_scene::{Scene, devices};
 
 /// The loop's period, nanoseconds (1 kHz, as the server runs it).
 pub const PERIOD_NS: u64 = 1_000_000;

@@ -25,7 +25,7 @@ mod limits;
 use std::io::Read as _;
 use std::path::{Path, PathBuf};
 
-use crate::doctor::{Check, LoopPlan};
+use crate::{Check, LoopPlan};
 
 pub use cpus::{CpuLayout, cpu_isolation_check, governor_check};
 pub use devices::{DeviceFacts, OpenHapticsFacts, haptic_device_check, hidraw_check};

@@ -13,7 +13,7 @@ use std::fmt::Write as _;
 use super::Tree;
 use super::cpus::CpuLayout;
 use super::formats::{format_cpu_list, parse_cpu_list};
-use crate::doctor::{Check, Verdict};
+use crate::{Check, Verdict};
 
 /// One line of `/proc/interrupts`.
 #[derive(Debug, Clone, PartialEq, Eq)]

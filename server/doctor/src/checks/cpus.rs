@@ -12,7 +12,7 @@ use super::formats::{
     status_field,
 };
 use super::kernel::GRUB_STEPS;
-use crate::doctor::{Check, LoopPlan, Verdict};
+use crate::{Check, LoopPlan, Verdict};
 
 /// The CPUs of this machine and process, and where the loop would run.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]

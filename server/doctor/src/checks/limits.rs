@@ -8,7 +8,7 @@ use softhaptic_device::rt::LOOP_PRIORITY;
 
 use super::Tree;
 use super::formats::{Limit, cgroup_v1_path, parse_limit, status_field};
-use crate::doctor::{Check, LoopPlan, Verdict};
+use crate::{Check, LoopPlan, Verdict};
 
 /// The real-time priority the fixes ask for: above the loop's own ([`LOOP_PRIORITY`]), leaving
 /// room below the kernel's watchdogs.

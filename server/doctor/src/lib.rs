@@ -18,11 +18,23 @@
 //! cannot run as configured (a refused SCHED_FIFO, a CPU the process cannot use, a loop that
 //! does not start) or the doctor itself could not run (a bad option, the report not written):
 //! a script that sees 2 without a report on stdout knows it is the second kind.
+//!
+//! # Layout
+//! - here: the report, its items and verdicts, the exit status, `softhaptic doctor`'s options
+//!   and its run;
+//! - [`checks`]: one file per concern (kernel, CPUs, interrupts, limits, devices, and the formats
+//!   they share), each reading a [`Tree`];
+//! - [`timing`]: the loop measured idle and under load, on the scene's world and device
+//!   (`softhaptic-scene`);
+//! - `tests.rs`: the checks on fake machine trees, and `stock_verdicts.rs` the verdicts on stock
+//!   kernels.
 
 pub mod checks;
 #[cfg(test)]
 mod tests;
 pub mod timing;
+
+use softhaptic_io::logging;
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -266,7 +278,7 @@ pub fn device_facts() -> DeviceFacts {
 /// turn into 1 and so into "warnings".
 pub fn run(args: &DoctorArgs) -> anyhow::Result<i32> {
     Ok(report(args).unwrap_or_else(|e| {
-        eprintln!("error: {}", crate::logging::error_text(e.as_ref()));
+        eprintln!("error: {}", logging::error_text(e.as_ref()));
         EXIT_CANNOT_RUN
     }))
 }
@@ -303,7 +315,7 @@ fn report(args: &DoctorArgs) -> anyhow::Result<i32> {
     } else {
         render(&report, &tree)
     };
-    crate::logging::print_report(format_args!("{text}"))?;
+    logging::print_report(format_args!("{text}"))?;
     Ok(report.exit_code)
 }
 

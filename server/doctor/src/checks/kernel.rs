@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 
 use super::Tree;
 use super::formats::kernel_param;
-use crate::doctor::{Check, Verdict};
+use crate::{Check, Verdict};
 
 /// How the running kernel lets a waking real-time thread take its CPU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
