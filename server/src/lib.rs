@@ -11,7 +11,9 @@
 //! - `softhaptic-scene` (`server/scene/`): scenes checked and loaded, and the device a scene
 //!   names, opened.
 //! - `softhaptic-doctor` (`server/doctor/`): the host's readiness for the loop, on the scenes.
-//! - this crate, on top: the live server, sessions, the lab, exercises.
+//! - `softhaptic-session` (`server/session/`): recordings written, read, checked and replayed,
+//!   on the scenes and the serving of viewers.
+//! - this crate, on top: the live server, the session subcommands, the lab, exercises.
 //!
 //! The modules of the crates below are re-exported here under their own names
 //! (`softhaptic_server::access`, `softhaptic_server::stream`, …).

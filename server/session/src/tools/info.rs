@@ -9,7 +9,7 @@ use softhaptic_proto::record::{DeviceErrorRecord, DeviceRecord};
 use softhaptic_proto::wire::{MarkMessage, flag_names};
 
 use super::recording_metrics;
-use crate::session::reader::{Ending, Recording};
+use crate::reader::{Ending, Recording};
 
 /// The summary `softhaptic info` prints.
 #[derive(Debug, Clone, PartialEq)]
@@ -220,7 +220,7 @@ impl Info {
     fn with_recorded_metrics(mut self, r: &Recording) -> Info {
         self.recorded_metrics = r.final_metrics().map(|recorded| {
             let computed = crate::stream::metrics_message(&self.metrics, true);
-            let same = crate::session::check::same_metrics(recorded, &computed);
+            let same = crate::check::same_metrics(recorded, &computed);
             (recorded.clone(), same)
         });
         self

@@ -9,8 +9,8 @@ use softhaptic_proto::record::{DeviceRecord, SampleRecord};
 use softhaptic_proto::wire::{ContactFrame, ServerMessage, flag_names};
 
 use super::recording_metrics;
-use crate::session::SessionError;
-use crate::session::reader::Recording;
+use crate::SessionError;
+use crate::reader::Recording;
 
 /// What [`export`] wrote.
 #[derive(Debug, Clone, PartialEq)]

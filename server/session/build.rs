@@ -1,7 +1,7 @@
 //! The git commit, so that every recording names the code that made it
-//! (`BuildRecord::git_commit`). `SOFTHAPTIC_GIT_COMMIT` in the build's environment overrides it
-//! (a build from a source archive, without `.git`); without either the recording says the
-//! commit is unknown. (The viewer built into the binary is checked by `server/serve/build.rs`.)
+//! (`BuildRecord::git_commit`, from `git_commit()` in src/lib.rs). `SOFTHAPTIC_GIT_COMMIT` in the
+//! build's environment overrides it (a build from a source archive, without `.git`); without
+//! either the recording says the commit is unknown.
 
 use std::path::Path;
 use std::process::Command;

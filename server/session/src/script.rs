@@ -205,8 +205,8 @@ pub fn record_hand(
 #[allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 mod tests {
     use super::*;
-    use crate::session::reader::Recording;
-    use crate::session::tools::Info;
+    use crate::reader::Recording;
+    use crate::tools::Info;
 
     #[test]
     fn a_scripted_recording_holds_the_trainees_metrics_once_a_second_and_at_the_end() {

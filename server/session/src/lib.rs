@@ -19,11 +19,14 @@
 //! - [`replay`]: streams a recording to viewers exactly as a live session, with pause, play and
 //!   seek from the viewer.
 //! - [`overhead`]: what recording costs the loop's timing (`recording-overhead`).
-//! - [`cli`]: the `record-script`, `info`, `export`, `check`, `replay` and `recording-overhead`
-//!   subcommands, and the recording of a live session.
+//! - `build.rs`: the git commit every recording names ([`git_commit`]).
+//!
+//! The crate serves replays with `softhaptic-serve` and rebuilds recorded scenes with
+//! `softhaptic-scene`, whose modules it imports under their own names (`crate::stream`,
+//! `crate::scene`, …). The session subcommands, which also start the live server, are the
+//! `softhaptic` binary's (`server/src/session/cli.rs`).
 
 pub mod check;
-pub mod cli;
 pub mod overhead;
 pub mod reader;
 pub mod replay;
@@ -32,6 +35,10 @@ pub mod tools;
 pub mod writer;
 
 use std::path::PathBuf;
+
+use softhaptic_io::files;
+use softhaptic_scene as scene;
+use softhaptic_serve::{access, routes, stream, tls, viewer};
 
 /// Why a recording could not be written or read. Every variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -119,7 +126,7 @@ pub enum SessionError {
 }
 
 /// The git commit this binary was built from, when the build environment gave it
-/// (found by `server/build.rs` with git at compile time, or `SOFTHAPTIC_GIT_COMMIT` in the build's
+/// (found by `server/session/build.rs` with git at compile time, or `SOFTHAPTIC_GIT_COMMIT` in the build's
 /// environment for a tree without `.git`).
 pub fn git_commit() -> Option<String> {
     option_env!("SOFTHAPTIC_GIT_COMMIT")
