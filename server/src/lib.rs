@@ -13,7 +13,10 @@
 //! - `softhaptic-doctor` (`server/doctor/`): the host's readiness for the loop, on the scenes.
 //! - `softhaptic-session` (`server/session/`): recordings written, read, checked and replayed,
 //!   on the scenes and the serving of viewers.
-//! - this crate, on top: the live server, the session subcommands, the lab, exercises.
+//! - `softhaptic-lab` (`server/lab/`): the teaching lab on NATS (station, hub, archive), on the
+//!   serving of viewers and the sessions.
+//! - this crate, on top: the live server, the session subcommands, exercises, the `softhaptic`
+//!   binary.
 //!
 //! The modules of the crates below are re-exported here under their own names
 //! (`softhaptic_server::access`, `softhaptic_server::stream`, …).
@@ -44,12 +47,12 @@
 //! - [`vectors`]: writes and checks the shared test vectors under `proto/vectors/`.
 //! - From `softhaptic-io`: [`files`], [`toml_file`], [`logging`].
 //! - From `softhaptic-serve`: [`access`], [`tls`], [`viewer`], [`stream`], [`routes`].
-//! - From `softhaptic-scene`: [`scene`] and [`devices`]; from `softhaptic-doctor`: [`doctor`].
+//! - From `softhaptic-scene`: [`scene`] and [`devices`]; from `softhaptic-doctor`: [`doctor`]; from
+//!   `softhaptic-lab`: [`lab`].
 
 pub mod app;
 pub mod datadir;
 pub mod exercise;
-pub mod lab;
 pub mod session;
 pub mod vectors;
 
@@ -60,5 +63,7 @@ pub use softhaptic_serve::{access, routes, stream, tls, viewer};
 
 /// The host doctor, from `softhaptic-doctor`.
 pub use softhaptic_doctor as doctor;
+/// The teaching lab, from `softhaptic-lab`.
+pub use softhaptic_lab as lab;
 /// Scenes, from `softhaptic-scene`.
 pub use softhaptic_scene as scene;

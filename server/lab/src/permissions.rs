@@ -13,7 +13,7 @@
 //! allowed to everyone (`allow_responses`): that is how a station answers a hub and a client
 //! answers JetStream's flow control.
 //!
-//! Inboxes are per party ([`crate::lab::Party::inbox_prefix`]): `_INBOX.station.NAME.>` and
+//! Inboxes are per party ([`crate::Party::inbox_prefix`]): `_INBOX.station.NAME.>` and
 //! `_INBOX.hub.>`, each subscribable by its owner alone.
 
 use std::fmt::Write as _;

@@ -381,7 +381,7 @@ impl Upload<'_> {
         );
         *failures += 1;
         let backoff = Duration::from_millis(100 << (*failures).min(5));
-        while !crate::lab::is_connected(&self.store.client) {
+        while !crate::is_connected(&self.store.client) {
             if Instant::now() >= deadline {
                 return Err(gave_up());
             }

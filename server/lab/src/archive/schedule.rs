@@ -168,10 +168,10 @@ async fn wait_for_next_pass(
     poll: Duration,
 ) -> bool {
     let due = tokio::time::Instant::now() + backoff;
-    let mut was_down = !crate::lab::is_connected(client);
+    let mut was_down = !crate::is_connected(client);
     loop {
         tokio::time::sleep(poll).await;
-        let up = crate::lab::is_connected(client);
+        let up = crate::is_connected(client);
         if up && (was_down || tokio::time::Instant::now() >= due) {
             return was_down;
         }

@@ -5,7 +5,7 @@
 //! ([`mod@schedule`]), and the session's own recording when it stops, each as
 //! `STATION/FILE` in the station's own bucket ([`bucket`]: one per station, so that NATS's
 //! permissions can let each station's credentials write its bucket and nothing else, and a
-//! hub's read them all; see [`crate::lab::permissions`]). An upload goes part by part and resumes: a pass cut
+//! hub's read them all; see [`crate::permissions`]). An upload goes part by part and resumes: a pass cut
 //! short (NATS restarted, the station stopped) leaves the parts it stored in the store, and the
 //! next attempt, in the same pass or the next, or at the next start, asks the store how far
 //! it got and sends only the rest ([`mod@upload`] explains how the store keeps that count exact).
@@ -323,7 +323,7 @@ pub async fn list(
 ) -> Result<Vec<ArchivedSession>, String> {
     use futures_util::StreamExt;
     // Not connected: the request would only time out (and "nothing archived" would be a lie).
-    if !crate::lab::is_connected(client) {
+    if !crate::is_connected(client) {
         return Err("NATS is not connected".to_owned());
     }
     let js = async_nats::jetstream::new(client.clone());
@@ -335,7 +335,7 @@ pub async fn list(
             while let Some(name) = names.next().await {
                 let name = name.map_err(|e| format!("listing the stations' buckets: {e}"))?;
                 if let Some(s) = name.strip_prefix(&format!("OBJ_{BUCKET_PREFIX}"))
-                    && crate::lab::check_station_name(s).is_ok()
+                    && crate::check_station_name(s).is_ok()
                 {
                     stations.push(s.to_owned());
                 }

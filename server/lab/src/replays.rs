@@ -233,7 +233,7 @@ mod tests {
 
     fn recording() -> Recording {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../tests/sessions/sphere-press.mcap");
+            .join("../../tests/sessions/sphere-press.mcap");
         Recording::open(&path).unwrap()
     }
 

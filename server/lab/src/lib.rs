@@ -18,6 +18,14 @@
 //!   Origin, Host, TLS) as a station. Hubs hold no state NATS does not have.
 //! - [`replays`]: the archived recordings a hub has decoded for replays, loaded for an
 //!   instructor's viewer only, in a cache bounded in bytes with an expiry.
+//! - [`archive`]: a station's recordings uploaded to the lab's object store, part by part and
+//!   resumed, and removed locally once kept there.
+//! - [`permissions`]: what each party may publish and subscribe (`softhaptic nats-config`).
+//! - here: connecting to NATS with a party's credentials, the subjects, the station's status.
+//!
+//! The crate stands on `softhaptic-serve` (the hub serves viewers as a station does) and
+//! `softhaptic-session` (a hub replays archived recordings), imported under their modules' names
+//! (`crate::stream`, `crate::session`, …); the live server uses it to publish a station.
 //!
 //! Subjects (`NAME` a station's name, `[A-Za-z0-9_-]`, at most 64 characters):
 //!
@@ -37,6 +45,10 @@ pub mod station;
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
+
+use softhaptic_io::files;
+use softhaptic_serve::{access, routes, stream, tls, viewer};
+use softhaptic_session as session;
 
 use serde::{Deserialize, Serialize};
 
