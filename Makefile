@@ -37,7 +37,7 @@ lint: rust-tools web-deps
 	RUSTDOCFLAGS="-D warnings" $(CARGO) doc --workspace --no-deps --quiet
 	cd web && npm run lint && npm run format:check
 
-# The binary embeds the viewer and three.js (server/build.rs stops without web/node_modules).
+# The binary embeds the viewer and three.js (server/serve/build.rs stops without web/node_modules).
 test-rust: rust-tools web-deps nats
 	# Every feature, so the report commands' own tests (their command lines) run too.
 	$(CARGO) test --workspace --all-features

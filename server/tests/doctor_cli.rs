@@ -5,7 +5,7 @@
 //! gives (whatever the machine: the fixtures' predictions are the unit tests'), and the kernel's
 //! preemption model is named wherever its build configuration can be read. On a kernel that
 //! preempts none or voluntary, the items that do not depend on the machine are judged as the
-//! unit tests' `stock` fixture predicts (`server/src/doctor/stock_verdicts.rs`).
+//! unit tests' `stock` fixture predicts (`server/doctor/src/stock_verdicts.rs`).
 
 // Test code, synchronous: reads what the doctor reads (/proc, /sys, /boot) to check its report,
 // and polls the command it started.
@@ -17,7 +17,7 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-#[path = "../src/doctor/stock_verdicts.rs"]
+#[path = "../doctor/src/stock_verdicts.rs"]
 mod stock_verdicts;
 use stock_verdicts::{STOCK_PREEMPTION_NAMES, STOCK_VERDICTS};
 

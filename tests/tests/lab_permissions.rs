@@ -1,5 +1,5 @@
 //! The lab's NATS permissions as `softhaptic nats-config` writes them
-//! (`server/src/lab/permissions.rs`), on a real `nats-server` that runs that very
+//! (`server/lab/src/permissions.rs`), on a real `nats-server` that runs that very
 //! configuration: stations and a hub signed in with their own nkeys do all a lab does (a
 //! station publishes, archives, answers the hub; the hub lists, relays, downloads); a station's
 //! credentials that publish as another station, read another's frames or the hub's replies, or

@@ -17,7 +17,9 @@ use super::script::{ScriptName, record_script};
 use super::tools::{Info, export};
 use super::writer::{Recorder, StreamTap, TICK_RING_CAPACITY, recording_file_name};
 use crate::access::AccessArgs;
-use crate::app::{RunningServer, SERVER_NAME};
+use crate::app::RunningServer;
+pub use crate::logging::print_report;
+use crate::routes::SERVER_NAME;
 use crate::scene::Scene;
 use crate::stream::{EncodedFrame, ViewerLimits};
 
@@ -128,17 +130,6 @@ pub enum SessionCommand {
 }
 
 /// Runs a session subcommand.
-/// Prints a report on stdout. A reader that stops early (`softhaptic info FILE | head`) ends
-/// the output, not the program with a panic, as with other command-line tools.
-pub fn print_report(text: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
-    use std::io::Write as _;
-    let mut out = std::io::stdout().lock();
-    match out.write_fmt(text).and_then(|()| out.flush()) {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
-        other => other.context("could not write to stdout"),
-    }
-}
-
 pub fn run(command: SessionCommand) -> anyhow::Result<()> {
     match command {
         SessionCommand::Info { file } => {
