@@ -583,7 +583,7 @@ at_most = 0.2
             ),
             (
                 PRESS.replace("kind = \"press\"", "kind = \"poke\""),
-                "kind: must be \"press\" or \"trace\", got \"poke\"",
+                "kind: must be \"press\", \"trace\" or \"palpation\", got \"poke\"",
             ),
             (
                 PRESS.replace("[pass.hold_force_sd_n]", "[pass.coverage]"),
