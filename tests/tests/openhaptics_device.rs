@@ -212,6 +212,15 @@ fn assert_ramps_in_after(device: &[DeviceRecord], first_fault: usize, before_n: 
     // The ramp lasts 80 ms: about 1/80 of the force per tick, plus what the hand moves; a
     // force stepped back in would jump by the whole of it.
     for w in device[back..].windows(2) {
+        // A tick a loaded machine ran late (its own bound and settling apply, tested apart) or
+        // that overran is not the ramp's.
+        let late = w[1].time_ns.saturating_sub(w[0].time_ns) > 1_500_000
+            || flags(&w[1]).contains(ContactFlags::LATE_TICK_LIMITED)
+            || w.iter()
+                .any(|d| d.command_error == Some(DeviceErrorRecord::Overrun));
+        if late {
+            continue;
+        }
         let step = force(&w[1]) - force(&w[0]);
         assert!(
             step < 0.15 * before_n,
