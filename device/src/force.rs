@@ -188,6 +188,8 @@ pub struct ForceRenderer {
     thermal: Option<ContinuousForceLimiter>,
     /// This tick's guiding force ([`ForceRenderer::set_guidance`]), zero without guidance.
     guidance_n: DVec3,
+    /// The guiding force last tick's command included (zero after a fault).
+    previous_guidance_n: DVec3,
     /// Device time of the last tick the heating model booked.
     thermal_time_ns: Option<u64>,
     /// Device time of the last tick whose device reported its motors warm, while the limit they
@@ -285,6 +287,7 @@ impl ForceRenderer {
             late_lag: false,
             previous_bounded_n: DVec3::ZERO,
             guidance_n: DVec3::ZERO,
+            previous_guidance_n: DVec3::ZERO,
             inclusion_ratio: 1.0,
             inclusion_gradient_1_per_m: DVec3::ZERO,
             inclusion_ratio_per_depth_1_per_m: 0.0,
@@ -488,6 +491,7 @@ impl ForceRenderer {
         self.was_in_contact = false;
         self.previous_time_ns = None;
         self.previous_force_n = DVec3::ZERO;
+        self.previous_guidance_n = DVec3::ZERO;
         self.previous_position_m = None;
         self.late_lag = false;
         self.previous_bounded_n = DVec3::ZERO;
@@ -526,7 +530,11 @@ impl ForceRenderer {
             .previous_position_m
             .map(|previous| position_m - previous);
         if let Some(d) = displacement_m {
-            self.observer.observe(self.previous_force_n, d);
+            // The contact's share of last tick's force: the guide books its own share in its
+            // own observer (crate::guide), so its pull never makes the contact's controller
+            // damp, and the two observers together book the whole force.
+            self.observer
+                .observe(self.previous_force_n - self.previous_guidance_n, d);
         }
         self.previous_position_m = Some(position_m);
         let interval_ns = match self.previous_time_ns {
@@ -574,6 +582,11 @@ impl ForceRenderer {
             }
         }
         self.previous_force_n = rendered.force_n;
+        self.previous_guidance_n = if rendered.flags.contains(ContactFlags::DEVICE_FAULT) {
+            DVec3::ZERO
+        } else {
+            self.guidance_n
+        };
         rendered
     }
 

@@ -27,6 +27,10 @@
 
 use glam::DVec3;
 
+use crate::passivity::PassivityObserver;
+pub use softhaptic_proto::guide::{GuideGain, GuideParams};
+use softhaptic_proto::guide::{GuideState, MAX_GUIDE_POINTS, RecordedGuide};
+
 /// Why a path cannot guide.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum GuideError {
@@ -36,6 +40,16 @@ pub enum GuideError {
     Spacing(f64),
     #[error("the expert's path has a non-finite point (sample {0})")]
     NonFinite(usize),
+    #[error(
+        "the expert's path has {points} points at {spacing_m} m: more than {max} (too long to guide)"
+    )]
+    TooLong {
+        points: usize,
+        spacing_m: f64,
+        max: usize,
+    },
+    #[error("the recorded guide's points do not fit its spacing: {0}")]
+    Inconsistent(&'static str),
 }
 
 /// The expert's path, resampled every `spacing_m` of its length.
@@ -46,6 +60,13 @@ pub struct GuidePath {
     depths_m: Vec<f64>,
     spacing_m: f64,
 }
+
+/// Most damping the pull's passivity controller adds until told the device's
+/// ([`Guide::set_max_damping`]): a PHANTOM Desktop's stable damping.
+const DEFAULT_MAX_DAMPING_N_S_PER_M: f64 = 5.0;
+
+/// Half the span of path the damping's direction is taken over.
+const TANGENT_SPAN_M: f64 = 0.003;
 
 /// Shortest path that guides (a few spacings).
 pub const MIN_PATH_M: f64 = 0.002;
@@ -86,6 +107,14 @@ impl GuidePath {
             let segment_m = a.distance(p);
             let mut along_m = to_next_m;
             while along_m <= segment_m {
+                // Bounded before it is allocated: a recording's path can be any length.
+                if points_m.len() >= MAX_GUIDE_POINTS {
+                    return Err(GuideError::TooLong {
+                        points: points_m.len() + 1,
+                        spacing_m,
+                        max: MAX_GUIDE_POINTS,
+                    });
+                }
                 let u = along_m / segment_m;
                 points_m.push(a.lerp(p, u));
                 depths_m.push(depth_a + (depth - depth_a) * u);
@@ -104,6 +133,13 @@ impl GuidePath {
             points_m.push(end);
             depths_m.push(depth);
         }
+        if points_m.len() > MAX_GUIDE_POINTS {
+            return Err(GuideError::TooLong {
+                points: points_m.len(),
+                spacing_m,
+                max: MAX_GUIDE_POINTS,
+            });
+        }
         if length_m < MIN_PATH_M || points_m.len() < 2 {
             return Err(GuideError::TooShort {
                 length_m,
@@ -115,6 +151,80 @@ impl GuidePath {
             depths_m,
             spacing_m,
         })
+    }
+
+    /// A path as [`GuidePath::resample`] made it, back from a recording, exactly: the points
+    /// must lie `spacing_m` apart along it (the last closer), within a rounding margin.
+    pub fn from_recorded(guide: &RecordedGuide) -> Result<Self, GuideError> {
+        let spacing_m = guide.spacing_m;
+        if !(spacing_m.is_finite() && spacing_m > 0.0) {
+            return Err(GuideError::Spacing(spacing_m));
+        }
+        let n = guide.points_m.len();
+        if n > MAX_GUIDE_POINTS {
+            return Err(GuideError::TooLong {
+                points: n,
+                spacing_m,
+                max: MAX_GUIDE_POINTS,
+            });
+        }
+        if guide.depths_m.len() != n {
+            return Err(GuideError::Inconsistent(
+                "a depth per point is needed, and the counts differ",
+            ));
+        }
+        let points_m: Vec<DVec3> = guide
+            .points_m
+            .iter()
+            .map(|p| DVec3::from_array(*p))
+            .collect();
+        if let Some(i) = points_m.iter().position(|p| !p.is_finite()) {
+            return Err(GuideError::NonFinite(i));
+        }
+        if n < 2 {
+            return Err(GuideError::TooShort {
+                length_m: 0.0,
+                min_m: MIN_PATH_M,
+            });
+        }
+        // The arc-length lookups take point i to be i spacings along: no two points may be
+        // farther apart than that (closer is a corner cut by the chord).
+        let margin_m = spacing_m * 1e-6;
+        if points_m
+            .windows(2)
+            .any(|w| w[0].distance(w[1]) > spacing_m + margin_m)
+        {
+            return Err(GuideError::Inconsistent(
+                "two points are more than one spacing apart",
+            ));
+        }
+        let path = Self {
+            points_m,
+            depths_m: guide
+                .depths_m
+                .iter()
+                .map(|d| if d.is_finite() { d.max(0.0) } else { 0.0 })
+                .collect(),
+            spacing_m,
+        };
+        let length_m = path.length_m();
+        if length_m < MIN_PATH_M {
+            return Err(GuideError::TooShort {
+                length_m,
+                min_m: MIN_PATH_M,
+            });
+        }
+        Ok(path)
+    }
+
+    /// The path's resampled points and depths, to record.
+    pub fn depths_m(&self) -> &[f64] {
+        &self.depths_m
+    }
+
+    /// The spacing the path was resampled at.
+    pub fn spacing_m(&self) -> f64 {
+        self.spacing_m
     }
 
     /// The resampled points, in order.
@@ -179,51 +289,6 @@ impl GuidePath {
     }
 }
 
-/// How the guide pulls.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GuideParams {
-    /// k, N/m.
-    pub stiffness_n_per_m: f64,
-    /// b across the path, N·s/m.
-    pub damping_n_s_per_m: f64,
-    /// The guide's own cap, N (below the device's peak: the contact's force has room).
-    pub max_force_n: f64,
-    /// The pull engages within this distance of the path...
-    pub capture_m: f64,
-    /// ...and releases beyond this one (larger: hysteresis).
-    pub escape_m: f64,
-    /// The target is searched from this far behind the previous one...
-    pub search_back_m: f64,
-    /// ...to this far ahead of it.
-    pub search_ahead_m: f64,
-    /// Fastest the target advances along the path.
-    pub max_target_speed_m_s: f64,
-    /// An extra push along the path's tangent, N (0: none).
-    pub assist_n: f64,
-    /// Time to engage or release fully, s.
-    pub ramp_s: f64,
-}
-
-impl Default for GuideParams {
-    /// A gentle pull: 150 N/m, 2 N·s/m across, 1.5 N at most; captured within 15 mm, let go
-    /// beyond 30 mm; a 0.2 s ramp; the target searched 5 mm back and 10 mm ahead and moving at
-    /// most 0.2 m/s; no assist.
-    fn default() -> Self {
-        Self {
-            stiffness_n_per_m: 150.0,
-            damping_n_s_per_m: 2.0,
-            max_force_n: 1.5,
-            capture_m: 0.015,
-            escape_m: 0.03,
-            search_back_m: 0.005,
-            search_ahead_m: 0.01,
-            max_target_speed_m_s: 0.2,
-            assist_n: 0.0,
-            ramp_s: 0.2,
-        }
-    }
-}
-
 /// What the guide did on one tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GuideOutput {
@@ -239,6 +304,25 @@ pub struct GuideOutput {
     pub engaged: bool,
     /// The gain in force now: the fading gain times the ramp.
     pub effective_gain: f64,
+    /// The fading gain this tick's force used.
+    pub gain: f64,
+    /// The guide's passivity controller damped this tick's pull.
+    pub passivity_damping: bool,
+}
+
+impl GuideOutput {
+    /// As the rest of the program sees it (the contact state, the wire, the recording).
+    pub fn state(&self) -> GuideState {
+        GuideState {
+            force_n: self.force_n,
+            target_m: self.target_m,
+            progress: self.progress,
+            gain: self.gain,
+            effective_gain: self.effective_gain,
+            engaged: self.engaged,
+        }
+        .finite()
+    }
 }
 
 /// A trainee followed along one path.
@@ -247,6 +331,24 @@ pub struct Guide {
     path: GuidePath,
     params: GuideParams,
     gain: f64,
+    mode: GuideGain,
+    /// Guidance as needed: time into the current window, and the engaged time and the
+    /// distance integrated over it.
+    window_s: f64,
+    window_engaged_s: f64,
+    window_error_m_s: f64,
+    /// The energy balance of the pull alone (the contact books its own): what it has absorbed
+    /// from the hand, with the energy its ramp stores credited. Its controller damps the pull
+    /// when it would give back more than it took.
+    observer: PassivityObserver,
+    previous_tip_m: Option<DVec3>,
+    previous_target_m: Option<DVec3>,
+    previous_force_n: DVec3,
+    /// The assist's part of last tick's force (it does work by design, and is credited).
+    previous_assist_n: DVec3,
+    previous_effective_gain: f64,
+    /// Most damping the controller may add: the device's stable damping.
+    max_damping_n_s_per_m: f64,
     target_s_m: f64,
     engaged: bool,
     ramp: f64,
@@ -259,6 +361,17 @@ impl Guide {
             path,
             params,
             gain: 1.0,
+            mode: GuideGain::Fixed { gain: 1.0 },
+            window_s: 0.0,
+            window_engaged_s: 0.0,
+            window_error_m_s: 0.0,
+            observer: PassivityObserver::new(),
+            previous_tip_m: None,
+            previous_target_m: None,
+            previous_force_n: DVec3::ZERO,
+            previous_assist_n: DVec3::ZERO,
+            previous_effective_gain: 0.0,
+            max_damping_n_s_per_m: DEFAULT_MAX_DAMPING_N_S_PER_M,
             target_s_m: 0.0,
             engaged: false,
             ramp: 0.0,
@@ -268,6 +381,37 @@ impl Guide {
 
     pub fn path(&self) -> &GuidePath {
         &self.path
+    }
+
+    /// The most damping the pull's passivity controller may add: the device's stable damping.
+    pub fn set_max_damping(&mut self, damping_n_s_per_m: f64) {
+        if damping_n_s_per_m.is_finite() && damping_n_s_per_m >= 0.0 {
+            self.max_damping_n_s_per_m = damping_n_s_per_m;
+        }
+    }
+
+    /// Forgets the motion history (a release, a restart, a broken reading).
+    fn forget_motion(&mut self) {
+        self.observer.reset();
+        self.previous_tip_m = None;
+        self.previous_target_m = None;
+        self.previous_force_n = DVec3::ZERO;
+        self.previous_assist_n = DVec3::ZERO;
+        self.previous_effective_gain = 0.0;
+    }
+
+    /// How the gain is set from now on (its initial value at once).
+    pub fn set_gain_mode(&mut self, mode: GuideGain) {
+        self.mode = mode;
+        self.set_gain(mode.initial());
+        self.window_s = 0.0;
+        self.window_engaged_s = 0.0;
+        self.window_error_m_s = 0.0;
+    }
+
+    /// The fading gain now.
+    pub fn gain(&self) -> f64 {
+        self.gain
     }
 
     /// The fading gain, 0 … 1 (a non-finite one is 0).
@@ -285,6 +429,7 @@ impl Guide {
         self.engaged = false;
         self.ramp = 0.0;
         self.last_time_ns = None;
+        self.forget_motion();
     }
 
     /// Lets go at once (a device fault): the pull ramps in again from zero once the trainee is
@@ -293,6 +438,7 @@ impl Guide {
         self.engaged = false;
         self.ramp = 0.0;
         self.last_time_ns = None;
+        self.forget_motion();
     }
 
     /// One tick: the tip's position and velocity, the contact (outward normal and depth) when
@@ -315,6 +461,7 @@ impl Guide {
             // No position to guide from: let go, smoothly on the next good tick.
             self.engaged = false;
             self.ramp = 0.0;
+            self.forget_motion();
             let (target_m, _, _) = self.path.at(self.target_s_m);
             return GuideOutput {
                 force_n: DVec3::ZERO,
@@ -323,6 +470,8 @@ impl Guide {
                 distance_m: f64::INFINITY,
                 engaged: false,
                 effective_gain: 0.0,
+                gain: self.gain,
+                passivity_damping: false,
             };
         }
         // The target: near the previous one while engaged, anywhere until then.
@@ -354,12 +503,50 @@ impl Guide {
             (self.ramp - step).max(0.0)
         };
         let effective_gain = self.gain * self.ramp;
-        let across_v = velocity_m_s - tangent * tangent.dot(velocity_m_s);
+        // Book last tick's pull over the displacement the tip really made; the assist's work is
+        // wanted (it pushes the trainee along), so it is credited rather than damped.
+        if let (Some(previous), Some(previous_target)) =
+            (self.previous_tip_m, self.previous_target_m)
+        {
+            let moved_m = tip_m - previous;
+            self.observer.observe(self.previous_force_n, moved_m);
+            self.observer.credit(self.previous_assist_n.dot(moved_m));
+            // The target moving along the path is the expert's motion leading the hand: the
+            // energy it puts into the spring (F·Δq) is the guidance itself, booked as given, so
+            // the controller answers only what the sampling creates.
+            self.observer
+                .observe(-self.previous_force_n, target_m - previous_target);
+        }
+        // A rising gain stores the spring's energy at this distance without the hand's work,
+        // as the contact's ramp does: credited, so the controller does not fight the ramp.
+        if effective_gain > self.previous_effective_gain {
+            self.observer.credit(
+                (effective_gain - self.previous_effective_gain)
+                    * 0.5
+                    * p.stiffness_n_per_m
+                    * distance_m
+                    * distance_m,
+            );
+        }
+        // Damped across the path's direction over a few millimetres around the target, not the
+        // segment's own: at a corner the segment's turns at once, and so would the damping of a
+        // tip moving through it (a step of b·v the hand feels).
+        let (behind_m, _, _) = self.path.at(self.target_s_m - TANGENT_SPAN_M);
+        let (ahead_m, _, _) = self.path.at(self.target_s_m + TANGENT_SPAN_M);
+        let direction = (ahead_m - behind_m).try_normalize().unwrap_or(tangent);
+        let across_v = velocity_m_s - direction * direction.dot(velocity_m_s);
         let mut force_n = (target_m - tip_m) * p.stiffness_n_per_m - across_v * p.damping_n_s_per_m;
+        let mut assist_n = DVec3::ZERO;
         if self.target_s_m < length_m {
+            assist_n = tangent * (p.assist_n * effective_gain);
             force_n += tangent * p.assist_n;
         }
         force_n *= effective_gain;
+        let c = self
+            .observer
+            .correct(force_n, velocity_m_s, dt_s, self.max_damping_n_s_per_m);
+        let passivity_damping = c.added_damping_n_s_per_m > 0.0;
+        force_n = c.force_n;
         // Never deeper than the expert was here: no push inward once as deep.
         if let Some((normal, depth_m)) = contact
             && depth_m >= expert_depth_m
@@ -376,13 +563,51 @@ impl Guide {
         if !force_n.is_finite() {
             force_n = DVec3::ZERO;
         }
-        GuideOutput {
+        self.previous_tip_m = Some(tip_m);
+        self.previous_target_m = Some(target_m);
+        self.previous_force_n = force_n;
+        self.previous_assist_n = assist_n;
+        self.previous_effective_gain = effective_gain;
+        let out = GuideOutput {
             force_n,
             target_m,
             progress: self.target_s_m / length_m,
             distance_m,
             engaged: self.engaged,
             effective_gain,
+            gain: self.gain,
+            passivity_damping,
+        };
+        self.fade(dt_s, distance_m);
+        out
+    }
+
+    /// Guidance as needed: at the end of each window, g ← clamp(f·g + c·e, 0, 1), e the mean
+    /// distance over the window's engaged ticks. A window with no engaged tick leaves g as it
+    /// is: nothing was learned about the trainee.
+    fn fade(&mut self, dt_s: f64, distance_m: f64) {
+        let GuideGain::AsNeeded {
+            forgetting,
+            error_gain_per_m,
+            window_s,
+            ..
+        } = self.mode
+        else {
+            return;
+        };
+        self.window_s += dt_s;
+        if self.engaged && distance_m.is_finite() {
+            self.window_engaged_s += dt_s;
+            self.window_error_m_s += distance_m * dt_s;
+        }
+        if self.window_s >= window_s {
+            if self.window_engaged_s > 0.0 {
+                let e = self.window_error_m_s / self.window_engaged_s;
+                self.set_gain(forgetting * self.gain + error_gain_per_m * e);
+            }
+            self.window_s = 0.0;
+            self.window_engaged_s = 0.0;
+            self.window_error_m_s = 0.0;
         }
     }
 }
@@ -618,5 +843,59 @@ mod tests {
         for (g, e) in gains.iter().zip(expected) {
             assert!((g - e).abs() < 1e-12, "{gains:?}");
         }
+    }
+
+    /// The gain after holding the tip `off_m` to the side of the straight path for `seconds`.
+    fn held_off(off_m: f64, seconds: f64) -> (f64, Vec<f64>) {
+        let mut guide = Guide::new(straight(), GuideParams::default());
+        guide.set_gain_mode(GuideGain::AS_NEEDED);
+        let mut gains = Vec::new();
+        for t in 0..(seconds * 1000.0) as u64 {
+            let out = guide.step(DVec3::new(0.05, off_m, 0.0), DVec3::ZERO, None, t * MS);
+            gains.push(out.gain);
+        }
+        (guide.gain(), gains)
+    }
+
+    #[test]
+    fn guidance_as_needed_settles_where_the_trainees_error_puts_it() {
+        // f = 0.9, c = 10 /m, a window of 0.5 s: g settles at c·e/(1 − f) = 100·e.
+        let (near, gains) = held_off(0.002, 40.0);
+        assert!((near - 0.2).abs() < 0.002, "{near}");
+        // It falls step by step, once a window, never rising while the error is steady.
+        assert!(gains.windows(2).all(|w| w[1] <= w[0]));
+        assert_eq!(gains[0], 1.0);
+        let (far, _) = held_off(0.012, 20.0);
+        assert_eq!(far, 1.0, "a 12 mm error keeps the full pull");
+    }
+
+    #[test]
+    fn a_recorded_path_comes_back_exactly_and_a_forged_one_is_refused() {
+        let path = straight();
+        let recorded = RecordedGuide {
+            source: "expert.mcap".into(),
+            source_scene: None,
+            points_m: path.points_m().iter().map(|p| p.to_array()).collect(),
+            depths_m: path.depths_m().to_vec(),
+            spacing_m: path.spacing_m(),
+            params: GuideParams::default(),
+            gain: GuideGain::default(),
+        };
+        assert_eq!(GuidePath::from_recorded(&recorded).unwrap(), path);
+        let mut gap = recorded.clone();
+        gap.points_m[10][0] += 0.0015;
+        assert!(matches!(
+            GuidePath::from_recorded(&gap),
+            Err(GuideError::Inconsistent(_))
+        ));
+        let mut short = recorded.clone();
+        short.depths_m.pop();
+        assert!(GuidePath::from_recorded(&short).is_err());
+        // A path longer than the bound is refused before it is built.
+        let long = GuidePath::resample(
+            [(DVec3::ZERO, 0.0), (DVec3::new(100.0, 0.0, 0.0), 0.0)],
+            0.001,
+        );
+        assert!(matches!(long, Err(GuideError::TooLong { .. })), "{long:?}");
     }
 }

@@ -42,7 +42,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
 
 use glam::DVec3;
-use softhaptic_proto::{ContactFlags, ContactState, Pose};
+use softhaptic_proto::{ContactFlags, ContactState, GuideState, Pose};
 
 use crate::cells::{SeqCell, Words, WordsReader};
 use crate::device::{DeviceError, DeviceSample, HapticDevice, ServoClock};
@@ -122,7 +122,7 @@ const STATS_EVERY_TICKS: u64 = 100;
 /// after it.
 const WATCHDOG_SILENT_PERIODS: u64 = 100;
 
-const CONTACT_WORDS: usize = 26;
+const CONTACT_WORDS: usize = 37;
 
 fn contact_to_words(c: &ContactState) -> [u64; CONTACT_WORDS] {
     let mut w = Words::new();
@@ -139,6 +139,21 @@ fn contact_to_words(c: &ContactState) -> [u64; CONTACT_WORDS] {
         .f64(c.contact_radius_m)
         .vec3(c.force_n)
         .u64(u64::from(c.flags.bits()));
+    let g = c.guide.unwrap_or(GuideState {
+        force_n: DVec3::ZERO,
+        target_m: DVec3::ZERO,
+        progress: 0.0,
+        gain: 0.0,
+        effective_gain: 0.0,
+        engaged: false,
+    });
+    w.bool(c.guide.is_some())
+        .vec3(g.force_n)
+        .vec3(g.target_m)
+        .f64(g.progress)
+        .f64(g.gain)
+        .f64(g.effective_gain)
+        .bool(g.engaged);
     w.finish()
 }
 
@@ -160,6 +175,20 @@ fn contact_from_words(words: &[u64; CONTACT_WORDS]) -> ContactState {
         contact_radius_m: r.f64(),
         force_n: r.vec3(),
         flags: ContactFlags::from_bits_retain(r.u64() as u32),
+        guide: None,
+    };
+    let guided = r.bool();
+    let g = GuideState {
+        force_n: r.vec3(),
+        target_m: r.vec3(),
+        progress: r.f64(),
+        gain: r.f64(),
+        effective_gain: r.f64(),
+        engaged: r.bool(),
+    };
+    let c = ContactState {
+        guide: guided.then_some(g),
+        ..c
     };
     r.finish();
     c
@@ -1339,7 +1368,20 @@ mod tests {
             contact_radius_m: 0.002,
             force_n: DVec3::new(0.0, 1.5, 0.1),
             flags: ContactFlags::SATURATED | ContactFlags::RAMPING,
+            guide: None,
         };
         assert_eq!(contact_from_words(&contact_to_words(&c)), c);
+        let guided = ContactState {
+            guide: Some(GuideState {
+                force_n: DVec3::new(0.5, -0.25, 0.125),
+                target_m: DVec3::new(0.01, 0.02, 0.03),
+                progress: 0.4,
+                gain: 0.8,
+                effective_gain: 0.6,
+                engaged: true,
+            }),
+            ..c
+        };
+        assert_eq!(contact_from_words(&contact_to_words(&guided)), guided);
     }
 }

@@ -140,6 +140,7 @@ pub fn device_record(
         depth_m: contact.depth_m,
         force_n: contact.force_n.to_array(),
         flags: contact.flags.bits(),
+        guide: contact.guide,
     }
 }
 

@@ -8,7 +8,7 @@
 //! which is what makes a replay bit-identical (docs/design.md, invariant 5).
 
 use glam::DVec3;
-use softhaptic_proto::{ContactFlags, ContactState, Material, Pose, ToolShape};
+use softhaptic_proto::{ContactFlags, ContactState, GuideState, Material, Pose, ToolShape};
 
 use crate::collision::Collider;
 use crate::device::{DeviceError, DeviceLimits, DeviceSample, HapticDevice};
@@ -107,7 +107,10 @@ impl HapticWorld {
     }
 
     /// Guides the trainee along an expert's path from the next tick (`None`: no guidance).
-    pub fn set_guide(&mut self, guide: Option<Guide>) {
+    pub fn set_guide(&mut self, mut guide: Option<Guide>) {
+        if let Some(g) = guide.as_mut() {
+            g.set_max_damping(self.renderer.limits().damping_n_s_per_m);
+        }
         self.guide = guide;
         self.guide_output = None;
         self.renderer.set_guidance(DVec3::ZERO);
@@ -276,10 +279,14 @@ impl HapticWorld {
             // The device's own words about the reading travel with the tick.
             flags: rendered.flags
                 | (sample.flags & (ContactFlags::MOTORS_WARM | ContactFlags::OUTSIDE_WORKSPACE)),
+            guide: self.guide_output.map(|o| o.state()),
             ..ContactState::IDLE
         };
         if tracked.is_some_and(|t| t.pushed_through) {
             state.flags |= ContactFlags::PUSHED_THROUGH;
+        }
+        if self.guide_output.is_some_and(|o| o.passivity_damping) {
+            state.flags |= ContactFlags::PASSIVITY_DAMPING;
         }
         if let (Some(g), Some(c)) = (geometry, contact)
             && c.depth_m.is_finite()
@@ -345,6 +352,13 @@ impl HapticWorld {
         if let Some(guide) = self.guide.as_mut() {
             guide.release();
         }
+        // The guide lets go: its target stays where it was, its pull is nothing.
+        let guide = self.guide_output.map(|o| GuideState {
+            force_n: DVec3::ZERO,
+            effective_gain: 0.0,
+            engaged: false,
+            ..o.state()
+        });
         let (tip_in_world, last_time_ns) = match self.last_good {
             Some(s) => (s.tip_in_world, s.time_ns),
             None => (Pose::IDENTITY, 0),
@@ -355,6 +369,7 @@ impl HapticWorld {
             tip_in_world,
             force_n,
             flags: flags | ContactFlags::DEVICE_FAULT,
+            guide,
             ..ContactState::IDLE
         }
     }

@@ -109,6 +109,8 @@ pub struct ContactState {
     pub force_n: DVec3,
     /// Which limits acted and which validity bounds were passed.
     pub flags: ContactFlags,
+    /// The guidance's pull this tick (`None` in a session without a guide).
+    pub guide: Option<crate::GuideState>,
 }
 
 impl ContactState {
@@ -126,6 +128,7 @@ impl ContactState {
         contact_radius_m: 0.0,
         force_n: DVec3::ZERO,
         flags: ContactFlags::empty(),
+        guide: None,
     };
 }
 

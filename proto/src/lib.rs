@@ -15,6 +15,8 @@
 //! - [`contact`]: poses, the per-tick [`ContactState`] and its [`ContactFlags`].
 //! - [`calibration`]: the δ → R_d calibration table (JSON file format), its piecewise fit and
 //!   the analytical half-space table used when no FEM table exists.
+//! - [`guide`]: haptic guidance along an expert's recorded path: its settings, each tick's pull,
+//!   the path as a recording keeps it and as the viewers draw it.
 //! - [`inclusion`]: stiffer inclusions inside an object (palpation) and the FEM table of the
 //!   force ratio they cause (never sent to the viewers).
 //! - [`deformation`]: the reference Bézier deformation profile the viewer mirrors (proto/WIRE.md).
@@ -33,6 +35,7 @@ pub mod calibration;
 pub mod contact;
 pub mod deformation;
 pub mod exercise;
+pub mod guide;
 pub mod inclusion;
 pub mod material;
 pub mod model;
@@ -43,6 +46,7 @@ pub mod wire;
 pub use calibration::{CalibrationError, CalibrationSource, CalibrationTable};
 pub use contact::{ContactFlags, ContactState, Pose};
 pub use deformation::DeformationProfile;
+pub use guide::{GuideGain, GuideParams, GuideState};
 pub use inclusion::{Inclusion, InclusionTable, InclusionTableError};
 pub use material::{Material, MaterialError};
 pub use model::{LayerSpec, ModelError, ModelLimitsFile, ModelSpec, ValidityLimits};

@@ -154,6 +154,9 @@ pub struct DeviceRecord {
     pub force_n: [f64; 3],
     /// `ContactFlags` bits (see `proto::contact::ContactFlags`).
     pub flags: u32,
+    /// The guidance's pull this tick (its force is part of `force_n`); absent without a guide.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guide: Option<crate::GuideState>,
 }
 
 fn is_zero(n: &u64) -> bool {
@@ -202,6 +205,10 @@ pub struct SceneRecord {
     /// scene without inclusions. Kept out of `message`: viewers never see where they are.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inclusions: Option<RecordedInclusions>,
+    /// The expert's path the session guided along and the pull's settings, exactly as it ran,
+    /// so a check rebuilds the same pull without the expert's file. Absent without a guide.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guide: Option<crate::guide::RecordedGuide>,
 }
 
 /// A session's inclusions and their table.
@@ -422,7 +429,14 @@ pub mod schema {
     "in_contact": {"type": "boolean"},
     "depth_m": {"type": ["number", "string"], "description": "indentation depth, metres"},
     "force_n": {"type": "array", "items": {"type": ["number", "string"]}, "minItems": 3, "maxItems": 3, "description": "commanded force, world frame, newtons"},
-    "flags": {"type": "integer", "minimum": 0, "description": "ContactFlags bits: 1 beyond_valid_depth, 2 beyond_valid_inclination, 4 saturated, 8 stiffness_capped, 16 device_fault, 32 ramping, 64 passivity_damping, 128 degenerate_normal, 256 continuous_force_limited, 512 pushed_through, 1024 motors_warm, 2048 outside_workspace, 4096 late_tick_limited"}
+    "flags": {"type": "integer", "minimum": 0, "description": "ContactFlags bits: 1 beyond_valid_depth, 2 beyond_valid_inclination, 4 saturated, 8 stiffness_capped, 16 device_fault, 32 ramping, 64 passivity_damping, 128 degenerate_normal, 256 continuous_force_limited, 512 pushed_through, 1024 motors_warm, 2048 outside_workspace, 4096 late_tick_limited"},
+    "guide": {"type": "object", "description": "the guidance's pull this tick (absent without a guide)", "properties": {
+      "force_n": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "guiding force, world frame, newtons (part of force_n)"},
+      "target_m": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "the target on the expert's path, world frame"},
+      "progress": {"type": "number", "description": "arc length of the target over the path's, 0 to 1"},
+      "gain": {"type": "number", "description": "the fading gain, 0 to 1"},
+      "effective_gain": {"type": "number", "description": "the fading gain times the engage/release ramp"},
+      "engaged": {"type": "boolean"}}, "required": ["force_n", "target_m", "progress", "gain", "effective_gain", "engaged"]}
   },
   "required": ["tick", "time_ns", "sample", "device_fault", "in_contact", "depth_m", "force_n", "flags"]
 }"##;
@@ -450,7 +464,14 @@ pub mod schema {
     "force_n": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
     "flags": {"type": "array", "items": {"type": "string"}},
     "dropped": {"type": "integer", "minimum": 0},
-    "buttons": {"type": "integer", "minimum": 0, "description": "device button bits, bit 0 the stylus' first button"}
+    "buttons": {"type": "integer", "minimum": 0, "description": "device button bits, bit 0 the stylus' first button"},
+    "guide": {"type": "object", "description": "the guidance's pull this tick (absent without a guide)", "properties": {
+      "force_n": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "guiding force, world frame, newtons (part of force_n)"},
+      "target_m": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "the target on the expert's path, world frame"},
+      "progress": {"type": "number", "description": "arc length of the target over the path's, 0 to 1"},
+      "gain": {"type": "number", "description": "the fading gain, 0 to 1"},
+      "effective_gain": {"type": "number", "description": "the fading gain times the engage/release ramp"},
+      "engaged": {"type": "boolean"}}, "required": ["force_n", "target_m", "progress", "gain", "effective_gain", "engaged"]}
   },
   "required": ["type", "seq", "tick", "time_ns", "tip_in_world", "in_contact", "depth_m", "normal", "contact_point_m", "contact_radius_m", "deformed_radius_m", "force_n", "flags", "dropped"]
 }"##;
@@ -470,7 +491,10 @@ pub mod schema {
       "haptic": {"type": "object", "properties": {"positions_m": {"type": "array"}, "triangles": {"type": "array"}, "sha256": {"type": "string"}}, "required": ["positions_m", "triangles", "sha256"]},
       "render": {"type": ["object", "null"]}}, "required": ["haptic", "render"]},
     "inclusions": {"type": "object", "description": "the inclusions as placed and their FEM force-ratio table (absent without inclusions)", "properties": {
-      "placed": {"type": "array"}, "table": {"type": "object"}}, "required": ["placed", "table"]}
+      "placed": {"type": "array"}, "table": {"type": "object"}}, "required": ["placed", "table"]},
+    "guide": {"type": "object", "description": "the expert's path the session guided along, resampled, and the pull's settings (absent without a guide)", "properties": {
+      "source": {"type": "string"}, "source_scene": {"type": "string"}, "points_m": {"type": "array"}, "depths_m": {"type": "array"}, "spacing_m": {"type": "number"}, "params": {"type": "object"}, "gain": {"type": "object"}},
+      "required": ["source", "points_m", "depths_m", "spacing_m", "params", "gain"]}
   },
   "required": ["message", "scene_toml", "scene_file", "period_ns"]
 }"##;
@@ -642,6 +666,7 @@ mod tests {
             depth_m: 0.0012345678901234567,
             force_n: [1e-300, -0.0, 7.9],
             flags: 0b101,
+            guide: None,
         }
     }
 
@@ -830,6 +855,7 @@ mod tests {
                 period_ns: 1_000_000,
                 meshes,
                 inclusions: None,
+                guide: None,
             })
             .unwrap()
         })
@@ -848,12 +874,43 @@ mod tests {
         faulty.device_error = Some(DeviceErrorRecord::Driver { code: -3 });
         faulty.command_error = Some(DeviceErrorRecord::Disconnected);
         faulty.lost_before = 2;
+        let mut guided = sample_device_record();
+        guided.guide = Some(crate::GuideState {
+            force_n: glam::DVec3::new(0.1, 0.0, -0.2),
+            target_m: glam::DVec3::new(0.0, 0.05, 0.01),
+            progress: 0.5,
+            gain: 1.0,
+            effective_gain: 0.5,
+            engaged: true,
+        });
         let mut cases: Vec<(&str, Value)> = vec![
             (
                 schema::DEVICE,
                 serde_json::to_value(sample_device_record()).unwrap(),
             ),
             (schema::DEVICE, serde_json::to_value(faulty).unwrap()),
+            (schema::DEVICE, serde_json::to_value(guided).unwrap()),
+            (
+                schema::SCENE,
+                serde_json::to_value(SceneRecord {
+                    message: scene_message.clone(),
+                    scene_toml: String::new(),
+                    scene_file: None,
+                    period_ns: 1_000_000,
+                    meshes: None,
+                    inclusions: None,
+                    guide: Some(crate::guide::RecordedGuide {
+                        source: "expert.mcap".into(),
+                        source_scene: Some("default.toml".into()),
+                        points_m: vec![[0.0; 3], [0.001, 0.0, 0.0]],
+                        depths_m: vec![0.0, 0.001],
+                        spacing_m: 0.001,
+                        params: crate::GuideParams::default(),
+                        gain: crate::GuideGain::AS_NEEDED,
+                    }),
+                })
+                .unwrap(),
+            ),
             (schema::BUILD, serde_json::to_value(build).unwrap()),
             (
                 schema::STATS,

@@ -26,7 +26,7 @@ struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Load a scene, start the haptic loop and serve the viewer (the default).
-    Run(RunArgs),
+    Run(Box<RunArgs>),
     /// List the haptic devices this machine can drive: the OpenHaptics library (found or not,
     /// and why), each device it can open with its model, serial, limits and calibration state,
     /// the SpaceMice found (with the udev rule when /dev/hidraw* is not readable), and the
@@ -185,6 +185,44 @@ struct RunArgs {
         requires = "exercises"
     )]
     exercise_pause: ExercisePause,
+    /// Guide the trainee along the tool path of this recording: an expert's session (live,
+    /// shipped or archived) made with this scene's object and tool. The tool is pulled toward
+    /// where the expert's was by a spring of its own, capped at 1.5 N, that engages within
+    /// 15 mm of the path, lets go beyond 30 mm, and never pushes deeper than the expert went.
+    /// The viewers draw the expert's tool as a ghost with the path ahead; the recording keeps
+    /// the path.
+    #[arg(long, value_name = "EXPERT.mcap")]
+    guide: Option<PathBuf>,
+    /// The guidance's gain: a number from 0 (no pull) to 1 held all session, or `as-needed`:
+    /// full at first, then every half second 0.9 × itself + 10 /m × the trainee's mean distance
+    /// from the path (it settles at 0.2 for a 2 mm error, at 1 for 10 mm).
+    #[arg(
+        long,
+        default_value = "1",
+        value_name = "GAIN|as-needed",
+        requires = "guide"
+    )]
+    guide_gain: GuideGainArg,
+}
+
+/// `--guide-gain`: a fixed gain, or guidance as needed.
+#[derive(Debug, Clone, Copy)]
+struct GuideGainArg(softhaptic_proto::GuideGain);
+
+impl std::str::FromStr for GuideGainArg {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        use softhaptic_proto::GuideGain;
+        if s == "as-needed" {
+            return Ok(Self(GuideGain::AS_NEEDED));
+        }
+        match s.parse::<f64>() {
+            Ok(gain) if (0.0..=1.0).contains(&gain) => Ok(Self(GuideGain::Fixed { gain })),
+            _ => Err(format!(
+                "`{s}` is neither a gain from 0 to 1 nor `as-needed`"
+            )),
+        }
+    }
 }
 
 /// `--exercise-pause`: seconds, or `wait` for an instructor.
@@ -263,7 +301,7 @@ fn try_main() -> anyhow::Result<std::process::ExitCode> {
     let done = |r: anyhow::Result<()>| r.map(|()| std::process::ExitCode::SUCCESS);
     match cli.command {
         None => done(run(cli.run)),
-        Some(Command::Run(args)) => done(run(args)),
+        Some(Command::Run(args)) => done(run(*args)),
         Some(Command::Hub(args)) => done(hub(args)),
         Some(Command::Vectors {
             action: VectorsAction::Write { check, dir },
@@ -423,6 +461,24 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
     };
     if let Some(choice) = &args.device {
         scene.choose_device(choice);
+    }
+    // A recording that cannot guide this scene stops the start, naming what differs.
+    if let Some(expert) = &args.guide {
+        let guide = softhaptic_server::session::guide::guide_from_file(
+            expert,
+            &scene,
+            softhaptic_proto::GuideParams::default(),
+            args.guide_gain.0,
+        )?;
+        tracing::info!(
+            expert = %expert.display(),
+            path_m = guide.spacing_m * guide.points_m.len().saturating_sub(1) as f64,
+            gain = ?guide.gain,
+            "guiding along the expert's path"
+        );
+        scene
+            .set_guide(guide)
+            .map_err(|reason| anyhow::anyhow!("--guide {}: {reason}", expert.display()))?;
     }
     let runtime = tokio::runtime::Runtime::new().context("could not start the async runtime")?;
     // Caught before the device is opened and the recording starts, so that no stop can leave

@@ -79,6 +79,7 @@ fn scene_record() -> SceneRecord {
         period_ns: 1_000_000,
         meshes: None,
         inclusions: None,
+        guide: None,
     }
 }
 
@@ -657,6 +658,7 @@ fn a_recording_keeps_its_meshes_and_checks_without_reading_the_files_its_scene_n
         period_ns: 1_000_000,
         meshes: Some(meshes),
         inclusions: None,
+        guide: None,
     };
     let recording_path = dir.join("press.mcap");
     record_press(&scene, &record, &recording_path);
@@ -685,6 +687,7 @@ fn a_recording_keeps_its_meshes_and_checks_without_reading_the_files_its_scene_n
         &SceneRecord {
             meshes: None,
             inclusions: None,
+            guide: None,
             ..record.clone()
         },
         &older_path,

@@ -293,6 +293,9 @@ pub struct SceneMessage {
     pub render_profile: RenderProfile,
     pub render_meshes: Vec<RenderMeshInfo>,
     pub device: DeviceInfo,
+    /// The expert's path the trainee is guided along, when the session has a guide.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guide: Option<crate::guide::GuidePathInfo>,
 }
 
 /// [`SceneMessage`] as decoded, `contact_model` and `render_profile` optional.
@@ -309,6 +312,8 @@ struct SceneMessageFields {
     render_profile: RenderProfile,
     render_meshes: Vec<RenderMeshInfo>,
     device: DeviceInfo,
+    #[serde(default)]
+    guide: Option<crate::guide::GuidePathInfo>,
 }
 
 impl From<SceneMessageFields> for SceneMessage {
@@ -325,6 +330,7 @@ impl From<SceneMessageFields> for SceneMessage {
             render_profile: m.render_profile,
             render_meshes: m.render_meshes,
             device: m.device,
+            guide: m.guide,
         }
     }
 }
@@ -355,6 +361,9 @@ pub struct ContactFrame {
     /// recordings made before it existed: 0.
     #[serde(default)]
     pub buttons: u32,
+    /// The guidance's pull at that tick, in a session with a guide (absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guide: Option<crate::GuideState>,
     /// Frames this viewer lost so far because it read too slowly. Last, so the server can
     /// splice each viewer's count into one shared encoding.
     pub dropped: u64,
@@ -421,6 +430,7 @@ impl ContactFrame {
             force_n: finite_vec_or_zero(state.force_n),
             flags: state.flags,
             buttons: state.buttons,
+            guide: state.guide.map(crate::GuideState::finite),
             dropped,
         }
     }

@@ -70,6 +70,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 damping_n_s_per_m: 5.0,
                 workspace_radius_m: 0.1,
             },
+            guide: None,
         })))
     };
     let pressing = ContactState {
@@ -88,6 +89,19 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         contact_radius_m: (0.01f64 * 0.003).sqrt(),
         force_n: DVec3::new(0.0, 1.2, 0.0),
         flags: ContactFlags::BEYOND_VALID_DEPTH | ContactFlags::RAMPING,
+        guide: None,
+    };
+    // Guided along an expert's path: pulled 0.4 N toward where the expert's tool was.
+    let guided = ContactState {
+        guide: Some(crate::GuideState {
+            force_n: DVec3::new(0.25, 0.0, -0.3125),
+            target_m: DVec3::new(0.0116, 0.047, -0.004),
+            progress: 0.375,
+            gain: 0.75,
+            effective_gain: 0.5,
+            engaged: true,
+        }),
+        ..pressing
     };
     let all_flags = ContactState {
         flags: ContactFlags::all(),
@@ -157,6 +171,23 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 }),
             )?,
         ),
+        ("scene_guided", {
+            let mut m = scene(tool, "hertz", ModelSpec::PAPER, ValidityLimits::paper(&tool))?;
+            if let ServerMessage::Scene(s) = &mut m {
+                s.guide = Some(crate::guide::GuidePathInfo {
+                    source: "expert-slide.mcap".into(),
+                    path_m: vec![
+                        DVec3::new(-0.01, 0.05, 0.0),
+                        DVec3::new(0.0, 0.049, 0.0),
+                        DVec3::new(0.01, 0.05, 0.0),
+                    ],
+                    length_m: 0.02,
+                    max_force_n: 1.5,
+                    gain: crate::GuideGain::AS_NEEDED,
+                });
+            }
+            m
+        }),
         (
             "scene_paper_layer",
             scene(
@@ -179,6 +210,10 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         (
             "contact_every_flag",
             ServerMessage::Contact(ContactFrame::from_state(&all_flags, 8, 0.0146, 3)),
+        ),
+        (
+            "contact_guided",
+            ServerMessage::Contact(ContactFrame::from_state(&guided, 10, 0.0146, 0)),
         ),
         (
             "contact_free",

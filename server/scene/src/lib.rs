@@ -135,6 +135,7 @@ use glam::DVec3;
 use softhaptic_device::collision::{Collider, CollisionMode};
 use softhaptic_device::device::DeviceLimits;
 use softhaptic_device::force::ForceConfig;
+use softhaptic_device::guide::{Guide, GuidePath};
 use softhaptic_device::inclusion::InclusionField;
 use softhaptic_device::mesh::HapticMesh;
 use softhaptic_device::model::ForceModel;
@@ -142,6 +143,7 @@ use softhaptic_device::sim::HandScript;
 use softhaptic_device::spacemouse::rate::RateConfig;
 use softhaptic_device::world::HapticWorld;
 use softhaptic_proto::deformation::RenderProfile;
+use softhaptic_proto::guide::RecordedGuide;
 use softhaptic_proto::record::{RecordedInclusions, RecordedMeshes, SceneRecord};
 use softhaptic_proto::wire::{ContactModelInfo, shm1};
 use softhaptic_proto::{
@@ -194,6 +196,8 @@ pub enum SceneError {
         file: PathBuf,
         reason: String,
     },
+    #[error("{path}: guide: {reason}")]
+    Guide { path: PathBuf, reason: String },
 }
 
 /// The `scenes/` directory of the source tree this binary was built from (this crate is
@@ -318,6 +322,17 @@ pub struct Scene {
     pub inclusions: Vec<Inclusion>,
     /// Their FEM force-ratio table; `Some` exactly when there are inclusions.
     pub inclusion_table: Option<InclusionTable>,
+    /// The expert's path the trainee is pulled along (`--guide`), or `None`: set by
+    /// [`Scene::set_guide`], restored from a recording by [`Scene::from_recording`].
+    pub guide: Option<SceneGuide>,
+}
+
+/// A scene's guide: the path and settings as a recording keeps them, and the guide built from
+/// them (checked once, cloned into each world).
+#[derive(Debug, Clone)]
+pub struct SceneGuide {
+    pub recorded: RecordedGuide,
+    pub guide: Guide,
 }
 
 impl Scene {
@@ -357,7 +372,38 @@ impl Scene {
         let mut scene = Self::from_file(file, path, None, ModelSource::Recorded(record))?;
         scene.meshes_from_files = record.meshes.is_some();
         scene.source_toml = record.scene_toml.clone();
+        if let Some(guide) = &record.guide {
+            scene
+                .set_guide(guide.clone())
+                .map_err(|reason| SceneError::Guide {
+                    path: path.to_owned(),
+                    reason,
+                })?;
+        }
         Ok(scene)
+    }
+
+    /// Guides the trainee along `recorded`'s path with its settings, checked first (the reason
+    /// names the field when one is out of range).
+    pub fn set_guide(&mut self, recorded: RecordedGuide) -> Result<(), String> {
+        recorded
+            .params
+            .validate()
+            .map_err(|(name, value)| format!("params.{name} = {value} is out of range"))?;
+        recorded
+            .gain
+            .validate()
+            .map_err(|(name, value)| format!("gain.{name} = {value} is out of range"))?;
+        let path = GuidePath::from_recorded(&recorded).map_err(|e| e.to_string())?;
+        let mut guide = Guide::new(path, recorded.params);
+        guide.set_gain_mode(recorded.gain);
+        self.guide = Some(SceneGuide { recorded, guide });
+        Ok(())
+    }
+
+    /// The guide for the recording (`None` without one).
+    pub fn recorded_guide(&self) -> Option<RecordedGuide> {
+        self.guide.as_ref().map(|g| g.recorded.clone())
     }
 
     /// The object's meshes for the recording, when they came from files (a built-in object's
@@ -418,6 +464,7 @@ impl Scene {
             }
         }
         world.set_safe_force(self.safe_force_n);
+        world.set_guide(self.guide.as_ref().map(|g| g.guide.clone()));
         world
     }
 
@@ -580,6 +627,7 @@ mod tests {
             period_ns: 1_000_000,
             meshes: s.recorded_meshes(),
             inclusions: s.recorded_inclusions(),
+            guide: None,
         };
         let again = Scene::from_recording(&record, Path::new("<recording>")).unwrap();
         assert_eq!(again.inclusions, s.inclusions);
@@ -645,6 +693,7 @@ mod tests {
             period_ns: 1_000_000,
             meshes: scene.recorded_meshes(),
             inclusions: scene.recorded_inclusions(),
+            guide: scene.recorded_guide(),
         }
     }
 }

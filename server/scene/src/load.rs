@@ -378,6 +378,7 @@ impl Scene {
         Ok(Scene {
             inclusions,
             inclusion_table,
+            guide: None,
             source: base.map(|_| path.to_owned()),
             object_name: object.name.clone(),
             object_in_world,

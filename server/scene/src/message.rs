@@ -8,6 +8,8 @@ use softhaptic_proto::wire::{
     DeviceInfo, ModelInfo, PROTOCOL_VERSION, RenderMeshInfo, SceneMessage,
 };
 
+use softhaptic_proto::guide::GuidePathInfo;
+
 use super::Scene;
 
 impl Scene {
@@ -45,6 +47,10 @@ impl Scene {
                 damping_n_s_per_m: limits.damping_n_s_per_m,
                 workspace_radius_m: limits.workspace_radius_m,
             },
+            guide: self
+                .guide
+                .as_ref()
+                .map(|g| GuidePathInfo::from_recorded(&g.recorded)),
         }
     }
 }

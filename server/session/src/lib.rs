@@ -13,6 +13,8 @@
 //!   files and clear refusals of files it cannot trust.
 //! - [`check`]: replays a recording's device readings through a freshly built haptic world and
 //!   compares the forces bit for bit (the CI replay check, docs/design.md invariant 5).
+//! - [`guide`]: a recording as a guide for a trainee (`run --guide`): its path, checked against
+//!   the session's object and tool.
 //! - [`tools`]: `info` and `export` (CSV).
 //! - [`script`]: scripted sessions with the simulated device, recorded without a wall clock
 //!   (the test recordings under `tests/sessions/`).
@@ -27,6 +29,7 @@
 //! `softhaptic` binary's (`server/src/session/cli.rs`).
 
 pub mod check;
+pub mod guide;
 pub mod overhead;
 pub mod reader;
 pub mod replay;

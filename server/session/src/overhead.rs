@@ -70,6 +70,7 @@ fn run_once(
                 period_ns: params.period_ns,
                 meshes: scene.recorded_meshes(),
                 inclusions: scene.recorded_inclusions(),
+                guide: scene.recorded_guide(),
             };
             let (producer, consumer) = rtrb::RingBuffer::new(TICK_RING_CAPACITY);
             let recorder = Recorder::start(path, &build, &scene_record, consumer)?;

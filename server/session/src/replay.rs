@@ -747,6 +747,7 @@ mod gap_tests {
             depth_m: 0.0,
             force_n: [0.0; 3],
             flags: 0,
+            guide: None,
         }
     }
 

@@ -143,6 +143,20 @@ pub fn record_hand(
     };
     let mut device = SimulatedPhantom::with_params(script, params);
     prepare(&mut device);
+    record_device(scene, scene_toml, device, session_id, out)
+}
+
+/// [`record_hand`] with a simulated device already made (another grip, faults scheduled): its
+/// script, and half a second after it, recorded to `out` (which must not exist).
+pub fn record_device(
+    scene: &Scene,
+    scene_toml: &str,
+    mut device: SimulatedPhantom,
+    session_id: &str,
+    out: &Path,
+) -> Result<RecordingStats, ScriptError> {
+    let params = *device.params();
+    let script = *device.script();
     let mut world = haptic_world(scene);
 
     let build = BuildRecord {
@@ -162,6 +176,7 @@ pub fn record_hand(
         period_ns: params.period_ns,
         meshes: scene.recorded_meshes(),
         inclusions: scene.recorded_inclusions(),
+        guide: scene.recorded_guide(),
     };
     let mut writer = SessionWriter::create(out, &build, &scene_record)?;
 

@@ -327,6 +327,7 @@ impl LiveRecording {
             period_ns: 1_000_000,
             meshes: scene.recorded_meshes(),
             inclusions: scene.recorded_inclusions(),
+            guide: scene.recorded_guide(),
         };
         let path = dir.join(recording_file_name(started_unix_ns, &session_id));
         let (producer, consumer) = rtrb::RingBuffer::new(TICK_RING_CAPACITY);
