@@ -167,3 +167,62 @@ async fn replays_live_in_a_cache_bounded_in_bytes_that_expires() {
     .await;
     hub.shutdown().await;
 }
+
+/// A measurement, not a test (it prints its figures and asserts none): the archive's listings a
+/// hub serves a second with 1 000 pages asking at once, each asking again as soon as it is
+/// answered (a page asks every 2 s, so 1 000 pages want 500 a second), and the JetStream API
+/// requests the hub makes meanwhile (the server's own count). The closing note's figure:
+/// `cargo test -p softhaptic-tests --test lab_replays -- --ignored --nocapture listings_per_second`
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "a measurement: run it by name with --ignored --nocapture"]
+async fn listings_per_second_with_1000_pages_asking() {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    const PAGES: usize = 1000;
+    const RUN: Duration = Duration::from_secs(5);
+    let server = NatsServer::start("lab-listing-rate");
+    for station in ["st1", "st2"] {
+        archive_sessions(
+            nats(server.url()),
+            station,
+            &[
+                ("slide.mcap", "slide.mcap"),
+                ("press.mcap", "sphere-press.mcap"),
+            ],
+        )
+        .await;
+    }
+    let hub = start(server.url(), ReplayCacheLimits::default()).await;
+    let addr = hub.local_addr();
+    let client = async_nats::connect(server.url()).await.unwrap();
+    let api_requests = || async {
+        let answer = client.request("$JS.API.INFO", "".into()).await.unwrap();
+        let info: serde_json::Value = serde_json::from_slice(&answer.payload).unwrap();
+        info["api"]["total"].as_u64().unwrap()
+    };
+    // The first listing (the hub's start) is not counted.
+    assert_eq!(status(addr, "/api/archive").await, 200);
+    let (served, other) = (AtomicU64::new(0), AtomicU64::new(0));
+    let before = api_requests().await;
+    let started = std::time::Instant::now();
+    futures_util::future::join_all((0..PAGES).map(|_| async {
+        while started.elapsed() < RUN {
+            match http_get_with_token(addr, "/api/archive", I).await.status {
+                200 => served.fetch_add(1, Ordering::Relaxed),
+                _ => other.fetch_add(1, Ordering::Relaxed),
+            };
+        }
+    }))
+    .await;
+    let seconds = started.elapsed().as_secs_f64();
+    // Its own request counts once.
+    let jetstream = api_requests().await - before - 1;
+    let served = served.into_inner();
+    println!(
+        "{PAGES} pages: {served} listings in {seconds:.1} s = {:.0} a second ({} not 200); \
+         JetStream API requests meanwhile: {jetstream} = {:.1} a second",
+        served as f64 / seconds,
+        other.into_inner(),
+        jetstream as f64 / seconds
+    );
+    hub.shutdown().await;
+}
