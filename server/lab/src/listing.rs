@@ -8,7 +8,9 @@
 //! store writes its meta, with no listing asked again. Buckets appear and go as JetStream's
 //! advisories say (`$JS.EVENT.ADVISORY.STREAM.CREATED.*` and `.DELETED.*`, subscribed to before
 //! the buckets are listed once, so that one made in between is seen by either); a bucket made
-//! later (a new station's first upload) is read from then on.
+//! later (a new station's first upload) is read from then on. A deleted bucket whose advisory
+//! does not come (nats-server 2.9 now and then sends none) goes when its feed's heartbeats stop,
+//! within about 10 s: the bucket is looked up again, and not found.
 //!
 //! What the listing says when it cannot be whole:
 //! - NATS not connected: no listing, an error (the hub answers 502, "did not answer"), never
@@ -457,46 +459,70 @@ impl ArchiveListing {
         }
     }
 
-    /// Reads `station`'s bucket for as long as it is listed, again after each failure.
+    /// Reads `station`'s bucket for as long as it is listed, again after each failure: at once
+    /// after a feed that ran (its bucket may be gone), then after a wait that doubles.
     async fn follow_bucket(self: Arc<Self>, js: jetstream::Context, station: String, epoch: u64) {
-        let mut retry = Duration::from_secs(1);
+        let mut retry = Duration::ZERO;
         let mut failures = 0u64;
         loop {
-            let read_again = self.read_feed(&js, &station, epoch).await;
-            let failed = !matches!(read_again, Ok(()));
-            if let Err(e) = &read_again {
-                failures += 1;
-                if log_nth(failures) {
-                    tracing::warn!(
-                        station,
-                        "the archive bucket's change feed failed ({failures} times so far; read again in {retry:?}): {e}"
-                    );
-                }
-            }
+            let started = tokio::time::Instant::now();
+            let ended = self.read_feed(&js, &station, epoch).await;
             // Unlisted until read again: the listing says so rather than show a part.
             self.begin(&station, epoch, false);
-            if failed {
-                tokio::time::sleep(retry).await;
-                retry = (retry * 2).min(MAX_RETRY);
+            match ended {
+                FeedEnd::ReadAgain => continue,
+                FeedEnd::Gone => {
+                    // Its advisory is the usual way a deleted bucket goes; this is for one that
+                    // did not come (seen with nats-server 2.9): the feed's heartbeats stop.
+                    tracing::info!(station, "a station's archive bucket is gone");
+                    self.forget_reading(&station, epoch);
+                    return;
+                }
+                FeedEnd::Failed(e) => {
+                    failures += 1;
+                    if log_nth(failures) {
+                        tracing::warn!(
+                            station,
+                            "the archive bucket's change feed failed ({failures} times so far; read again in {retry:?}): {e}"
+                        );
+                    }
+                }
             }
+            // A feed that ran a while starts the waits again from none.
+            if started.elapsed() > MAX_RETRY {
+                retry = Duration::ZERO;
+            }
+            tokio::time::sleep(retry).await;
+            retry = (retry * 2).clamp(Duration::from_secs(1), MAX_RETRY);
         }
     }
 
-    /// One reading of the bucket's change feed: from the last meta of each object on. Ends
-    /// `Ok` when the bucket must be read again from its history (a recording deleted where
-    /// some were omitted), else with the feed's error.
-    async fn read_feed(
-        &self,
-        js: &jetstream::Context,
-        station: &str,
-        epoch: u64,
-    ) -> Result<(), String> {
+    /// Forgets `station`'s bucket if this reading (`epoch`) is still its own.
+    fn forget_reading(&self, station: &str, epoch: u64) {
+        let mut state = lock(&self.state);
+        if state
+            .stations
+            .get(station)
+            .is_some_and(|s| s.epoch == epoch)
+            && let Some(mut s) = state.stations.remove(station)
+        {
+            state.total -= s.files.len();
+            // The task ending is this one: it returns rather than be aborted.
+            s.task = None;
+            self.changed(&mut state);
+        }
+    }
+
+    /// One reading of the bucket's change feed: from the last meta of each object on, until it
+    /// ends.
+    async fn read_feed(&self, js: &jetstream::Context, station: &str, epoch: u64) -> FeedEnd {
         let bucket = bucket(station);
-        let stream = js
-            .get_stream(bucket_stream(station))
-            .await
-            .map_err(|e| format!("the bucket {bucket:?}: {e}"))?;
-        let consumer = stream
+        let stream = match js.get_stream(bucket_stream(station)).await {
+            Ok(stream) => stream,
+            Err(e) if is_stream_not_found(&e) => return FeedEnd::Gone,
+            Err(e) => return FeedEnd::Failed(format!("the bucket {bucket:?}: {e}")),
+        };
+        let consumer = match stream
             .create_consumer(OrderedConfig {
                 deliver_subject: js.client().new_inbox(),
                 deliver_policy: DeliverPolicy::LastPerSubject,
@@ -505,22 +531,27 @@ impl ArchiveListing {
                 ..Default::default()
             })
             .await
-            .map_err(|e| format!("following the bucket {bucket:?}: {e}"))?;
+        {
+            Ok(consumer) => consumer,
+            Err(e) => return FeedEnd::Failed(format!("following the bucket {bucket:?}: {e}")),
+        };
         self.consumers.fetch_add(1, Ordering::Relaxed);
         // Nothing to read back: the listing of this bucket is whole (empty) now.
         self.begin(station, epoch, consumer.cached_info().num_pending == 0);
-        let mut feed = consumer
-            .messages()
-            .await
-            .map_err(|e| format!("following the bucket {bucket:?}: {e}"))?;
+        let mut feed = match consumer.messages().await {
+            Ok(feed) => feed,
+            Err(e) => return FeedEnd::Failed(format!("following the bucket {bucket:?}: {e}")),
+        };
         let mut skipped = 0u64;
         while let Some(message) = feed.next().await {
-            let message = message.map_err(|e| format!("the bucket {bucket:?}'s feed: {e}"))?;
-            let caught_up = message
-                .info()
-                .map_err(|e| format!("the bucket {bucket:?}'s feed: {e}"))?
-                .pending
-                == 0;
+            let message = match message {
+                Ok(message) => message,
+                Err(e) => return FeedEnd::Failed(format!("the bucket {bucket:?}'s feed: {e}")),
+            };
+            let caught_up = match message.info() {
+                Ok(info) => info.pending == 0,
+                Err(e) => return FeedEnd::Failed(format!("the bucket {bucket:?}'s feed: {e}")),
+            };
             let info = if message.payload.len() > MAX_META_BYTES {
                 Err(format!("a meta of {} bytes", message.payload.len()))
             } else {
@@ -540,10 +571,10 @@ impl ArchiveListing {
                 }
             };
             if self.apply(station, epoch, info.as_ref(), caught_up) {
-                return Ok(());
+                return FeedEnd::ReadAgain;
             }
         }
-        Err(format!("the bucket {bucket:?}'s feed ended"))
+        FeedEnd::Failed(format!("the bucket {bucket:?}'s feed ended"))
     }
 
     /// A reading of `station`'s bucket starts (or failed): nothing listed of it until it is
@@ -629,6 +660,24 @@ impl ArchiveListing {
         }
         false
     }
+}
+
+/// How a reading of a bucket's feed ended.
+enum FeedEnd {
+    /// To be read again from its history at once: a recording was deleted where some were
+    /// omitted.
+    ReadAgain,
+    /// The bucket is not there (deleted).
+    Gone,
+    /// The feed failed, and why.
+    Failed(String),
+}
+
+/// Whether `error` says that the stream does not exist, rather than that it could not be asked.
+fn is_stream_not_found(error: &jetstream::context::GetStreamError) -> bool {
+    use async_nats::jetstream::ErrorCode;
+    use async_nats::jetstream::context::GetStreamErrorKind;
+    matches!(error.kind(), GetStreamErrorKind::JetStream(j) if j.error_code() == ErrorCode::STREAM_NOT_FOUND)
 }
 
 /// Whether what is asked for is read whole: every bucket (or `station`'s, if it has one).
