@@ -262,13 +262,11 @@ impl ArchiveListing {
         if station.is_none() {
             omitted += state.omitted_stations;
         }
-        let mut body = serde_json::json!({ "archive": archive });
-        if !unavailable.is_empty() {
-            body["unavailable"] = serde_json::json!(unavailable);
-        }
-        if omitted > 0 {
-            body["omitted"] = serde_json::json!(omitted);
-        }
+        let body = Answer {
+            archive,
+            unavailable,
+            omitted,
+        };
         let json = Bytes::from(serde_json::to_vec(&body).map_err(|e| e.to_string())?);
         // Any name may be asked for: the answers kept are bounded.
         if state.answers.len() >= 64 {
@@ -660,6 +658,22 @@ impl ArchiveListing {
         }
         false
     }
+}
+
+/// `/api/archive`'s answer.
+#[derive(serde::Serialize)]
+struct Answer {
+    archive: Vec<ArchivedSession>,
+    /// Stations whose bucket is not read (yet, or again).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    unavailable: Vec<String>,
+    /// Recordings (and buckets) not listed, beyond the caps.
+    #[serde(skip_serializing_if = "is_zero")]
+    omitted: u64,
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
 }
 
 /// How a reading of a bucket's feed ended.
