@@ -22,6 +22,9 @@ PACKAGE_GEN := $(PACKAGE_BUILD)/softhaptic-package
 LAB_NATS_PORT ?= 4222
 LAB_PORTS ?= 8081 8082
 LAB_HUB_PORT ?= 8090
+# The cargo profile of `make lab`'s binary (`dev`: a debug build, no release build to wait for).
+LAB_PROFILE ?= release
+LAB_BUILD := $(TARGET_DIR)/$(if $(filter dev,$(LAB_PROFILE)),debug,$(LAB_PROFILE))
 
 .PHONY: run test lint test-rust test-bin test-web test-package package cargo-deb rust-tools web-deps chromium nats lab
 
@@ -101,19 +104,43 @@ nats:
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  $$SUDO apt-get update && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y nats-server; }
 
-# A local teaching lab: nats-server with JetStream, two simulated stations (the liver pressed by
-# a sphere and by a cone) and a hub; Ctrl-C stops them all. Kept in target/lab across runs: the
-# JetStream store (the archive) and each station's recordings, archived by the station when it
-# stops and, for earlier ones, when it starts. desk-1 starts with the shipped sphere-press session
-# so that the hub has an archived session to replay from the first run. NATS is started in a
-# session of its own, so that Ctrl-C reaches the stations first and they archive their sessions
-# before it is stopped.
+# A local teaching lab as docs/lab.md tells a lab to run one: nats-server with JetStream, TLS and
+# the permissions `softhaptic nats-config` writes, two simulated stations (the liver pressed by a
+# sphere and by a cone) and a hub, each signed in with its own nkey and trusting the lab's CA
+# alone; Ctrl-C stops them all. Kept in target/lab across runs: the JetStream store (the
+# archive), each station's recordings (archived by the station when it stops and, for earlier
+# ones, when it starts), the NATS sign-in (nats-auth/: the seeds, mode 0600, and
+# authorization.conf) and the lab's CA with NATS's certificate for 127.0.0.1 (tls/, made with
+# openssl; the keys mode 0600). desk-1 starts with the shipped sphere-press session so that the
+# hub has an archived session to replay from the first run. NATS is started in a session of its
+# own, so that Ctrl-C reaches the stations first and they archive their sessions before it is
+# stopped. `make lab LAB_PROFILE=dev` runs a debug build (no release build to wait for).
+# nats-server logs "TLS handshake error: EOF" once at start: the probe below that waits for it to
+# listen opens a connection and closes it.
 lab: rust-tools web-deps nats
-	$(CARGO) build --release -p softhaptic-server --bin softhaptic
-	@dir=target/lab; nats=$$(command -v nats-server || echo /usr/sbin/nats-server); \
+	$(CARGO) build --profile $(LAB_PROFILE) -p softhaptic-server --bin softhaptic
+	@dir=$(abspath $(TARGET_DIR))/lab; bin=$(abspath $(LAB_BUILD))/softhaptic; nats=$$(command -v nats-server || echo /usr/sbin/nats-server); \
+	command -v openssl >/dev/null 2>&1 || { echo "make lab: openssl makes the lab's CA: apt-get install openssl" >&2; exit 1; }; \
 	mkdir -p "$$dir/nats" "$$dir/desk-1" "$$dir/desk-2"; \
 	ls "$$dir"/desk-1/*.mcap >/dev/null 2>&1 || cp tests/sessions/sphere-press.mcap "$$dir/desk-1/"; \
-	setsid "$$nats" -a 127.0.0.1 -p $(LAB_NATS_PORT) -js -sd "$$dir/nats" & natspid=$$!; pids=; \
+	"$$bin" nats-config --station desk-1 --station desk-2 --out "$$dir/nats-auth" >/dev/null || exit 1; \
+	tls="$$dir/tls"; \
+	if [ ! -s "$$tls/ca.pem" ] || [ ! -s "$$tls/server.pem" ]; then \
+	  echo "make lab: making the lab's CA and NATS's certificate in $$tls"; \
+	  rm -rf "$$tls" && (umask 077 && mkdir -p "$$tls") && \
+	  printf 'basicConstraints=critical,CA:FALSE\nkeyUsage=critical,digitalSignature\nextendedKeyUsage=serverAuth\nsubjectAltName=IP:127.0.0.1,DNS:localhost\n' > "$$tls/server.ext" && \
+	  (umask 077 && openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 825 \
+	    -subj "/CN=softhaptic make lab CA" -addext "basicConstraints=critical,CA:TRUE" \
+	    -addext "keyUsage=critical,keyCertSign,cRLSign" -keyout "$$tls/ca-key.pem" -out "$$tls/ca.pem" && \
+	  openssl req -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -subj "/CN=localhost" \
+	    -keyout "$$tls/server-key.pem" -out "$$tls/server.csr" && \
+	  openssl x509 -req -in "$$tls/server.csr" -CA "$$tls/ca.pem" -CAkey "$$tls/ca-key.pem" \
+	    -CAcreateserial -days 825 -extfile "$$tls/server.ext" -out "$$tls/server.pem") 2>/dev/null \
+	  || { echo "make lab: openssl could not make the lab's CA in $$tls" >&2; rm -rf "$$tls"; exit 1; }; \
+	fi; \
+	printf '# make lab: NATS with TLS and the lab'"'"'s permissions (docs/lab.md)\ntls {\n  cert_file: "%s"\n  key_file: "%s"\n}\ninclude "nats-auth/authorization.conf"\n' \
+	  "$$tls/server.pem" "$$tls/server-key.pem" > "$$dir/nats.conf"; \
+	setsid "$$nats" -c "$$dir/nats.conf" -a 127.0.0.1 -p $(LAB_NATS_PORT) -js -sd "$$dir/nats" & natspid=$$!; pids=; \
 	trap 'kill $$pids 2>/dev/null; wait $$pids 2>/dev/null; kill $$natspid 2>/dev/null' EXIT; \
 	trap 'exit 130' INT TERM; \
 	tries=0; until bash -c 'exec 3<>/dev/tcp/127.0.0.1/$(LAB_NATS_PORT)' 2>/dev/null; do \
@@ -122,8 +149,12 @@ lab: rust-tools web-deps nats
 	  sleep 0.1; \
 	done; \
 	kill -0 $$natspid 2>/dev/null || { echo "make lab: nats-server stopped: is 127.0.0.1:$(LAB_NATS_PORT) another server's? (set LAB_NATS_PORT)" >&2; exit 1; }; \
+	natsurl=nats://127.0.0.1:$(LAB_NATS_PORT); auth="$$dir/nats-auth"; \
 	set -- $(LAB_PORTS); \
-	target/release/softhaptic --record-dir "$$dir/desk-1" --addr 127.0.0.1:$$1 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-1 & pids="$$pids $$!"; \
-	target/release/softhaptic --record-dir "$$dir/desk-2" --addr 127.0.0.1:$$2 --nats nats://127.0.0.1:$(LAB_NATS_PORT) --station desk-2 --scene scenes/cone.toml & pids="$$pids $$!"; \
-	target/release/softhaptic hub --nats nats://127.0.0.1:$(LAB_NATS_PORT) --addr 127.0.0.1:$(LAB_HUB_PORT) & pids="$$pids $$!"; \
+	"$$bin" --record-dir "$$dir/desk-1" --addr 127.0.0.1:$$1 --station desk-1 --nats $$natsurl \
+	  --nats-credentials "$$auth/station-desk-1.nk" --nats-ca "$$tls/ca.pem" & pids="$$pids $$!"; \
+	"$$bin" --record-dir "$$dir/desk-2" --addr 127.0.0.1:$$2 --station desk-2 --nats $$natsurl --scene scenes/cone.toml \
+	  --nats-credentials "$$auth/station-desk-2.nk" --nats-ca "$$tls/ca.pem" & pids="$$pids $$!"; \
+	"$$bin" hub --addr 127.0.0.1:$(LAB_HUB_PORT) --nats $$natsurl \
+	  --nats-credentials "$$auth/hub.nk" --nats-ca "$$tls/ca.pem" & pids="$$pids $$!"; \
 	wait

@@ -413,6 +413,7 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
                 max_bytes: args.replay_memory_mib.saturating_mul(1 << 20),
                 idle_expiry: std::time::Duration::from_secs(args.replay_expiry),
             },
+            archive_listing: Default::default(),
         })
         .await?;
         let mut access = access;

@@ -384,6 +384,7 @@ pub async fn start_hub(
         tls: None,
         viewer_limits: Default::default(),
         replay_cache: Default::default(),
+        archive_listing: Default::default(),
     })
     .await
     .expect("the hub starts")

@@ -714,6 +714,7 @@ async fn a_hub_over_tls_streams_to_a_wss_viewer_and_refuses_plain_ws() {
         tls: Some(tls.config),
         viewer_limits: Default::default(),
         replay_cache: Default::default(),
+        archive_listing: Default::default(),
     })
     .await
     .unwrap();

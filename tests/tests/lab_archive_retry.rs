@@ -202,6 +202,14 @@ async fn with_nats_down_the_hub_says_the_archive_did_not_answer_not_that_it_is_e
         );
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
+    // Read again from the store on reconnection (what changed meanwhile came with no feed to
+    // the hub): the buckets listed once more, and the bucket followed by a new consumer.
+    assert!(
+        hub.archive_bucket_listings() >= 2,
+        "{}",
+        hub.archive_bucket_listings()
+    );
+    assert!(hub.archive_consumers() >= 2, "{}", hub.archive_consumers());
     hub.shutdown().await;
 }
 

@@ -163,6 +163,124 @@ async fn a_station_and_a_hub_do_all_a_lab_does_with_their_own_permissions() {
     station.shutdown().await;
 }
 
+/// The files `/api/archive` lists now, as `STATION/FILE`; `None` unless answered 200.
+async fn listed(hub: std::net::SocketAddr) -> Option<Vec<String>> {
+    let answer = http_request(hub, "/api/archive", &[]).await;
+    if answer.status != 200 {
+        return None;
+    }
+    let body: serde_json::Value = serde_json::from_slice(&answer.body).unwrap();
+    Some(
+        body["archive"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| {
+                format!(
+                    "{}/{}",
+                    a["station"].as_str().unwrap(),
+                    a["file"].as_str().unwrap()
+                )
+            })
+            .collect(),
+    )
+}
+
+/// Asks `/api/archive` until it lists `want` (a guard against a hang, never a measured time).
+async fn until_listed(hub: std::net::SocketAddr, want: &[&str]) {
+    let until = Instant::now() + DEADLINE;
+    loop {
+        let now = listed(hub).await;
+        if now.as_deref().is_some_and(|l| l == want) {
+            return;
+        }
+        assert!(Instant::now() < until, "listed {now:?}, not {want:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// JetStream's count of the account's API requests and consumers, as the server answers
+/// `$JS.API.INFO` (read as JSON: async-nats's own type wants fields Debian's 2.9 server lacks).
+async fn jetstream_use(client: &async_nats::Client) -> (u64, u64) {
+    let answer = client.request("$JS.API.INFO", "".into()).await.unwrap();
+    let info: serde_json::Value = serde_json::from_slice(&answer.payload).unwrap();
+    let count = |v: &serde_json::Value| v.as_u64().unwrap_or_else(|| panic!("{info}"));
+    (count(&info["api"]["total"]), count(&info["consumers"]))
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_hub_lists_the_archive_from_the_stores_change_feed_not_per_page() {
+    let lab = Lab::start("listing", None);
+    archive_slide(&lab, "desk-1").await;
+    let hub = start_hub(lab.options(Party::Hub), false).await;
+    let addr = hub.local_addr();
+    until_listed(addr, &["desk-1/slide.mcap"]).await;
+    // desk-1's bucket read once: one listing of the buckets, one consumer.
+    assert_eq!(
+        (hub.archive_bucket_listings(), hub.archive_consumers()),
+        (1, 1)
+    );
+
+    // Archived after the hub started, into a bucket it reads, and into a new station's bucket:
+    // both listed from the change feed and the advisory, the buckets never listed again.
+    archive_sessions(
+        lab.options(Party::Station("desk-1")),
+        "desk-1",
+        &[("press.mcap", "sphere-press.mcap")],
+    )
+    .await;
+    until_listed(addr, &["desk-1/press.mcap", "desk-1/slide.mcap"]).await;
+    archive_slide(&lab, "desk-2").await;
+    until_listed(
+        addr,
+        &[
+            "desk-1/press.mcap",
+            "desk-1/slide.mcap",
+            "desk-2/slide.mcap",
+        ],
+    )
+    .await;
+    assert_eq!(
+        (hub.archive_bucket_listings(), hub.archive_consumers()),
+        (1, 2)
+    );
+
+    // Deleted (by its own station): gone from the listing.
+    let (desk1, _events) = lab.client(Party::Station("desk-1")).await;
+    let js = async_nats::jetstream::new(desk1);
+    let store = js
+        .get_object_store(softhaptic_server::lab::archive::bucket("desk-1"))
+        .await
+        .unwrap();
+    store.delete("desk-1/slide.mcap").await.unwrap();
+    until_listed(addr, &["desk-1/press.mcap", "desk-2/slide.mcap"]).await;
+
+    // A class asking: no JetStream request at all, no consumer made. JetStream's own counts,
+    // around the pages' requests and around nothing (its account request counts itself).
+    let (hub_client, _events) = lab.client(Party::Hub).await;
+    let (r0, _) = jetstream_use(&hub_client).await;
+    let (r1, consumers_before) = jetstream_use(&hub_client).await;
+    let answers =
+        futures_util::future::join_all((0..200).map(|_| http_request(addr, "/api/archive", &[])))
+            .await;
+    assert!(
+        answers
+            .iter()
+            .all(|a| a.status == 200 && a.body == answers[0].body)
+    );
+    let (r2, consumers_after) = jetstream_use(&hub_client).await;
+    assert_eq!(r2 - r1, r1 - r0, "JetStream requests made for 200 listings");
+    assert!(
+        consumers_after <= consumers_before,
+        "{consumers_before} → {consumers_after}"
+    );
+    assert_eq!(
+        (hub.archive_bucket_listings(), hub.archive_consumers()),
+        (1, 2)
+    );
+    hub.shutdown().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_station_cannot_speak_for_another_nor_read_or_touch_its_data_and_a_hub_only_reads() {
     let lab = Lab::start("refused", None);

@@ -28,6 +28,10 @@
 //! HTTP, close 4404 over WebSocket), and no refusal carries the hub's internal errors (NATS's,
 //! the recording reader's): those are logged.
 //!
+//! The archive's list (`/api/archive`, instructors only) is answered from memory:
+//! [`super::listing`] keeps it from the object store's change feed, so the pages asking for it
+//! make no request to NATS.
+//!
 //! Routes: the viewer's files; `/api/stations` (the station list), `/api/scene?station=NAME`,
 //! `/stations/NAME/meshes/FILE` (the station's render meshes, fetched over NATS once) and
 //! `/ws?station=NAME`. The session data needs a token when the hub has tokens, as on a station.
@@ -71,6 +75,8 @@ pub struct HubOptions {
     pub viewer_limits: ViewerLimits,
     /// How much of the archive the hub keeps decoded for replays.
     pub replay_cache: super::replays::ReplayCacheLimits,
+    /// How much of the archive the hub lists.
+    pub archive_listing: super::listing::ListingLimits,
 }
 
 /// Why a hub did not start.
@@ -142,11 +148,16 @@ impl RunningHub {
         self.lab.replays.cached()
     }
 
-    /// Listings made of the archive (each a JetStream consumer) since the start.
-    pub fn archive_listings(&self) -> u64 {
-        self.lab
-            .listings_made
-            .load(std::sync::atomic::Ordering::Relaxed)
+    /// JetStream consumers the hub made to list the archive since the start: one per station's
+    /// bucket, read once and then followed ([`super::listing`]), however many pages ask.
+    pub fn archive_consumers(&self) -> u64 {
+        self.lab.archive.consumers_made()
+    }
+
+    /// Times the hub listed the archive's buckets since the start (once, and once per
+    /// reconnection to NATS).
+    pub fn archive_bucket_listings(&self) -> u64 {
+        self.lab.archive.bucket_listings()
     }
 
     /// Archived recordings fetched and decoded since the start.
@@ -164,6 +175,7 @@ impl RunningHub {
     pub async fn shutdown(self) {
         let _ = self.shutdown_tx.send(true);
         self.lab.close_feeds();
+        self.lab.archive.stop();
         let _ = self.http.await;
         for t in self.tasks {
             t.abort();
@@ -275,13 +287,9 @@ struct Lab {
     making: tokio::sync::Mutex<()>,
     /// The archived recordings decoded for replays (bounded in bytes, expired when unused).
     replays: super::replays::ReplayCache,
-    /// The archive's lists lately made, by station asked for (none: all), shared by every page
-    /// that asks within [`LISTING_FRESH`]: each page asks every 2 s, and each listing is a
-    /// JetStream consumer. Held while a listing is made, so that those asking meanwhile wait
-    /// for it instead of making their own.
-    listings: tokio::sync::Mutex<HashMap<Option<String>, (Instant, Bytes)>>,
-    /// Listings made of the archive since the start.
-    listings_made: std::sync::atomic::AtomicU64,
+    /// The archive's listing, kept from the object store's change feed: what every page asks
+    /// for every 2 s, answered from memory.
+    archive: Arc<super::listing::ArchiveListing>,
     access: Arc<Access>,
     limits: ViewerLimits,
     /// The hub's shutdown, for the connections that have no stream yet.
@@ -377,29 +385,6 @@ impl Lab {
         for feed in lock(&self.archives).drain().map(|(_, feed)| feed) {
             let _ = feed.stop.send(true);
         }
-    }
-
-    /// The archive's list (of `station`, or all) as `/api/archive` answers it: made at most once
-    /// per [`LISTING_FRESH`] however many pages ask.
-    async fn archive_listing(&self, station: Option<String>) -> Result<Bytes, String> {
-        let mut listings = self.listings.lock().await;
-        if let Some((made, json)) = listings.get(&station)
-            && made.elapsed() < LISTING_FRESH
-        {
-            return Ok(json.clone());
-        }
-        let list = super::archive::list(&self.client, station.as_deref()).await?;
-        self.listings_made
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let json = serde_json::to_vec(&serde_json::json!({ "archive": list }))
-            .map(Bytes::from)
-            .map_err(|e| e.to_string())?;
-        // Any name may be asked for: the table is bounded.
-        if listings.len() >= 64 {
-            listings.clear();
-        }
-        listings.insert(station, (Instant::now(), json.clone()));
-        Ok(json)
     }
 
     /// The replay of an archived recording that a viewer has open now: what an observer may
@@ -878,8 +863,9 @@ async fn follow_stations(lab: Arc<Lab>, mut status: async_nats::Subscriber) {
     }
 }
 
-/// How long an archive's list is served as it was made: the hub's page asks every 2 s.
-const LISTING_FRESH: Duration = Duration::from_secs(2);
+/// How long a request for the archive's list waits for a bucket being read (at the hub's
+/// start, a new station's bucket, after a reconnection).
+const LISTING_WAIT: Duration = Duration::from_secs(5);
 
 /// The stations a hub lists at most (a lab has tens).
 const MAX_STATIONS: usize = 512;
@@ -945,7 +931,7 @@ async fn api_archive(
     ) {
         return refusal;
     }
-    match lab.archive_listing(q.station).await {
+    match lab.archive.answer(q.station.as_deref(), LISTING_WAIT).await {
         Ok(json) => ([(header::CONTENT_TYPE, "application/json")], json).into_response(),
         Err(e) => refused("the archive's list", (StatusCode::BAD_GATEWAY, e)),
     }
@@ -1188,14 +1174,15 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
     let caps = crate::tls::ConnectionCaps::for_limits(&access_config.limits);
     let access = Arc::new(Access::new(access_config, &options.viewer.page_html()?));
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
+    let (archive, follow_archive) =
+        super::listing::ArchiveListing::start(client.clone(), options.archive_listing);
     let lab = Arc::new(Lab {
         client,
         stations: Mutex::new(HashMap::new()),
         archives: Mutex::new(HashMap::new()),
         making: tokio::sync::Mutex::new(()),
         replays: super::replays::ReplayCache::new(options.replay_cache),
-        listings: tokio::sync::Mutex::new(HashMap::new()),
-        listings_made: std::sync::atomic::AtomicU64::new(0),
+        archive,
         access: Arc::clone(&access),
         limits: options.viewer_limits,
         shutdown: shutdown_rx.clone(),
@@ -1204,6 +1191,7 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
     let tasks = vec![
         tokio::spawn(follow_stations(Arc::clone(&lab), status)),
         tokio::spawn(expire_replays(Arc::clone(&lab))),
+        follow_archive,
     ];
 
     let session_data = Router::new()

@@ -16,6 +16,8 @@
 //!   any station's stream to browsers through a [`StreamHub`](crate::stream::StreamHub) of its
 //!   own per station, fed from one NATS subscription, behind the same access rules (tokens,
 //!   Origin, Host, TLS) as a station. Hubs hold no state NATS does not have.
+//! - [`listing`]: the archive's listing a hub serves, kept in memory from the object store's
+//!   change feed (one consumer per station's bucket, advisories for buckets made later).
 //! - [`replays`]: the archived recordings a hub has decoded for replays, loaded for an
 //!   instructor's viewer only, in a cache bounded in bytes with an expiry.
 //! - [`archive`]: a station's recordings uploaded to the lab's object store, part by part and
@@ -39,6 +41,7 @@
 
 pub mod archive;
 pub mod hub;
+pub mod listing;
 pub mod permissions;
 pub mod replays;
 pub mod station;
