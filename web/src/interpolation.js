@@ -35,7 +35,14 @@ const FORCE = 19; // 3
 const FLAGS = 22; // bit i = CONTACT_FLAGS[i]
 const ARRIVAL = 23; // local ms
 const CLOCK = 24; // device ms − rate × local arrival ms
-const STRIDE = 25;
+const GUIDED = 25; // 1 when the frame carries guidance
+const GUIDE_FORCE = 26; // 3
+const GUIDE_TARGET = 29; // 3
+const GUIDE_PROGRESS = 32;
+const GUIDE_GAIN = 33;
+const GUIDE_EFFECTIVE_GAIN = 34;
+const GUIDE_ENGAGED = 35;
+const STRIDE = 36;
 
 /** Bitmask of a frame's flag names, bit i for `CONTACT_FLAGS[i]`. */
 export function flagBits(flags) {
@@ -68,6 +75,15 @@ export class RenderedContact {
     this.lateMs = 0;
     /** True when the newest frame is older than the buffer's `staleAfterMs`. */
     this.stale = true;
+    /** Whether the frame carries guidance along an expert's path (`contact.guide`). */
+    this.guided = false;
+    /** The guiding force, N, and its target on the expert's path (where the expert's tool was). */
+    this.guideForce = new Float64Array(3);
+    this.guideTarget = new Float64Array(3);
+    this.guideProgress = 0;
+    this.guideGain = 0;
+    this.guideEffectiveGain = 0;
+    this.guideEngaged = false;
   }
 }
 
@@ -180,6 +196,16 @@ export class PlayoutBuffer {
     }
     for (let i = 0; i < 4; i++) d[o + QUAT + i] = m.tip_in_world.orientation[i];
     d[o + FLAGS] = flagBits(m.flags);
+    const g = m.guide;
+    d[o + GUIDED] = g ? 1 : 0;
+    for (let i = 0; i < 3; i++) {
+      d[o + GUIDE_FORCE + i] = g ? g.force_n[i] : 0;
+      d[o + GUIDE_TARGET + i] = g ? g.target_m[i] : 0;
+    }
+    d[o + GUIDE_PROGRESS] = g ? g.progress : 0;
+    d[o + GUIDE_GAIN] = g ? g.gain : 0;
+    d[o + GUIDE_EFFECTIVE_GAIN] = g ? g.effective_gain : 0;
+    d[o + GUIDE_ENGAGED] = g?.engaged ? 1 : 0;
     d[o + ARRIVAL] = arrivalMs;
     d[o + CLOCK] = t - this.rate * arrivalMs;
     this.head = (this.head + 1) % this.capacity;
@@ -249,6 +275,21 @@ export class PlayoutBuffer {
       out.force[i] = lerp(d[a + FORCE + i], d[b + FORCE + i], s);
     }
     out.forceMagnitudeN = Math.hypot(out.force[0], out.force[1], out.force[2]);
+    // Guidance blends between two guided frames; otherwise the nearer frame's holds.
+    const ga = d[a + GUIDED] === 1;
+    const gb = d[b + GUIDED] === 1;
+    const sGuide = ga && gb ? s : 0;
+    const h0 = ga && gb ? a : near;
+    const h1 = ga && gb ? b : near;
+    out.guided = d[near + GUIDED] === 1;
+    for (let i = 0; i < 3; i++) {
+      out.guideForce[i] = lerp(d[h0 + GUIDE_FORCE + i], d[h1 + GUIDE_FORCE + i], sGuide);
+      out.guideTarget[i] = lerp(d[h0 + GUIDE_TARGET + i], d[h1 + GUIDE_TARGET + i], sGuide);
+    }
+    out.guideProgress = lerp(d[h0 + GUIDE_PROGRESS], d[h1 + GUIDE_PROGRESS], sGuide);
+    out.guideGain = d[near + GUIDE_GAIN];
+    out.guideEffectiveGain = lerp(d[h0 + GUIDE_EFFECTIVE_GAIN], d[h1 + GUIDE_EFFECTIVE_GAIN], sGuide);
+    out.guideEngaged = d[near + GUIDE_ENGAGED] === 1;
     slerp(d, a + QUAT, b + QUAT, s, out.orientation);
 
     // Contact geometry: between two frames in contact everything blends; across the start or

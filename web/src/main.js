@@ -18,6 +18,7 @@ import { AccessPrompt, TokenKeeper } from './access.js';
 import { buffer, dom, frameTimes, rendered, state, timings, view } from './context.js';
 import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ExercisePanel } from './exercise.js';
+import { GuideView } from './guide.js';
 import { ForcePlot } from './forceplot.js';
 import { parseRenderMesh } from './mesh.js';
 import { ViewerConnection, webSocketUrl } from './connection.js';
@@ -68,6 +69,7 @@ const STATION_LIST_REFRESH_MS = 2000;
 
 let plot = null;
 let exercisePanel = null;
+let guideView = null;
 let connection = null;
 let timeline = null;
 let stationList = null;
@@ -110,6 +112,9 @@ function testHookParts() {
     get exercisePanel() {
       return exercisePanel;
     },
+    get guideView() {
+      return guideView;
+    },
     get stationList() {
       return stationList;
     },
@@ -137,6 +142,7 @@ function init() {
   });
 
   initThree();
+  guideView = new GuideView(view.scene);
   // Only under automation (the browser tests, whose pages wait for `window.__softhaptic`): see
   // testhook.js. A static import would make every browser download it.
   if (navigator.webdriver) {
@@ -209,7 +215,7 @@ function init() {
     }
   });
   dom['rearm-device'].addEventListener('click', () => connection.send(encodeRearm()));
-  setInterval(() => updatePanels({ connection, timeline }), 250);
+  setInterval(() => updatePanels({ connection, timeline, guideView }), 250);
 }
 
 /**
@@ -361,6 +367,8 @@ async function applyScene(scene) {
     `stiffness ≤ ${device.max_stiffness_n_per_m} N/m, damping ≤ ${device.damping_n_s_per_m} N·s/m`;
   showContactModel(contactModelOf(scene));
   buildTool(scene.tool);
+  guideView.setScene(scene.guide, scene.tool);
+  dom['guide-row'].hidden = !scene.guide;
 
   for (const m of state.meshes) {
     view.objectsGroup.remove(m.mesh);
@@ -483,6 +491,7 @@ function animate(nowMs) {
   timeline.frame(now);
   exercisePanel.tick(now);
   placeToolAndMarkers();
+  guideView.place(rendered);
   placeSection();
   plot.draw();
   if (view.renderer) {

@@ -24,6 +24,8 @@ const DOM_IDS = [
   'v-force',
   'v-material',
   'v-device',
+  'guide-row',
+  'v-guide',
   'v-model',
   'model-details',
   'm-corrections',
@@ -216,7 +218,7 @@ export function listMark(m) {
 }
 
 /** Writes every panel's figures from the latest state (four times a second). */
-export function updatePanels({ connection, timeline }) {
+export function updatePanels({ connection, timeline, guideView }) {
   const error = connection.lastError ?? state.loadError;
   setText(dom['conn-error'], error ?? '');
   const replayPaused = timeline.visible && timeline.clock.known && timeline.clock.paused;
@@ -230,6 +232,8 @@ export function updatePanels({ connection, timeline }) {
     setText(dom['v-rd'], rendered.inContact ? `${(rendered.deformedRadiusM * 1e3).toFixed(1)} mm` : '—');
     setText(dom['v-force'], `${rendered.forceMagnitudeN.toFixed(2)} N`);
   }
+  const guidance = guideView?.summary(rendered);
+  if (guidance) setText(dom['v-guide'], guidance);
   for (let i = 0; i < CONTACT_FLAGS.length; i++) {
     const on = rendered.valid && (rendered.flags & (1 << i)) !== 0;
     const cls = on ? (SEVERE_FLAGS.has(CONTACT_FLAGS[i]) ? 'flag on severe' : 'flag on') : 'flag';

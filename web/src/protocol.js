@@ -301,6 +301,7 @@ function validateScene(m) {
   positive(device.max_stiffness_n_per_m, 'scene.device.max_stiffness_n_per_m');
   nonNegative(device.damping_n_s_per_m, 'scene.device.damping_n_s_per_m');
   positive(device.workspace_radius_m, 'scene.device.workspace_radius_m');
+  if (m.guide !== undefined && m.guide !== null) validateGuidePath(m.guide, 'scene.guide');
   return m;
 }
 
@@ -325,7 +326,51 @@ function validateContact(m) {
   count(m.dropped, 'contact.dropped');
   // Absent from servers and recordings that predate it (read it as 0).
   if (m.buttons !== undefined) count(m.buttons, 'contact.buttons');
+  // Only in a session guided along an expert's path.
+  if (m.guide !== undefined && m.guide !== null) validateGuideState(m.guide, 'contact.guide');
   return m;
+}
+
+/** A gain in [0, 1]. */
+function unit(value, field) {
+  const v = finite(value, field);
+  if (!(v >= 0 && v <= 1)) throw new ProtocolError(field, `expected a value in [0, 1], got ${v}`);
+  return v;
+}
+
+/** One frame's guidance: the pull, the target on the expert's path, how far along, the gains. */
+function validateGuideState(g, field) {
+  object(g, field);
+  vector(g.force_n, 3, `${field}.force_n`);
+  vector(g.target_m, 3, `${field}.target_m`);
+  unit(g.progress, `${field}.progress`);
+  unit(g.gain, `${field}.gain`);
+  unit(g.effective_gain, `${field}.effective_gain`);
+  boolean(g.engaged, `${field}.engaged`);
+  return g;
+}
+
+/** How the guidance's gain is set: `fixed` (one gain) or `as_needed` (fading with the error). */
+export const GUIDE_GAIN_MODES = ['fixed', 'as_needed'];
+
+/** The expert's path in a `scene` message (`scene.guide`). */
+function validateGuidePath(g, field) {
+  object(g, field);
+  string(g.source, `${field}.source`);
+  if (!Array.isArray(g.path_m) || g.path_m.length < 2) {
+    throw new ProtocolError(`${field}.path_m`, `expected an array of at least 2 points, got ${show(g.path_m)}`);
+  }
+  g.path_m.forEach((p, i) => vector(p, 3, `${field}.path_m[${i}]`));
+  positive(g.length_m, `${field}.length_m`);
+  positive(g.max_force_n, `${field}.max_force_n`);
+  const gain = object(g.gain, `${field}.gain`);
+  if (!GUIDE_GAIN_MODES.includes(gain.mode)) {
+    throw new ProtocolError(
+      `${field}.gain.mode`,
+      `unknown mode ${show(gain.mode)} (known: ${GUIDE_GAIN_MODES.join(', ')})`,
+    );
+  }
+  return g;
 }
 
 function validateStats(m) {

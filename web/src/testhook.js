@@ -224,6 +224,8 @@ export function installTestHook(ctx) {
       listed: [...dom['mark-list'].children].map((li) => li.textContent),
       formShown: !dom['mark-form'].hidden,
     }),
+    /** The guidance as drawn: the ghost tool, the path's split, the guiding force's arrow. */
+    guide: () => ctx.guideView.snapshot(rendered),
     /** The exercise panel as shown, and the task as drawn in the 3-D view. */
     exercise: () => ctx.exercisePanel.snapshot(performance.now()),
     /** Presses an exercise button (`next`, `repeat`, `stop`), as an instructor does. */

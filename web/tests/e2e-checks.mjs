@@ -1,7 +1,6 @@
-// Checks shared by the browser tests: a press drawn on the render mesh exactly as the profile
-// says, how two reads of the drawn pixels differ, and the page's Content-Security-Policy
-// violations. Each takes a Playwright page showing
-// the viewer.
+// Checks shared by the browser tests: a viewer page opened and ready, a press drawn on the
+// render mesh exactly as the profile says, how two reads of the drawn pixels differ, and the
+// page's Content-Security-Policy violations. Each takes a Playwright page showing the viewer.
 import assert from 'node:assert/strict';
 
 import {
@@ -205,4 +204,16 @@ export async function watchCsp(page) {
   return {
     list: async () => [...fromConsole, ...(await page.evaluate(() => window.__cspViolations ?? []))],
   };
+}
+
+/**
+ * Opens the viewer at `url` in a new page of `browser` and waits for its test hook to say it is
+ * ready; the page's uncaught errors are pushed to `pageErrors`.
+ */
+export async function openViewer(browser, url, pageErrors) {
+  const page = await browser.newPage({ viewport: { width: 1024, height: 700 } });
+  page.on('pageerror', (e) => pageErrors.push(e.message));
+  await page.goto(url);
+  await page.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
+  return page;
 }

@@ -12,6 +12,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
 import { launchBrowser } from './browser.mjs';
+import { openViewer } from './e2e-checks.mjs';
 import { startServer } from './server.mjs';
 
 const WAIT = { timeout: 60000 };
@@ -43,14 +44,6 @@ min_coverage = 0.9
 let browser;
 let dir;
 const pageErrors = [];
-
-async function openViewer(url) {
-  const page = await browser.newPage({ viewport: { width: 1024, height: 700 } });
-  page.on('pageerror', (e) => pageErrors.push(e.message));
-  await page.goto(url);
-  await page.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
-  return page;
-}
 
 /** Polls the page's exercise panel until `predicate` holds of it (a generous deadline). */
 async function exerciseWhere(page, predicate) {
@@ -93,8 +86,8 @@ test('a station runs exercises: the task, the countdown and the result shown; an
     external: false,
   });
   try {
-    const instructor = await openViewer(server.url);
-    const observer = await openViewer(server.observerUrl);
+    const instructor = await openViewer(browser, server.url, pageErrors);
+    const observer = await openViewer(browser, server.observerUrl, pageErrors);
 
     // The press, for ana, with its ring drawn around the site; it ends by its time limit and
     // waits for the instructor.

@@ -11,7 +11,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
 import { launchBrowser } from './browser.mjs';
-import { freezeOnPress, pixelDifference } from './e2e-checks.mjs';
+import { freezeOnPress, pixelDifference, openViewer } from './e2e-checks.mjs';
 import { startServer } from './server.mjs';
 
 const NOTE = 'too fast into the capsule';
@@ -20,14 +20,6 @@ const WAIT = { timeout: 60000 };
 let browser;
 let recordDir;
 const pageErrors = [];
-
-async function openViewer(url) {
-  const page = await browser.newPage({ viewport: { width: 1024, height: 700 } });
-  page.on('pageerror', (e) => pageErrors.push(e.message));
-  await page.goto(url);
-  await page.waitForFunction(() => window.__softhaptic?.ready(), null, { timeout: 120000 });
-  return page;
-}
 
 before(async () => {
   recordDir = mkdtempSync(join(tmpdir(), 'softhaptic-marks-'));
@@ -46,8 +38,8 @@ test('a mark made live shows in another browser and in the replay of the recordi
   });
   let marked;
   try {
-    const instructor = await openViewer(live.url);
-    const other = await openViewer(live.url);
+    const instructor = await openViewer(browser, live.url, pageErrors);
+    const other = await openViewer(browser, live.url, pageErrors);
     assert.equal(await instructor.evaluate(() => window.__softhaptic.marks().formShown), true);
     // During a press, so the mark carries the point the tool touches.
     await freezeOnPress(instructor, 1e-3);
@@ -92,7 +84,7 @@ test('a mark made live shows in another browser and in the replay of the recordi
     external: false,
   });
   try {
-    const page = await openViewer(replay.url);
+    const page = await openViewer(browser, replay.url, pageErrors);
     await page.waitForFunction(() => window.__softhaptic.marks().marks.length === 1, null, WAIT);
     const shown = await page.evaluate(() => window.__softhaptic.marks());
     assert.deepEqual(shown.marks[0], marked);

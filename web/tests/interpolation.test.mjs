@@ -192,3 +192,30 @@ test('flag names map to bits in contract order', () => {
   assert.equal(flagBits(['outside_workspace']), 1 << 11);
   assert.equal(flagBits([...CONTACT_FLAGS]), (1 << CONTACT_FLAGS.length) - 1);
 });
+
+test('guidance blends between guided frames and is absent from unguided ones', () => {
+  const guide = (k) => ({
+    force_n: [0.1 * k, 0, 0],
+    target_m: [0.001 * k, 0.05, 0],
+    progress: 0.05 * k,
+    gain: 0.5,
+    effective_gain: 0.5,
+    engaged: true,
+  });
+  const buf = new PlayoutBuffer({ delayMs: 50 });
+  for (let k = 0; k <= 10; k++) buf.push(frame(1000 + 20 * k, { guide: guide(k) }), 5000 + 20 * k);
+  const out = new RenderedContact();
+  // Drawn at device 1150: half way between frames 7 and 8.
+  buf.sample(5200, out);
+  assert.ok(out.guided && out.guideEngaged);
+  assert.ok(near(out.guideForce[0], 0.75), `force ${out.guideForce[0]}`);
+  assert.ok(near(out.guideTarget[0], 0.0075));
+  assert.ok(near(out.guideProgress, 0.375));
+  assert.equal(out.guideGain, 0.5);
+  // A frame without guidance (a session without a guide) reads as unguided.
+  const plain = new PlayoutBuffer({ delayMs: 50 });
+  for (let k = 0; k <= 10; k++) plain.push(frame(1000 + 20 * k), 5000 + 20 * k);
+  plain.sample(5200, out);
+  assert.ok(!out.guided);
+  assert.equal(out.guideForce[0], 0);
+});

@@ -154,6 +154,38 @@ test('malformed messages are refused with the field and the value', () => {
     [JSON.stringify({ ...stats, period_error_us: { p50: 1 } }), /stats.period_error_us.p99/],
     [JSON.stringify({ ...stats, device: 'on fire' }), /stats.device: unknown device state "on fire"/],
     [JSON.stringify(contact({ buttons: -1 })), /contact.buttons: expected a non-negative integer/],
+    [
+      JSON.stringify(
+        contact({
+          guide: { force_n: [0, 0, 0], target_m: [0, 0, 0], progress: 1.5, gain: 1, effective_gain: 1, engaged: true },
+        }),
+      ),
+      /contact.guide.progress: expected a value in \[0, 1\]/,
+    ],
+    [JSON.stringify(contact({ guide: { force_n: [0, 0] } })), /contact.guide.force_n/],
+    [
+      JSON.stringify({
+        ...scene,
+        guide: { source: 'e.mcap', path_m: [[0, 0, 0]], length_m: 0.01, max_force_n: 1.5, gain: { mode: 'fixed' } },
+      }),
+      /scene.guide.path_m: expected an array of at least 2 points/,
+    ],
+    [
+      JSON.stringify({
+        ...scene,
+        guide: {
+          source: 'e.mcap',
+          path_m: [
+            [0, 0, 0],
+            [0.01, 0, 0],
+          ],
+          length_m: 0.01,
+          max_force_n: 1.5,
+          gain: { mode: 'always' },
+        },
+      }),
+      /scene.guide.gain.mode: unknown mode "always"/,
+    ],
   ];
   for (const [text, pattern] of cases) {
     assert.throws(
