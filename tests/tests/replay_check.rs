@@ -12,11 +12,12 @@ use softhaptic_proto::record::DeviceErrorRecord;
 use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
 
-const RECORDINGS: [&str; 4] = [
+const RECORDINGS: [&str; 5] = [
     "sphere-press.mcap",
     "cone-press.mcap",
     "slide.mcap",
     "fault-mid-press.mcap",
+    "guided-slide.mcap",
 ];
 
 fn recording_path(name: &str) -> PathBuf {

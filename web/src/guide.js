@@ -15,6 +15,9 @@ const GUIDE_COLOR = 0x3fb950;
 /** The ghost's opacity at full gain; it fades with the gain, never below the floor. */
 const GHOST_OPACITY = 0.45;
 const GHOST_OPACITY_FLOOR = 0.15;
+/** The path's tube: 0.4 mm thick, six-sided. */
+const PATH_RADIUS_M = 0.0004;
+const PATH_SIDES = 6;
 /** The arrow's scale: 1 cm per newton, as the total force's arrow. */
 const ARROW_M_PER_N = 0.01;
 
@@ -64,11 +67,15 @@ export class GuideView {
     this.scene.add(this.ghost);
     const points = this.info.path_m;
     this.pointCount = points.length;
-    const positions = new Float32Array(points.length * 3);
-    points.forEach((p, i) => positions.set(p, i * 3));
-    const attribute = new THREE.BufferAttribute(positions, 3);
-    this.ahead = pathLine(attribute, { color: GUIDE_COLOR, opacity: 0.95 });
-    this.behind = pathLine(attribute, { color: GUIDE_COLOR, opacity: 0.3 });
+    // A thin tube rather than a line: WebGL draws lines one pixel wide, lost beside the tool.
+    const curve = new THREE.CatmullRomCurve3(
+      points.map((p) => new THREE.Vector3(p[0], p[1], p[2])),
+      false,
+      'centripetal',
+    );
+    const geometry = new THREE.TubeGeometry(curve, points.length - 1, PATH_RADIUS_M, PATH_SIDES, false);
+    this.ahead = pathTube(geometry, { color: GUIDE_COLOR, opacity: 0.9 });
+    this.behind = pathTube(geometry.clone(), { color: GUIDE_COLOR, opacity: 0.25 });
     this.scene.add(this.ahead, this.behind);
   }
 
@@ -104,8 +111,11 @@ export class GuideView {
     this.ghostMaterial.opacity = GHOST_OPACITY_FLOOR + (GHOST_OPACITY - GHOST_OPACITY_FLOOR) * r.guideGain;
     // The path is evenly spaced: the target's index is its progress along it.
     const split = Math.min(this.pointCount - 1, Math.max(0, Math.round(r.guideProgress * (this.pointCount - 1))));
-    this.ahead.geometry.setDrawRange(split, this.pointCount - split);
-    this.behind.geometry.setDrawRange(0, split + 1);
+    // The tube's segment i joins points i and i + 1 (an even spacing along the path, as the
+    // tube's own); each segment is PATH_SIDES quads of two triangles.
+    const perSegment = PATH_SIDES * 6;
+    this.ahead.geometry.setDrawRange(split * perSegment, (this.pointCount - 1 - split) * perSegment);
+    this.behind.geometry.setDrawRange(0, split * perSegment);
     this.drawn.aheadFrom = split;
     const f = Math.hypot(r.guideForce[0], r.guideForce[1], r.guideForce[2]);
     this.arrow.visible = f > 1e-3;
@@ -165,13 +175,11 @@ function ghostOf(tool, material) {
   return group;
 }
 
-function pathLine(attribute, { color, opacity }) {
-  const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute('position', attribute);
-  const line = new THREE.Line(
+function pathTube(geometry, { color, opacity }) {
+  const tube = new THREE.Mesh(
     geometry,
-    new THREE.LineBasicMaterial({ color, transparent: true, opacity, depthTest: false }),
+    new THREE.MeshBasicMaterial({ color, transparent: true, opacity, depthTest: false, depthWrite: false }),
   );
-  line.renderOrder = 2;
-  return line;
+  tube.renderOrder = 2;
+  return tube;
 }

@@ -38,15 +38,19 @@ pub enum ScriptName {
     Slide,
     /// The sphere pressed and held; the device disconnects for 200 ms in the middle of the hold.
     FaultMidPress,
+    /// The slide again, by a loose hand (50 N/m) aiming 6 mm to the side of it, guided at full
+    /// gain along the path the `slide` script's tool takes (`run --guide`).
+    GuidedSlide,
 }
 
 impl ScriptName {
     /// Every script, in the order `record-script` writes them.
-    pub const ALL: [ScriptName; 4] = [
+    pub const ALL: [ScriptName; 5] = [
         ScriptName::SpherePress,
         ScriptName::ConePress,
         ScriptName::Slide,
         ScriptName::FaultMidPress,
+        ScriptName::GuidedSlide,
     ];
 
     fn scene_toml(self) -> &'static str {
@@ -63,6 +67,7 @@ impl ScriptName {
             ScriptName::ConePress => "cone-press",
             ScriptName::Slide => "slide",
             ScriptName::FaultMidPress => "fault-mid-press",
+            ScriptName::GuidedSlide => "guided-slide",
         }
     }
 }
@@ -80,6 +85,8 @@ pub enum ScriptError {
     Session(#[from] SessionError),
     #[error("could not encode a contact frame: {0}")]
     Encode(#[from] serde_json::Error),
+    #[error("the guided script's guide: {0}")]
+    Guide(String),
 }
 
 /// The hand's script for `name` at the scene's press site.
@@ -87,7 +94,7 @@ fn hand_script(name: ScriptName, scene: &Scene) -> HandScript {
     // The live demonstration's press, once.
     let mut script = scene.hand_script();
     script.repeat = false;
-    if name != ScriptName::Slide {
+    if !matches!(name, ScriptName::Slide | ScriptName::GuidedSlide) {
         script.slide_distance_m = 0.0;
         script.slide_s = 0.0;
     }
@@ -105,6 +112,9 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
         }
     })?;
     let script = hand_script(name, &scene);
+    if name == ScriptName::GuidedSlide {
+        return record_guided_slide(scene, name.scene_toml(), script, out);
+    }
     record_hand(
         &scene,
         name.scene_toml(),
@@ -123,6 +133,68 @@ pub fn record_script(name: ScriptName, out: &Path) -> Result<RecordingStats, Scr
             }
         },
     )
+}
+
+/// How far to the side of the expert's slide the guided trainee's hand aims.
+pub const GUIDED_OFFSET_M: f64 = 0.006;
+/// The guided trainee's grip: loose, letting the device lead.
+pub const GUIDED_GRIP_N_PER_M: f64 = 50.0;
+
+/// The `guided-slide` script: the expert's path is the tool's own path in the `slide` script,
+/// simulated here tick by tick (the same ticks `slide.mcap` holds), resampled as `run --guide`
+/// resamples a recording; the trainee's hand aims [`GUIDED_OFFSET_M`] across the slide with a
+/// [`GUIDED_GRIP_N_PER_M`] grip.
+fn record_guided_slide(
+    mut scene: Scene,
+    scene_toml: &str,
+    script: HandScript,
+    out: &Path,
+) -> Result<RecordingStats, ScriptError> {
+    let params = SimParams {
+        limits: scene.device_limits,
+        ..SimParams::default()
+    };
+    let mut expert = SimulatedPhantom::with_params(script, params);
+    let mut world = haptic_world(&scene);
+    let ticks = ((script.duration_s() + 0.5) * 1e9) as u64 / params.period_ns.max(1);
+    let mut samples = Vec::with_capacity(ticks as usize);
+    for _ in 0..ticks {
+        let read = expert.read();
+        let state = world.step(read);
+        let _ = expert.command_force(state.force_n);
+        if let Ok(s) = read {
+            let depth_m = if state.in_contact { state.depth_m } else { 0.0 };
+            samples.push((s.tip_in_world.position_m, depth_m));
+        }
+    }
+    let path =
+        softhaptic_device::guide::GuidePath::resample(samples, crate::guide::GUIDE_SPACING_M)
+            .map_err(|e| ScriptError::Guide(e.to_string()))?;
+    scene
+        .set_guide(softhaptic_proto::guide::RecordedGuide {
+            source: "slide.mcap".into(),
+            source_scene: Some("default.toml".into()),
+            points_m: path.points_m().iter().map(|p| p.to_array()).collect(),
+            depths_m: path.depths_m().to_vec(),
+            spacing_m: path.spacing_m(),
+            params: softhaptic_proto::GuideParams::default(),
+            gain: softhaptic_proto::GuideGain::Fixed { gain: 1.0 },
+        })
+        .map_err(ScriptError::Guide)?;
+    let mut trainee = script;
+    let across = trainee
+        .surface_normal
+        .cross(trainee.slide_direction)
+        .normalize_or_zero();
+    trainee.surface_point_m += across * GUIDED_OFFSET_M;
+    let device = SimulatedPhantom::with_params(
+        trainee,
+        SimParams {
+            hand_stiffness_n_per_m: GUIDED_GRIP_N_PER_M,
+            ..params
+        },
+    );
+    record_device(&scene, scene_toml, device, "script-guided-slide", out)
 }
 
 /// Records the simulated PHANTOM moved by `script` in `scene` (whose text is `scene_toml`) to
