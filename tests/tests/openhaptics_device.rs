@@ -1110,6 +1110,102 @@ fn deep_press(s: &StandIn) {
     s.set_rotation(Some(stylus_rotation(DQuat::IDENTITY)));
 }
 
+/// Moves the stand-in's stylus by a simulated hand with a strong grip following `script` (the
+/// stylus turned to the script's tool orientation in the device's axes); returns the largest
+/// force the stand-in's motors are sent, kept up to date.
+fn strong_hand(s: &StandIn, scene: &Scene, script: HandScript) -> Arc<Mutex<f64>> {
+    s.set_rotation(Some(stylus_rotation(
+        scene.world_from_device.orientation.inverse() * script.tool_orientation(),
+    )));
+    let params = SimParams {
+        limits: DeviceLimits::PHANTOM_DESKTOP,
+        hand_stiffness_n_per_m: STRONG_GRIP_N_PER_M,
+        ..SimParams::default()
+    };
+    let mut hand = SimulatedPhantom::with_params(script, params);
+    let world_from_device = scene.world_from_device;
+    let largest = Arc::new(Mutex::new(0.0_f64));
+    let seen = Arc::clone(&largest);
+    let mut first = true;
+    s.set_hand(move |force_n, position_mm, velocity_mm_s| {
+        let f = DVec3::from_array(force_n);
+        let mut l = seen.lock().unwrap_or_else(PoisonError::into_inner);
+        *l = l.max(f.length());
+        drop(l);
+        if !std::mem::replace(&mut first, false) {
+            hand.command_force(world_from_device.orientation * f)
+                .unwrap();
+        }
+        let sample = hand.read().unwrap();
+        *position_mm = (world_from_device.inverse_transform_point(sample.tip_in_world.position_m)
+            * 1e3)
+            .to_array();
+        *velocity_mm_s =
+            (world_from_device.orientation.inverse() * sample.tip_velocity_m_s * 1e3).to_array();
+    });
+    largest
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn guidance_and_a_hard_press_together_stay_below_the_nominal_maximum() {
+    let (_guard, s) = standin().await;
+    s.set_nominal_max_force(3.3);
+    let mut scene = liver_scene();
+    let expert = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sessions/slide.mcap");
+    let guide = softhaptic_server::session::guide::guide_from_file(
+        &expert,
+        &scene,
+        softhaptic_proto::GuideParams::default(),
+        softhaptic_proto::GuideGain::Fixed { gain: 1.0 },
+    )
+    .unwrap();
+    scene.set_guide(guide).unwrap();
+    // A hard press 30 mm deep, 6 mm beside the expert's: the contact saturates the device while
+    // the guide pulls sideways at its cap.
+    let (point, normal) = scene.press_site_in_object;
+    let n = scene.object_in_world.orientation * normal;
+    let mut script = HandScript::press(scene.object_in_world.transform_point(point), n, 0.03);
+    script.repeat = false;
+    let across = n.cross(script.slide_direction).normalize();
+    script.surface_point_m += across * 0.006;
+    let largest = strong_hand(&s, &scene, script);
+    let live = start(scene, "openhaptics-guided").await;
+    wait_until("the hand saturating the device", || {
+        *largest.lock().unwrap_or_else(PoisonError::into_inner) > 3.0
+    })
+    .await;
+    wait_ticks(&s, 1_000).await;
+    let (_, recording) = finish(live).await;
+    s.builtin_hand();
+    let largest = *largest.lock().unwrap_or_else(PoisonError::into_inner);
+    assert!(
+        largest <= 3.3 * (1.0 - openhaptics::servo::FORCE_MARGIN) + 1e-12,
+        "{largest} N sent"
+    );
+    // The guide pulled while the device was saturated, and the sum was held to the peak.
+    let pulling_saturated = recording
+        .device
+        .iter()
+        .filter(|d| {
+            flags(d).contains(ContactFlags::SATURATED)
+                && d.guide
+                    .is_some_and(|g| g.engaged && g.force_n.length() > 0.5)
+        })
+        .count();
+    assert!(pulling_saturated > 100, "{pulling_saturated} ticks");
+    // The loop's own command, guide and contact summed, never passed the device's peak (the
+    // backend then keeps its margin below the nominal maximum, above).
+    let peak_recorded = recording.device.iter().map(force).fold(0.0, f64::max);
+    let peak_n = recording.scene.message.device.peak_force_n;
+    assert!(peak_recorded <= peak_n + 1e-12, "{peak_recorded} N of {peak_n} N");
+    assert_replays(&recording);
+    println!(
+        "guided hard press: the largest force sent was {largest:.6} N of 3.3 N, the loop's \
+         largest command {peak_recorded:.6} N of its {peak_n} N peak; {pulling_saturated} \
+         saturated ticks with the guide pulling over 0.5 N"
+    );
+}
+
 /// Runs `f` on a thread of its own and waits for it at most `deadline`: a call that hangs (as a
 /// synchronous scheduler call on a stopped scheduler does on the vendor's library) fails the
 /// test instead of holding it.
@@ -1393,35 +1489,7 @@ async fn the_force_sent_stays_below_the_nominal_maximum_in_the_devices_axes() {
     let n = scene.object_in_world.orientation * normal;
     let mut script = HandScript::press(scene.object_in_world.transform_point(point), n, 0.03);
     script.repeat = false;
-    s.set_rotation(Some(stylus_rotation(
-        scene.world_from_device.orientation.inverse() * script.tool_orientation(),
-    )));
-    let params = SimParams {
-        limits: DeviceLimits::PHANTOM_DESKTOP,
-        hand_stiffness_n_per_m: STRONG_GRIP_N_PER_M,
-        ..SimParams::default()
-    };
-    let mut hand = SimulatedPhantom::with_params(script, params);
-    let world_from_device = scene.world_from_device;
-    let largest = Arc::new(Mutex::new(0.0_f64));
-    let seen = Arc::clone(&largest);
-    let mut first = true;
-    s.set_hand(move |force_n, position_mm, velocity_mm_s| {
-        let f = DVec3::from_array(force_n);
-        let mut l = seen.lock().unwrap_or_else(PoisonError::into_inner);
-        *l = l.max(f.length());
-        drop(l);
-        if !std::mem::replace(&mut first, false) {
-            hand.command_force(world_from_device.orientation * f)
-                .unwrap();
-        }
-        let sample = hand.read().unwrap();
-        *position_mm = (world_from_device.inverse_transform_point(sample.tip_in_world.position_m)
-            * 1e3)
-            .to_array();
-        *velocity_mm_s =
-            (world_from_device.orientation.inverse() * sample.tip_velocity_m_s * 1e3).to_array();
-    });
+    let largest = strong_hand(&s, &scene, script);
     let live = start(scene, "openhaptics-nominal").await;
     wait_until("the hand saturating the device", || {
         *largest.lock().unwrap_or_else(PoisonError::into_inner) > 3.0
