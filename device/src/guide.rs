@@ -58,6 +58,8 @@ pub struct GuidePath {
     points_m: Vec<DVec3>,
     /// The expert's contact depth at each point (0 where free).
     depths_m: Vec<f64>,
+    /// The size of the expert's force at each point (0 where unknown).
+    forces_n: Vec<f64>,
     spacing_m: f64,
 }
 
@@ -79,16 +81,26 @@ impl GuidePath {
         samples: impl IntoIterator<Item = (DVec3, f64)>,
         spacing_m: f64,
     ) -> Result<Self, GuideError> {
+        Self::resample_with_forces(samples.into_iter().map(|(p, d)| (p, d, 0.0)), spacing_m)
+    }
+
+    /// [`GuidePath::resample`] with the size of the expert's force at each sample too, kept at
+    /// each point to compare a trainee's force with the expert's.
+    pub fn resample_with_forces(
+        samples: impl IntoIterator<Item = (DVec3, f64, f64)>,
+        spacing_m: f64,
+    ) -> Result<Self, GuideError> {
         if !(spacing_m.is_finite() && spacing_m > 0.0) {
             return Err(GuideError::Spacing(spacing_m));
         }
         let mut points_m = Vec::new();
         let mut depths_m = Vec::new();
+        let mut forces_n = Vec::new();
         // Arc length to the next point to place, from the previous sample.
-        let mut previous: Option<(DVec3, f64)> = None;
+        let mut previous: Option<(DVec3, f64, f64)> = None;
         let mut to_next_m = 0.0;
         let mut length_m = 0.0;
-        for (i, (p, depth)) in samples.into_iter().enumerate() {
+        for (i, (p, depth, force)) in samples.into_iter().enumerate() {
             if !p.is_finite() {
                 return Err(GuideError::NonFinite(i));
             }
@@ -97,10 +109,16 @@ impl GuidePath {
             } else {
                 0.0
             };
-            let Some((a, depth_a)) = previous else {
+            let force = if force.is_finite() {
+                force.max(0.0)
+            } else {
+                0.0
+            };
+            let Some((a, depth_a, force_a)) = previous else {
                 points_m.push(p);
                 depths_m.push(depth);
-                previous = Some((p, depth));
+                forces_n.push(force);
+                previous = Some((p, depth, force));
                 to_next_m = spacing_m;
                 continue;
             };
@@ -118,20 +136,22 @@ impl GuidePath {
                 let u = along_m / segment_m;
                 points_m.push(a.lerp(p, u));
                 depths_m.push(depth_a + (depth - depth_a) * u);
+                forces_n.push(force_a + (force - force_a) * u);
                 along_m += spacing_m;
             }
             to_next_m = along_m - segment_m;
             length_m += segment_m;
-            previous = Some((p, depth));
+            previous = Some((p, depth, force));
         }
         // The end itself, unless the last point placed is on it.
-        if let Some((end, depth)) = previous
+        if let Some((end, depth, force)) = previous
             && points_m
                 .last()
                 .is_some_and(|last| last.distance(end) > 1e-9)
         {
             points_m.push(end);
             depths_m.push(depth);
+            forces_n.push(force);
         }
         if points_m.len() > MAX_GUIDE_POINTS {
             return Err(GuideError::TooLong {
@@ -149,6 +169,7 @@ impl GuidePath {
         Ok(Self {
             points_m,
             depths_m,
+            forces_n,
             spacing_m,
         })
     }
@@ -198,6 +219,18 @@ impl GuidePath {
                 "two points are more than one spacing apart",
             ));
         }
+        let forces_n = match &guide.forces_n {
+            Some(f) if f.len() == n => f
+                .iter()
+                .map(|f| if f.is_finite() { f.max(0.0) } else { 0.0 })
+                .collect(),
+            Some(_) => {
+                return Err(GuideError::Inconsistent(
+                    "a force per point is needed, and the counts differ",
+                ));
+            }
+            None => vec![0.0; n],
+        };
         let path = Self {
             points_m,
             depths_m: guide
@@ -205,6 +238,7 @@ impl GuidePath {
                 .iter()
                 .map(|d| if d.is_finite() { d.max(0.0) } else { 0.0 })
                 .collect(),
+            forces_n,
             spacing_m,
         };
         let length_m = path.length_m();
@@ -220,6 +254,11 @@ impl GuidePath {
     /// The path's resampled points and depths, to record.
     pub fn depths_m(&self) -> &[f64] {
         &self.depths_m
+    }
+
+    /// The size of the expert's force at each point (0 where the recording did not say).
+    pub fn forces_n(&self) -> &[f64] {
+        &self.forces_n
     }
 
     /// The spacing the path was resampled at.
@@ -877,6 +916,7 @@ mod tests {
             source_scene: None,
             points_m: path.points_m().iter().map(|p| p.to_array()).collect(),
             depths_m: path.depths_m().to_vec(),
+            forces_n: Some(path.forces_n().to_vec()),
             spacing_m: path.spacing_m(),
             params: GuideParams::default(),
             gain: GuideGain::default(),

@@ -37,6 +37,8 @@
 //!   contact, path, smoothness, pushes, faults, flags) from every tick, in constant time.
 //! - [`exercise`]: [`Scorer`](exercise::Scorer), an exercise's score (press, trace, palpation) from the
 //!   same ticks as the metrics, live or from a recording.
+//! - [`deviation`]: a trainee's path and force against an expert's, aligned by dynamic time
+//!   warping (offline: after an attempt, never in the loop).
 //! - [`guide`]: haptic guidance along an expert's recorded path (a spring–damper toward a
 //!   target that advances with the trainee's progress), and its fading across attempts.
 //! - [`passivity`]: the passivity observer and controller (Hannaford & Ryu 2002).
@@ -56,6 +58,7 @@
 pub mod cells;
 pub mod collision;
 pub mod curvature;
+pub mod deviation;
 pub mod device;
 pub mod exercise;
 pub mod force;

@@ -208,6 +208,10 @@ pub struct RecordedGuide {
     pub source_scene: Option<String>,
     pub points_m: Vec<[f64; 3]>,
     pub depths_m: Vec<f64>,
+    /// The size of the expert's force at each point, N, to compare the trainee's with
+    /// (absent: not known).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub forces_n: Option<Vec<f64>>,
     pub spacing_m: f64,
     pub params: GuideParams,
     pub gain: GuideGain,
@@ -301,6 +305,7 @@ mod tests {
             source_scene: None,
             points_m: (0..n).map(|i| [i as f64 * 0.001, 0.0, 0.0]).collect(),
             depths_m: vec![0.0; n],
+            forces_n: None,
             spacing_m: 0.001,
             params: GuideParams::default(),
             gain: GuideGain::default(),

@@ -493,7 +493,7 @@ pub mod schema {
     "inclusions": {"type": "object", "description": "the inclusions as placed and their FEM force-ratio table (absent without inclusions)", "properties": {
       "placed": {"type": "array"}, "table": {"type": "object"}}, "required": ["placed", "table"]},
     "guide": {"type": "object", "description": "the expert's path the session guided along, resampled, and the pull's settings (absent without a guide)", "properties": {
-      "source": {"type": "string"}, "source_scene": {"type": "string"}, "points_m": {"type": "array"}, "depths_m": {"type": "array"}, "spacing_m": {"type": "number"}, "params": {"type": "object"}, "gain": {"type": "object"}},
+      "source": {"type": "string"}, "source_scene": {"type": "string"}, "points_m": {"type": "array"}, "depths_m": {"type": "array"}, "forces_n": {"type": "array"}, "spacing_m": {"type": "number"}, "params": {"type": "object"}, "gain": {"type": "object"}},
       "required": ["source", "points_m", "depths_m", "spacing_m", "params", "gain"]}
   },
   "required": ["message", "scene_toml", "scene_file", "period_ns"]
@@ -904,6 +904,7 @@ mod tests {
                         source_scene: Some("default.toml".into()),
                         points_m: vec![[0.0; 3], [0.001, 0.0, 0.0]],
                         depths_m: vec![0.0, 0.001],
+                        forces_n: Some(vec![0.0, 0.2]),
                         spacing_m: 0.001,
                         params: crate::GuideParams::default(),
                         gain: crate::GuideGain::AS_NEEDED,

@@ -46,6 +46,8 @@ struct Tracking {
     passivity_ticks: usize,
     /// Ticks whose replayed force differed from the recorded one.
     differing_ticks: u64,
+    /// The deviation from the expert after time alignment, as `info` prints it.
+    deviation: softhaptic_device::deviation::Deviation,
 }
 
 /// The trainee's session at `gain`, recorded into `dir` and read back.
@@ -102,6 +104,12 @@ fn guided_session(dir: &Path, gain: f64) -> Tracking {
         largest_guide_step_n: 0.0,
         passivity_ticks: 0,
         differing_ticks: 0,
+        deviation: softhaptic_device::deviation::Deviation {
+            mean_path_m: 0.0,
+            max_path_m: 0.0,
+            mean_force_n: 0.0,
+            pairs: 0,
+        },
     };
     let mut previous_guide = DVec3::ZERO;
     for r in &recording.device {
@@ -133,6 +141,8 @@ fn guided_session(dir: &Path, gain: f64) -> Tracking {
     tracking.max_error_m = errors.iter().copied().fold(0.0, f64::max);
     let report = check(&recording, CheckOverrides::default()).expect("checked");
     tracking.differing_ticks = report.differing_ticks;
+    let summary = softhaptic_server::session::guide::summary(&recording).expect("guided");
+    tracking.deviation = summary.deviation.expect("captured at some point");
     tracking
 }
 
@@ -143,14 +153,18 @@ fn a_yielding_hand_is_pulled_to_the_experts_path_and_drifts_without_the_pull() {
     let cap_n = GuideParams::default().max_force_n;
     let mut mean_errors = Vec::new();
     let mut passivity_ticks = Vec::new();
+    let mut aligned = Vec::new();
     for gain in [0.0, 0.25, 0.5, 1.0] {
         let t = guided_session(&dir, gain);
         println!(
             "gain {gain:4}: tracking error over the slide mean {:.2} mm, max {:.2} mm; \
+             after time alignment path {:.2} mm, force {:.3} N; \
              peak force {:.2} N, guide {:.2} N, largest guide step {:.4} N; \
              passivity ticks {}",
             t.mean_error_m * 1e3,
             t.max_error_m * 1e3,
+            t.deviation.mean_path_m * 1e3,
+            t.deviation.mean_force_n,
             t.peak_force_n,
             t.peak_guide_n,
             t.largest_guide_step_n,
@@ -166,6 +180,7 @@ fn a_yielding_hand_is_pulled_to_the_experts_path_and_drifts_without_the_pull() {
         // controller to damp (the unguided press has its own few ticks).
         passivity_ticks.push(t.passivity_ticks);
         mean_errors.push(t.mean_error_m);
+        aligned.push(t.deviation.mean_path_m);
     }
     let (free, full) = (mean_errors[0], mean_errors[3]);
     // Unguided the tool stays where the hand aims (the contact's own pull aside)...
@@ -176,11 +191,12 @@ fn a_yielding_hand_is_pulled_to_the_experts_path_and_drifts_without_the_pull() {
         passivity_ticks.iter().all(|&n| n <= passivity_ticks[0]),
         "passivity ticks by gain: {passivity_ticks:?}"
     );
-    // More gain, closer.
+    // More gain, closer: over the slide, and over the whole guided stretch aligned in time.
     assert!(
         mean_errors.windows(2).all(|w| w[1] < w[0]),
         "{mean_errors:?}"
     );
+    assert!(aligned.windows(2).all(|w| w[1] < w[0]), "{aligned:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

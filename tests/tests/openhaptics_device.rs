@@ -1197,7 +1197,10 @@ async fn guidance_and_a_hard_press_together_stay_below_the_nominal_maximum() {
     // backend then keeps its margin below the nominal maximum, above).
     let peak_recorded = recording.device.iter().map(force).fold(0.0, f64::max);
     let peak_n = recording.scene.message.device.peak_force_n;
-    assert!(peak_recorded <= peak_n + 1e-12, "{peak_recorded} N of {peak_n} N");
+    assert!(
+        peak_recorded <= peak_n + 1e-12,
+        "{peak_recorded} N of {peak_n} N"
+    );
     assert_replays(&recording);
     println!(
         "guided hard press: the largest force sent was {largest:.6} N of 3.3 N, the loop's \

@@ -91,12 +91,15 @@ pub fn guide_from_recording(
     let samples = recording.device.iter().filter_map(|r| {
         let s = r.sample.as_ref()?;
         let depth_m = if r.in_contact { r.depth_m } else { 0.0 };
-        Some((DVec3::from_array(s.tip_position_m), depth_m))
+        let force_n = DVec3::from_array(r.force_n).length();
+        Some((DVec3::from_array(s.tip_position_m), depth_m, force_n))
     });
     let resampled =
-        GuidePath::resample(samples, GUIDE_SPACING_M).map_err(|source| GuideLoadError::Path {
-            path: path.clone(),
-            source,
+        GuidePath::resample_with_forces(samples, GUIDE_SPACING_M).map_err(|source| {
+            GuideLoadError::Path {
+                path: path.clone(),
+                source,
+            }
         })?;
     let guide = RecordedGuide {
         source: recording.file_name(),
@@ -107,6 +110,7 @@ pub fn guide_from_recording(
         }),
         points_m: resampled.points_m().iter().map(|p| p.to_array()).collect(),
         depths_m: resampled.depths_m().to_vec(),
+        forces_n: Some(resampled.forces_n().to_vec()),
         spacing_m: resampled.spacing_m(),
         params,
         gain,
@@ -200,4 +204,94 @@ fn same_placement(
         );
     }
     Ok(())
+}
+
+/// How a guided session went: how long the pull held the trainee, how far from the target,
+/// the gain's range, and the deviation from the expert after time alignment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GuidanceSummary {
+    /// The expert's recording, by file name.
+    pub source: String,
+    pub gain: GuideGain,
+    /// Time the trainee was captured, s.
+    pub engaged_s: f64,
+    /// Mean distance from the tip to the guide's target while captured, m.
+    pub mean_tracking_m: f64,
+    /// The fading gain's least and last values over the session.
+    pub least_gain: f64,
+    pub last_gain: f64,
+    /// The trainee's path and force against the expert's, aligned by dynamic time warping over
+    /// the stretch from the first captured tick to the last (`None`: never captured).
+    pub deviation: Option<softhaptic_device::deviation::Deviation>,
+}
+
+/// Every how many ticks the trainee's path is sampled for the alignment: 10 ms, finer than a
+/// hand's motion, and the alignment's cost stays small for a long session.
+const DEVIATION_EVERY_TICKS: usize = 10;
+
+/// The summary of a guided recording (`None` for a session without a guide).
+pub fn summary(recording: &Recording) -> Option<GuidanceSummary> {
+    let guide = recording.scene.guide.as_ref()?;
+    let mut engaged_ticks = 0_u64;
+    let mut tracking_sum_m = 0.0;
+    let mut least_gain = f64::INFINITY;
+    let mut last_gain = guide.gain.initial();
+    let mut first_engaged = None;
+    let mut last_engaged = None;
+    for (i, r) in recording.device.iter().enumerate() {
+        let Some(g) = &r.guide else { continue };
+        least_gain = least_gain.min(g.gain);
+        last_gain = g.gain;
+        if !g.engaged {
+            continue;
+        }
+        first_engaged.get_or_insert(i);
+        last_engaged = Some(i);
+        if let Some(s) = &r.sample {
+            engaged_ticks += 1;
+            tracking_sum_m += DVec3::from_array(s.tip_position_m).distance(g.target_m);
+        }
+    }
+    let deviation = first_engaged.zip(last_engaged).and_then(|(from, to)| {
+        let trainee: Vec<_> = recording.device[from..=to]
+            .iter()
+            .step_by(DEVIATION_EVERY_TICKS)
+            .filter_map(|r| {
+                let s = r.sample.as_ref()?;
+                Some((
+                    DVec3::from_array(s.tip_position_m),
+                    DVec3::from_array(r.force_n).length(),
+                ))
+            })
+            .collect();
+        let forces = guide.forces_n.as_deref();
+        let expert: Vec<_> = guide
+            .points_m
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let f = forces.and_then(|f| f.get(i)).copied().unwrap_or(0.0);
+                (DVec3::from_array(*p), f)
+            })
+            .collect();
+        softhaptic_device::deviation::deviation(&trainee, &expert)
+    });
+    let period_s = recording.scene.period_ns as f64 * 1e-9;
+    Some(GuidanceSummary {
+        source: guide.source.clone(),
+        gain: guide.gain,
+        engaged_s: engaged_ticks as f64 * period_s,
+        mean_tracking_m: if engaged_ticks > 0 {
+            tracking_sum_m / engaged_ticks as f64
+        } else {
+            0.0
+        },
+        least_gain: if least_gain.is_finite() {
+            least_gain
+        } else {
+            last_gain
+        },
+        last_gain,
+        deviation,
+    })
 }

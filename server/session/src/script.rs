@@ -164,18 +164,21 @@ fn record_guided_slide(
         let _ = expert.command_force(state.force_n);
         if let Ok(s) = read {
             let depth_m = if state.in_contact { state.depth_m } else { 0.0 };
-            samples.push((s.tip_in_world.position_m, depth_m));
+            samples.push((s.tip_in_world.position_m, depth_m, state.force_n.length()));
         }
     }
-    let path =
-        softhaptic_device::guide::GuidePath::resample(samples, crate::guide::GUIDE_SPACING_M)
-            .map_err(|e| ScriptError::Guide(e.to_string()))?;
+    let path = softhaptic_device::guide::GuidePath::resample_with_forces(
+        samples,
+        crate::guide::GUIDE_SPACING_M,
+    )
+    .map_err(|e| ScriptError::Guide(e.to_string()))?;
     scene
         .set_guide(softhaptic_proto::guide::RecordedGuide {
             source: "slide.mcap".into(),
             source_scene: Some("default.toml".into()),
             points_m: path.points_m().iter().map(|p| p.to_array()).collect(),
             depths_m: path.depths_m().to_vec(),
+            forces_n: Some(path.forces_n().to_vec()),
             spacing_m: path.spacing_m(),
             params: softhaptic_proto::GuideParams::default(),
             gain: softhaptic_proto::GuideGain::Fixed { gain: 1.0 },

@@ -66,6 +66,8 @@ pub struct Info {
     pub start_time_ns: u64,
     /// The results of the attempts at exercises the station ran, in the order they ended.
     pub attempts: Vec<softhaptic_proto::exercise::AttemptResult>,
+    /// How the guidance went, in a session guided along an expert's recording.
+    pub guidance: Option<crate::guide::GuidanceSummary>,
 }
 
 /// A run of consecutive ticks the device faulted on (zero force throughout).
@@ -213,6 +215,7 @@ impl Info {
             marks: r.marks.clone(),
             start_time_ns: r.device.first().map_or(0, |d| d.time_ns),
             attempts: r.attempts().cloned().collect(),
+            guidance: crate::guide::summary(r),
         }
         .with_recorded_metrics(r)
     }
@@ -379,6 +382,7 @@ impl fmt::Display for Info {
         }
         self.fmt_marks(f)?;
         self.fmt_attempts(f)?;
+        self.fmt_guidance(f)?;
         let status = match (&self.ending, self.damaged_stretches) {
             (Ending::Complete, 0) => "complete".to_owned(),
             (Ending::Complete, n) => format!("DAMAGED, recovered around {n} damaged stretches"),
@@ -393,6 +397,41 @@ impl fmt::Display for Info {
 }
 
 impl Info {
+    /// The guidance lines of a guided session.
+    fn fmt_guidance(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let Some(g) = &self.guidance else {
+            return Ok(());
+        };
+        let gain = match g.gain {
+            softhaptic_proto::GuideGain::Fixed { gain } => format!("fixed at {gain}"),
+            softhaptic_proto::GuideGain::AsNeeded { .. } => format!(
+                "as needed, least {:.2}, last {:.2}",
+                g.least_gain, g.last_gain
+            ),
+        };
+        let source: String = g.source.chars().filter(|c| !c.is_control()).collect();
+        writeln!(
+            f,
+            "guidance:          along {source}, gain {gain}; captured {:.2} s, {:.2} mm from the target on average",
+            g.engaged_s,
+            g.mean_tracking_m * 1e3
+        )?;
+        match &g.deviation {
+            Some(d) => writeln!(
+                f,
+                "                   from the expert, aligned in time (DTW over {} pairs): path {:.2} mm on average, {:.2} mm at most; force {:.3} N on average",
+                d.pairs,
+                d.mean_path_m * 1e3,
+                d.max_path_m * 1e3,
+                d.mean_force_n
+            ),
+            None => writeln!(
+                f,
+                "                   never captured: no deviation from the expert"
+            ),
+        }
+    }
+
     /// The exercises line: how many attempts, then each one's outcome and the metrics its pass
     /// marks hold (at most [`MARKS_LISTED`]).
     fn fmt_attempts(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
