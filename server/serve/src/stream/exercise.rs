@@ -2,9 +2,10 @@
 //! the scorer publishes (the latest kept for a viewer that connects later) and the instructors'
 //! `exercise_control` requests it takes.
 //!
-//! The scorer runs on the recorder's thread, tick by tick (`crate::exercise::run`); the viewers'
-//! tasks run on the async runtime. Both sides only try: a publication never waits for a viewer,
-//! and a control never waits for the scorer (a full queue refuses it).
+//! The scorer runs on the recorder's thread, tick by tick (`softhaptic_server::exercise::run`,
+//! in the crate that starts a station); the viewers' tasks run on the async runtime. Both sides
+//! only try: a publication never waits for a viewer, and a control never waits for the scorer
+//! (a full queue refuses it).
 
 use std::sync::Mutex;
 use std::sync::mpsc::{Receiver, SyncSender, TrySendError};
