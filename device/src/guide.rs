@@ -20,8 +20,9 @@
 //!   more than [`GuideParams::max_force_n`], a cap of its own below the device's. A non-finite
 //!   input gives zero.
 //!
-//! [`Fading`] sets the gain across attempts: a schedule (a gain per attempt), or guidance as
-//! needed, whose gain follows the trainee's error with a forgetting factor (g ← f·g + c·e).
+//! The gain fades as [`GuideGain`] says: fixed; a schedule, a gain per pass along the path (a
+//! pass ends once the trainee has reached the end and lifts away); or guidance as needed, whose
+//! gain follows the trainee's error with a forgetting factor (g ← f·g + c·e, every window).
 //!
 //! Allocation-free per tick; the path is built once.
 
@@ -66,6 +67,9 @@ pub struct GuidePath {
 /// Most damping the pull's passivity controller adds until told the device's
 /// ([`Guide::set_max_damping`]): a PHANTOM Desktop's stable damping.
 const DEFAULT_MAX_DAMPING_N_S_PER_M: f64 = 5.0;
+
+/// A pass is complete once the target is this far along the path.
+const PASS_END: f64 = 0.98;
 
 /// Half the span of path the damping's direction is taken over.
 const TANGENT_SPAN_M: f64 = 0.003;
@@ -347,6 +351,8 @@ pub struct GuideOutput {
     pub gain: f64,
     /// The guide's passivity controller damped this tick's pull.
     pub passivity_damping: bool,
+    /// Passes along the path completed before this one.
+    pub pass: u32,
 }
 
 impl GuideOutput {
@@ -359,6 +365,7 @@ impl GuideOutput {
             gain: self.gain,
             effective_gain: self.effective_gain,
             engaged: self.engaged,
+            pass: self.pass,
         }
         .finite()
     }
@@ -371,6 +378,9 @@ pub struct Guide {
     params: GuideParams,
     gain: f64,
     mode: GuideGain,
+    /// Passes completed, and whether the current one has reached the path's end.
+    pass: u32,
+    pass_done: bool,
     /// Guidance as needed: time into the current window, and the engaged time and the
     /// distance integrated over it.
     window_s: f64,
@@ -401,6 +411,8 @@ impl Guide {
             params,
             gain: 1.0,
             mode: GuideGain::Fixed { gain: 1.0 },
+            pass: 0,
+            pass_done: false,
             window_s: 0.0,
             window_engaged_s: 0.0,
             window_error_m_s: 0.0,
@@ -441,8 +453,10 @@ impl Guide {
 
     /// How the gain is set from now on (its initial value at once).
     pub fn set_gain_mode(&mut self, mode: GuideGain) {
-        self.mode = mode;
         self.set_gain(mode.initial());
+        self.mode = mode;
+        self.pass = 0;
+        self.pass_done = false;
         self.window_s = 0.0;
         self.window_engaged_s = 0.0;
         self.window_error_m_s = 0.0;
@@ -511,6 +525,7 @@ impl Guide {
                 effective_gain: 0.0,
                 gain: self.gain,
                 passivity_damping: false,
+                pass: self.pass,
             };
         }
         // The target: near the previous one while engaged, anywhere until then.
@@ -534,6 +549,18 @@ impl Guide {
             self.engaged = true;
         } else if self.engaged && distance_m > p.escape_m {
             self.engaged = false;
+            if self.pass_done {
+                // The trainee reached the end and has lifted away: the next pass, at its gain
+                // (a schedule's next entry) from the next tick.
+                self.pass_done = false;
+                self.pass = self.pass.saturating_add(1);
+                if matches!(self.mode, GuideGain::Schedule { .. }) {
+                    self.set_gain(self.mode.for_pass(self.pass as usize));
+                }
+            }
+        }
+        if self.engaged && self.target_s_m >= length_m * PASS_END {
+            self.pass_done = true;
         }
         let step = if p.ramp_s > 0.0 { dt_s / p.ramp_s } else { 1.0 };
         self.ramp = if self.engaged {
@@ -616,6 +643,7 @@ impl Guide {
             effective_gain,
             gain: self.gain,
             passivity_damping,
+            pass: self.pass,
         };
         self.fade(dt_s, distance_m);
         out
@@ -647,47 +675,6 @@ impl Guide {
             self.window_s = 0.0;
             self.window_engaged_s = 0.0;
             self.window_error_m_s = 0.0;
-        }
-    }
-}
-
-/// The gain across attempts.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Fading {
-    /// A gain per attempt, in order; the last one holds for the attempts after it.
-    Schedule(Vec<f64>),
-    /// Guidance as needed: g₀ = `initial`, then g ← clamp(f·g + c·e, 0, 1) after each attempt,
-    /// e its mean distance from the path (m), f the forgetting factor, c the error gain (1/m).
-    AsNeeded {
-        initial: f64,
-        forgetting: f64,
-        error_gain_per_m: f64,
-    },
-}
-
-impl Fading {
-    /// The gain of attempt `attempt` (from 0), given the mean errors of the attempts before it.
-    pub fn gain(&self, attempt: usize, earlier_errors_m: &[f64]) -> f64 {
-        let g = match self {
-            Fading::Schedule(gains) => match gains.get(attempt).or(gains.last()) {
-                Some(g) => *g,
-                None => 0.0,
-            },
-            Fading::AsNeeded {
-                initial,
-                forgetting,
-                error_gain_per_m,
-            } => earlier_errors_m
-                .iter()
-                .take(attempt)
-                .fold(*initial, |g, e| {
-                    (forgetting * g + error_gain_per_m * e.max(0.0)).clamp(0.0, 1.0)
-                }),
-        };
-        if g.is_finite() {
-            g.clamp(0.0, 1.0)
-        } else {
-            0.0
         }
     }
 }
@@ -864,26 +851,6 @@ mod tests {
         assert!(guided < 0.003, "{guided}");
     }
 
-    #[test]
-    fn fading_follows_its_schedule_or_the_trainees_error() {
-        let schedule = Fading::Schedule(vec![1.0, 0.6, 0.3]);
-        let gains: Vec<f64> = (0..5).map(|a| schedule.gain(a, &[])).collect();
-        assert_eq!(gains, [1.0, 0.6, 0.3, 0.3, 0.3]);
-        // As needed: f = 0.5, c = 50 /m; errors of 10, 6, 2 and 1 mm.
-        let as_needed = Fading::AsNeeded {
-            initial: 1.0,
-            forgetting: 0.5,
-            error_gain_per_m: 50.0,
-        };
-        let errors = [0.010, 0.006, 0.002, 0.001];
-        let gains: Vec<f64> = (0..5).map(|a| as_needed.gain(a, &errors)).collect();
-        // 1; 0.5 + 0.5 = 1 (clamped); 0.5 + 0.3 = 0.8; 0.4 + 0.1 = 0.5; 0.25 + 0.05 = 0.3.
-        let expected = [1.0, 1.0, 0.8, 0.5, 0.3];
-        for (g, e) in gains.iter().zip(expected) {
-            assert!((g - e).abs() < 1e-12, "{gains:?}");
-        }
-    }
-
     /// The gain after holding the tip `off_m` to the side of the straight path for `seconds`.
     fn held_off(off_m: f64, seconds: f64) -> (f64, Vec<f64>) {
         let mut guide = Guide::new(straight(), GuideParams::default());
@@ -937,5 +904,46 @@ mod tests {
             0.001,
         );
         assert!(matches!(long, Err(GuideError::TooLong { .. })), "{long:?}");
+    }
+
+    #[test]
+    fn a_schedule_sets_each_pass_gain_and_a_pass_ends_at_the_end_once_let_go() {
+        let mut guide = Guide::new(straight(), GuideParams::default());
+        guide.set_gain_mode(GuideGain::Schedule {
+            gains: vec![1.0, 0.5, 0.0],
+        });
+        let mut t = 0;
+        let mut passes_and_gains = Vec::new();
+        // Along the 100 mm path at 0.1 m/s, then 50 mm up and away, then back to its start.
+        let mut run = |guide: &mut Guide, from: DVec3, to: DVec3, ticks: u64| {
+            for k in 0..ticks {
+                let p = from.lerp(to, k as f64 / ticks as f64);
+                let out = guide.step(p, (to - from) / (ticks as f64 * 1e-3), None, t * MS);
+                t += 1;
+                if passes_and_gains.last() != Some(&(out.pass, out.gain)) {
+                    passes_and_gains.push((out.pass, out.gain));
+                }
+            }
+        };
+        let (start, end) = (DVec3::ZERO, DVec3::new(0.1, 0.0, 0.0));
+        let away = DVec3::new(0.1, 0.05, 0.0);
+        for _ in 0..3 {
+            run(&mut guide, start, end, 1000);
+            run(&mut guide, end, away, 200);
+            run(&mut guide, away, start, 500);
+        }
+        assert_eq!(passes_and_gains, [(0, 1.0), (1, 0.5), (2, 0.0), (3, 0.0)]);
+        // A fault's release is not the end of a pass.
+        let mut guide = Guide::new(straight(), GuideParams::default());
+        guide.set_gain_mode(GuideGain::Schedule {
+            gains: vec![1.0, 0.5],
+        });
+        let out = guide.step(DVec3::new(0.099, 0.0, 0.0), DVec3::ZERO, None, 0);
+        assert!(out.engaged);
+        let out = guide.step(DVec3::new(0.1, 0.0, 0.0), DVec3::ZERO, None, MS);
+        assert!(out.progress >= 0.98);
+        guide.release();
+        let out = guide.step(DVec3::new(0.1, 0.0, 0.0), DVec3::ZERO, None, 2 * MS);
+        assert_eq!((out.pass, out.gain), (0, 1.0));
     }
 }

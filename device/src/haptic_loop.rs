@@ -122,7 +122,7 @@ const STATS_EVERY_TICKS: u64 = 100;
 /// after it.
 const WATCHDOG_SILENT_PERIODS: u64 = 100;
 
-const CONTACT_WORDS: usize = 37;
+const CONTACT_WORDS: usize = 38;
 
 fn contact_to_words(c: &ContactState) -> [u64; CONTACT_WORDS] {
     let mut w = Words::new();
@@ -146,6 +146,7 @@ fn contact_to_words(c: &ContactState) -> [u64; CONTACT_WORDS] {
         gain: 0.0,
         effective_gain: 0.0,
         engaged: false,
+        pass: 0,
     });
     w.bool(c.guide.is_some())
         .vec3(g.force_n)
@@ -153,7 +154,8 @@ fn contact_to_words(c: &ContactState) -> [u64; CONTACT_WORDS] {
         .f64(g.progress)
         .f64(g.gain)
         .f64(g.effective_gain)
-        .bool(g.engaged);
+        .bool(g.engaged)
+        .u64(u64::from(g.pass));
     w.finish()
 }
 
@@ -185,6 +187,7 @@ fn contact_from_words(words: &[u64; CONTACT_WORDS]) -> ContactState {
         gain: r.f64(),
         effective_gain: r.f64(),
         engaged: r.bool(),
+        pass: r.u64() as u32,
     };
     let c = ContactState {
         guide: guided.then_some(g),
@@ -1379,6 +1382,7 @@ mod tests {
                 gain: 0.8,
                 effective_gain: 0.6,
                 engaged: true,
+                pass: 3,
             }),
             ..c
         };

@@ -40,7 +40,7 @@
 //! - [`deviation`]: a trainee's path and force against an expert's, aligned by dynamic time
 //!   warping (offline: after an attempt, never in the loop).
 //! - [`guide`]: haptic guidance along an expert's recorded path (a spring–damper toward a
-//!   target that advances with the trainee's progress), and its fading across attempts.
+//!   target that advances with the trainee's progress), and its gain: fixed, by pass, or as needed.
 //! - [`passivity`]: the passivity observer and controller (Hannaford & Ryu 2002).
 //! - [`thermal`]: [`ContinuousForceLimiter`](thermal::ContinuousForceLimiter), a model of the
 //!   motors' heating that holds the RMS force at the device's continuous rating.

@@ -84,8 +84,11 @@ impl GuideParams {
     }
 }
 
+/// Most gains a schedule lists.
+pub const MAX_SCHEDULED_PASSES: usize = 100;
+
 /// How the guidance's gain is set while a session runs.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "mode", rename_all = "snake_case", deny_unknown_fields)]
 pub enum GuideGain {
     /// One gain, 0 … 1, for the whole session.
@@ -100,6 +103,10 @@ pub enum GuideGain {
         error_gain_per_m: f64,
         window_s: f64,
     },
+    /// A gain per pass along the path, in order; the last holds for the passes after it. A
+    /// pass ends when the trainee, captured, reaches the path's end; the next begins when the
+    /// pull next lets go (the trainee lifts away to start again).
+    Schedule { gains: Vec<f64> },
 }
 
 impl Default for GuideGain {
@@ -120,9 +127,18 @@ impl GuideGain {
 
     /// The gain the session starts with.
     pub fn initial(&self) -> f64 {
-        match *self {
-            GuideGain::Fixed { gain } => gain,
-            GuideGain::AsNeeded { initial, .. } => initial,
+        self.for_pass(0)
+    }
+
+    /// The gain of pass `pass` (from 0): a schedule's entry, the last for later passes; the
+    /// initial gain otherwise (guidance as needed moves on from it by itself).
+    pub fn for_pass(&self, pass: usize) -> f64 {
+        match self {
+            GuideGain::Fixed { gain } => *gain,
+            GuideGain::AsNeeded { initial, .. } => *initial,
+            GuideGain::Schedule { gains } => {
+                gains.get(pass).or(gains.last()).copied().unwrap_or(0.0)
+            }
         }
     }
 
@@ -136,6 +152,12 @@ impl GuideGain {
             }
         };
         match *self {
+            GuideGain::Schedule { ref gains } => {
+                if gains.is_empty() || gains.len() > MAX_SCHEDULED_PASSES {
+                    return Err(("gains", gains.len() as f64));
+                }
+                gains.iter().try_for_each(|g| unit("gains", *g))
+            }
             GuideGain::Fixed { gain } => unit("gain", gain),
             GuideGain::AsNeeded {
                 initial,
@@ -174,6 +196,10 @@ pub struct GuideState {
     pub effective_gain: f64,
     /// Whether the trainee is captured (within the capture distance, not yet escaped).
     pub engaged: bool,
+    /// Passes along the path completed before this one (0 in the first). Absent in recordings
+    /// made before passes were counted: 0.
+    #[serde(default)]
+    pub pass: u32,
 }
 
 impl GuideState {
@@ -189,6 +215,7 @@ impl GuideState {
             gain: f(self.gain),
             effective_gain: f(self.effective_gain),
             engaged: self.engaged,
+            pass: self.pass,
         }
     }
 }
@@ -260,7 +287,7 @@ impl GuidePathInfo {
             path_m,
             length_m,
             max_force_n: guide.params.max_force_n,
-            gain: guide.gain,
+            gain: guide.gain.clone(),
         }
     }
 }

@@ -436,7 +436,8 @@ pub mod schema {
       "progress": {"type": "number", "description": "arc length of the target over the path's, 0 to 1"},
       "gain": {"type": "number", "description": "the fading gain, 0 to 1"},
       "effective_gain": {"type": "number", "description": "the fading gain times the engage/release ramp"},
-      "engaged": {"type": "boolean"}}, "required": ["force_n", "target_m", "progress", "gain", "effective_gain", "engaged"]}
+      "engaged": {"type": "boolean"},
+      "pass": {"type": "integer", "minimum": 0, "description": "passes along the path completed before this one"}}, "required": ["force_n", "target_m", "progress", "gain", "effective_gain", "engaged"]}
   },
   "required": ["tick", "time_ns", "sample", "device_fault", "in_contact", "depth_m", "force_n", "flags"]
 }"##;
@@ -471,7 +472,8 @@ pub mod schema {
       "progress": {"type": "number", "description": "arc length of the target over the path's, 0 to 1"},
       "gain": {"type": "number", "description": "the fading gain, 0 to 1"},
       "effective_gain": {"type": "number", "description": "the fading gain times the engage/release ramp"},
-      "engaged": {"type": "boolean"}}, "required": ["force_n", "target_m", "progress", "gain", "effective_gain", "engaged"]}
+      "engaged": {"type": "boolean"},
+      "pass": {"type": "integer", "minimum": 0, "description": "passes along the path completed before this one"}}, "required": ["force_n", "target_m", "progress", "gain", "effective_gain", "engaged"]}
   },
   "required": ["type", "seq", "tick", "time_ns", "tip_in_world", "in_contact", "depth_m", "normal", "contact_point_m", "contact_radius_m", "deformed_radius_m", "force_n", "flags", "dropped"]
 }"##;
@@ -882,6 +884,7 @@ mod tests {
             gain: 1.0,
             effective_gain: 0.5,
             engaged: true,
+            pass: 2,
         });
         let mut cases: Vec<(&str, Value)> = vec![
             (

@@ -193,20 +193,22 @@ struct RunArgs {
     /// the path.
     #[arg(long, value_name = "EXPERT.mcap")]
     guide: Option<PathBuf>,
-    /// The guidance's gain: a number from 0 (no pull) to 1 held all session, or `as-needed`:
-    /// full at first, then every half second 0.9 × itself + 10 /m × the trainee's mean distance
-    /// from the path (it settles at 0.2 for a 2 mm error, at 1 for 10 mm).
+    /// The guidance's gain: a number from 0 (no pull) to 1 held all session; a list, one gain
+    /// per pass along the path (`1,0.6,0.3,0`: a pass ends when the trainee reaches the path's
+    /// end and lifts away; the last gain holds after the list); or `as-needed`: full at first,
+    /// then every half second 0.9 × itself + 10 /m × the trainee's mean distance from the path
+    /// (it settles at 0.2 for a 2 mm error, at 1 for 10 mm).
     #[arg(
         long,
         default_value = "1",
-        value_name = "GAIN|as-needed",
+        value_name = "GAIN|GAIN,GAIN,…|as-needed",
         requires = "guide"
     )]
     guide_gain: GuideGainArg,
 }
 
 /// `--guide-gain`: a fixed gain, or guidance as needed.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct GuideGainArg(softhaptic_proto::GuideGain);
 
 impl std::str::FromStr for GuideGainArg {
@@ -216,10 +218,25 @@ impl std::str::FromStr for GuideGainArg {
         if s == "as-needed" {
             return Ok(Self(GuideGain::AS_NEEDED));
         }
-        match s.parse::<f64>() {
-            Ok(gain) if (0.0..=1.0).contains(&gain) => Ok(Self(GuideGain::Fixed { gain })),
-            _ => Err(format!(
-                "`{s}` is neither a gain from 0 to 1 nor `as-needed`"
+        let gains = s
+            .split(',')
+            .map(|g| {
+                g.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|g| (0.0..=1.0).contains(g))
+            })
+            .collect::<Option<Vec<f64>>>()
+            .filter(|g| (1..=softhaptic_proto::guide::MAX_SCHEDULED_PASSES).contains(&g.len()));
+        match gains.as_deref() {
+            Some([gain]) => Ok(Self(GuideGain::Fixed { gain: *gain })),
+            Some(_) => Ok(Self(GuideGain::Schedule {
+                gains: gains.unwrap_or_default(),
+            })),
+            None => Err(format!(
+                "`{s}` is neither a gain from 0 to 1, a list of at most {} of them (one per \
+                 pass along the path), nor `as-needed`",
+                softhaptic_proto::guide::MAX_SCHEDULED_PASSES
             )),
         }
     }
@@ -469,7 +486,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
             expert,
             &scene,
             softhaptic_proto::GuideParams::default(),
-            args.guide_gain.0,
+            args.guide_gain.0.clone(),
         )?;
         tracing::info!(
             expert = %expert.display(),

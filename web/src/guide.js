@@ -135,7 +135,8 @@ export class GuideView {
     if (!r.valid || !r.guided) return `${this.info.source}: waiting`;
     const f = Math.hypot(r.guideForce[0], r.guideForce[1], r.guideForce[2]);
     const state = r.guideEngaged ? `${f.toFixed(2)} N` : 'let go';
-    return `gain ${Math.round(r.guideGain * 100)} % · ${state} · ${Math.round(r.guideProgress * 100)} % along`;
+    const pass = this.info.gain.mode === 'schedule' ? ` · pass ${r.guidePass + 1}` : '';
+    return `gain ${Math.round(r.guideGain * 100)} % · ${state} · ${Math.round(r.guideProgress * 100)} % along${pass}`;
   }
 
   /** What is drawn (the browser tests). */
@@ -151,6 +152,7 @@ export class GuideView {
       gain: r.guided ? r.guideGain : null,
       effectiveGain: r.guided ? r.guideEffectiveGain : null,
       engaged: r.guided ? r.guideEngaged : null,
+      pass: r.guided ? r.guidePass : null,
       summary: this.summary(r),
     };
   }

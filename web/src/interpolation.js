@@ -42,7 +42,8 @@ const GUIDE_PROGRESS = 32;
 const GUIDE_GAIN = 33;
 const GUIDE_EFFECTIVE_GAIN = 34;
 const GUIDE_ENGAGED = 35;
-const STRIDE = 36;
+const GUIDE_PASS = 36;
+const STRIDE = 37;
 
 /** Bitmask of a frame's flag names, bit i for `CONTACT_FLAGS[i]`. */
 export function flagBits(flags) {
@@ -84,6 +85,8 @@ export class RenderedContact {
     this.guideGain = 0;
     this.guideEffectiveGain = 0;
     this.guideEngaged = false;
+    /** Passes along the path completed before this one. */
+    this.guidePass = 0;
   }
 }
 
@@ -206,6 +209,7 @@ export class PlayoutBuffer {
     d[o + GUIDE_GAIN] = g ? g.gain : 0;
     d[o + GUIDE_EFFECTIVE_GAIN] = g ? g.effective_gain : 0;
     d[o + GUIDE_ENGAGED] = g?.engaged ? 1 : 0;
+    d[o + GUIDE_PASS] = g?.pass ?? 0;
     d[o + ARRIVAL] = arrivalMs;
     d[o + CLOCK] = t - this.rate * arrivalMs;
     this.head = (this.head + 1) % this.capacity;
@@ -290,6 +294,7 @@ export class PlayoutBuffer {
     out.guideGain = d[near + GUIDE_GAIN];
     out.guideEffectiveGain = lerp(d[h0 + GUIDE_EFFECTIVE_GAIN], d[h1 + GUIDE_EFFECTIVE_GAIN], sGuide);
     out.guideEngaged = d[near + GUIDE_ENGAGED] === 1;
+    out.guidePass = d[near + GUIDE_PASS];
     slerp(d, a + QUAT, b + QUAT, s, out.orientation);
 
     // Contact geometry: between two frames in contact everything blends; across the start or

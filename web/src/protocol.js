@@ -347,11 +347,16 @@ function validateGuideState(g, field) {
   unit(g.gain, `${field}.gain`);
   unit(g.effective_gain, `${field}.effective_gain`);
   boolean(g.engaged, `${field}.engaged`);
+  // Absent from recordings made before passes were counted.
+  if (g.pass !== undefined) count(g.pass, `${field}.pass`);
   return g;
 }
 
-/** How the guidance's gain is set: `fixed` (one gain) or `as_needed` (fading with the error). */
-export const GUIDE_GAIN_MODES = ['fixed', 'as_needed'];
+/**
+ * How the guidance's gain is set: `fixed` (one gain), `as_needed` (fading with the error) or
+ * `schedule` (a gain per pass along the path).
+ */
+export const GUIDE_GAIN_MODES = ['fixed', 'as_needed', 'schedule'];
 
 /** The expert's path in a `scene` message (`scene.guide`). */
 function validateGuidePath(g, field) {

@@ -100,6 +100,7 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             gain: 0.75,
             effective_gain: 0.5,
             engaged: true,
+            pass: 0,
         }),
         ..pressing
     };

@@ -396,7 +396,7 @@ impl Scene {
             .map_err(|(name, value)| format!("gain.{name} = {value} is out of range"))?;
         let path = GuidePath::from_recorded(&recorded).map_err(|e| e.to_string())?;
         let mut guide = Guide::new(path, recorded.params);
-        guide.set_gain_mode(recorded.gain);
+        guide.set_gain_mode(recorded.gain.clone());
         self.guide = Some(SceneGuide { recorded, guide });
         Ok(())
     }

@@ -10,6 +10,7 @@
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
+use softhaptic_device::deviation::{Deviation, deviation};
 use softhaptic_device::guide::{GuideError, GuidePath};
 use softhaptic_proto::guide::{GuideGain, GuideParams, RecordedGuide};
 use softhaptic_proto::wire::SceneMessage;
@@ -207,7 +208,8 @@ fn same_placement(
 }
 
 /// How a guided session went: how long the pull held the trainee, how far from the target,
-/// the gain's range, and the deviation from the expert after time alignment.
+/// the gain's range, and the deviation from the expert after time alignment, over the whole
+/// session and pass by pass.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GuidanceSummary {
     /// The expert's recording, by file name.
@@ -222,37 +224,47 @@ pub struct GuidanceSummary {
     pub last_gain: f64,
     /// The trainee's path and force against the expert's, aligned by dynamic time warping over
     /// the stretch from the first captured tick to the last (`None`: never captured).
-    pub deviation: Option<softhaptic_device::deviation::Deviation>,
+    pub deviation: Option<Deviation>,
+    /// Each pass along the path (an attempt: from its first captured tick to its last).
+    pub passes: Vec<PassSummary>,
+}
+
+/// One pass along the expert's path.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PassSummary {
+    /// From 0.
+    pub pass: u32,
+    /// The fading gain at the pass's first captured tick.
+    pub gain: f64,
+    /// Time captured during the pass, s.
+    pub engaged_s: f64,
+    /// Whether the trainee reached the path's end in it.
+    pub reached_end: bool,
+    pub deviation: Option<Deviation>,
 }
 
 /// Every how many ticks the trainee's path is sampled for the alignment: 10 ms, finer than a
 /// hand's motion, and the alignment's cost stays small for a long session.
 const DEVIATION_EVERY_TICKS: usize = 10;
 
+/// Most passes summarised (the rest are counted in the session's figures only).
+const MAX_PASSES: usize = 100;
+
 /// The summary of a guided recording (`None` for a session without a guide).
 pub fn summary(recording: &Recording) -> Option<GuidanceSummary> {
     let guide = recording.scene.guide.as_ref()?;
-    let mut engaged_ticks = 0_u64;
-    let mut tracking_sum_m = 0.0;
-    let mut least_gain = f64::INFINITY;
-    let mut last_gain = guide.gain.initial();
-    let mut first_engaged = None;
-    let mut last_engaged = None;
-    for (i, r) in recording.device.iter().enumerate() {
-        let Some(g) = &r.guide else { continue };
-        least_gain = least_gain.min(g.gain);
-        last_gain = g.gain;
-        if !g.engaged {
-            continue;
-        }
-        first_engaged.get_or_insert(i);
-        last_engaged = Some(i);
-        if let Some(s) = &r.sample {
-            engaged_ticks += 1;
-            tracking_sum_m += DVec3::from_array(s.tip_position_m).distance(g.target_m);
-        }
-    }
-    let deviation = first_engaged.zip(last_engaged).and_then(|(from, to)| {
+    let period_s = recording.scene.period_ns as f64 * 1e-9;
+    let forces = guide.forces_n.as_deref();
+    let expert: Vec<_> = guide
+        .points_m
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let f = forces.and_then(|f| f.get(i)).copied().unwrap_or(0.0);
+            (DVec3::from_array(*p), f)
+        })
+        .collect();
+    let aligned = |from: usize, to: usize| {
         let trainee: Vec<_> = recording.device[from..=to]
             .iter()
             .step_by(DEVIATION_EVERY_TICKS)
@@ -264,22 +276,48 @@ pub fn summary(recording: &Recording) -> Option<GuidanceSummary> {
                 ))
             })
             .collect();
-        let forces = guide.forces_n.as_deref();
-        let expert: Vec<_> = guide
-            .points_m
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                let f = forces.and_then(|f| f.get(i)).copied().unwrap_or(0.0);
-                (DVec3::from_array(*p), f)
-            })
-            .collect();
-        softhaptic_device::deviation::deviation(&trainee, &expert)
-    });
-    let period_s = recording.scene.period_ns as f64 * 1e-9;
+        deviation(&trainee, &expert)
+    };
+    let mut engaged_ticks = 0_u64;
+    let mut tracking_sum_m = 0.0;
+    let mut least_gain = f64::INFINITY;
+    let mut last_gain = guide.gain.initial();
+    let mut first_engaged = None;
+    let mut last_engaged = None;
+    // Per pass: (pass, gain, first engaged tick, last engaged tick, engaged ticks, reached end).
+    let mut passes: Vec<(u32, f64, usize, usize, u64, bool)> = Vec::new();
+    for (i, r) in recording.device.iter().enumerate() {
+        let Some(g) = &r.guide else { continue };
+        least_gain = least_gain.min(g.gain);
+        last_gain = g.gain;
+        if !g.engaged {
+            continue;
+        }
+        first_engaged.get_or_insert(i);
+        last_engaged = Some(i);
+        let count = passes.len();
+        match passes.last_mut() {
+            Some(p) if p.0 == g.pass => {
+                p.3 = i;
+                p.4 += 1;
+                p.5 |= g.progress >= 0.98;
+            }
+            _ if count < MAX_PASSES => {
+                passes.push((g.pass, g.gain, i, i, 1, g.progress >= 0.98));
+            }
+            _ => {}
+        }
+        if let Some(s) = &r.sample {
+            engaged_ticks += 1;
+            tracking_sum_m += DVec3::from_array(s.tip_position_m).distance(g.target_m);
+        }
+    }
+    let deviation = first_engaged
+        .zip(last_engaged)
+        .and_then(|(from, to)| aligned(from, to));
     Some(GuidanceSummary {
         source: guide.source.clone(),
-        gain: guide.gain,
+        gain: guide.gain.clone(),
         engaged_s: engaged_ticks as f64 * period_s,
         mean_tracking_m: if engaged_ticks > 0 {
             tracking_sum_m / engaged_ticks as f64
@@ -293,5 +331,15 @@ pub fn summary(recording: &Recording) -> Option<GuidanceSummary> {
         },
         last_gain,
         deviation,
+        passes: passes
+            .into_iter()
+            .map(|(pass, gain, from, to, ticks, reached_end)| PassSummary {
+                pass,
+                gain,
+                engaged_s: ticks as f64 * period_s,
+                reached_end,
+                deviation: aligned(from, to),
+            })
+            .collect(),
     })
 }

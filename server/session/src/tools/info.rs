@@ -402,11 +402,19 @@ impl Info {
         let Some(g) = &self.guidance else {
             return Ok(());
         };
-        let gain = match g.gain {
+        let gain = match &g.gain {
             softhaptic_proto::GuideGain::Fixed { gain } => format!("fixed at {gain}"),
             softhaptic_proto::GuideGain::AsNeeded { .. } => format!(
                 "as needed, least {:.2}, last {:.2}",
                 g.least_gain, g.last_gain
+            ),
+            softhaptic_proto::GuideGain::Schedule { gains } => format!(
+                "by pass {}",
+                gains
+                    .iter()
+                    .map(|g| format!("{g}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
             ),
         };
         let source: String = g.source.chars().filter(|c| !c.is_control()).collect();
@@ -424,12 +432,35 @@ impl Info {
                 d.mean_path_m * 1e3,
                 d.max_path_m * 1e3,
                 d.mean_force_n
-            ),
+            )?,
             None => writeln!(
                 f,
                 "                   never captured: no deviation from the expert"
-            ),
+            )?,
         }
+        if g.passes.len() > 1 {
+            for p in &g.passes {
+                let deviation = p.deviation.map_or_else(
+                    || "no deviation".to_owned(),
+                    |d| {
+                        format!(
+                            "path {:.2} mm, force {:.3} N",
+                            d.mean_path_m * 1e3,
+                            d.mean_force_n
+                        )
+                    },
+                );
+                writeln!(
+                    f,
+                    "  pass {} at gain {:.2}: captured {:.2} s{}; {deviation}",
+                    p.pass + 1,
+                    p.gain,
+                    p.engaged_s,
+                    if p.reached_end { ", to the end" } else { "" },
+                )?;
+            }
+        }
+        Ok(())
     }
 
     /// The exercises line: how many attempts, then each one's outcome and the metrics its pass
