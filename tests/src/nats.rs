@@ -397,7 +397,11 @@ pub async fn archive_sessions(
     station: &str,
     files: &[(&str, &str)],
 ) {
-    let dir = crate::scratch_dir(&format!("archive-{station}-{}", files.len()));
+    // A directory of this call's own: tests of one binary run at once, and two archiving for
+    // the same station would otherwise share one and remove each other's files.
+    static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = crate::scratch_dir(&format!("archive-{station}-{}-{call}", files.len()));
     let sessions = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("sessions");
     for (name, source) in files {
         std::fs::copy(sessions.join(source), dir.join(name)).expect("a shipped session copies");
