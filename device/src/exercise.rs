@@ -67,6 +67,79 @@ enum Kind {
     Press(PressScorer),
     Trace(TraceScorer),
     Palpation(Box<PalpationScorer>),
+    Follow(Box<FollowScorer>),
+}
+
+/// The path deviation of an attempt never captured by the guide: the default capture distance,
+/// nearer than which the trainee would have been captured.
+const FOLLOW_UNCAPTURED_M: f64 = 0.015;
+
+/// Most samples a follow attempt keeps for its alignment: 10 minutes at one per 10 ms.
+const FOLLOW_MAX_SAMPLES: usize = 60_000;
+/// Every how many ticks a follow attempt samples the tip (10 ms at 1 kHz), as `info`'s alignment.
+const FOLLOW_EVERY_TICKS: u64 = 10;
+
+/// A guided pass along the expert's path: the tip and force sampled from the first captured
+/// tick, the pass it started in, and whether the guide has moved on to the next.
+#[derive(Debug, Clone)]
+struct FollowScorer {
+    expert: Vec<crate::deviation::Sample>,
+    samples: Vec<crate::deviation::Sample>,
+    /// Samples taken up to the last captured tick (the rest are the trainee lifting away).
+    captured_len: usize,
+    ticks: u64,
+    first_pass: Option<u32>,
+    first_gain: Option<f64>,
+    next_pass_begun: bool,
+}
+
+impl FollowScorer {
+    fn new(task: &softhaptic_proto::exercise::FollowTask) -> Self {
+        Self {
+            expert: task
+                .expert_path
+                .iter()
+                .map(|(p, f)| (DVec3::from_array(*p), *f))
+                .collect(),
+            samples: Vec::new(),
+            captured_len: 0,
+            ticks: 0,
+            first_pass: None,
+            first_gain: None,
+            next_pass_begun: false,
+        }
+    }
+
+    fn tick(&mut self, t: &TickInput, force_n: f64) {
+        let Some(g) = t.guide else { return };
+        if self.next_pass_begun {
+            return;
+        }
+        let pass = *self.first_pass.get_or_insert(g.pass);
+        if g.pass != pass {
+            self.next_pass_begun = true;
+            return;
+        }
+        // From the first captured tick on.
+        if self.first_gain.is_none() && !g.engaged {
+            return;
+        }
+        self.first_gain.get_or_insert(g.gain);
+        if self.ticks.is_multiple_of(FOLLOW_EVERY_TICKS)
+            && self.samples.len() < FOLLOW_MAX_SAMPLES
+            && let Some(p) = t.tip_position_m
+        {
+            self.samples.push((p, force_n));
+            if g.engaged {
+                self.captured_len = self.samples.len();
+            }
+        }
+        self.ticks += 1;
+    }
+
+    fn deviation(&self) -> Option<crate::deviation::Deviation> {
+        crate::deviation::deviation(&self.samples[..self.captured_len], &self.expert)
+    }
 }
 
 /// Running sums of a force: count, Σ|F|, Σ|F|².
@@ -402,6 +475,7 @@ impl Scorer {
             Task::Press(p) => Kind::Press(PressScorer::new(p)),
             Task::Trace(t) => Kind::Trace(TraceScorer::new(t)),
             Task::Palpation(p) => Kind::Palpation(Box::new(PalpationScorer::new(p))),
+            Task::Follow(f) => Kind::Follow(Box::new(FollowScorer::new(f))),
         };
         Self {
             kind,
@@ -432,6 +506,7 @@ impl Scorer {
             Kind::Press(p) => p.tick(t, force_n, gap),
             Kind::Trace(s) => s.tick(t, force_n, dt_s, gap),
             Kind::Palpation(s) => s.tick(t, force_n),
+            Kind::Follow(s) => s.tick(t, force_n),
         }
     }
 
@@ -442,6 +517,9 @@ impl Scorer {
             Kind::Press(p) => p.held_at_ns.is_some(),
             Kind::Trace(s) => s.coverage() >= s.task.min_coverage,
             Kind::Palpation(_) => false,
+            // The pass is over once the guide has moved on to the next one: the trainee reached
+            // the end and lifted away.
+            Kind::Follow(s) => s.next_pass_begun,
         }
     }
 
@@ -521,6 +599,21 @@ impl Scorer {
                 put("coverage", p.coverage());
                 put("mean_force_n", p.force.mean());
             }
+            Kind::Follow(f) => {
+                // Never captured: as far as the path can be judged, the largest of the
+                // trainee's distances there is none, so the capture distance stands in.
+                let d = f.deviation();
+                put(
+                    "path_deviation_m",
+                    d.map_or(FOLLOW_UNCAPTURED_M, |d| d.mean_path_m),
+                );
+                put(
+                    "max_path_deviation_m",
+                    d.map_or(FOLLOW_UNCAPTURED_M, |d| d.max_path_m),
+                );
+                put("force_deviation_n", d.map_or(0.0, |d| d.mean_force_n));
+                put("guide_gain", f.first_gain.unwrap_or(0.0));
+            }
         }
         Score {
             completed: self.goal_reached(),
@@ -559,6 +652,7 @@ mod tests {
             force_n: DVec3::new(0.0, force, 0.0),
             flags: ContactFlags::empty(),
             buttons: 0,
+            guide: None,
         }
     }
 
@@ -767,5 +861,56 @@ mod tests {
         assert!(score.safe);
         // A lump missed: not completed.
         assert!(!score.completed);
+    }
+
+    #[test]
+    fn a_follow_scores_its_pass_aligned_with_the_experts_and_ends_with_the_next_pass() {
+        // The expert: 50 mm along x at 1 N. The trainee: the same path 2 mm aside at 1.5 N,
+        // captured, at its own pace; then it lifts away and the guide's next pass begins.
+        let task = Task::Follow(softhaptic_proto::exercise::FollowTask {
+            expert: "expert.mcap".into(),
+            safe_force_n: 2.0,
+            expert_path: (0..=50)
+                .map(|i| ([0.001 * i as f64, 0.0, 0.0], 1.0))
+                .collect(),
+        });
+        let guide = |pass: u32, engaged: bool| {
+            Some(softhaptic_proto::GuideState {
+                force_n: DVec3::ZERO,
+                target_m: DVec3::ZERO,
+                progress: 0.0,
+                gain: 0.6,
+                effective_gain: 0.6,
+                engaged,
+                pass,
+            })
+        };
+        let mut s = Scorer::new(&task);
+        // Free and not yet captured: not sampled.
+        for ms in 0..100 {
+            s.update(&TickInput {
+                guide: guide(0, false),
+                ..tick(ms, DVec3::new(0.0, 0.03, 0.0), 0.0)
+            });
+        }
+        for ms in 100..2100 {
+            let x = 0.05 * (ms - 100) as f64 / 2000.0;
+            s.update(&TickInput {
+                guide: guide(0, true),
+                ..tick(ms, DVec3::new(x, 0.0, 0.002), 1.5)
+            });
+        }
+        assert!(!s.completed());
+        s.update(&TickInput {
+            guide: guide(1, false),
+            ..tick(2100, DVec3::new(0.05, 0.04, 0.0), 0.0)
+        });
+        assert!(s.completed());
+        let score = s.score();
+        let m = &score.metrics;
+        assert!((m["path_deviation_m"] - 0.002).abs() < 1e-4, "{m:?}");
+        assert!((m["force_deviation_n"] - 0.5).abs() < 1e-9, "{m:?}");
+        assert_eq!(m["guide_gain"], 0.6);
+        assert!(score.completed && score.safe);
     }
 }

@@ -54,6 +54,8 @@ pub struct TickInput {
     pub flags: ContactFlags,
     /// The device's buttons (bit 0: the first), 0 on a fault tick.
     pub buttons: u32,
+    /// The guidance's pull this tick, in a guided session.
+    pub guide: Option<softhaptic_proto::GuideState>,
 }
 
 impl TickInput {
@@ -76,6 +78,7 @@ impl TickInput {
             force_n: DVec3::from_array(r.force_n),
             flags,
             buttons: r.sample.filter(|_| !fault).map_or(0, |s| s.buttons),
+            guide: r.guide,
         }
     }
 }
@@ -297,6 +300,7 @@ mod tests {
             force_n: DVec3::new(0.0, force, 0.0),
             flags: ContactFlags::empty(),
             buttons: 0,
+            guide: None,
         }
     }
 

@@ -331,6 +331,7 @@ impl HapticWorld {
             force_n: state.force_n,
             flags: state.flags,
             buttons: if fault { 0 } else { state.buttons },
+            guide: state.guide,
         });
         TickOutcome {
             state,

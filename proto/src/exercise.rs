@@ -1,7 +1,7 @@
 //! Exercises: a task with a goal, a time limit and pass marks, scored from the 1 kHz ticks.
 //!
-//! Three kinds: press a site to a force window and hold it, trace a path, and palpate (find the
-//! scene's hidden inclusions and mark them). An exercise file (`exercises/*.toml`, loaded and
+//! Four kinds: press a site to a force window and hold it, trace a path, palpate (find the
+//! scene's hidden inclusions and mark them), and follow an expert's path, guided. An exercise file (`exercises/*.toml`, loaded and
 //! validated by the server) becomes an
 //! [`Exercise`]: its geometry in the world frame, ready for the scorer
 //! (`softhaptic_device::exercise`). Each [`Task`] kind names its metrics once
@@ -38,6 +38,7 @@ pub enum Task {
     Press(PressTask),
     Trace(TraceTask),
     Palpation(PalpationTask),
+    Follow(FollowTask),
 }
 
 /// Reach a force window at a marked site and hold it, without exceeding a safe force.
@@ -107,6 +108,21 @@ pub struct PalpationTask {
 pub struct PalpationTarget {
     pub centre_m: [f64; 3],
     pub radius_m: f64,
+}
+
+/// Follow the expert's path once, guided along it (`run --guide`): an attempt is one pass, from
+/// its start until the trainee, having reached the path's end, lifts away (the guide's next
+/// pass), or the time limit. The gain of each pass is the guide's (`--guide-gain 1,0.6,0.3`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FollowTask {
+    /// The expert's recording the station must be guided by, by file name.
+    pub expert: String,
+    pub safe_force_n: f64,
+    /// The expert's path: each resampled point and the size of the expert's force there, world
+    /// frame. Taken from the station's guide, which every viewer already has in its `scene`
+    /// message; not repeated in each `exercise` message.
+    #[serde(skip)]
+    pub expert_path: Vec<([f64; 3], f64)>,
 }
 
 /// Which way a metric is better.
@@ -258,6 +274,45 @@ const PALPATION_METRICS: &[MetricDef] = &[
     },
 ];
 
+const FOLLOW_METRICS: &[MetricDef] = &[
+    MetricDef {
+        name: "path_deviation_m",
+        unit: "m",
+        better: Better::Lower,
+        what: "mean distance from the expert's path after aligning the two in time (dynamic time warping), from the first captured tick to the last",
+    },
+    MetricDef {
+        name: "max_path_deviation_m",
+        unit: "m",
+        better: Better::Lower,
+        what: "largest distance from the expert's path over the same alignment",
+    },
+    MetricDef {
+        name: "force_deviation_n",
+        unit: "N",
+        better: Better::Lower,
+        what: "mean difference between the trainee's and the expert's force over the same alignment",
+    },
+    MetricDef {
+        name: "guide_gain",
+        unit: "1",
+        better: Better::Lower,
+        what: "the guidance's gain at the start of the attempt (less help is better)",
+    },
+    MetricDef {
+        name: "peak_force_n",
+        unit: "N",
+        better: Better::Lower,
+        what: "largest force during the attempt",
+    },
+    MetricDef {
+        name: "time_above_safe_s",
+        unit: "s",
+        better: Better::Lower,
+        what: "time spent above the safe force",
+    },
+];
+
 impl Task {
     /// The kind's name in exercise files.
     pub fn kind(&self) -> &'static str {
@@ -265,6 +320,7 @@ impl Task {
             Task::Press(_) => "press",
             Task::Trace(_) => "trace",
             Task::Palpation(_) => "palpation",
+            Task::Follow(_) => "follow",
         }
     }
 
@@ -274,6 +330,7 @@ impl Task {
             Task::Press(_) => PRESS_METRICS,
             Task::Trace(_) => TRACE_METRICS,
             Task::Palpation(_) => PALPATION_METRICS,
+            Task::Follow(_) => FOLLOW_METRICS,
         }
     }
 
@@ -288,6 +345,7 @@ impl Task {
             Task::Press(p) => p.safe_force_n,
             Task::Trace(t) => t.safe_force_n,
             Task::Palpation(p) => p.safe_force_n,
+            Task::Follow(f) => f.safe_force_n,
         }
     }
 }

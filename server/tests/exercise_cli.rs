@@ -82,6 +82,7 @@ fn the_shipped_exercises_check() {
         repo("exercises/press-hold.toml"),
         repo("exercises/trace-line.toml"),
         repo("exercises/palpation.toml"),
+        repo("exercises/follow-slide.toml"),
     ];
     let mut args: Vec<&std::ffi::OsStr> = vec!["exercise".as_ref(), "check".as_ref()];
     args.extend(files.iter().map(|f| f.as_os_str()));
@@ -90,6 +91,50 @@ fn the_shipped_exercises_check() {
     assert!(out.contains("Trace a line at 1 N (trace, 30 s)"), "{out}");
     assert!(out.contains("Find the lumps (palpation, 90 s)"), "{out}");
     assert!(out.contains("for 2 inclusions"), "{out}");
+    assert!(
+        out.contains("Follow the expert's slide (follow, 30 s)")
+            && out.contains("the path comes from the station's --guide"),
+        "{out}"
+    );
+}
+
+#[test]
+fn a_guided_slide_scores_its_deviation_from_the_expert_and_a_station_needs_the_guide() {
+    // The shipped guided session: a loose hand 6 mm beside the slide, pulled at full gain. It
+    // never lifts away, so the pass (the attempt) does not end; the deviation is `info`'s.
+    let out = score(
+        &repo("tests/sessions/guided-slide.mcap"),
+        &repo("exercises/follow-slide.toml"),
+    );
+    let path_m = metric(&out, "path_deviation_m");
+    assert!((0.0015..0.0021).contains(&path_m), "{out}");
+    assert!(
+        (metric(&out, "force_deviation_n") - 0.19).abs() < 0.02,
+        "{out}"
+    );
+    assert_eq!(metric(&out, "guide_gain"), 1.0, "{out}");
+    assert!(
+        out.contains("mark path_deviation_m") && out.contains("not completed"),
+        "{out}"
+    );
+    // Without a guide the station cannot run it, and says how.
+    let follow = repo("exercises/follow-slide.toml");
+    let default = repo("scenes/default.toml");
+    let out = softhaptic(&[
+        "run".as_ref(),
+        "--addr".as_ref(),
+        "127.0.0.1:0".as_ref(),
+        "--no-realtime".as_ref(),
+        "--scene".as_ref(),
+        default.as_os_str(),
+        "--exercises".as_ref(),
+        follow.as_os_str(),
+        "--trainee".as_ref(),
+        "ana".as_ref(),
+    ]);
+    assert!(!out.status.success());
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("start it with --guide slide.mcap"), "{e}");
 }
 
 fn score(recording: &Path, exercise: &Path) -> String {

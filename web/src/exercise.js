@@ -27,6 +27,9 @@ export function targetText(task) {
       `of the ring, hold ${task.hold_s} s; stay below ${task.safe_force_n} N`
     );
   }
+  if (task.kind === 'follow') {
+    return `follow ${task.expert}'s path once, to its end, then lift away; stay below ${task.safe_force_n} N`;
+  }
   if (task.kind === 'palpation') {
     return (
       `find the lumps within the ${(task.area_radius_m * 1e3).toFixed(0)} mm circle and mark each with ` +
@@ -171,6 +174,11 @@ export class ExercisePanel {
     }
     this.drawnKey = key;
     const task = m.exercise.task;
+    if (task.kind === 'follow') {
+      // Its path is the guide's, drawn with the guide.
+      this.drawn = { kind: task.kind, points: [], object: null };
+      return;
+    }
     const n = new THREE.Vector3(...task.normal).normalize();
     const lift = n.clone().multiplyScalar(LIFT_M);
     let points;

@@ -508,7 +508,7 @@ function validateMetrics(m) {
 }
 
 const EXERCISE_STATES = ['running', 'ended'];
-const EXERCISE_KINDS = ['press', 'trace', 'palpation'];
+const EXERCISE_KINDS = ['press', 'trace', 'palpation', 'follow'];
 
 /**
  * `exercise`: the exercise a station runs for its trainee and where the attempt stands (the
@@ -544,6 +544,9 @@ function validateExercise(m) {
     vector(task.area_centre_m, 3, 'exercise.exercise.task.area_centre_m');
     vector(task.normal, 3, 'exercise.exercise.task.normal');
     positive(task.area_radius_m, 'exercise.exercise.task.area_radius_m');
+  } else if (task.kind === 'follow') {
+    // The path is the guide's, in the scene message.
+    string(task.expert, 'exercise.exercise.task.expert');
   } else {
     if (!Array.isArray(task.path_m) || task.path_m.length < 2) {
       throw new ProtocolError('exercise.exercise.task.path_m', 'expected a path of at least 2 points');

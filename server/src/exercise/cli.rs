@@ -140,6 +140,18 @@ fn summary(loaded: &LoadedExercise) -> String {
             );
         }
         softhaptic_proto::exercise::Task::Palpation(_) => {}
+        softhaptic_proto::exercise::Task::Follow(f) => {
+            let points = if f.expert_path.is_empty() {
+                "the path comes from the station's --guide".to_owned()
+            } else {
+                format!("{} points", f.expert_path.len())
+            };
+            let _ = writeln!(
+                out,
+                "  follow the path of {} once, guided ({points}), to its end and away; safe force {} N",
+                f.expert, f.safe_force_n
+            );
+        }
         softhaptic_proto::exercise::Task::Trace(t) => {
             let _ = writeln!(
                 out,

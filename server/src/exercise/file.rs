@@ -28,8 +28,8 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 use serde::Deserialize;
 use softhaptic_proto::exercise::{
-    Better, Exercise, ExpertSpread, PalpationTarget, PalpationTask, PassMark, PressTask, Task,
-    TraceTask,
+    Better, Exercise, ExpertSpread, FollowTask, PalpationTarget, PalpationTask, PassMark,
+    PressTask, Task, TraceTask,
 };
 
 use crate::files::FileKind;
@@ -71,8 +71,17 @@ struct ExerciseFile {
     press: Option<PressSection>,
     trace: Option<TraceSection>,
     palpation: Option<PalpationSection>,
+    follow: Option<FollowSection>,
     #[serde(default)]
     pass: BTreeMap<String, PassSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FollowSection {
+    /// The expert's recording the station is guided by (`run --guide`), by file name.
+    expert: String,
+    safe_force_n: Option<f64>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -285,10 +294,11 @@ fn check(file: ExerciseFile, path: &Path, scene: &Scene) -> Result<Exercise, Exe
         ("press", file.press.is_some()),
         ("trace", file.trace.is_some()),
         ("palpation", file.palpation.is_some()),
+        ("follow", file.follow.is_some()),
     ] {
         if present
             && section != file.kind
-            && ["press", "trace", "palpation"].contains(&file.kind.as_str())
+            && ["press", "trace", "palpation", "follow"].contains(&file.kind.as_str())
         {
             return Err(c.refuse(
                 section,
@@ -475,10 +485,44 @@ fn check(file: ExerciseFile, path: &Path, scene: &Scene) -> Result<Exercise, Exe
                     .collect(),
             })
         }
+        "follow" => {
+            let Some(f) = file.follow else {
+                return Err(c.refuse(
+                    "follow",
+                    "a follow exercise needs its [follow] section".into(),
+                ));
+            };
+            // Placed in a scene without a guide (`exercise check`, or a recording made without
+            // one) the task has no path to follow: a station refuses it (`station_exercises`),
+            // and an attempt scored against it is never captured.
+            let empty = Vec::new();
+            let (points, forces) = match &scene.guide {
+                Some(guide) if guide.recorded.source != f.expert => {
+                    return Err(c.refuse(
+                        "follow.expert",
+                        format!(
+                            "the scene is guided by {:?}, not {:?}",
+                            guide.recorded.source, f.expert
+                        ),
+                    ));
+                }
+                Some(guide) => (&guide.recorded.points_m, guide.recorded.forces_n.as_deref()),
+                None => (&empty, None),
+            };
+            Task::Follow(FollowTask {
+                expert: f.expert,
+                safe_force_n: safe("follow.safe_force_n", f.safe_force_n)?,
+                expert_path: points
+                    .iter()
+                    .enumerate()
+                    .map(|(i, p)| (*p, forces.and_then(|f| f.get(i)).copied().unwrap_or(0.0)))
+                    .collect(),
+            })
+        }
         other => {
             return Err(c.refuse(
                 "kind",
-                format!("must be \"press\", \"trace\" or \"palpation\", got {other:?}"),
+                format!("must be \"press\", \"trace\", \"palpation\" or \"follow\", got {other:?}"),
             ));
         }
     };
@@ -583,7 +627,7 @@ at_most = 0.2
             ),
             (
                 PRESS.replace("kind = \"press\"", "kind = \"poke\""),
-                "kind: must be \"press\", \"trace\" or \"palpation\", got \"poke\"",
+                "kind: must be \"press\", \"trace\", \"palpation\" or \"follow\", got \"poke\"",
             ),
             (
                 PRESS.replace("[pass.hold_force_sd_n]", "[pass.coverage]"),

@@ -69,6 +69,16 @@ pub fn station_exercises(
         }
         // Placed in the station's own scene, the one its ticks are in.
         let placed = LoadedExercise::from_toml(&loaded.source_toml, path, station_scene)?;
+        if let softhaptic_proto::exercise::Task::Follow(f) = &placed.exercise.task
+            && f.expert_path.is_empty()
+        {
+            bail!(
+                "{}: kind: a follow exercise needs the station guided by the expert's \
+                 recording: start it with --guide {}",
+                path.display(),
+                f.expert
+            );
+        }
         out.push(placed);
     }
     Ok(out)

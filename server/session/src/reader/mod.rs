@@ -235,8 +235,10 @@ impl Recording {
                 .map(|m| {
                     let path = match &m.exercise.task {
                         softhaptic_proto::exercise::Task::Trace(t) => t.path_m.len() * 24,
+                        // A follow's expert path is not in the message (#[serde(skip)]).
                         softhaptic_proto::exercise::Task::Press(_)
-                        | softhaptic_proto::exercise::Task::Palpation(_) => 0,
+                        | softhaptic_proto::exercise::Task::Palpation(_)
+                        | softhaptic_proto::exercise::Task::Follow(_) => 0,
                     };
                     size_of::<softhaptic_proto::wire::ExerciseMessage>()
                         + m.exercise_toml.as_ref().map_or(0, String::len)
