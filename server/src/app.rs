@@ -110,6 +110,9 @@ pub struct ServerOptions {
     /// The exercises' feed, when the station runs exercises (`--exercises`): their scorer
     /// publishes to it and instructors' controls reach the scorer through it.
     pub exercises: Option<Arc<stream::ExerciseFeed>>,
+    /// Where the scene's inclusions are published for the viewers who may see them
+    /// ([`crate::exercise::run::inclusions_feed`]); `None`: the scene has none.
+    pub inclusions: Option<Arc<stream::InclusionsFeed>>,
 }
 
 impl ServerOptions {
@@ -133,6 +136,7 @@ impl ServerOptions {
             tls: None,
             lab: None,
             exercises: None,
+            inclusions: None,
         }
     }
 }
@@ -338,7 +342,8 @@ pub async fn start(
             source,
         })?
         .with_rearm(rearm)
-        .with_exercises(options.exercises.take()),
+        .with_exercises(options.exercises.take())
+        .with_inclusions(options.inclusions.take()),
     );
     let meshes = Arc::new(meshes);
     let mut tasks = vec![

@@ -24,10 +24,12 @@ use crate::model::{ModelSpec, ValidityLimits};
 use crate::tool::ToolShape;
 
 mod exercise;
+mod inclusions;
 mod replay;
 pub mod shm1;
 mod vectors;
 pub use exercise::{ExerciseAction, ExerciseControl, ExerciseMessage, ExerciseState};
+pub use inclusions::{InclusionView, InclusionsMessage};
 pub use replay::{
     GapCause, ReplayAction, ReplayControl, ReplayControlError, ReplayGap, ReplayMark, ReplaySpan,
     ReplayStatus,
@@ -38,8 +40,17 @@ pub use vectors::{MessageVector, message_vectors, vector_files};
 pub const PROTOCOL_VERSION: u32 = 1;
 
 /// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
-pub const SERVER_MESSAGE_TYPES: [&str; 9] = [
-    "hello", "scene", "contact", "stats", "metrics", "mark", "refused", "replay", "exercise",
+pub const SERVER_MESSAGE_TYPES: [&str; 10] = [
+    "hello",
+    "scene",
+    "contact",
+    "stats",
+    "metrics",
+    "mark",
+    "refused",
+    "replay",
+    "exercise",
+    "inclusions",
 ];
 
 /// The `type` names of every viewer → server message: [`Auth`], [`ReplayControl`] and
@@ -75,6 +86,9 @@ pub enum ServerMessage {
     Replay(ReplayStatus),
     /// The exercise a station runs and where its attempt stands (stations with exercises).
     Exercise(Box<ExerciseMessage>),
+    /// Where a palpation scene's inclusions are: to instructors while an attempt runs, to
+    /// everyone once it has ended (never to anyone else: they are the trainee's answer).
+    Inclusions(InclusionsMessage),
 }
 
 /// What a connection may do, decided by the token it presented (proto/WIRE.md, "Roles and
@@ -749,6 +763,7 @@ impl ServerMessage {
             ServerMessage::Refused(_) => "refused",
             ServerMessage::Replay(_) => "replay",
             ServerMessage::Exercise(_) => "exercise",
+            ServerMessage::Inclusions(_) => "inclusions",
         }
     }
 
