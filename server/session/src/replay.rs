@@ -654,6 +654,18 @@ impl Player {
             self.send_frame(hub, &frame);
         }
         self.next_contact = self.next_contact.max(due_end);
+        while let Some(s) = self.loop_stats.get(self.next_stats) {
+            if s.time_ns > t {
+                break;
+            }
+            self.send_stats(hub, s);
+            self.next_stats += 1;
+        }
+        self.send_inclusions_due(hub, t);
+    }
+
+    /// Tells the inclusions as the live station had told them by device time `t`.
+    fn send_inclusions_due(&mut self, hub: &StreamHub, t: u64) {
         while let Some((time_ns, revealed, text)) = self.inclusions.get(self.next_inclusions) {
             if *time_ns > t {
                 break;
@@ -664,13 +676,6 @@ impl Player {
                 hub.inclusions.show_instructors(text.clone());
             }
             self.next_inclusions += 1;
-        }
-        while let Some(s) = self.loop_stats.get(self.next_stats) {
-            if s.time_ns > t {
-                break;
-            }
-            self.send_stats(hub, s);
-            self.next_stats += 1;
         }
     }
 
@@ -755,6 +760,7 @@ impl Player {
         {
             self.send_frame(&hub, &first);
             self.next_contact = 1;
+            self.send_inclusions_due(&hub, self.start_ns);
         }
         loop {
             let now = Instant::now();
@@ -791,6 +797,7 @@ impl Player {
                             self.send_frame(&hub, &frame);
                             self.next_contact = at;
                         }
+                        self.send_inclusions_due(&hub, t);
                     }
                     self.send_status(&hub, now);
                 }
