@@ -19,6 +19,7 @@ import { buffer, dom, frameTimes, rendered, state, timings, view } from './conte
 import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ExercisePanel } from './exercise.js';
 import { ForcePlot } from './forceplot.js';
+import { InclusionsView } from './inclusions.js';
 import { parseRenderMesh } from './mesh.js';
 import { ViewerConnection, webSocketUrl } from './connection.js';
 import {
@@ -68,6 +69,7 @@ const STATION_LIST_REFRESH_MS = 2000;
 
 let plot = null;
 let exercisePanel = null;
+let inclusionsView = null;
 let connection = null;
 let timeline = null;
 let stationList = null;
@@ -110,6 +112,9 @@ function testHookParts() {
     get exercisePanel() {
       return exercisePanel;
     },
+    get inclusionsView() {
+      return inclusionsView;
+    },
     get stationList() {
       return stationList;
     },
@@ -135,6 +140,7 @@ function init() {
     scene: () => view.scene,
     send: (text) => connection?.send(text) ?? false,
   });
+  inclusionsView = new InclusionsView({ scene: () => view.scene });
 
   initThree();
   // Only under automation (the browser tests, whose pages wait for `window.__softhaptic`): see
@@ -405,6 +411,7 @@ function onMessage(message, receivedAtMs) {
         // Another session: a replay's timeline stays only if this one is a replay too.
         timeline.hide();
         exercisePanel.reset();
+        inclusionsView.reset();
         buffer.restartClock(receivedAtMs, 1);
         setMode(false);
       }
@@ -450,6 +457,7 @@ function onMessage(message, receivedAtMs) {
     case 'contact':
       state.contactFrames++;
       buffer.push(message, receivedAtMs);
+      inclusionsView.onContact(message);
       plot.push(message.time_ns / 1e6, Math.hypot(message.force_n[0], message.force_n[1], message.force_n[2]));
       break;
     case 'stats':
@@ -463,6 +471,10 @@ function onMessage(message, receivedAtMs) {
       break;
     case 'exercise':
       exercisePanel.onMessage(message, receivedAtMs);
+      inclusionsView.onExercise(message);
+      break;
+    case 'inclusions':
+      inclusionsView.onInclusions(message);
       break;
     default:
       break;
