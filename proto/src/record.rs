@@ -465,6 +465,7 @@ pub mod schema {
     "flags": {"type": "array", "items": {"type": "string"}},
     "dropped": {"type": "integer", "minimum": 0},
     "buttons": {"type": "integer", "minimum": 0, "description": "device button bits, bit 0 the stylus' first button"},
+    "inclusion_force_ratio": {"type": "number", "description": "on an object with inclusions, in contact: the force over the homogeneous tissue's there (absent otherwise)"},
     "guide": {"type": "object", "description": "the guidance's pull this tick (absent without a guide)", "properties": {
       "force_n": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "guiding force, world frame, newtons (part of force_n)"},
       "target_m": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "the target on the expert's path, world frame"},

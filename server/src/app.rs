@@ -141,6 +141,22 @@ impl ServerOptions {
     }
 }
 
+/// The scene's inclusions for the frames' force ratio (`None` without inclusions).
+fn frame_inclusions(scene: &Scene) -> Option<stream::FrameInclusions> {
+    let table = scene.inclusion_table.clone()?;
+    match softhaptic_device::inclusion::InclusionField::new(table, &scene.inclusions) {
+        Ok(field) => Some(stream::FrameInclusions {
+            field,
+            object_in_world: scene.object_in_world,
+        }),
+        // The scene's loading checked the same: the haptic world refused it too.
+        Err(reason) => {
+            tracing::error!(%reason, "the inclusions' field for the frames");
+            None
+        }
+    }
+}
+
 /// A running server. Dropping it without [`RunningServer::shutdown`] still stops the haptic
 /// loop (its own drop does), but viewers are then cut rather than closed.
 pub struct RunningServer {
@@ -350,6 +366,7 @@ pub async fn start(
         tokio::spawn(stream::frame_task(
             Arc::clone(&haptic_loop),
             scene.calibration.clone(),
+            frame_inclusions(&scene),
             Arc::clone(&hub),
             options.frame_period,
             stop_tasks_rx.clone(),

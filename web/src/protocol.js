@@ -325,6 +325,8 @@ function validateContact(m) {
   count(m.dropped, 'contact.dropped');
   // Absent from servers and recordings that predate it (read it as 0).
   if (m.buttons !== undefined) count(m.buttons, 'contact.buttons');
+  // Only on an object with inclusions.
+  if (m.inclusion_force_ratio !== undefined) positive(m.inclusion_force_ratio, 'contact.inclusion_force_ratio');
   return m;
 }
 

@@ -64,6 +64,7 @@ export function installTestHook(ctx) {
       depthM: rendered.depthM,
       contactRadiusM: rendered.contactRadiusM,
       deformedRadiusM: rendered.deformedRadiusM,
+      inclusionForceRatio: rendered.inclusionForceRatio,
       normal: [...rendered.normal],
       point: [...rendered.point],
       position: [...rendered.position],

@@ -112,6 +112,12 @@ test('the trainee is sent no lump before the end; the instructor sees them drawn
       assert.ok(!text.startsWith('{"type":"inclusions"'), text);
       for (const secret of secrets) assert.ok(!text.includes(secret), `${secret} in ${text.slice(0, 200)}`);
     }
+    // Each frame in contact says the force ratio there (what the trainee feels, and the dent
+    // drawn less by it), only where the tool is.
+    const ratios = traineeReceived
+      .filter((t) => t.startsWith('{"type":"contact"') && t.includes('"in_contact":true'))
+      .map((t) => JSON.parse(t).inclusion_force_ratio);
+    assert.ok(ratios.length > 0 && ratios.every((r) => r >= 1), `ratios ${ratios.slice(0, 5)}`);
     const nothing = await trainee.evaluate(() => window.__softhaptic.inclusions());
     assert.equal(nothing.shown, false);
     assert.equal(nothing.spheres.length, 0);

@@ -378,6 +378,12 @@ pub struct ContactFrame {
     /// The guidance's pull at that tick, in a session with a guide (absent otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub guide: Option<crate::GuideState>,
+    /// On an object with stiffer inclusions: the force the contact model gives here over what
+    /// the homogeneous tissue would give (the FEM's force ratio the loop's force used, 1 away
+    /// from every inclusion). The viewer dents the drawn surface less by it. Absent without
+    /// inclusions, and in recordings made before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inclusion_force_ratio: Option<f64>,
     /// Frames this viewer lost so far because it read too slowly. Last, so the server can
     /// splice each viewer's count into one shared encoding.
     pub dropped: u64,
@@ -445,6 +451,7 @@ impl ContactFrame {
             flags: state.flags,
             buttons: state.buttons,
             guide: state.guide.map(crate::GuideState::finite),
+            inclusion_force_ratio: None,
             dropped,
         }
     }

@@ -216,6 +216,13 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             ServerMessage::Contact(ContactFrame::from_state(&guided, 10, 0.0146, 0)),
         ),
         (
+            "contact_over_inclusion",
+            ServerMessage::Contact(ContactFrame {
+                inclusion_force_ratio: Some(1.8),
+                ..ContactFrame::from_state(&pressing, 11, 0.0146, 0)
+            }),
+        ),
+        (
             "contact_free",
             ServerMessage::Contact(ContactFrame::from_state(&free, 9, 0.0, 0)),
         ),

@@ -54,7 +54,8 @@ pub use exercise::{ControlRefusal, EXERCISE_BACKLOG, ExerciseFeed};
 pub use frame::EncodedFrame;
 pub use inclusions::InclusionsFeed;
 pub use tasks::{
-    device_status, frame_task, metrics_message, send_final_metrics, stats_message, stats_task,
+    FrameInclusions, device_status, frame_task, metrics_message, send_final_metrics, stats_message,
+    stats_task,
 };
 pub use viewer::{
     REASON_FLOOD, REFUSED_EXERCISE_BUSY, REFUSED_EXERCISE_NONE, REFUSED_EXERCISE_OBSERVER,
