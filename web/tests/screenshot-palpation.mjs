@@ -1,50 +1,90 @@
-// The instructor's view of a palpation (docs/exercises.md): the palpation scene and exercise run
-// at a station with tokens, and the instructor's page shows the two hidden lumps drawn inside
-// the organ and the trainee's path over its surface, while the trainee's own page (the
-// observer's link) shows neither (web/screenshots/palpation-instructor.jpg).
+// The instructor's view of a palpation (docs/exercises.md): the palpation scene at a station with
+// tokens, searched with a SpaceMouse whose reports come from a script (pressed down, then slid
+// around the top of the liver), and the instructor's page showing the two hidden lumps drawn
+// inside the organ and the trainee's path over its surface; the trainee's own page (the
+// observer's link) would show neither (web/screenshots/palpation-instructor.jpg).
 //
 //   npm run screenshot:palpation    (builds and starts the server as the browser tests do;
 //                                    SOFTHAPTIC_BIN to reuse a built one)
 //
 // The picture is a JPEG kept under 150 KB (the script says its size, and fails above it).
-import { mkdtempSync, rmSync, statSync } from 'node:fs';
+import { mkdtempSync, readFileSync, rmSync, statSync, writeFileSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { fileURLToPath } from 'node:url';
 
 import { launchBrowser } from './browser.mjs';
-import { startServer } from './server.mjs';
+import { REPO, startServer } from './server.mjs';
 
 const PICTURE = fileURLToPath(new URL('../screenshots/palpation-instructor.jpg', import.meta.url));
 const MAX_BYTES = 150 * 1024;
 const WAIT = { timeout: 120000 };
 
+/** A three-axis report of raw values, as hex bytes (id first). */
+function axisReport(id, [x, y, z]) {
+  const bytes = [id];
+  for (const v of [x, y, z]) bytes.push(v & 0xff, (v >> 8) & 0xff);
+  return bytes.map((b) => b.toString(16).padStart(2, '0')).join(' ');
+}
+
+/**
+ * A trainee's search, as a SpaceMouse's reports (the backend's recorded-stream transport): the
+ * puck pushed down onto the organ, then, still pushing, slid one way, across and back, so the
+ * path crosses the top of the liver near the lumps. It starts 15 s in, once the page has loaded.
+ */
+function search() {
+  const lines = ['# a palpation search', 'model 046d:c626', `0 ${axisReport(1, [0, 0, 0])}`];
+  const legs = [
+    [15000, 16500, [0, 0, 350]],
+    [16500, 19000, [-250, 0, 300]],
+    [19000, 20500, [0, 250, 300]],
+    [20500, 23500, [250, 0, 300]],
+    [23500, 25000, [0, -250, 300]],
+    [25000, 90000, [0, 0, 300]],
+  ];
+  for (const [from, to, axes] of legs) for (let t = from; t < to; t += 16) lines.push(`${t} ${axisReport(1, axes)}`);
+  lines.push('');
+  return lines.join('\n');
+}
+
+/** The palpation scene with a SpaceMouse playing `scriptPath` (its files named from the repository). */
+function scene(scriptPath) {
+  const text = readFileSync(join(REPO, 'scenes/palpation.toml'), 'utf8');
+  const device = [
+    '[device]',
+    'kind = "spacemouse"',
+    `report_script = ${JSON.stringify(scriptPath)}`,
+    '',
+    '[device.rate]',
+    'workspace_half_extent_m = [0.03, 0.006, 0.03]',
+    'home_height_m = 0.004',
+    '',
+  ].join('\n');
+  const start = text.indexOf('[device]');
+  const end = text.indexOf('\n[', start + 1) + 1;
+  return (text.slice(0, start) + device + text.slice(end)).replaceAll(
+    '"calibration/',
+    JSON.stringify(join(REPO, 'scenes/calibration')).slice(0, -1) + '/',
+  );
+}
+
 const dir = mkdtempSync(join(tmpdir(), 'softhaptic-screenshot-'));
+writeFileSync(join(dir, 'search.hid'), search());
+writeFileSync(join(dir, 'scene.toml'), scene(join(dir, 'search.hid')));
 const browser = await launchBrowser();
 try {
   const server = await startServer({
-    extraArgs: [
-      '--no-realtime',
-      '--scene',
-      'scenes/palpation.toml',
-      '--record-dir',
-      join(dir, 'sessions'),
-      '--tokens',
-      '--exercises',
-      'exercises/palpation.toml',
-      '--trainee',
-      'ana',
-      '--exercise-pause',
-      'wait',
-    ],
+    extraArgs: ['--no-realtime', '--scene', join(dir, 'scene.toml'), '--no-record', '--tokens'],
     external: false,
   });
   try {
     const page = await browser.newPage({ viewport: { width: 1280, height: 800 } });
     await page.goto(server.url);
     await page.waitForFunction(() => window.__softhaptic?.ready(), null, WAIT);
-    // A few seconds of the scripted hand's search, drawn as its path.
+    // The search, drawn as its path (from 15 s of device time).
     await page.waitForFunction(() => window.__softhaptic.inclusions()?.pathPoints >= 60, null, WAIT);
+    // The search's last leg, then the tool at rest.
+    await page.waitForTimeout(3000);
     const drawn = await page.evaluate(() => window.__softhaptic.inclusions());
     // Close over the lumps, from above and to the side, so both spheres and the path show.
     const c = drawn.spheres
