@@ -202,7 +202,8 @@ pub struct SceneRecord {
     pub meshes: Option<RecordedMeshes>,
     /// The scene's inclusions as placed (values drawn from a seed included) and the FEM table
     /// the force used, so a check rebuilds the same force without reading a file. Absent for a
-    /// scene without inclusions. Kept out of `message`: viewers never see where they are.
+    /// scene without inclusions. Kept out of `message`, which every viewer gets: a replay sends
+    /// them only in `inclusions` messages, by role, as the live station did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inclusions: Option<RecordedInclusions>,
     /// The expert's path the session guided along and the pull's settings, exactly as it ran,
