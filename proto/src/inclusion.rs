@@ -13,8 +13,9 @@
 //! cancels in it.
 //!
 //! Every `InclusionTable` in the program has been validated: deserialising one runs the same
-//! checks as [`InclusionTable::new`]. Nothing here is sent to the viewers: the positions are
-//! what a trainee must find.
+//! checks as [`InclusionTable::new`]. The positions are what a trainee must find: they reach a
+//! viewer only in the `inclusions` message ([`crate::wire::InclusionsMessage`]), which the server
+//! sends by role.
 
 use serde::{Deserialize, Serialize};
 

@@ -202,7 +202,8 @@ pub struct SceneRecord {
     pub meshes: Option<RecordedMeshes>,
     /// The scene's inclusions as placed (values drawn from a seed included) and the FEM table
     /// the force used, so a check rebuilds the same force without reading a file. Absent for a
-    /// scene without inclusions. Kept out of `message`: viewers never see where they are.
+    /// scene without inclusions. Kept out of `message`, which every viewer gets: a replay sends
+    /// them only in `inclusions` messages, by role, as the live station did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inclusions: Option<RecordedInclusions>,
     /// The expert's path the session guided along and the pull's settings, exactly as it ran,
@@ -466,6 +467,7 @@ pub mod schema {
     "flags": {"type": "array", "items": {"type": "string"}},
     "dropped": {"type": "integer", "minimum": 0},
     "buttons": {"type": "integer", "minimum": 0, "description": "device button bits, bit 0 the stylus' first button"},
+    "inclusion_force_ratio": {"type": "number", "description": "on an object with inclusions, in contact: the force over the homogeneous tissue's there (absent otherwise)"},
     "guide": {"type": "object", "description": "the guidance's pull this tick (absent without a guide)", "properties": {
       "force_n": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "guiding force, world frame, newtons (part of force_n)"},
       "target_m": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3, "description": "the target on the expert's path, world frame"},

@@ -110,6 +110,9 @@ pub struct ServerOptions {
     /// The exercises' feed, when the station runs exercises (`--exercises`): their scorer
     /// publishes to it and instructors' controls reach the scorer through it.
     pub exercises: Option<Arc<stream::ExerciseFeed>>,
+    /// Where the scene's inclusions are published for the viewers who may see them
+    /// ([`crate::exercise::run::inclusions_feed`]); `None`: the scene has none.
+    pub inclusions: Option<Arc<stream::InclusionsFeed>>,
 }
 
 impl ServerOptions {
@@ -133,6 +136,23 @@ impl ServerOptions {
             tls: None,
             lab: None,
             exercises: None,
+            inclusions: None,
+        }
+    }
+}
+
+/// The scene's inclusions for the frames' force ratio (`None` without inclusions).
+fn frame_inclusions(scene: &Scene) -> Option<stream::FrameInclusions> {
+    let table = scene.inclusion_table.clone()?;
+    match softhaptic_device::inclusion::InclusionField::new(table, &scene.inclusions) {
+        Ok(field) => Some(stream::FrameInclusions {
+            field,
+            object_in_world: scene.object_in_world,
+        }),
+        // The scene's loading checked the same: the haptic world refused it too.
+        Err(reason) => {
+            tracing::error!(%reason, "the inclusions' field for the frames");
+            None
         }
     }
 }
@@ -338,13 +358,15 @@ pub async fn start(
             source,
         })?
         .with_rearm(rearm)
-        .with_exercises(options.exercises.take()),
+        .with_exercises(options.exercises.take())
+        .with_inclusions(options.inclusions.take()),
     );
     let meshes = Arc::new(meshes);
     let mut tasks = vec![
         tokio::spawn(stream::frame_task(
             Arc::clone(&haptic_loop),
             scene.calibration.clone(),
+            frame_inclusions(&scene),
             Arc::clone(&hub),
             options.frame_period,
             stop_tasks_rx.clone(),

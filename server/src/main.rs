@@ -506,7 +506,14 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         app::StopSignals::listen().context("could not listen for the stop signals")?
     };
     // Before the device is opened: exercises that cannot run here start nothing.
-    let (exercise_run, exercise_feed) = exercise_run(&args, &scene, scene_file.as_deref())?;
+    // Where the scene's inclusions are, for the viewers who may see them (none without).
+    let inclusions_feed = softhaptic_server::exercise::run::inclusions_feed(&scene);
+    let (exercise_run, exercise_feed) = exercise_run(
+        &args,
+        &scene,
+        scene_file.as_deref(),
+        inclusions_feed.clone(),
+    )?;
     // Opened before the recording starts, so that the recording and the viewers are told the
     // limits the device really runs with; a device that cannot be opened stops here.
     let device = devices::open(&mut scene)?;
@@ -536,6 +543,7 @@ fn run(args: RunArgs) -> anyhow::Result<()> {
         options.access = access.clone();
         options.tls = tls.map(|t| t.config);
         options.exercises = exercise_feed;
+        options.inclusions = inclusions_feed;
         let lab = args
             .nats
             .clone()
@@ -635,6 +643,7 @@ fn exercise_run(
     args: &RunArgs,
     scene: &Scene,
     scene_file: Option<&std::path::Path>,
+    inclusions: Option<std::sync::Arc<softhaptic_server::stream::InclusionsFeed>>,
 ) -> anyhow::Result<(
     Option<Box<dyn softhaptic_server::session::writer::TickObserver>>,
     Option<std::sync::Arc<softhaptic_server::stream::ExerciseFeed>>,
@@ -666,6 +675,7 @@ fn exercise_run(
         std::sync::Arc::clone(&feed),
         controls,
         args.exercise_pause.0,
-    )?;
+    )?
+    .with_inclusions(inclusions, scene);
     Ok((Some(Box::new(run)), Some(feed)))
 }

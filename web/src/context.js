@@ -105,6 +105,7 @@ export const scratch = {
     depthM: 0,
     contactRadiusM: 0,
     deformedRadiusM: 0,
+    inclusionForceRatio: 1,
     point: new Float64Array(3),
     normal: new Float64Array(3),
   },

@@ -323,6 +323,31 @@ function surfaceTerm(family, index, weight, d, term) {
 }
 
 /**
+ * Over a stiffer inclusion the surface around the tool dents less (docs/physics.md, "The drawn
+ * surface over an inclusion"): with `forceRatio` the inclusions' force ratio at the contact (the
+ * frame's `inclusion_force_ratio`, 1 away from them), the paper's profile reaches
+ * a + (R_d − a) / ratio instead of R_d. Under the tool the surface still follows the tool.
+ */
+export function stiffenedDeformedRadius(contactRadiusM, deformedRadiusM, forceRatio) {
+  if (!(forceRatio > 1)) return deformedRadiusM;
+  const a = Math.min(contactRadiusM, deformedRadiusM);
+  return a + (deformedRadiusM - a) / forceRatio;
+}
+
+/**
+ * The same for the `fem` profile set up by `surfaceSetup`: its rows' amplitudes (z and u) divided
+ * by `forceRatio`; inside the footprint the surface is still never above the tool (the table
+ * applies that after the rows). Returns `p`.
+ */
+export function stiffenSurface(p, forceRatio) {
+  if (forceRatio > 1) {
+    p.t0.amplitude /= forceRatio;
+    p.t1.amplitude /= forceRatio;
+  }
+  return p;
+}
+
+/**
  * The `fem` profile of `tool` (from `toolShape`) pressed `depthM` deep (proto/WIRE.md, steps 1–2):
  * the one or two rows to blend, each with its amplitude (weight·δ/δ_k) and its samples per metre
  * ((δ_k/δ)^p / Δ), the tool's footprint (inside it the drawn surface is never above the tool)

@@ -8,7 +8,14 @@
 // moves sideways (radially, away from the contact axis or towards it) when the calibration's
 // table carries the FEM surface's radial displacement; a table without it costs nothing more.
 
-import { SURFACE_TABLE_INTERVALS, evaluateAt, profileSetup, surfaceSetup, surfaceTable } from './deformation.js';
+import {
+  SURFACE_TABLE_INTERVALS,
+  evaluateAt,
+  profileSetup,
+  stiffenSurface,
+  surfaceSetup,
+  surfaceTable,
+} from './deformation.js';
 
 /**
  * Deforms one render mesh in its object frame. Built once per mesh; `apply` is called each
@@ -141,7 +148,8 @@ export class MeshDeformer {
   /**
    * Deforms `positionsOut` (and `normalsOut`, when given) for one contact, in the object frame.
    *
-   * `contact`: `{inContact, depthM, contactRadiusM, deformedRadiusM, point: [x,y,z], normal:
+   * `contact`: `{inContact, depthM, contactRadiusM, deformedRadiusM, inclusionForceRatio (optional,
+   * 1 without inclusions: see `stiffenSurface`), point: [x,y,z], normal:
    * [x,y,z]}` with point and normal already in the mesh's object frame; `tool` from
    * `toolFromJson`; `surface` the `fem` profile's family (`surfaceFamilyFromJson`) to draw it,
    * or null for the paper's Bézier. A vertex v moves by −n·z(r) when r is inside the profile's
@@ -197,7 +205,10 @@ export class MeshDeformer {
     const fem = surface !== null;
     let reach;
     if (fem) {
-      const p = surfaceSetup(surface, tool, contact.depthM, this.surfaceProfile);
+      const p = stiffenSurface(
+        surfaceSetup(surface, tool, contact.depthM, this.surfaceProfile),
+        contact.inclusionForceRatio ?? 1,
+      );
       if (p.depthM === 0) return;
       reach = p.reachM;
     } else {

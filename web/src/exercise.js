@@ -5,7 +5,8 @@
 // view it draws the task: the press site's ring (its radius is how near the tool must be) or
 // the path to trace. An instructor on a live station also gets the buttons that start the next
 // exercise, repeat this one or stop it; an observer (a trainee's own screen, a class) does not.
-// A palpation's lumps are never drawn: the message holds only the area to search.
+// A palpation's lumps are not drawn here: the message holds only the area to search (the
+// `inclusions` message, sent by role, is drawn by inclusions.js).
 
 import * as THREE from 'three';
 

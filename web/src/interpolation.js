@@ -35,15 +35,16 @@ const FORCE = 19; // 3
 const FLAGS = 22; // bit i = CONTACT_FLAGS[i]
 const ARRIVAL = 23; // local ms
 const CLOCK = 24; // device ms − rate × local arrival ms
-const GUIDED = 25; // 1 when the frame carries guidance
-const GUIDE_FORCE = 26; // 3
-const GUIDE_TARGET = 29; // 3
-const GUIDE_PROGRESS = 32;
-const GUIDE_GAIN = 33;
-const GUIDE_EFFECTIVE_GAIN = 34;
-const GUIDE_ENGAGED = 35;
-const GUIDE_PASS = 36;
-const STRIDE = 37;
+const RATIO = 25; // the inclusions' force ratio at the contact (1 without)
+const GUIDED = 26; // 1 when the frame carries guidance
+const GUIDE_FORCE = 27; // 3
+const GUIDE_TARGET = 30; // 3
+const GUIDE_PROGRESS = 33;
+const GUIDE_GAIN = 34;
+const GUIDE_EFFECTIVE_GAIN = 35;
+const GUIDE_ENGAGED = 36;
+const GUIDE_PASS = 37;
+const STRIDE = 38;
 
 /** Bitmask of a frame's flag names, bit i for `CONTACT_FLAGS[i]`. */
 export function flagBits(flags) {
@@ -65,6 +66,8 @@ export class RenderedContact {
     this.depthM = 0;
     this.contactRadiusM = 0;
     this.deformedRadiusM = 0;
+    /** The inclusions' force ratio at the contact (`inclusion_force_ratio`; 1 without them). */
+    this.inclusionForceRatio = 1;
     this.normal = new Float64Array([0, 1, 0]);
     this.point = new Float64Array(3);
     this.position = new Float64Array(3);
@@ -191,6 +194,7 @@ export class PlayoutBuffer {
     d[o + DEPTH] = m.depth_m;
     d[o + A] = m.contact_radius_m;
     d[o + RD] = m.deformed_radius_m;
+    d[o + RATIO] = m.inclusion_force_ratio ?? 1;
     for (let i = 0; i < 3; i++) {
       d[o + NORMAL + i] = m.normal[i];
       d[o + POINT + i] = m.contact_point_m[i];
@@ -311,6 +315,7 @@ export class PlayoutBuffer {
     const g1 = cb ? b : a;
     const sg = ca && cb ? s : 0;
     out.deformedRadiusM = lerp(d[g0 + RD], d[g1 + RD], sg);
+    out.inclusionForceRatio = lerp(d[g0 + RATIO], d[g1 + RATIO], sg);
     for (let i = 0; i < 3; i++) out.point[i] = lerp(d[g0 + POINT + i], d[g1 + POINT + i], sg);
     const nx = lerp(d[g0 + NORMAL], d[g1 + NORMAL], sg);
     const ny = lerp(d[g0 + NORMAL + 1], d[g1 + NORMAL + 1], sg);

@@ -20,6 +20,7 @@ import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ExercisePanel } from './exercise.js';
 import { GuideView } from './guide.js';
 import { ForcePlot } from './forceplot.js';
+import { InclusionsView } from './inclusions.js';
 import { parseRenderMesh } from './mesh.js';
 import { ViewerConnection, webSocketUrl } from './connection.js';
 import {
@@ -70,6 +71,7 @@ const STATION_LIST_REFRESH_MS = 2000;
 let plot = null;
 let exercisePanel = null;
 let guideView = null;
+let inclusionsView = null;
 let connection = null;
 let timeline = null;
 let stationList = null;
@@ -115,6 +117,9 @@ function testHookParts() {
     get guideView() {
       return guideView;
     },
+    get inclusionsView() {
+      return inclusionsView;
+    },
     get stationList() {
       return stationList;
     },
@@ -140,6 +145,7 @@ function init() {
     scene: () => view.scene,
     send: (text) => connection?.send(text) ?? false,
   });
+  inclusionsView = new InclusionsView({ scene: () => view.scene });
 
   initThree();
   guideView = new GuideView(view.scene);
@@ -413,6 +419,7 @@ function onMessage(message, receivedAtMs) {
         // Another session: a replay's timeline stays only if this one is a replay too.
         timeline.hide();
         exercisePanel.reset();
+        inclusionsView.reset();
         buffer.restartClock(receivedAtMs, 1);
         setMode(false);
       }
@@ -458,6 +465,7 @@ function onMessage(message, receivedAtMs) {
     case 'contact':
       state.contactFrames++;
       buffer.push(message, receivedAtMs);
+      inclusionsView.onContact(message);
       plot.push(message.time_ns / 1e6, Math.hypot(message.force_n[0], message.force_n[1], message.force_n[2]));
       break;
     case 'stats':
@@ -471,6 +479,10 @@ function onMessage(message, receivedAtMs) {
       break;
     case 'exercise':
       exercisePanel.onMessage(message, receivedAtMs);
+      inclusionsView.onExercise(message);
+      break;
+    case 'inclusions':
+      inclusionsView.onInclusions(message);
       break;
     default:
       break;

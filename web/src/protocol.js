@@ -328,6 +328,8 @@ function validateContact(m) {
   if (m.buttons !== undefined) count(m.buttons, 'contact.buttons');
   // Only in a session guided along an expert's path.
   if (m.guide !== undefined && m.guide !== null) validateGuideState(m.guide, 'contact.guide');
+  // Only on an object with inclusions.
+  if (m.inclusion_force_ratio !== undefined) positive(m.inclusion_force_ratio, 'contact.inclusion_force_ratio');
   return m;
 }
 
@@ -563,6 +565,27 @@ function validateExercise(m) {
   return m;
 }
 
+/**
+ * `inclusions`: where a palpation scene's stiffer inclusions are (world frame), sent only to the
+ * viewers allowed to see them: instructors while an attempt runs, everyone once it has ended
+ * (`revealed`).
+ */
+function validateInclusions(m) {
+  boolean(m.revealed, 'inclusions.revealed');
+  if (m.exercise_index !== null) count(m.exercise_index, 'inclusions.exercise_index');
+  if (m.attempt !== null) count(m.attempt, 'inclusions.attempt');
+  if (!Array.isArray(m.inclusions)) throw new ProtocolError('inclusions.inclusions', 'expected a list');
+  m.inclusions.forEach((inc, i) => {
+    const at = `inclusions.inclusions[${i}]`;
+    object(inc, at);
+    vector(inc.centre_m, 3, `${at}.centre_m`);
+    positive(inc.radius_m, `${at}.radius_m`);
+    positive(inc.stiffness_ratio, `${at}.stiffness_ratio`);
+    nonNegative(inc.centre_depth_m, `${at}.centre_depth_m`);
+  });
+  return m;
+}
+
 /** What an instructor may ask of a station's exercises (`ExerciseAction`). */
 export const EXERCISE_ACTIONS = Object.freeze(['next', 'repeat', 'stop']);
 
@@ -587,6 +610,7 @@ const VALIDATORS = {
   replay: validateReplay,
   refused: validateRefused,
   exercise: validateExercise,
+  inclusions: validateInclusions,
 };
 
 /**

@@ -9,7 +9,14 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
-import { profileSetup, profileTable, surfaceSetup, surfaceTable } from './deformation.js';
+import {
+  profileSetup,
+  profileTable,
+  stiffenSurface,
+  stiffenedDeformedRadius,
+  surfaceSetup,
+  surfaceTable,
+} from './deformation.js';
 import { MeshDeformer } from './deformer.js';
 import { cutMesh, segmentBuffer } from './section.js';
 import { DeformationTable } from './shaderdeform.js';
@@ -273,7 +280,9 @@ export function deformMeshes() {
   c.inContact = rendered.valid && rendered.inContact && !state.restShape;
   c.depthM = rendered.depthM;
   c.contactRadiusM = rendered.contactRadiusM;
-  c.deformedRadiusM = rendered.deformedRadiusM;
+  // Over a stiffer inclusion the drawn surface dents less (deformation.js, `stiffen…`).
+  c.inclusionForceRatio = rendered.inclusionForceRatio;
+  c.deformedRadiusM = stiffenedDeformedRadius(rendered.contactRadiusM, rendered.deformedRadiusM, c.inclusionForceRatio);
   const t0 = performance.now();
   const gpu = state.deformation === 'gpu';
   // Out of contact the shaders draw the rest shape (`place` sets their reach to 0).
@@ -339,7 +348,8 @@ export function deformMeshes() {
 /** This frame's radial table for the vertex shaders: the scene's profile for contact `c`. */
 function profileTableOf(c) {
   if (state.surface !== null) {
-    return surfaceTable(surfaceSetup(state.surface, state.tool, c.depthM, scratch.surfaceProfile), scratch.table);
+    const p = surfaceSetup(state.surface, state.tool, c.depthM, scratch.surfaceProfile);
+    return surfaceTable(stiffenSurface(p, c.inclusionForceRatio), scratch.table);
   }
   const p = profileSetup(state.tool, c.depthM, c.contactRadiusM, c.deformedRadiusM, scratch.profile);
   return profileTable(p, scratch.table);
@@ -350,6 +360,7 @@ function copyContact(from, to) {
   to.depthM = from.depthM;
   to.contactRadiusM = from.contactRadiusM;
   to.deformedRadiusM = from.deformedRadiusM;
+  to.inclusionForceRatio = from.inclusionForceRatio;
   to.point.set(from.point);
   to.normal.set(from.normal);
   to.version++;

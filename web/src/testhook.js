@@ -46,6 +46,8 @@ export function installTestHook(ctx) {
     /** Whether `hello` said the force is felt, and the words the page shows for it. */
     forceFeedback: () => ({ felt: state.forceFeedback, shown: dom.feedback.textContent }),
     sceneLoads: () => state.sceneLoads,
+    /** A palpation scene's inclusions and the trainee's path as drawn (inclusions.js). */
+    inclusions: () => ctx.inclusionsView?.snapshot() ?? null,
     connection: () => ({
       state: ctx.connection.state,
       stats: { ...ctx.connection.stats },
@@ -62,6 +64,7 @@ export function installTestHook(ctx) {
       depthM: rendered.depthM,
       contactRadiusM: rendered.contactRadiusM,
       deformedRadiusM: rendered.deformedRadiusM,
+      inclusionForceRatio: rendered.inclusionForceRatio,
       normal: [...rendered.normal],
       point: [...rendered.point],
       position: [...rendered.position],

@@ -14,6 +14,8 @@ import {
   exactSphereContactRadius,
   profileSetup,
   profileTable,
+  stiffenSurface,
+  stiffenedDeformedRadius,
   surfaceDepressionAt,
   surfaceFamilyFromJson,
   surfaceRadialDisplacementAt,
@@ -431,6 +433,34 @@ test('the fem profile and its drawn table equal the Rust reference on every shar
     if (u !== 0) movedSideways++;
   }
   if (sideways) assert.ok(movedSideways > 10, `${movedSideways} cases move sideways`);
+});
+
+test('over a stiffer inclusion the drawn surface dents less around the tool, never above it under', () => {
+  const c = surfaceVectors.cases.find((x) => num(x.depth_m) > 0.003 && x.tool.shape === 'sphere');
+  const tool = toolShape(c.tool);
+  const d = num(c.depth_m);
+  const plain = surfaceTable(surfaceSetup(families[c.family], tool, d), {});
+  const p = surfaceSetup(families[c.family], tool, d, {});
+  const footprint = p.footprintM;
+  const stiff = surfaceTable(stiffenSurface(p, 2), {});
+  let beyond = 0;
+  for (let k = 0; k <= 200; k++) {
+    const r = (k / 200) * plain.reachM;
+    const z0 = surfaceTableAt(plain, r);
+    const z1 = surfaceTableAt(stiff, r);
+    assert.ok(z1 <= z0 + 1e-12, `r ${r}: ${z1} deeper than ${z0}`);
+    if (r > footprint * 1.2 && z0 > 1e-6) {
+      // Halved beyond the tool (the table's interpolation keeps it within a sample's step).
+      assert.ok(Math.abs(z1 - z0 / 2) < 1e-3 * d + 1e-9, `r ${r}: ${z1} vs ${z0 / 2}`);
+      beyond++;
+    }
+  }
+  assert.ok(beyond > 10, `${beyond} radii beyond the tool`);
+  // Under the tool's tip the surface still follows the tool.
+  close(surfaceTableAt(stiff, 0), d, 'at the tip');
+  // A ratio of 1 (or none) changes nothing; the paper's profile reaches less far.
+  assert.equal(stiffenedDeformedRadius(0.003, 0.012, 1), 0.012);
+  close(stiffenedDeformedRadius(0.003, 0.012, 3), 0.006, 'R_d over a ratio of 3');
 });
 
 /** `json` (a surface family's JSON) with every row moved sideways by `radial(z, j, n)`. */

@@ -37,7 +37,10 @@ test('every shared message vector decodes or is refused as the Rust side says', 
     const decoded = decodeMessage(text);
     const type = (v.json ?? JSON.parse(v.raw)).type;
     if (decoded.kind === 'unknown') {
-      assert.ok(!['hello', 'scene', 'contact', 'stats', 'replay', 'refused', 'exercise'].includes(type), `${v.name}`);
+      assert.ok(
+        !['hello', 'scene', 'contact', 'stats', 'replay', 'refused', 'exercise', 'inclusions'].includes(type),
+        `${v.name}`,
+      );
     } else {
       assert.equal(decoded.message.type, type, v.name);
       seen.add(type);
@@ -54,7 +57,7 @@ test('every shared message vector decodes or is refused as the Rust side says', 
       }
     }
   }
-  for (const type of ['hello', 'scene', 'contact', 'stats', 'replay', 'refused', 'exercise'])
+  for (const type of ['hello', 'scene', 'contact', 'stats', 'replay', 'refused', 'exercise', 'inclusions'])
     assert.ok(seen.has(type), `vectors cover ${type}`);
 });
 
@@ -100,6 +103,21 @@ test('exercise controls are encoded exactly as the Rust side reads them; others 
   assert.ok(running.remaining_s > 0);
   assert.equal(ended.result.passed, true);
   assert.equal(ended.exercise.task.kind, 'press');
+});
+
+test('an inclusions message decodes, and one with a bad radius or centre is refused naming the field', () => {
+  const list = JSON.parse(readFileSync(VECTORS, 'utf8'));
+  const v = list.find((x) => x.name === 'inclusions_revealed');
+  assert.ok(v, 'the vectors hold an inclusions message');
+  const m = decodeMessage(JSON.stringify(v.json)).message;
+  assert.equal(m.revealed, true);
+  assert.equal(m.inclusions[0].radius_m, 0.005);
+  const bad = structuredClone(v.json);
+  bad.inclusions[0].radius_m = -1;
+  assert.throws(() => decodeMessage(JSON.stringify(bad)), /inclusions\.inclusions\[0\]\.radius_m/);
+  const short = structuredClone(v.json);
+  short.inclusions[0].centre_m = [0, 0];
+  assert.throws(() => decodeMessage(JSON.stringify(short)), /inclusions\.inclusions\[0\]\.centre_m/);
 });
 
 test('replay controls are encoded exactly as the Rust side writes them', () => {

@@ -24,10 +24,12 @@ use crate::model::{ModelSpec, ValidityLimits};
 use crate::tool::ToolShape;
 
 mod exercise;
+mod inclusions;
 mod replay;
 pub mod shm1;
 mod vectors;
 pub use exercise::{ExerciseAction, ExerciseControl, ExerciseMessage, ExerciseState};
+pub use inclusions::{InclusionView, InclusionsMessage};
 pub use replay::{
     GapCause, ReplayAction, ReplayControl, ReplayControlError, ReplayGap, ReplayMark, ReplaySpan,
     ReplayStatus,
@@ -38,8 +40,17 @@ pub use vectors::{MessageVector, message_vectors, vector_files};
 pub const PROTOCOL_VERSION: u32 = 1;
 
 /// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
-pub const SERVER_MESSAGE_TYPES: [&str; 9] = [
-    "hello", "scene", "contact", "stats", "metrics", "mark", "refused", "replay", "exercise",
+pub const SERVER_MESSAGE_TYPES: [&str; 10] = [
+    "hello",
+    "scene",
+    "contact",
+    "stats",
+    "metrics",
+    "mark",
+    "refused",
+    "replay",
+    "exercise",
+    "inclusions",
 ];
 
 /// The `type` names of every viewer → server message: [`Auth`], [`ReplayControl`] and
@@ -75,6 +86,9 @@ pub enum ServerMessage {
     Replay(ReplayStatus),
     /// The exercise a station runs and where its attempt stands (stations with exercises).
     Exercise(Box<ExerciseMessage>),
+    /// Where a palpation scene's inclusions are: to instructors while an attempt runs, to
+    /// everyone once it has ended (never to anyone else: they are the trainee's answer).
+    Inclusions(InclusionsMessage),
 }
 
 /// What a connection may do, decided by the token it presented (proto/WIRE.md, "Roles and
@@ -364,6 +378,12 @@ pub struct ContactFrame {
     /// The guidance's pull at that tick, in a session with a guide (absent otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub guide: Option<crate::GuideState>,
+    /// On an object with stiffer inclusions: the force the contact model gives here over what
+    /// the homogeneous tissue would give (the FEM's force ratio the loop's force used, 1 away
+    /// from every inclusion). The viewer dents the drawn surface less by it. Absent without
+    /// inclusions, and in recordings made before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inclusion_force_ratio: Option<f64>,
     /// Frames this viewer lost so far because it read too slowly. Last, so the server can
     /// splice each viewer's count into one shared encoding.
     pub dropped: u64,
@@ -431,6 +451,7 @@ impl ContactFrame {
             flags: state.flags,
             buttons: state.buttons,
             guide: state.guide.map(crate::GuideState::finite),
+            inclusion_force_ratio: None,
             dropped,
         }
     }
@@ -749,6 +770,7 @@ impl ServerMessage {
             ServerMessage::Refused(_) => "refused",
             ServerMessage::Replay(_) => "replay",
             ServerMessage::Exercise(_) => "exercise",
+            ServerMessage::Inclusions(_) => "inclusions",
         }
     }
 

@@ -217,6 +217,13 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             ServerMessage::Contact(ContactFrame::from_state(&guided, 10, 0.0146, 0)),
         ),
         (
+            "contact_over_inclusion",
+            ServerMessage::Contact(ContactFrame {
+                inclusion_force_ratio: Some(1.8),
+                ..ContactFrame::from_state(&pressing, 11, 0.0146, 0)
+            }),
+        ),
+        (
             "contact_free",
             ServerMessage::Contact(ContactFrame::from_state(&free, 9, 0.0, 0)),
         ),
@@ -264,6 +271,20 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
         ),
         ("exercise_running", exercise_vector(false)),
         ("exercise_ended", exercise_vector(true)),
+        (
+            "inclusions_revealed",
+            ServerMessage::Inclusions(InclusionsMessage {
+                revealed: true,
+                exercise_index: Some(0),
+                attempt: Some(1),
+                inclusions: vec![InclusionView {
+                    centre_m: [0.012, 0.031, -0.004],
+                    radius_m: 0.005,
+                    stiffness_ratio: 4.0,
+                    centre_depth_m: 0.008,
+                }],
+            }),
+        ),
         (
             "refused_replay_control",
             ServerMessage::Refused(Refused {

@@ -27,10 +27,12 @@ use std::time::Duration;
 use axum::body::Bytes;
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_device::metrics::{MetricsAccumulator, TickInput};
+use softhaptic_proto::exercise::Task;
 use softhaptic_proto::record::DeviceRecord;
 use softhaptic_proto::wire::{
-    GapCause, Hello, Mode, PROTOCOL_VERSION, ReplayAction, ReplayControl, ReplayGap, ReplayMark,
-    ReplaySpan, ReplayStatus, Role, ServerMessage,
+    ExerciseState, GapCause, Hello, InclusionView, InclusionsMessage, Mode, PROTOCOL_VERSION,
+    ReplayAction, ReplayControl, ReplayGap, ReplayMark, ReplaySpan, ReplayStatus, Role,
+    ServerMessage,
 };
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
@@ -401,6 +403,54 @@ pub fn metrics_timeline(recording: &Recording) -> Vec<RecordedMessage> {
     out
 }
 
+/// The `inclusions` messages the live station sent, from the recording: at its first frame the
+/// answer for instructors, and with each recorded attempt's start (for instructors) and each
+/// palpation attempt's end (for everyone, `true`), at their device times (at most `end_ns`).
+/// Empty for a scene without inclusions.
+fn inclusions_timeline(recording: &Recording, end_ns: u64) -> Vec<(u64, bool, Utf8Bytes)> {
+    let Some(recorded) = &recording.scene.inclusions else {
+        return Vec::new();
+    };
+    // The object's pose: the scene message's meshes are the object's.
+    let Some(mesh) = recording.scene.message.render_meshes.first() else {
+        return Vec::new();
+    };
+    let views = InclusionView::placed(&recorded.placed, &mesh.object_in_world);
+    let start_ns = recording.contacts.first().map_or(0, |c| c.time_ns);
+    let message = |revealed, exercise_index, attempt| {
+        ServerMessage::Inclusions(InclusionsMessage {
+            revealed,
+            exercise_index,
+            attempt,
+            inclusions: views.clone(),
+        })
+        .encode()
+        .ok()
+        .map(Utf8Bytes::from)
+    };
+    let mut out: Vec<(u64, bool, Utf8Bytes)> = message(false, None, None)
+        .map(|text| (start_ns, false, text))
+        .into_iter()
+        .collect();
+    for m in &recording.exercises {
+        let revealed = match m.state {
+            ExerciseState::Running => false,
+            ExerciseState::Ended if matches!(m.exercise.task, Task::Palpation(_)) => true,
+            ExerciseState::Ended => continue,
+        };
+        if let Some(text) = message(revealed, Some(m.index), Some(m.attempt)) {
+            out.push((
+                m.time_ns.clamp(start_ns, end_ns.max(start_ns)),
+                revealed,
+                text,
+            ));
+        }
+    }
+    // Stable: an attempt's end and the next one's start at the same time keep their order.
+    out.sort_by_key(|(time_ns, _, _)| *time_ns);
+    out
+}
+
 /// The replay clock and cursor.
 struct Player {
     contacts: Vec<RecordedMessage>,
@@ -431,6 +481,11 @@ struct Player {
     /// Next contact and stats message to send.
     next_contact: usize,
     next_stats: usize,
+    /// Where the recorded scene's inclusions were told, as the live station told them
+    /// ([`inclusions_timeline`]), and the next one to tell. A seek starts them over, so the
+    /// answer stands as it stood at the new position for the viewers who connect after it.
+    inclusions: Vec<(u64, bool, Utf8Bytes)>,
+    next_inclusions: usize,
     /// `seq` of the next frame sent.
     seq: u64,
 }
@@ -496,6 +551,8 @@ impl Player {
             anchor: Instant::now(),
             next_contact: 0,
             next_stats: 0,
+            inclusions: inclusions_timeline(recording, end_ns),
+            next_inclusions: 0,
             seq: 0,
         }
     }
@@ -561,6 +618,7 @@ impl Player {
             .partition_point(|c| c.time_ns <= t)
             .saturating_sub(1);
         self.next_stats = self.loop_stats.partition_point(|s| s.time_ns < t);
+        self.next_inclusions = 0;
         self.metrics_stale = true;
     }
 
@@ -602,6 +660,22 @@ impl Player {
             }
             self.send_stats(hub, s);
             self.next_stats += 1;
+        }
+        self.send_inclusions_due(hub, t);
+    }
+
+    /// Tells the inclusions as the live station had told them by device time `t`.
+    fn send_inclusions_due(&mut self, hub: &StreamHub, t: u64) {
+        while let Some((time_ns, revealed, text)) = self.inclusions.get(self.next_inclusions) {
+            if *time_ns > t {
+                break;
+            }
+            if *revealed {
+                hub.inclusions.reveal(text.clone());
+            } else {
+                hub.inclusions.show_instructors(text.clone());
+            }
+            self.next_inclusions += 1;
         }
     }
 
@@ -686,6 +760,7 @@ impl Player {
         {
             self.send_frame(&hub, &first);
             self.next_contact = 1;
+            self.send_inclusions_due(&hub, self.start_ns);
         }
         loop {
             let now = Instant::now();
@@ -722,6 +797,7 @@ impl Player {
                             self.send_frame(&hub, &frame);
                             self.next_contact = at;
                         }
+                        self.send_inclusions_due(&hub, t);
                     }
                     self.send_status(&hub, now);
                 }

@@ -19,16 +19,18 @@ use std::sync::mpsc::Receiver;
 use anyhow::{Context, bail};
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_device::metrics::TickInput;
-use softhaptic_proto::exercise::AttemptResult;
+use softhaptic_proto::exercise::{AttemptResult, Task};
 use softhaptic_proto::record::DeviceRecord;
-use softhaptic_proto::wire::{ExerciseAction, ExerciseMessage, ExerciseState, ServerMessage};
+use softhaptic_proto::wire::{
+    ExerciseAction, ExerciseMessage, ExerciseState, InclusionView, InclusionsMessage, ServerMessage,
+};
 
 use super::file::LoadedExercise;
 use super::score::Attempt;
 use crate::files::{self, FileKind};
 use crate::scene::Scene;
 use crate::session::writer::TickObserver;
-use crate::stream::ExerciseFeed;
+use crate::stream::{ExerciseFeed, InclusionsFeed};
 
 /// Device time between two `exercise` messages while nothing changes: the viewer's countdown
 /// runs on its own clock in between, and a viewer that lost a message is right again within it.
@@ -136,6 +138,30 @@ pub struct ExerciseRun {
     pause_ns: Option<u64>,
     now_ns: u64,
     last_sent_ns: Option<u64>,
+    /// The scene's inclusions (world frame) and where they are published: to instructors as
+    /// each attempt starts, to everyone as a palpation attempt ends. `None` without inclusions.
+    inclusions: Option<(Arc<InclusionsFeed>, Vec<InclusionView>)>,
+}
+
+/// The feed of a scene's inclusions, holding the answer for instructors from the start (the
+/// `inclusions` message of a session before, or without, exercises); `None` for a scene without
+/// inclusions.
+pub fn inclusions_feed(scene: &Scene) -> Option<Arc<InclusionsFeed>> {
+    if scene.inclusions.is_empty() {
+        return None;
+    }
+    let feed = Arc::new(InclusionsFeed::none());
+    let message = InclusionsMessage {
+        revealed: false,
+        exercise_index: None,
+        attempt: None,
+        inclusions: InclusionView::placed(&scene.inclusions, &scene.object_in_world),
+    };
+    match ServerMessage::Inclusions(message).encode() {
+        Ok(text) => feed.show_instructors(Utf8Bytes::from(text)),
+        Err(e) => tracing::error!(error = %e, "could not encode the inclusions"),
+    }
+    Some(feed)
 }
 
 impl ExerciseRun {
@@ -165,7 +191,45 @@ impl ExerciseRun {
             pause_ns: pause_s.map(|s| (s.max(0.0) * 1e9) as u64),
             now_ns: 0,
             last_sent_ns: None,
+            inclusions: None,
         })
+    }
+
+    /// The run of a scene with inclusions: they are published to `feed` (from
+    /// [`inclusions_feed`]) as attempts start and end.
+    pub fn with_inclusions(mut self, feed: Option<Arc<InclusionsFeed>>, scene: &Scene) -> Self {
+        self.inclusions = feed.map(|feed| {
+            (
+                feed,
+                InclusionView::placed(&scene.inclusions, &scene.object_in_world),
+            )
+        });
+        self
+    }
+
+    /// Publishes the inclusions for the attempt `message` starts or ends: to instructors as it
+    /// starts, to everyone as a palpation attempt ends (its answer is then its result).
+    fn publish_inclusions(&self, message: &ExerciseMessage, starting: bool) {
+        let Some((feed, views)) = &self.inclusions else {
+            return;
+        };
+        let revealed = match message.state {
+            ExerciseState::Running if starting => false,
+            ExerciseState::Ended if matches!(message.exercise.task, Task::Palpation(_)) => true,
+            _ => return,
+        };
+        let text = ServerMessage::Inclusions(InclusionsMessage {
+            revealed,
+            exercise_index: Some(message.index),
+            attempt: Some(message.attempt),
+            inclusions: views.clone(),
+        })
+        .encode();
+        match text {
+            Ok(text) if revealed => feed.reveal(Utf8Bytes::from(text)),
+            Ok(text) => feed.show_instructors(Utf8Bytes::from(text)),
+            Err(e) => tracing::error!(error = %e, "could not encode the inclusions"),
+        }
     }
 
     /// Starts a new attempt at exercise `index`.
@@ -288,6 +352,7 @@ impl ExerciseRun {
         if !record {
             return Vec::new();
         }
+        self.publish_inclusions(&message, self.starting);
         if std::mem::take(&mut self.starting) {
             let loaded = &self.exercises[self.index];
             message.exercise_file = Some(loaded.path.display().to_string());

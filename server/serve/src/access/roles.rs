@@ -31,11 +31,16 @@ pub enum Action {
     ListArchive,
     /// Download an archived recording's file (`GET /stations/NAME/archive/FILE`).
     DownloadArchive,
+    /// Be sent where a palpation scene's inclusions are while an attempt runs (`inclusions`
+    /// with `revealed: false`): the answer the trainee must find. Once a palpation attempt has
+    /// ended every viewer is sent it. A station without tokens sends it to no one before the
+    /// end: there everyone is an instructor, the trainee's own screen too.
+    SeeInclusions,
 }
 
 impl Action {
     /// Every action, for tables and tests.
-    pub const ALL: [Action; 9] = [
+    pub const ALL: [Action; 10] = [
         Action::WatchLive,
         Action::WatchOpenReplay,
         Action::OpenReplay,
@@ -45,6 +50,7 @@ impl Action {
         Action::ControlExercise,
         Action::ListArchive,
         Action::DownloadArchive,
+        Action::SeeInclusions,
     ];
 
     /// What an observer is told when it tries this (one sentence, no secret, no internal state).
@@ -62,6 +68,9 @@ impl Action {
             Action::ControlExercise => "only an instructor starts, repeats or stops an exercise",
             Action::ListArchive => "only an instructor lists the archive",
             Action::DownloadArchive => "only an instructor downloads archived recordings",
+            Action::SeeInclusions => {
+                "only an instructor sees where the inclusions are before the attempt ends"
+            }
         }
     }
 }

@@ -28,11 +28,14 @@
 //!   and [`send_final_metrics`], the session's last `metrics`, sent once the loop has stopped.
 //! - `exercise.rs`: [`ExerciseFeed`], the `exercise` messages of a station running exercises
 //!   and the instructors' `exercise_control` on their way to its scorer.
+//! - `inclusions.rs`: [`InclusionsFeed`], where a palpation scene's inclusions are, to the
+//!   viewers who may see them (instructors while an attempt runs, everyone after its end).
 //! - `viewer.rs`: [`serve_viewer`], one viewer's connection: its role, what it is sent, what it
 //!   may ask, and how it is closed.
 
 mod exercise;
 mod frame;
+mod inclusions;
 mod tasks;
 mod viewer;
 
@@ -49,8 +52,10 @@ use crate::access::Access;
 
 pub use exercise::{ControlRefusal, EXERCISE_BACKLOG, ExerciseFeed};
 pub use frame::EncodedFrame;
+pub use inclusions::InclusionsFeed;
 pub use tasks::{
-    device_status, frame_task, metrics_message, send_final_metrics, stats_message, stats_task,
+    FrameInclusions, device_status, frame_task, metrics_message, send_final_metrics, stats_message,
+    stats_task,
 };
 pub use viewer::{
     REASON_FLOOD, REFUSED_EXERCISE_BUSY, REFUSED_EXERCISE_NONE, REFUSED_EXERCISE_OBSERVER,
@@ -174,6 +179,9 @@ pub struct StreamHub {
     rearm: Option<softhaptic_device::device::RearmHandle>,
     /// The exercise the station runs, if it runs any ([`StreamHub::with_exercises`]).
     pub exercise: Arc<ExerciseFeed>,
+    /// Where the scene's inclusions are, for the viewers who may see them
+    /// ([`StreamHub::with_inclusions`]; empty without inclusions).
+    pub inclusions: Arc<InclusionsFeed>,
 }
 
 impl StreamHub {
@@ -214,6 +222,7 @@ impl StreamHub {
             held_frame: std::sync::Mutex::new(None),
             rearm: None,
             exercise: Arc::new(ExerciseFeed::none()),
+            inclusions: Arc::new(InclusionsFeed::none()),
         })
     }
 
@@ -228,6 +237,15 @@ impl StreamHub {
     pub fn with_exercises(mut self, feed: Option<Arc<ExerciseFeed>>) -> Self {
         if let Some(feed) = feed {
             self.exercise = feed;
+        }
+        self
+    }
+
+    /// The hub of a stream whose scene has inclusions, published to `feed` (by the station's
+    /// exercises, or once for a session without them, or by a replay).
+    pub fn with_inclusions(mut self, feed: Option<Arc<InclusionsFeed>>) -> Self {
+        if let Some(feed) = feed {
+            self.inclusions = feed;
         }
         self
     }

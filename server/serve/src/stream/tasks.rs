@@ -15,9 +15,11 @@ use std::time::Duration;
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_device::device::DeviceError;
 use softhaptic_device::haptic_loop::HapticLoop;
+use softhaptic_device::inclusion::InclusionField;
 use softhaptic_device::metrics::TraineeMetrics;
 use softhaptic_device::stats::LoopStats;
 use softhaptic_proto::CalibrationTable;
+use softhaptic_proto::contact::{ContactState, Pose};
 use softhaptic_proto::wire::{
     ComputeUs, ContactFrame, DeviceStatus, MetricsMessage, PeriodErrorUs, ServerMessage,
     StatsMessage,
@@ -27,10 +29,34 @@ use tokio::sync::watch;
 
 use super::{EncodedFrame, StreamCounters, StreamHub};
 
+/// The inclusions of an object and its pose, to tell each frame the force ratio at its contact.
+pub struct FrameInclusions {
+    pub field: InclusionField,
+    pub object_in_world: Pose,
+}
+
+impl FrameInclusions {
+    /// The force ratio at `state`'s contact, as the loop's force model had it at that tick (the
+    /// same field at the same contact point, normal and depth, in the object's frame); `None`
+    /// out of contact.
+    pub fn ratio(&self, state: &ContactState) -> Option<f64> {
+        if !state.in_contact {
+            return None;
+        }
+        let o = &self.object_in_world;
+        let point = o.inverse_transform_point(state.contact_point_m);
+        let normal = o.orientation.inverse() * state.normal;
+        let ratio = self.field.load(point, normal, state.depth_m).ratio;
+        ratio.is_finite().then_some(ratio)
+    }
+}
+
 /// Reads the loop's latest contact every `period` and broadcasts it, until `stop` turns true.
+/// With `inclusions`, each frame in contact says the inclusions' force ratio there.
 pub async fn frame_task(
     haptic_loop: Arc<HapticLoop>,
     calibration: CalibrationTable,
+    inclusions: Option<FrameInclusions>,
     hub: Arc<StreamHub>,
     period: Duration,
     mut stop: watch::Receiver<bool>,
@@ -51,7 +77,8 @@ pub async fn frame_task(
             0.0
         };
         hub.latest_time_ns.store(state.time_ns, Ordering::Relaxed);
-        let frame = ContactFrame::from_state(&state, seq, deformed_radius_m, 0);
+        let mut frame = ContactFrame::from_state(&state, seq, deformed_radius_m, 0);
+        frame.inclusion_force_ratio = inclusions.as_ref().and_then(|i| i.ratio(&state));
         match EncodedFrame::new(&frame) {
             Ok(encoded) => {
                 // No receivers is not an error: frames are simply not needed.

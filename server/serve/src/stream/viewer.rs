@@ -264,6 +264,12 @@ async fn serve_role(
     let mut marks = hub.marks.subscribe();
     let mut exercise = hub.exercise.messages.subscribe();
     let mut shutdown = hub.shutdown.clone();
+    // The inclusions' positions before an attempt's end: only to a role that may see them, and
+    // never without tokens, where everyone is an instructor and the trainee's screen is one of
+    // them. An observer's task holds no receiver of them at all.
+    let sees_answer = may(role, Action::SeeInclusions) && hub.access.tokens().is_some();
+    let mut hidden_inclusions = sees_answer.then(|| hub.inclusions.hidden());
+    let mut public_inclusions = hub.inclusions.public();
 
     for greeting in [hub.hello(role), &hub.scene] {
         if !send(
@@ -289,6 +295,17 @@ async fn serve_role(
         && !send(&mut socket, Message::Text(latest), timeout, &hub.counters).await
     {
         return ViewerEnd::SendFailed;
+    }
+    // Where the inclusions are, if this viewer may be told now.
+    let mut now = Vec::new();
+    if let Some(hidden) = hidden_inclusions.as_mut() {
+        now.extend(hidden.borrow_and_update().clone());
+    }
+    now.extend(public_inclusions.borrow_and_update().clone());
+    for text in now {
+        if !send(&mut socket, Message::Text(text), timeout, &hub.counters).await {
+            return ViewerEnd::SendFailed;
+        }
     }
     // A replay's current frame, unless a newer one is already queued for this viewer.
     if frames.is_empty()
@@ -391,8 +408,36 @@ async fn serve_role(
                     return ViewerEnd::SendFailed;
                 }
             },
+            text = changed_text(hidden_inclusions.as_mut()) => {
+                if let Some(text) = text
+                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
+                {
+                    return ViewerEnd::SendFailed;
+                }
+            },
+            text = changed_text(Some(&mut public_inclusions)) => {
+                if let Some(text) = text
+                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
+                {
+                    return ViewerEnd::SendFailed;
+                }
+            },
         }
     }
+}
+
+/// The next value `receiver` holds once it changes (`None` when it was cleared); never ready
+/// without a receiver, or once its sender is gone.
+async fn changed_text(
+    receiver: Option<&mut watch::Receiver<Option<Utf8Bytes>>>,
+) -> Option<Utf8Bytes> {
+    let Some(r) = receiver else {
+        return std::future::pending().await;
+    };
+    if r.changed().await.is_err() {
+        return std::future::pending().await;
+    }
+    r.borrow_and_update().clone()
 }
 
 /// Longest a closing viewer spends sending what was queued for it before the shutdown.
