@@ -145,6 +145,20 @@ pub struct MetricDef {
     pub what: &'static str,
 }
 
+/// The two metrics every kind scores: how hard, and how long beyond the safe force.
+const PEAK_FORCE: MetricDef = MetricDef {
+    name: "peak_force_n",
+    unit: "N",
+    better: Better::Lower,
+    what: "largest force during the attempt",
+};
+const TIME_ABOVE_SAFE: MetricDef = MetricDef {
+    name: "time_above_safe_s",
+    unit: "s",
+    better: Better::Lower,
+    what: "time spent above the safe force",
+};
+
 const PRESS_METRICS: &[MetricDef] = &[
     MetricDef {
         name: "hold_s",
@@ -164,18 +178,8 @@ const PRESS_METRICS: &[MetricDef] = &[
         better: Better::Lower,
         what: "standard deviation of the force over the longest hold",
     },
-    MetricDef {
-        name: "peak_force_n",
-        unit: "N",
-        better: Better::Lower,
-        what: "largest force during the attempt",
-    },
-    MetricDef {
-        name: "time_above_safe_s",
-        unit: "s",
-        better: Better::Lower,
-        what: "time spent above the safe force",
-    },
+    PEAK_FORCE,
+    TIME_ABOVE_SAFE,
 ];
 
 const TRACE_METRICS: &[MetricDef] = &[
@@ -209,18 +213,8 @@ const TRACE_METRICS: &[MetricDef] = &[
         better: Better::Lower,
         what: "coefficient of variation of the force in contact (standard deviation / mean)",
     },
-    MetricDef {
-        name: "peak_force_n",
-        unit: "N",
-        better: Better::Lower,
-        what: "largest force during the attempt",
-    },
-    MetricDef {
-        name: "time_above_safe_s",
-        unit: "s",
-        better: Better::Lower,
-        what: "time spent above the safe force",
-    },
+    PEAK_FORCE,
+    TIME_ABOVE_SAFE,
 ];
 
 const PALPATION_METRICS: &[MetricDef] = &[
@@ -260,18 +254,8 @@ const PALPATION_METRICS: &[MetricDef] = &[
         better: Better::Lower,
         what: "mean force while in contact",
     },
-    MetricDef {
-        name: "peak_force_n",
-        unit: "N",
-        better: Better::Lower,
-        what: "largest force during the attempt",
-    },
-    MetricDef {
-        name: "time_above_safe_s",
-        unit: "s",
-        better: Better::Lower,
-        what: "time spent above the safe force",
-    },
+    PEAK_FORCE,
+    TIME_ABOVE_SAFE,
 ];
 
 const FOLLOW_METRICS: &[MetricDef] = &[
@@ -299,18 +283,8 @@ const FOLLOW_METRICS: &[MetricDef] = &[
         better: Better::Lower,
         what: "the guidance's gain at the start of the attempt (less help is better)",
     },
-    MetricDef {
-        name: "peak_force_n",
-        unit: "N",
-        better: Better::Lower,
-        what: "largest force during the attempt",
-    },
-    MetricDef {
-        name: "time_above_safe_s",
-        unit: "s",
-        better: Better::Lower,
-        what: "time spent above the safe force",
-    },
+    PEAK_FORCE,
+    TIME_ABOVE_SAFE,
 ];
 
 impl Task {

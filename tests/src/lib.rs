@@ -536,3 +536,24 @@ pub fn assert_scene_refused(dir: &std::path::Path, text: &str, expected: &[&str]
         assert!(err.contains(e), "expected {e:?} in: {err}");
     }
 }
+
+/// Every coordinate of every lump's centre in `scene`, as JSON writes it, in the world frame and
+/// the object's (zeros left out): what no message a trainee's viewer gets may contain before the
+/// answer is public.
+pub fn inclusion_coordinates(scene: &softhaptic_server::scene::Scene) -> Vec<String> {
+    scene
+        .inclusions
+        .iter()
+        .flat_map(|i| {
+            let world = scene
+                .object_in_world
+                .transform_point(glam::DVec3::from_array(i.centre_in_object_m));
+            i.centre_in_object_m
+                .into_iter()
+                .chain(world.to_array())
+                .filter(|v| v.abs() > 1e-6)
+                .filter_map(|v| serde_json::to_string(&v).ok())
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}

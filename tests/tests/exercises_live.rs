@@ -306,21 +306,7 @@ async fn a_palpation_never_tells_the_trainee_where_the_lumps_are() {
     let scene_file = root.join("scenes/palpation.toml");
     let scene = Scene::load(&scene_file).unwrap();
     // Every coordinate of every lump, as JSON would write it (world frame, and object frame).
-    let secrets: Vec<String> = scene
-        .inclusions
-        .iter()
-        .flat_map(|i| {
-            let world = scene
-                .object_in_world
-                .transform_point(glam::DVec3::from_array(i.centre_in_object_m));
-            i.centre_in_object_m
-                .into_iter()
-                .chain(world.to_array())
-                .filter(|v| v.abs() > 1e-6)
-                .map(|v| serde_json::to_string(&v).unwrap())
-                .collect::<Vec<_>>()
-        })
-        .collect();
+    let secrets = softhaptic_tests::inclusion_coordinates(&scene);
     assert_eq!(secrets.len(), 12);
     let exercises = station_exercises(
         &[root.join("exercises/palpation.toml")],

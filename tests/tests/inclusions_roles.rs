@@ -30,25 +30,6 @@ fn root() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// Every coordinate of every lump's centre as JSON writes it, world and object frames.
-fn secrets(scene: &Scene) -> Vec<String> {
-    scene
-        .inclusions
-        .iter()
-        .flat_map(|i| {
-            let world = scene
-                .object_in_world
-                .transform_point(glam::DVec3::from_array(i.centre_in_object_m));
-            i.centre_in_object_m
-                .into_iter()
-                .chain(world.to_array())
-                .filter(|v| v.abs() > 1e-6)
-                .map(|v| serde_json::to_string(&v).unwrap())
-                .collect::<Vec<_>>()
-        })
-        .collect()
-}
-
 /// The palpation station, with or without tokens, recording into `dir`.
 async fn station(dir: &std::path::Path, tokens: bool) -> (RecordedServer, Scene) {
     let scene_file = root().join("scenes/palpation.toml");
@@ -153,7 +134,7 @@ fn control(action: &str) -> String {
 async fn instructors_see_the_lumps_live_the_trainee_only_after_the_end() {
     let dir = scratch_dir("inclusions-roles");
     let (live, scene) = station(&dir, true).await;
-    let secrets = secrets(&scene);
+    let secrets = softhaptic_tests::inclusion_coordinates(&scene);
     assert_eq!(secrets.len(), 12);
     let addr = live.server.local_addr();
     let mut trainee = viewer(addr, Some(O)).await;
@@ -246,7 +227,7 @@ async fn instructors_see_the_lumps_live_the_trainee_only_after_the_end() {
 async fn without_tokens_nobody_sees_the_lumps_before_the_end() {
     let dir = scratch_dir("inclusions-no-tokens");
     let (live, scene) = station(&dir, false).await;
-    let secrets = secrets(&scene);
+    let secrets = softhaptic_tests::inclusion_coordinates(&scene);
     let addr = live.server.local_addr();
     // Everyone is an instructor here, the trainee's screen too: told nothing until the end.
     let mut screen = viewer(addr, None).await;

@@ -1146,6 +1146,33 @@ fn strong_hand(s: &StandIn, scene: &Scene, script: HandScript) -> Arc<Mutex<f64>
     largest
 }
 
+/// Runs `scene` on the stand-in (the caller set its nominal maximum to 3.3 N), pressed by a strong hand
+/// following `script` until the device saturates, then 1 000 more servo ticks; returns the
+/// largest force the motors were sent, held below the nominal maximum by the backend's margin,
+/// and the session's recording.
+async fn saturating_press(
+    s: &StandIn,
+    scene: Scene,
+    script: HandScript,
+    name: &str,
+) -> (f64, Recording) {
+    let largest = strong_hand(s, &scene, script);
+    let live = start(scene, name).await;
+    wait_until("the hand saturating the device", || {
+        *largest.lock().unwrap_or_else(PoisonError::into_inner) > 3.0
+    })
+    .await;
+    wait_ticks(s, 1_000).await;
+    let (_, recording) = finish(live).await;
+    s.builtin_hand();
+    let largest = *largest.lock().unwrap_or_else(PoisonError::into_inner);
+    assert!(
+        largest <= 3.3 * (1.0 - openhaptics::servo::FORCE_MARGIN) + 1e-12,
+        "{largest} N sent"
+    );
+    (largest, recording)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn guidance_and_a_hard_press_together_stay_below_the_nominal_maximum() {
     let (_guard, s) = standin().await;
@@ -1168,20 +1195,7 @@ async fn guidance_and_a_hard_press_together_stay_below_the_nominal_maximum() {
     script.repeat = false;
     let across = n.cross(script.slide_direction).normalize();
     script.surface_point_m += across * 0.006;
-    let largest = strong_hand(&s, &scene, script);
-    let live = start(scene, "openhaptics-guided").await;
-    wait_until("the hand saturating the device", || {
-        *largest.lock().unwrap_or_else(PoisonError::into_inner) > 3.0
-    })
-    .await;
-    wait_ticks(&s, 1_000).await;
-    let (_, recording) = finish(live).await;
-    s.builtin_hand();
-    let largest = *largest.lock().unwrap_or_else(PoisonError::into_inner);
-    assert!(
-        largest <= 3.3 * (1.0 - openhaptics::servo::FORCE_MARGIN) + 1e-12,
-        "{largest} N sent"
-    );
+    let (largest, recording) = saturating_press(&s, scene, script, "openhaptics-guided").await;
     // The guide pulled while the device was saturated, and the sum was held to the peak.
     let pulling_saturated = recording
         .device
@@ -1492,20 +1506,7 @@ async fn the_force_sent_stays_below_the_nominal_maximum_in_the_devices_axes() {
     let n = scene.object_in_world.orientation * normal;
     let mut script = HandScript::press(scene.object_in_world.transform_point(point), n, 0.03);
     script.repeat = false;
-    let largest = strong_hand(&s, &scene, script);
-    let live = start(scene, "openhaptics-nominal").await;
-    wait_until("the hand saturating the device", || {
-        *largest.lock().unwrap_or_else(PoisonError::into_inner) > 3.0
-    })
-    .await;
-    wait_ticks(&s, 1_000).await;
-    let (_, recording) = finish(live).await;
-    s.builtin_hand();
-    let largest = *largest.lock().unwrap_or_else(PoisonError::into_inner);
-    assert!(
-        largest <= 3.3 * (1.0 - openhaptics::servo::FORCE_MARGIN) + 1e-12,
-        "{largest} N sent"
-    );
+    let (largest, recording) = saturating_press(&s, scene, script, "openhaptics-nominal").await;
     assert!(
         recording
             .device

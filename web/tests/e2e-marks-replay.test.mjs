@@ -52,24 +52,31 @@ test('a mark made live shows in another browser and in the replay of the recordi
 
     // The other browser draws the mark's marker at its point: placed there, and seen there (the
     // region around the point on the screen, close up and with the tool hidden, read with the
-    // markers and, in the same frame, without them).
-    const drawn = await other.evaluate((point) => {
-      const h = window.__softhaptic;
-      h.pause(true);
-      h.toolVisible(false);
-      h.focusCamera(point, 0.08);
-      const at = h.toScreen(point);
-      const markers = h.markers();
-      const shown = h.regionPixels(at.x, at.y, 20);
-      h.markersVisible(false);
-      const hidden = h.regionPixels(at.x, at.y, 20);
-      h.markersVisible(true);
-      return { markers, shown, hidden };
-    }, marked.point_m);
+    // markers and, in the same frame, without them). Read up to three times, a frame apart: on a
+    // loaded machine one read has come back without the marker drawn in it.
+    let drawn;
+    let seen;
+    for (let attempt = 0; attempt < 3; attempt++) {
+      drawn = await other.evaluate((point) => {
+        const h = window.__softhaptic;
+        h.pause(true);
+        h.toolVisible(false);
+        h.focusCamera(point, 0.08);
+        const at = h.toScreen(point);
+        const markers = h.markers();
+        const shown = h.regionPixels(at.x, at.y, 20);
+        h.markersVisible(false);
+        const hidden = h.regionPixels(at.x, at.y, 20);
+        h.markersVisible(true);
+        return { markers, shown, hidden };
+      }, marked.point_m);
+      seen = pixelDifference(drawn.shown, drawn.hidden);
+      if (seen.mean > 20) break;
+      await other.evaluate(() => new Promise((resolve) => requestAnimationFrame(() => resolve())));
+    }
     assert.equal(drawn.markers.length, 1);
     assert.equal(drawn.markers[0].id, marked.id);
     assert.deepEqual(drawn.markers[0].position, marked.point_m);
-    const seen = pixelDifference(drawn.shown, drawn.hidden);
     // Measured about 70 per channel: the marker fills the region.
     assert.ok(seen.mean > 20, `the marker changes the region around its point by ${seen.mean.toFixed(1)} per channel`);
   } finally {
