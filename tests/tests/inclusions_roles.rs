@@ -168,6 +168,9 @@ async fn instructors_see_the_lumps_live_the_trainee_only_after_the_end() {
             break;
         }
     }
+    // The trainee who was told attempt 1's answer is told it is withdrawn.
+    let withdrawn = next_inclusions(&mut trainee).await;
+    assert!(!withdrawn.revealed && withdrawn.inclusions.is_empty());
     let mut next_trainee = viewer(addr, Some(O)).await;
     told_nothing(&mut next_trainee, &secrets, 25, ExerciseState::Running).await;
     let (_, _, path, _) = live.finish().await;
@@ -219,6 +222,13 @@ async fn instructors_see_the_lumps_live_the_trainee_only_after_the_end() {
             assert!(!t.contains(secret.as_str()), "{secret} in {t}");
         }
     }
+    // Sought back before the end, the answer is withdrawn from the observer who was told it.
+    teacher
+        .send_text(r#"{"type":"replay_control","action":"seek","time_s":0.0}"#)
+        .await;
+    let withdrawn = next_inclusions(&mut watcher).await;
+    assert!(!withdrawn.revealed && withdrawn.inclusions.is_empty());
+    assert_eq!((withdrawn.exercise_index, withdrawn.attempt), (None, None));
     replay.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);
 }

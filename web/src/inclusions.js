@@ -38,7 +38,8 @@ export class InclusionsView {
 
   /** `inclusions`: draws them (and the path from now on). */
   onInclusions(m) {
-    this.message = m;
+    // No positions: the answer is withdrawn (a replay sought back before the attempt's end).
+    this.message = m.inclusions.length > 0 ? m : null;
     if (m.exercise_index !== null) this.#enterAttempt(`${m.exercise_index}/${m.attempt}`);
     this.#draw();
   }

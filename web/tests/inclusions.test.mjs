@@ -61,3 +61,14 @@ test('a revealed answer is forgotten, and the path started over, when another at
   view.reset();
   assert.equal(view.snapshot().shown, false);
 });
+
+test('a withdrawn answer (a replay sought back before the end) is no longer drawn', () => {
+  const scene = new THREE.Scene();
+  const view = new InclusionsView({ scene: () => scene });
+  view.onExercise({ index: 0, attempt: 1, state: 'ended' });
+  view.onInclusions(message(true, 0, 1));
+  assert.equal(view.snapshot().shown, true);
+  view.onInclusions({ type: 'inclusions', revealed: false, exercise_index: null, attempt: null, inclusions: [] });
+  assert.equal(view.snapshot().shown, false);
+  assert.equal(view.snapshot().revealed, null);
+});

@@ -302,6 +302,9 @@ async fn serve_role(
         now.extend(hidden.borrow_and_update().clone());
     }
     now.extend(public_inclusions.borrow_and_update().clone());
+    // Whether this viewer, told no positions before the end, holds a revealed answer: when the
+    // answer is withdrawn (a replay sought back before the end, a new attempt) it is told so.
+    let mut told_answer = hidden_inclusions.is_none() && !now.is_empty();
     for text in now {
         if !send(&mut socket, Message::Text(text), timeout, &hub.counters).await {
             return ViewerEnd::SendFailed;
@@ -416,14 +419,30 @@ async fn serve_role(
                 }
             },
             text = changed_text(Some(&mut public_inclusions)) => {
-                if let Some(text) = text
-                    && !send(&mut socket, Message::Text(text), timeout, &hub.counters).await
-                {
+                let text = match text {
+                    Some(text) => {
+                        told_answer = hidden_inclusions.is_none();
+                        text
+                    }
+                    // An instructor told the answer before the end is told again with the
+                    // attempt's hidden message; anyone else, once told, is told it is withdrawn.
+                    None if std::mem::take(&mut told_answer) => withdrawn_inclusions(),
+                    None => continue,
+                };
+                if !send(&mut socket, Message::Text(text), timeout, &hub.counters).await {
                     return ViewerEnd::SendFailed;
                 }
             },
         }
     }
+}
+
+/// The `inclusions` message that withdraws a revealed answer: no positions, not revealed, no
+/// attempt (proto/WIRE.md, `inclusions`).
+fn withdrawn_inclusions() -> Utf8Bytes {
+    Utf8Bytes::from_static(
+        r#"{"type":"inclusions","revealed":false,"exercise_index":null,"attempt":null,"inclusions":[]}"#,
+    )
 }
 
 /// The next value `receiver` holds once it changes (`None` when it was cleared); never ready
