@@ -386,6 +386,7 @@ pub async fn start(
                 session_id: hello.session_id.clone(),
                 force_feedback: hello.force_feedback,
                 scene: scene_text.clone(),
+                ..Default::default()
             },
             scene_label: format!(
                 "{}, {}, {}",

@@ -4,7 +4,8 @@
 //! no coordinate of a lump in any message until the attempt ends, and then the answer; a viewer
 //! that connects after the end gets it too, until the next attempt starts. On a station without
 //! tokens nobody is sent them before the end. A replay of the recording tells each role what
-//! the live station told it.
+//! the live station told it, and so does a lab hub relaying the station through a real
+//! nats-server.
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
@@ -32,6 +33,15 @@ fn root() -> std::path::PathBuf {
 
 /// The palpation station, with or without tokens, recording into `dir`.
 async fn station(dir: &std::path::Path, tokens: bool) -> (RecordedServer, Scene) {
+    lab_station(dir, tokens, None).await
+}
+
+/// The palpation station, publishing to the NATS at `nats` as `(name, url)` when given.
+async fn lab_station(
+    dir: &std::path::Path,
+    tokens: bool,
+    nats: Option<(&str, String)>,
+) -> (RecordedServer, Scene) {
     let scene_file = root().join("scenes/palpation.toml");
     let scene = Scene::load(&scene_file).unwrap();
     let exercises = station_exercises(
@@ -53,6 +63,12 @@ async fn station(dir: &std::path::Path, tokens: bool) -> (RecordedServer, Scene)
     }
     options.exercises = Some(feed);
     options.inclusions = inclusions;
+    options.lab = nats.map(
+        |(name, url)| softhaptic_server::lab::station::StationOptions {
+            nats: softhaptic_tests::nats::options(url),
+            name: name.to_owned(),
+        },
+    );
     let live = start_recorded_observed(scene.clone(), dir, options, Some(Box::new(run))).await;
     (live, scene)
 }
@@ -247,5 +263,76 @@ async fn without_tokens_nobody_sees_the_lumps_before_the_end() {
     assert!(revealed.revealed);
     are_the_scenes(&revealed, &scene);
     live.finish().await;
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lab_hub_tells_each_role_what_the_station_would() {
+    let nats = softhaptic_tests::nats::NatsServer::start("inclusions-hub");
+    let dir = scratch_dir("inclusions-hub");
+    let (live, scene) = lab_station(&dir, true, Some(("desk-p", nats.url()))).await;
+    let secrets = softhaptic_tests::inclusion_coordinates(&scene);
+    let hub =
+        softhaptic_tests::nats::start_hub(softhaptic_tests::nats::options(nats.url()), true).await;
+    softhaptic_tests::wait_until("the station listed on the hub", || {
+        hub.stations()
+            .iter()
+            .any(|s| s.name == "desk-p" && s.state != "offline")
+    })
+    .await;
+    let url = format!("ws://{}/ws?station=desk-p", hub.local_addr());
+    let on_hub = |token: &'static str| {
+        let url = url.clone();
+        async move {
+            let mut v = Viewer::connect_url(&url).await;
+            v.authenticate(token).await;
+            v
+        }
+    };
+    let mut trainee = on_hub(O).await;
+    let mut teacher = on_hub(I).await;
+
+    // Through the hub as on the station: the instructor is told at once, the trainee nothing.
+    let shown = next_inclusions(&mut teacher).await;
+    assert!(!shown.revealed);
+    are_the_scenes(&shown, &scene);
+    told_nothing(&mut trainee, &secrets, 25, ExerciseState::Running).await;
+
+    // A mark made at the station reaches the hub's viewers.
+    let mut desk = viewer(live.server.local_addr(), Some(I)).await;
+    desk.send_text(r#"{"type":"add_mark","note":"pressed too hard"}"#)
+        .await;
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        assert!(Instant::now() < deadline, "no mark through the hub");
+        if let Ok(ServerMessage::Mark(m)) = ServerMessage::decode(&next_text(&mut trainee).await) {
+            assert_eq!((m.id, m.note.as_str()), (1, "pressed too hard"));
+            break;
+        }
+    }
+
+    // The attempt ends at the station: the hub's trainee is told the answer, and so is a viewer
+    // of the hub that comes later, with the mark and the ended exercise.
+    desk.send_text(&control("stop")).await;
+    let revealed = next_inclusions(&mut trainee).await;
+    assert!(revealed.revealed);
+    are_the_scenes(&revealed, &scene);
+    let mut late = on_hub(O).await;
+    let (mut mark, mut ended, mut answer) = (false, false, false);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !(mark && ended && answer) {
+        assert!(
+            Instant::now() < deadline,
+            "mark {mark}, ended {ended}, answer {answer}"
+        );
+        match ServerMessage::decode(&next_text(&mut late).await) {
+            Ok(ServerMessage::Mark(_)) => mark = true,
+            Ok(ServerMessage::Exercise(m)) => ended |= m.state == ExerciseState::Ended,
+            Ok(ServerMessage::Inclusions(m)) => answer |= m.revealed,
+            _ => {}
+        }
+    }
+    hub.shutdown().await;
+    let _ = live.finish().await;
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -609,7 +609,8 @@ async fn a_hub_subscribes_once_per_station_however_many_of_its_viewers_watch_it(
         .iter()
         .map(|s| s.as_str().unwrap())
         .collect();
-    for kind in ["contact", "stats"] {
+    let kinds = ["contact", "stats", "exercise", "marks", "inclusions"];
+    for kind in kinds {
         let subject = format!("softhaptic.station.desk-a.{kind}");
         assert_eq!(
             subjects.iter().filter(|s| **s == subject).count(),
@@ -622,7 +623,7 @@ async fn a_hub_subscribes_once_per_station_however_many_of_its_viewers_watch_it(
             .iter()
             .filter(|s| s.starts_with("softhaptic.station."))
             .count(),
-        2,
+        kinds.len(),
         "{subjects:?}"
     );
     // And all five still stream from that one subscription.

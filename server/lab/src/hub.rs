@@ -565,6 +565,22 @@ impl Lab {
     ) -> Result<Feed, (StatusCode, String)> {
         let subjects = Subjects::of(name);
         let unavailable = |what: String| (StatusCode::BAD_GATEWAY, what);
+        // Subscribed before asking where things stand, so that nothing said meanwhile is missed
+        // (what is told twice is told the same).
+        let subscribe = |subject: &String| {
+            let subject = subject.clone();
+            async {
+                self.client
+                    .subscribe(subject)
+                    .await
+                    .map_err(|e| unavailable(e.to_string()))
+            }
+        };
+        let events = StationEvents {
+            exercise: subscribe(&subjects.exercise).await?,
+            marks: subscribe(&subjects.marks).await?,
+            inclusions: subscribe(&subjects.inclusions).await?,
+        };
         let reply = tokio::time::timeout(
             Duration::from_secs(5),
             self.client.request(subjects.session.clone(), Bytes::new()),
@@ -604,20 +620,23 @@ impl Lab {
             )
             .map_err(|e| unavailable(e.to_string()))?,
         );
-        let contact = self
-            .client
-            .subscribe(subjects.contact.clone())
-            .await
-            .map_err(|e| unavailable(e.to_string()))?;
-        let stats = self
-            .client
-            .subscribe(subjects.stats.clone())
-            .await
-            .map_err(|e| unavailable(e.to_string()))?;
+        let contact = subscribe(&subjects.contact).await?;
+        let stats = subscribe(&subjects.stats).await?;
+        // Where the exercise, marks and inclusions stand, as the station's viewers are told.
+        if let Some(text) = &session.exercise {
+            relay_event(name, &hub, EventKind::Exercise, text.as_bytes());
+        }
+        for text in &session.marks {
+            relay_event(name, &hub, EventKind::Mark, text.as_bytes());
+        }
+        if let Ok(json) = serde_json::to_vec(&session.inclusions) {
+            relay_event(name, &hub, EventKind::Inclusions, &json);
+        }
         let relay = tokio::spawn(relay(
             name.to_owned(),
             contact,
             stats,
+            events,
             Arc::clone(&hub),
             stop_rx,
         ));
@@ -733,6 +752,89 @@ fn relayable_stats(text: &str) -> Result<String, String> {
     }
 }
 
+/// A station's subscriptions besides its frames and stats: its exercise, marks and inclusions.
+struct StationEvents {
+    exercise: async_nats::Subscriber,
+    marks: async_nats::Subscriber,
+    inclusions: async_nats::Subscriber,
+}
+
+#[derive(Debug, Clone, Copy)]
+enum EventKind {
+    Exercise,
+    Mark,
+    Inclusions,
+}
+
+/// The largest exercise, mark or inclusions message taken from a station, bytes (an exercise
+/// with a long traced path is a few tens of kilobytes).
+const MAX_EVENT_BYTES: usize = 256 << 10;
+/// Exercise, mark and inclusions messages a second relayed from one station at most (it sends
+/// about one, and a mark when an instructor makes one).
+const MAX_EVENTS_PER_S: f64 = 20.0;
+
+/// One of a station's exercise, mark or inclusions messages into the feed's stream hub: decoded
+/// as the wire's and encoded again; an `inclusions` message only where the station would put it
+/// (an answer before the end never among the public ones). Refusals are logged.
+fn relay_event(station: &str, hub: &StreamHub, kind: EventKind, payload: &[u8]) -> bool {
+    match checked_event(hub, kind, payload) {
+        Ok(()) => true,
+        Err(e) => {
+            tracing::warn!(station, "a {kind:?} message that is not one: {e}");
+            false
+        }
+    }
+}
+
+fn checked_event(hub: &StreamHub, kind: EventKind, payload: &[u8]) -> Result<(), String> {
+    if payload.len() > MAX_EVENT_BYTES {
+        return Err(format!("{} bytes, over {MAX_EVENT_BYTES}", payload.len()));
+    }
+    let text = std::str::from_utf8(payload).map_err(|e| e.to_string())?;
+    match kind {
+        EventKind::Exercise => match ServerMessage::decode(text).map_err(|e| e.to_string())? {
+            m @ ServerMessage::Exercise(_) => {
+                hub.exercise
+                    .publish(Utf8Bytes::from(m.encode().map_err(|e| e.to_string())?));
+                Ok(())
+            }
+            other => Err(format!("a {} message", other.type_name())),
+        },
+        EventKind::Mark => match ServerMessage::decode(text).map_err(|e| e.to_string())? {
+            ServerMessage::Mark(mark) => {
+                hub.relay_mark(&mark).map(|_| ()).map_err(|e| e.to_string())
+            }
+            other => Err(format!("a {} message", other.type_name())),
+        },
+        EventKind::Inclusions => {
+            let state: super::InclusionsState =
+                serde_json::from_str(text).map_err(|e| e.to_string())?;
+            let hidden = checked_inclusions(state.hidden.as_deref(), false)?;
+            let public = checked_inclusions(state.public.as_deref(), true)?;
+            hub.inclusions.mirror(hidden, public);
+            Ok(())
+        }
+    }
+}
+
+/// An `inclusions` message re-encoded, refused unless its `revealed` is `revealed`.
+fn checked_inclusions(text: Option<&str>, revealed: bool) -> Result<Option<Utf8Bytes>, String> {
+    let Some(text) = text else { return Ok(None) };
+    match ServerMessage::decode(text).map_err(|e| e.to_string())? {
+        ServerMessage::Inclusions(m) if m.revealed == revealed => {
+            let m = ServerMessage::Inclusions(m);
+            Ok(Some(Utf8Bytes::from(
+                m.encode().map_err(|e| e.to_string())?,
+            )))
+        }
+        ServerMessage::Inclusions(_) => Err(format!(
+            "an answer with revealed: {} where only revealed: {revealed} goes",
+            !revealed
+        )),
+        other => Err(format!("a {} message", other.type_name())),
+    }
+}
+
 /// Frames a second relayed from one station at most (it sends 50).
 const MAX_FRAMES_PER_S: f64 = 100.0;
 /// Stats and metrics messages a second relayed from one station at most (it sends 2).
@@ -745,6 +847,7 @@ async fn relay(
     name: String,
     mut contact: async_nats::Subscriber,
     mut stats: async_nats::Subscriber,
+    mut events: StationEvents,
     hub: Arc<StreamHub>,
     mut stop: watch::Receiver<bool>,
 ) {
@@ -762,9 +865,13 @@ async fn relay(
         )
     };
     let (mut frame_rate, mut stats_rate) = (cap(MAX_FRAMES_PER_S), cap(MAX_STATS_PER_S));
+    let mut event_rate = cap(MAX_EVENTS_PER_S);
     loop {
-        tokio::select! {
+        let event = tokio::select! {
             _ = stop.changed() => break,
+            m = events.exercise.next() => match m { Some(m) => Some((EventKind::Exercise, m)), None => break },
+            m = events.marks.next() => match m { Some(m) => Some((EventKind::Mark, m)), None => break },
+            m = events.inclusions.next() => match m { Some(m) => Some((EventKind::Inclusions, m)), None => break },
             m = contact.next() => {
                 let Some(m) = m else { break };
                 if !frame_rate.allow(std::time::Instant::now()) {
@@ -786,6 +893,7 @@ async fn relay(
                         }
                     }
                 }
+                None
             }
             m = stats.next() => {
                 let Some(m) = m else { break };
@@ -807,7 +915,14 @@ async fn relay(
                         }
                     }
                 }
+                None
             }
+        };
+        let Some((kind, m)) = event else { continue };
+        if !event_rate.allow(std::time::Instant::now())
+            || !relay_event(&name, &hub, kind, &m.payload)
+        {
+            refused += 1;
         }
     }
 }
@@ -1259,6 +1374,19 @@ mod tests {
                 _ => None,
             })
             .unwrap()
+    }
+
+    #[test]
+    fn an_answer_is_taken_only_where_the_station_would_put_it() {
+        let inclusions = vector("inclusions");
+        let m: serde_json::Value = serde_json::from_str(&inclusions).unwrap();
+        let revealed = m["revealed"].as_bool().unwrap();
+        // Where it belongs it is taken, re-encoded; on the other channel it is refused.
+        assert!(checked_inclusions(Some(&inclusions), revealed).unwrap().is_some());
+        let refused = checked_inclusions(Some(&inclusions), !revealed).unwrap_err();
+        assert!(refused.contains("revealed"), "{refused}");
+        assert!(checked_inclusions(Some(&vector("stats")), false).is_err());
+        assert!(checked_inclusions(None, true).unwrap().is_none());
     }
 
     #[test]

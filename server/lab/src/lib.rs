@@ -8,8 +8,9 @@
 //! ```
 //!
 //! - [`station`]: `softhaptic --nats URL --station NAME`: a task beside the local viewers
-//!   that publishes the stream's pre-encoded frames and stats, a heartbeat with the station's
-//!   state, and answers the hubs' requests for the scene and its meshes. It reads the stream
+//!   that publishes the stream's pre-encoded frames and stats, its exercise, marks and
+//!   inclusions messages, a heartbeat with the station's state, and answers the hubs' requests
+//!   for the session (the scene, where the exercise, marks and inclusions stand) and its meshes. It reads the stream
 //!   hub's broadcasts like any viewer, so the loop never waits for it and a lost NATS costs
 //!   only the frames not published (counted, and logged when NATS is back).
 //! - [`hub`]: `softhaptic hub --nats URL`: lists the stations from their heartbeats and relays
@@ -36,7 +37,10 @@
 //! | `softhaptic.stations.NAME` | heartbeat, once a second: [`StationStatus`] (JSON) |
 //! | `softhaptic.station.NAME.contact` | each contact frame, the text viewers get |
 //! | `softhaptic.station.NAME.stats` | each stats message, the text viewers get |
-//! | `softhaptic.station.NAME.session` | request → [`StationSession`]: hello and scene |
+//! | `softhaptic.station.NAME.exercise` | each `exercise` message, the text viewers get |
+//! | `softhaptic.station.NAME.marks` | each instructor's `mark` message, as viewers get it |
+//! | `softhaptic.station.NAME.inclusions` | [`InclusionsState`] (JSON) each time it changes |
+//! | `softhaptic.station.NAME.session` | request → [`StationSession`]: hello, scene, and where the exercise, marks and inclusions stand |
 //! | `softhaptic.station.NAME.mesh` | request `{"name", "offset"}` → a piece of a render mesh |
 
 pub mod archive;
@@ -72,6 +76,9 @@ pub struct Subjects {
     pub stats: String,
     pub session: String,
     pub mesh: String,
+    pub exercise: String,
+    pub marks: String,
+    pub inclusions: String,
 }
 
 impl Subjects {
@@ -83,6 +90,9 @@ impl Subjects {
             stats: format!("{base}.stats"),
             session: format!("{base}.session"),
             mesh: format!("{base}.mesh"),
+            exercise: format!("{base}.exercise"),
+            marks: format!("{base}.marks"),
+            inclusions: format!("{base}.inclusions"),
         }
     }
 }
@@ -131,13 +141,37 @@ pub enum StationState {
     Idle,
 }
 
-/// A station's answer to a hub that starts relaying it: what its `hello` and `scene` say.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+/// A station's answer to a hub that starts relaying it: what its `hello` and `scene` say, and
+/// what a viewer connecting to the station now would be told of its exercise, marks and
+/// inclusions (later ones come on their subjects).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 pub struct StationSession {
     pub session_id: String,
     pub force_feedback: bool,
     /// The `scene` message's text, as the station's viewers get it.
     pub scene: String,
+    /// The latest `exercise` message, if the station runs exercises.
+    #[serde(default)]
+    pub exercise: Option<String>,
+    /// Every `mark` message so far.
+    #[serde(default)]
+    pub marks: Vec<String>,
+    #[serde(default)]
+    pub inclusions: InclusionsState,
+}
+
+/// Where a palpation scene's inclusions stand on a station: the two `inclusions` messages its
+/// viewers may be told (module `stream::inclusions`). Crosses NATS only between a station and
+/// the hubs (the permissions let no station read another's subjects); a hub tells each viewer
+/// what the station would.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct InclusionsState {
+    /// The answer while an attempt runs (`revealed: false`), for instructors on a lab with
+    /// tokens; `None` when the scene has no inclusions.
+    pub hidden: Option<String>,
+    /// The answer once a palpation attempt has ended (`revealed: true`), for everyone; `None`
+    /// before the end.
+    pub public: Option<String>,
 }
 
 /// A request for a piece of a render mesh.

@@ -7,7 +7,7 @@
 //! that bucket's stream alone); they subscribe to the hubs' requests to it and to its own inbox.
 //! So a station cannot speak for another, read another's frames or the hub's replies, or write,
 //! purge or read another's recordings. A hub's credentials read: every station's heartbeat,
-//! frames and stats, requests to stations for their scene and meshes, and JetStream's read-only
+//! frames, stats, exercise, marks and inclusions, requests to stations for their scene and meshes, and JetStream's read-only
 //! requests (stream and consumer info, messages, ordered consumers) on any stream, and JetStream's
 //! advisories of streams made and deleted (the archive's listing follows the buckets); they publish
 //! no frame, no heartbeat and nothing into any bucket. Replies to a request it received are
@@ -89,6 +89,9 @@ fn hub() -> Permissions {
         super::STATUS_SUBJECTS.to_owned(),
         "softhaptic.station.*.contact".to_owned(),
         "softhaptic.station.*.stats".to_owned(),
+        "softhaptic.station.*.exercise".to_owned(),
+        "softhaptic.station.*.marks".to_owned(),
+        "softhaptic.station.*.inclusions".to_owned(),
         // Buckets made and deleted, for the archive's listing (`crate::listing`).
         super::listing::STREAM_CREATED.to_owned(),
         super::listing::STREAM_DELETED.to_owned(),

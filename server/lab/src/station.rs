@@ -18,8 +18,8 @@ use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 
 use super::{
-    LabError, MESH_PIECE_BYTES, MeshRequest, NatsOptions, STATUS_PERIOD, StationSession,
-    StationState, StationStatus, Subjects, unix_ms,
+    InclusionsState, LabError, MESH_PIECE_BYTES, MeshRequest, NatsOptions, STATUS_PERIOD,
+    StationSession, StationState, StationStatus, Subjects, unix_ms,
 };
 use crate::stream::StreamHub;
 
@@ -83,7 +83,13 @@ pub fn spawn(
             Arc::clone(&published),
             shutdown.clone(),
         )),
-        tokio::spawn(answer_requests(client, subjects, data, shutdown)),
+        tokio::spawn(publish_events(
+            client.clone(),
+            subjects.clone(),
+            Arc::clone(&hub),
+            shutdown.clone(),
+        )),
+        tokio::spawn(answer_requests(client, subjects, hub, data, shutdown)),
     ];
     tracing::info!(
         "station {:?} publishes to NATS at {}",
@@ -169,6 +175,71 @@ async fn publish_frames(
     }
 }
 
+/// Where the inclusions stand now, as a viewer connecting to the station would be told.
+fn inclusions_state(hub: &StreamHub) -> InclusionsState {
+    let text = |r: tokio::sync::watch::Receiver<Option<axum::extract::ws::Utf8Bytes>>| {
+        r.borrow().as_ref().map(|t| t.as_str().to_owned())
+    };
+    InclusionsState {
+        hidden: text(hub.inclusions.hidden()),
+        public: text(hub.inclusions.public()),
+    }
+}
+
+/// The exercise, marks and inclusions messages, as they are made, to the hubs. Rare (about one
+/// a second at most), so each is published as it comes, in order; one that cannot go out (NATS
+/// down) is not queued: a hub that starts relaying asks for where things stand.
+async fn publish_events(
+    client: async_nats::Client,
+    subjects: Subjects,
+    hub: Arc<StreamHub>,
+    mut shutdown: watch::Receiver<bool>,
+) {
+    let mut exercise = hub.exercise.messages.subscribe();
+    let mut marks = hub.marks.subscribe();
+    let mut hidden = hub.inclusions.hidden();
+    let mut public = hub.inclusions.public();
+    loop {
+        let (subject, payload) = tokio::select! {
+            _ = shutdown.changed() => break,
+            m = exercise.recv() => match m {
+                Ok(text) => (subjects.exercise.clone(), Bytes::from(text.as_str().to_owned())),
+                // A newer message says all a lost one did.
+                Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                Err(broadcast::error::RecvError::Closed) => break,
+            },
+            m = marks.recv() => match m {
+                Ok(text) => (subjects.marks.clone(), Bytes::from(text.as_str().to_owned())),
+                Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                Err(broadcast::error::RecvError::Closed) => break,
+            },
+            changed = hidden.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+                hidden.borrow_and_update();
+                inclusions_payload(&subjects, &hub)
+            }
+            changed = public.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+                public.borrow_and_update();
+                inclusions_payload(&subjects, &hub)
+            }
+        };
+        if client.connection_state() != async_nats::connection::State::Connected {
+            continue;
+        }
+        let _ = tokio::time::timeout(STATUS_PERIOD, client.publish(subject, payload)).await;
+    }
+}
+
+fn inclusions_payload(subjects: &Subjects, hub: &StreamHub) -> (String, Bytes) {
+    let json = serde_json::to_vec(&inclusions_state(hub)).unwrap_or_default();
+    (subjects.inclusions.clone(), Bytes::from(json))
+}
+
 async fn heartbeat(
     client: async_nats::Client,
     name: String,
@@ -222,6 +293,7 @@ async fn heartbeat(
 async fn answer_requests(
     client: async_nats::Client,
     subjects: Subjects,
+    hub: Arc<StreamHub>,
     data: Arc<StationData>,
     mut shutdown: watch::Receiver<bool>,
 ) {
@@ -244,18 +316,11 @@ async fn answer_requests(
             }
         }
     };
-    let session_json = match serde_json::to_vec(&data.session) {
-        Ok(json) => Bytes::from(json),
-        Err(e) => {
-            tracing::error!("cannot encode the station's session for the hubs: {e}");
-            return;
-        }
-    };
     loop {
         let (request, reply) = tokio::select! {
             _ = shutdown.changed() => break,
             m = session.next() => match m {
-                Some(m) => (m, session_json.clone()),
+                Some(m) => (m, session_reply(&hub, &data)),
                 None => break,
             },
             m = mesh.next() => match m {
@@ -268,6 +333,28 @@ async fn answer_requests(
         };
         if let Some(to) = request.reply {
             let _ = client.publish(to, reply).await;
+        }
+    }
+}
+
+/// The session as a hub that starts relaying the station needs it: the scene, and where the
+/// exercise, marks and inclusions stand now.
+fn session_reply(hub: &StreamHub, data: &StationData) -> Bytes {
+    let session = StationSession {
+        exercise: hub.exercise.latest().map(|t| t.as_str().to_owned()),
+        marks: hub
+            .made_marks()
+            .iter()
+            .map(|t| t.as_str().to_owned())
+            .collect(),
+        inclusions: inclusions_state(hub),
+        ..data.session.clone()
+    };
+    match serde_json::to_vec(&session) {
+        Ok(json) => Bytes::from(json),
+        Err(e) => {
+            tracing::error!("cannot encode the station's session for the hubs: {e}");
+            Bytes::new()
         }
     }
 }

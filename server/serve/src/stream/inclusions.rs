@@ -44,6 +44,17 @@ impl InclusionsFeed {
         self.public.send_replace(Some(text));
     }
 
+    /// Sets both channels to another server's (a lab hub mirrors a station's), each only when it
+    /// changed, so that viewers are told nothing twice.
+    pub fn mirror(&self, hidden: Option<Utf8Bytes>, public: Option<Utf8Bytes>) {
+        // The public answer first, as `show_instructors` does: a new attempt withdraws it
+        // before its own hidden answer is told.
+        self.public
+            .send_if_modified(|p| replace_if_changed(p, public));
+        self.hidden
+            .send_if_modified(|h| replace_if_changed(h, hidden));
+    }
+
     /// A receiver of the answer while an attempt runs; only for a viewer who may see it.
     pub fn hidden(&self) -> watch::Receiver<Option<Utf8Bytes>> {
         self.hidden.subscribe()
@@ -53,6 +64,14 @@ impl InclusionsFeed {
     pub fn public(&self) -> watch::Receiver<Option<Utf8Bytes>> {
         self.public.subscribe()
     }
+}
+
+fn replace_if_changed(slot: &mut Option<Utf8Bytes>, value: Option<Utf8Bytes>) -> bool {
+    if *slot == value {
+        return false;
+    }
+    *slot = value;
+    true
 }
 
 #[cfg(test)]

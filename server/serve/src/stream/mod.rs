@@ -165,6 +165,9 @@ pub struct StreamHub {
     pub marks: broadcast::Sender<Utf8Bytes>,
     /// Every mark so far (at most [`MAX_MARKS`]), encoded, for a viewer that connects later.
     made_marks: std::sync::Mutex<Vec<Utf8Bytes>>,
+    /// The newest relayed mark's id ([`StreamHub::relay_mark`]), changed under `made_marks`'s
+    /// lock.
+    relayed_mark_id: AtomicU64,
     /// Whether an instructor's `add_mark` is taken (`hello.accepts_marks`): not on a lab hub's
     /// relay, which knows neither the station's device time nor its recording.
     pub accepts_marks: bool,
@@ -217,6 +220,7 @@ impl StreamHub {
             access,
             marks: broadcast::channel(MARK_BACKLOG).0,
             made_marks: std::sync::Mutex::new(Vec::new()),
+            relayed_mark_id: AtomicU64::new(0),
             accepts_marks: hello.accepts_marks,
             latest_time_ns: AtomicU64::new(0),
             held_frame: std::sync::Mutex::new(None),
@@ -287,6 +291,22 @@ impl StreamHub {
         made.push(text.clone());
         let _ = self.marks.send(text);
         Ok(mark)
+    }
+
+    /// A mark another server made (a lab hub relays a station's), sent to everyone now and kept
+    /// for later viewers: ignored when its `id` is not past every mark held (told twice, once in
+    /// the station's session and once on its subject) or the session holds [`MAX_MARKS`].
+    pub fn relay_mark(&self, mark: &MarkMessage) -> Result<bool, serde_json::Error> {
+        let mut made = self.made_marks.lock().unwrap_or_else(|p| p.into_inner());
+        let last_id = self.relayed_mark_id.load(Ordering::Relaxed);
+        if mark.id <= last_id || made.len() >= MAX_MARKS {
+            return Ok(false);
+        }
+        let text = Utf8Bytes::from(ServerMessage::Mark(mark.clone()).encode()?);
+        self.relayed_mark_id.store(mark.id, Ordering::Relaxed);
+        made.push(text.clone());
+        let _ = self.marks.send(text);
+        Ok(true)
     }
 
     /// Marks a replayed recording holds, shown to its viewers as they connect (the first
