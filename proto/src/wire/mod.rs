@@ -23,11 +23,17 @@ use crate::material::Material;
 use crate::model::{ModelSpec, ValidityLimits};
 use crate::tool::ToolShape;
 
+mod dashboard;
 mod exercise;
 mod inclusions;
 mod replay;
 pub mod shm1;
 mod vectors;
+pub use dashboard::{
+    Acknowledgement, ActionResult, Alert, AlertKind, DashboardMessage, DashboardStation,
+    DeviceSummary, ExerciseSummary, FORCE_SAMPLES_PER_S, MAX_ALERT_DETAIL_CHARS,
+    MAX_SUMMARY_ALERTS, StationAction, StationActionRequest, StationSummary,
+};
 pub use exercise::{ExerciseAction, ExerciseControl, ExerciseMessage, ExerciseState};
 pub use inclusions::{InclusionView, InclusionsMessage};
 pub use replay::{
@@ -40,7 +46,7 @@ pub use vectors::{MessageVector, message_vectors, vector_files};
 pub const PROTOCOL_VERSION: u32 = 1;
 
 /// The `type` names of every server → viewer message, in the order of [`ServerMessage`].
-pub const SERVER_MESSAGE_TYPES: [&str; 10] = [
+pub const SERVER_MESSAGE_TYPES: [&str; 12] = [
     "hello",
     "scene",
     "contact",
@@ -51,16 +57,20 @@ pub const SERVER_MESSAGE_TYPES: [&str; 10] = [
     "replay",
     "exercise",
     "inclusions",
+    "dashboard",
+    "action_result",
 ];
 
 /// The `type` names of every viewer → server message: [`Auth`], [`ReplayControl`] and
-/// [`MarkRequest`], [`RearmRequest`] and [`ExerciseControl`].
-pub const CLIENT_MESSAGE_TYPES: [&str; 5] = [
+/// [`MarkRequest`], [`RearmRequest`], [`ExerciseControl`] and, on a hub's dashboard,
+/// [`StationActionRequest`].
+pub const CLIENT_MESSAGE_TYPES: [&str; 6] = [
     "auth",
     "replay_control",
     "add_mark",
     "rearm_device",
     "exercise_control",
+    "station_action",
 ];
 
 /// A message from the server to a viewer.
@@ -89,6 +99,10 @@ pub enum ServerMessage {
     /// Where a palpation scene's inclusions are: to instructors while an attempt runs, to
     /// everyone once it has ended (never to anyone else: they are the trainee's answer).
     Inclusions(InclusionsMessage),
+    /// A hub's dashboard pages only, about once a second: every station's tile.
+    Dashboard(Box<DashboardMessage>),
+    /// A hub's dashboard pages only: a station's answer to an instructor's `station_action`.
+    ActionResult(ActionResult),
 }
 
 /// What a connection may do, decided by the token it presented (proto/WIRE.md, "Roles and
@@ -771,6 +785,8 @@ impl ServerMessage {
             ServerMessage::Replay(_) => "replay",
             ServerMessage::Exercise(_) => "exercise",
             ServerMessage::Inclusions(_) => "inclusions",
+            ServerMessage::Dashboard(_) => "dashboard",
+            ServerMessage::ActionResult(_) => "action_result",
         }
     }
 
@@ -853,6 +869,10 @@ mod tests {
                             } else if name == "exercise_control" {
                                 let control: ExerciseControl = serde_json::from_str(&text).unwrap();
                                 assert_eq!(serde_json::to_value(control).unwrap(), json);
+                            } else if name.starts_with("station_action") {
+                                let request: StationActionRequest =
+                                    serde_json::from_str(&text).unwrap();
+                                assert_eq!(serde_json::to_value(&request).unwrap(), json);
                             } else if name.starts_with("replay_control") {
                                 let control: ReplayControl = serde_json::from_str(&text).unwrap();
                                 control.validate().unwrap();

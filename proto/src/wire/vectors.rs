@@ -285,6 +285,16 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
                 }],
             }),
         ),
+        ("dashboard", dashboard_vector()),
+        (
+            "action_result",
+            ServerMessage::ActionResult(ActionResult {
+                station: "desk-3".into(),
+                action: "rearm_device".into(),
+                done: false,
+                reason: Some("the device's force output is not latched off".into()),
+            }),
+        ),
         (
             "refused_replay_control",
             ServerMessage::Refused(Refused {
@@ -459,6 +469,34 @@ pub fn message_vectors() -> Result<Vec<MessageVector>, serde_json::Error> {
             action: ExerciseAction::Next,
         })?,
     });
+    // An instructor's actions from a hub's dashboard, as the page's encoder writes them.
+    for (name, action) in [
+        (
+            "station_action_acknowledge",
+            StationAction::Acknowledge { alert: 2 },
+        ),
+        (
+            "station_action_exercise",
+            StationAction::Exercise {
+                control: ExerciseAction::Repeat,
+            },
+        ),
+        (
+            "station_action_mark",
+            StationAction::Mark {
+                note: "check the grip".into(),
+            },
+        ),
+        ("station_action_rearm", StationAction::RearmDevice),
+    ] {
+        out.push(MessageVector::Valid {
+            name: name.into(),
+            json: serde_json::to_value(StationActionRequest {
+                station: "desk-3".into(),
+                action,
+            })?,
+        });
+    }
     // Well-formed but of a type no viewer knows: to be ignored and counted, not refused.
     out.push(MessageVector::Valid {
         name: "unknown_type".into(),
@@ -559,5 +597,75 @@ fn exercise_vector(ended: bool) -> ServerMessage {
         next_in_s: ended.then_some(10.0),
         exercise_file: None,
         exercise_toml: None,
+    }))
+}
+
+/// A hub's dashboard of two stations: one in trouble (an alert not acknowledged, one
+/// acknowledged), one offline without a summary.
+fn dashboard_vector() -> ServerMessage {
+    let alert = |id, kind, detail: &str, acknowledged| Alert {
+        id,
+        kind,
+        time_ns: 4_250_000_000 + u64::from(id) * 1_000_000_000,
+        unix_ms: 1_796_000_000_000 + u64::from(id) * 1000,
+        detail: detail.into(),
+        acknowledged,
+    };
+    ServerMessage::Dashboard(Box::new(DashboardMessage {
+        time_unix_ms: 1_796_000_010_000,
+        stations: vec![
+            DashboardStation {
+                name: "desk-1".into(),
+                scene: "liver, sphere 10 mm, simulated device".into(),
+                state: "live".into(),
+                viewers: 1,
+                hub_viewers: 2,
+                summary: Some(StationSummary {
+                    trainee: Some("ana".into()),
+                    exercise: Some(ExerciseSummary {
+                        name: "Press and hold 2 N".into(),
+                        index: 0,
+                        count: 2,
+                        attempt: 1,
+                        state: ExerciseState::Running,
+                        remaining_s: 12.5,
+                        passed: None,
+                    }),
+                    in_contact: true,
+                    force_n: vec![1.5, 1.75, 2.25, 2.5, 2.0],
+                    safe_force_n: 2.0,
+                    peak_force_n: 2.5,
+                    time_above_safe_s: 0.75,
+                    time_in_contact_s: 6.5,
+                    pushes: 3,
+                    device: DeviceSummary {
+                        state: DeviceStatus::Ok,
+                        fault_ticks: 0,
+                        lost_ticks: 1,
+                        motors_warm: false,
+                    },
+                    alerts: vec![
+                        alert(
+                            1,
+                            AlertKind::AboveSafeForce,
+                            "2.5 N, above the safe 2.0 N",
+                            Some(Acknowledgement {
+                                by: "instructor at 127.0.0.1:50412 on a hub".into(),
+                                unix_ms: 1_796_000_004_000,
+                            }),
+                        ),
+                        alert(2, AlertKind::DeviceFault, "device disconnected", None),
+                    ],
+                }),
+            },
+            DashboardStation {
+                name: "desk-2".into(),
+                scene: "liver, cone 10 mm, simulated device".into(),
+                state: "offline".into(),
+                viewers: 0,
+                hub_viewers: 0,
+                summary: None,
+            },
+        ],
     }))
 }

@@ -1382,7 +1382,11 @@ mod tests {
         let m: serde_json::Value = serde_json::from_str(&inclusions).unwrap();
         let revealed = m["revealed"].as_bool().unwrap();
         // Where it belongs it is taken, re-encoded; on the other channel it is refused.
-        assert!(checked_inclusions(Some(&inclusions), revealed).unwrap().is_some());
+        assert!(
+            checked_inclusions(Some(&inclusions), revealed)
+                .unwrap()
+                .is_some()
+        );
         let refused = checked_inclusions(Some(&inclusions), !revealed).unwrap_err();
         assert!(refused.contains("revealed"), "{refused}");
         assert!(checked_inclusions(Some(&vector("stats")), false).is_err());
