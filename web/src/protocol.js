@@ -1,5 +1,6 @@
 // The viewer's side of the WebSocket protocol (proto/WIRE.md): decoding and validating the
-// server's messages and encoding the messages a viewer sends (`auth`, `replay_control`, `mark`).
+// server's messages and encoding the messages a viewer sends (`auth`, `replay_control`, `mark`,
+// and the dashboard's `station_action`).
 // The connection that carries them (URL, token, reconnection) is connection.js.
 //
 // Messages keep their wire names (snake_case, SI units in the names) so that what the viewer
@@ -600,6 +601,155 @@ export function encodeExerciseControl(action) {
   return JSON.stringify({ type: 'exercise_control', action });
 }
 
+/** Why a station raised an alert (`AlertKind` in proto/src/wire/dashboard.rs). */
+export const ALERT_KINDS = Object.freeze(['above_safe_force', 'device_fault', 'needs_calibration', 'exercise_failed']);
+
+/** A station's state as a hub lists it (`/api/stations`, `dashboard.stations[].state`). */
+export const STATION_STATES = Object.freeze(['live', 'idle', 'offline']);
+
+/** Largest force samples a summary carries: one per 100 ms of the last second. */
+export const FORCE_SAMPLES_PER_S = 10;
+
+/** Longest alert detail, characters (`MAX_ALERT_DETAIL_CHARS`). */
+export const MAX_ALERT_DETAIL_CHARS = 200;
+
+function nullable(value, field, check) {
+  return value === null ? null : check(value, field);
+}
+
+function list(value, field) {
+  if (!Array.isArray(value)) throw new ProtocolError(field, `expected an array, got ${show(value)}`);
+  return value;
+}
+
+function oneOf(value, known, field, what) {
+  if (!known.includes(value)) {
+    throw new ProtocolError(field, `unknown ${what} ${show(value)} (known: ${known.join(', ')})`);
+  }
+  return value;
+}
+
+function validateAlert(a, field) {
+  object(a, field);
+  count(a.id, `${field}.id`);
+  oneOf(a.kind, ALERT_KINDS, `${field}.kind`, 'alert kind');
+  count(a.time_ns, `${field}.time_ns`);
+  count(a.unix_ms, `${field}.unix_ms`);
+  string(a.detail, `${field}.detail`);
+  if ([...a.detail].length > MAX_ALERT_DETAIL_CHARS) {
+    throw new ProtocolError(`${field}.detail`, `longer than ${MAX_ALERT_DETAIL_CHARS} characters`);
+  }
+  nullable(a.acknowledged, `${field}.acknowledged`, (ack, f) => {
+    object(ack, f);
+    string(ack.by, `${f}.by`);
+    count(ack.unix_ms, `${f}.unix_ms`);
+    return ack;
+  });
+  return a;
+}
+
+/** What a station says of its trainee, exercise and device once a second (`StationSummary`). */
+function validateSummary(s, field) {
+  object(s, field);
+  nullable(s.trainee, `${field}.trainee`, string);
+  nullable(s.exercise, `${field}.exercise`, (e, f) => {
+    object(e, f);
+    string(e.name, `${f}.name`);
+    count(e.index, `${f}.index`);
+    count(e.count, `${f}.count`);
+    count(e.attempt, `${f}.attempt`);
+    oneOf(e.state, EXERCISE_STATES, `${f}.state`, 'exercise state');
+    nonNegative(e.remaining_s, `${f}.remaining_s`);
+    nullable(e.passed, `${f}.passed`, boolean);
+    return e;
+  });
+  boolean(s.in_contact, `${field}.in_contact`);
+  list(s.force_n, `${field}.force_n`);
+  if (s.force_n.length > FORCE_SAMPLES_PER_S) {
+    throw new ProtocolError(`${field}.force_n`, `at most ${FORCE_SAMPLES_PER_S} samples, got ${s.force_n.length}`);
+  }
+  s.force_n.forEach((f, i) => nonNegative(f, `${field}.force_n[${i}]`));
+  positive(s.safe_force_n, `${field}.safe_force_n`);
+  nonNegative(s.peak_force_n, `${field}.peak_force_n`);
+  nonNegative(s.time_above_safe_s, `${field}.time_above_safe_s`);
+  nonNegative(s.time_in_contact_s, `${field}.time_in_contact_s`);
+  count(s.pushes, `${field}.pushes`);
+  const d = object(s.device, `${field}.device`);
+  oneOf(d.state, Object.keys(DEVICE_STATUS_MESSAGES), `${field}.device.state`, 'device state');
+  count(d.fault_ticks, `${field}.device.fault_ticks`);
+  count(d.lost_ticks, `${field}.device.lost_ticks`);
+  boolean(d.motors_warm, `${field}.device.motors_warm`);
+  list(s.alerts, `${field}.alerts`).forEach((a, i) => validateAlert(a, `${field}.alerts[${i}]`));
+  return s;
+}
+
+/** `dashboard`: the hub's view of every station, about once a second, to its dashboard pages. */
+function validateDashboard(m) {
+  count(m.time_unix_ms, 'dashboard.time_unix_ms');
+  list(m.stations, 'dashboard.stations').forEach((s, i) => {
+    const field = `dashboard.stations[${i}]`;
+    object(s, field);
+    string(s.name, `${field}.name`);
+    string(s.scene, `${field}.scene`);
+    oneOf(s.state, STATION_STATES, `${field}.state`, 'station state');
+    count(s.viewers, `${field}.viewers`);
+    count(s.hub_viewers, `${field}.hub_viewers`);
+    nullable(s.summary, `${field}.summary`, validateSummary);
+  });
+  return m;
+}
+
+/** `action_result`: a station's answer to an instructor's `station_action`. */
+function validateActionResult(m) {
+  string(m.station, 'action_result.station');
+  string(m.action, 'action_result.action');
+  boolean(m.done, 'action_result.done');
+  nullable(m.reason, 'action_result.reason', string);
+  return m;
+}
+
+/** What an instructor may ask of a station from the dashboard (`StationAction`). */
+export const STATION_ACTIONS = Object.freeze(['acknowledge', 'exercise', 'mark', 'rearm_device']);
+
+/**
+ * The `station_action` a dashboard sends: `action` is `{kind: 'acknowledge', alert}`,
+ * `{kind: 'exercise', control}` (`next`, `repeat`, `stop`), `{kind: 'mark', note}` (trimmed, 1 …
+ * 280 characters) or `{kind: 'rearm_device'}`. Throws `ProtocolError` for what the hub would
+ * refuse, so a bad action never leaves the page.
+ */
+export function encodeStationAction(station, action) {
+  string(station, 'station_action.station');
+  if (station.length === 0) throw new ProtocolError('station_action.station', 'expected a station name');
+  object(action, 'station_action.action');
+  let encoded;
+  switch (action.kind) {
+    case 'acknowledge':
+      encoded = { kind: 'acknowledge', alert: count(action.alert, 'station_action.action.alert') };
+      break;
+    case 'exercise':
+      encoded = {
+        kind: 'exercise',
+        control: oneOf(action.control, EXERCISE_ACTIONS, 'station_action.action.control', 'control'),
+      };
+      break;
+    case 'mark': {
+      const note = String(action.note ?? '').trim();
+      if (note.length === 0) throw new ProtocolError('station_action.action.note', 'a mark needs a note');
+      if ([...note].length > MARK_NOTE_MAX_CHARS) {
+        throw new ProtocolError('station_action.action.note', `at most ${MARK_NOTE_MAX_CHARS} characters`);
+      }
+      encoded = { kind: 'mark', note };
+      break;
+    }
+    case 'rearm_device':
+      encoded = { kind: 'rearm_device' };
+      break;
+    default:
+      oneOf(action.kind, STATION_ACTIONS, 'station_action.action.kind', 'action');
+  }
+  return JSON.stringify({ type: 'station_action', station, action: encoded });
+}
+
 const VALIDATORS = {
   hello: validateHello,
   scene: validateScene,
@@ -611,6 +761,8 @@ const VALIDATORS = {
   refused: validateRefused,
   exercise: validateExercise,
   inclusions: validateInclusions,
+  dashboard: validateDashboard,
+  action_result: validateActionResult,
 };
 
 /**
