@@ -237,3 +237,41 @@ async fn the_dashboard_shows_every_station_raises_alerts_and_takes_an_instructor
     hard.shutdown().await;
     calm.shutdown().await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sessions_alerts_and_their_acknowledgements_are_in_its_recording() {
+    use softhaptic_server::session::reader::Recording;
+    use softhaptic_server::session::tools::{Info, export};
+
+    let dir = softhaptic_tests::scratch_dir("dashboard-alerts");
+    let mut scene = Scene::builtin_default().unwrap();
+    scene.safe_force_n = 0.05;
+    let live = softhaptic_tests::start_recorded(scene, &dir, test_options()).await;
+    let summary = std::sync::Arc::clone(&live.server.hub().summary);
+    wait_until("an alert raised", || !summary.all_alerts().is_empty()).await;
+    summary
+        .acknowledge(1, "instructor at 127.0.0.1:9 on a hub")
+        .unwrap();
+    let (_, _, path, _) = live.finish().await;
+
+    let recording = Recording::open(&path).unwrap();
+    assert_eq!(recording.alerts.len(), 1, "{:?}", recording.alerts);
+    let alert = &recording.alerts[0];
+    assert_eq!(alert.kind, AlertKind::AboveSafeForce);
+    assert_eq!(
+        alert.acknowledged.as_ref().unwrap().by,
+        "instructor at 127.0.0.1:9 on a hub"
+    );
+    let info = Info::of(&recording).to_string();
+    assert!(
+        info.contains("alerts:            1 (0 not acknowledged)"),
+        "{info}"
+    );
+    assert!(info.contains("above_safe_force"), "{info}");
+    let out = dir.join("export");
+    let exported = export(&recording, &out, false).unwrap();
+    let written: Vec<softhaptic_proto::wire::Alert> =
+        serde_json::from_slice(&std::fs::read(exported.alerts).unwrap()).unwrap();
+    assert_eq!(&written, &recording.alerts);
+    let _ = std::fs::remove_dir_all(&dir);
+}
