@@ -77,6 +77,9 @@ pub mod topic {
     /// The `exercise` wire messages of a station running exercises, as sent to viewers; the
     /// one that starts an attempt carries the exercise file's name and text as well.
     pub const EXERCISE: &str = "/exercise";
+    /// The session's alerts (`wire::Alert`), each as it was raised and again as it was
+    /// acknowledged; absent from recordings made before alerts existed.
+    pub const ALERTS: &str = "/alerts";
 }
 
 /// The schema name of each channel (the MCAP schema record's `name`).
@@ -90,6 +93,7 @@ pub mod schema_name {
     pub const MARKS: &str = "softhaptic.MarkMessage";
     pub const METRICS: &str = "softhaptic.MetricsMessage";
     pub const EXERCISE: &str = "softhaptic.ExerciseMessage";
+    pub const ALERTS: &str = "softhaptic.Alert";
 }
 
 /// One device sample as recorded (mirrors the device crate's sample; kept here so the file format
@@ -622,8 +626,25 @@ pub mod schema {
   "required": ["type", "trainee", "index", "count", "attempt", "state", "exercise", "time_ns", "remaining_s", "result", "next_in_s"]
 }"##;
 
+    /// Schema of an alert (`wire::Alert`).
+    pub const ALERTS: &str = r##"{
+  "$schema": "https://json-schema.org/draft/2020-12/schema",
+  "title": "softhaptic.Alert",
+  "description": "An alert the session raised for its instructors (the dashboard's), written when raised and again when acknowledged.",
+  "type": "object",
+  "properties": {
+    "id": {"type": "integer", "minimum": 1, "description": "1, 2, ... in the order raised"},
+    "kind": {"type": "string", "enum": ["above_safe_force", "device_fault", "needs_calibration", "exercise_failed"]},
+    "time_ns": {"type": "integer", "minimum": 0, "description": "device time when raised, ns"},
+    "unix_ms": {"type": "integer", "minimum": 0, "description": "wall-clock time when raised"},
+    "detail": {"type": "string"},
+    "acknowledged": {"type": ["object", "null"], "properties": {"by": {"type": "string"}, "unix_ms": {"type": "integer"}}, "description": "who acknowledged it and when"}
+  },
+  "required": ["id", "kind", "time_ns", "unix_ms", "detail", "acknowledged"]
+}"##;
+
     /// `(topic, schema name, schema)` of every channel.
-    pub const ALL: [(&str, &str, &str); 9] = [
+    pub const ALL: [(&str, &str, &str); 10] = [
         (super::topic::BUILD, super::schema_name::BUILD, BUILD),
         (super::topic::SCENE, super::schema_name::SCENE, SCENE),
         (super::topic::DEVICE, super::schema_name::DEVICE, DEVICE),
@@ -641,6 +662,7 @@ pub mod schema {
             super::schema_name::EXERCISE,
             EXERCISE,
         ),
+        (super::topic::ALERTS, super::schema_name::ALERTS, ALERTS),
     ];
 }
 

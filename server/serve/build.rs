@@ -22,7 +22,12 @@ fn check_viewer() {
     let web = Path::new(&manifest).join("../../web");
     // The embedding macro tracks the files it embeds, not the directories: a module added to
     // src/ (or three installed) must rebuild the binary too.
-    for watched in ["index.html", "src", "node_modules/three/package.json"] {
+    for watched in [
+        "index.html",
+        "dashboard.html",
+        "src",
+        "node_modules/three/package.json",
+    ] {
         println!("cargo:rerun-if-changed={}", web.join(watched).display());
     }
     let missing: Vec<&str> = THREE_FILES

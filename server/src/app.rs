@@ -359,7 +359,8 @@ pub async fn start(
         })?
         .with_rearm(rearm)
         .with_exercises(options.exercises.take())
-        .with_inclusions(options.inclusions.take()),
+        .with_inclusions(options.inclusions.take())
+        .with_safe_force(scene.safe_force_n),
     );
     let meshes = Arc::new(meshes);
     let mut tasks = vec![
@@ -379,6 +380,8 @@ pub async fn start(
         )),
     ];
     debug_assert_eq!(tasks.len(), STREAM_TASKS);
+    // The dashboard's summary and the session's alerts, from what the viewers are sent.
+    tasks.push(tokio::spawn(stream::summary::track(Arc::clone(&hub))));
 
     if let (Some(client), Some(lab)) = (nats, &options.lab) {
         let data = crate::lab::station::StationData {

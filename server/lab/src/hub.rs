@@ -51,10 +51,13 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use futures_util::StreamExt;
 use serde::{Deserialize, Serialize};
-use softhaptic_proto::wire::{Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage};
+use softhaptic_proto::wire::{
+    DashboardMessage, DashboardStation, Hello, Mode, PROTOCOL_VERSION, Role, ServerMessage,
+};
 use tokio::sync::watch;
 use tokio::task::JoinHandle;
 
+use super::dashboard::{DASHBOARD_PERIOD, DashboardCounters, DashboardHub};
 use super::{
     LabError, MeshRequest, NatsOptions, OFFLINE_AFTER, STATUS_SUBJECTS, StationSession,
     StationState, StationStatus, Subjects,
@@ -167,6 +170,11 @@ impl RunningHub {
 
     /// What happened to the connections that had no stream yet: refused for their token, by a
     /// limit, or for a message (the counters of each stream count the rest).
+    /// What the dashboard pages cost (pages open, messages made, bytes sent, actions).
+    pub fn dashboard_counters(&self) -> &DashboardCounters {
+        &self.lab.dashboard.counters
+    }
+
     pub fn gate_counters(&self) -> &StreamCounters {
         &self.lab.gate
     }
@@ -296,6 +304,8 @@ struct Lab {
     shutdown: watch::Receiver<bool>,
     /// The refusals of connections that have no stream yet.
     gate: StreamCounters,
+    /// The dashboard pages' shared message, and the actions they send to stations.
+    dashboard: Arc<DashboardHub>,
 }
 
 /// A refusal: its status and why, in detail. The detail is for the hub's log only (it can hold
@@ -375,6 +385,33 @@ impl Lab {
             .collect();
         out.sort_by(|a, b| a.name.cmp(&b.name));
         out
+    }
+
+    /// Every station's tile, in the list's order: the listing with each station's latest
+    /// summary (none once it is offline: an old summary would show a trainee who has left).
+    fn dashboard_message(&self) -> DashboardMessage {
+        let listing = self.listing();
+        let stations = lock(&self.stations);
+        let stations = listing
+            .into_iter()
+            .map(|l| {
+                let summary = (l.state != "offline")
+                    .then(|| stations.get(&l.name).and_then(|e| e.status.summary.clone()))
+                    .flatten();
+                DashboardStation {
+                    name: l.name,
+                    scene: l.scene,
+                    state: l.state,
+                    viewers: l.viewers,
+                    hub_viewers: l.hub_viewers,
+                    summary,
+                }
+            })
+            .collect();
+        DashboardMessage {
+            time_unix_ms: super::unix_ms(),
+            stations,
+        }
     }
 
     fn close_feeds(&self) {
@@ -984,8 +1021,9 @@ const LISTING_WAIT: Duration = Duration::from_secs(5);
 
 /// The stations a hub lists at most (a lab has tens).
 const MAX_STATIONS: usize = 512;
-/// The largest heartbeat taken as one, bytes.
-const MAX_HEARTBEAT_BYTES: usize = 4096;
+/// The largest heartbeat taken as one, bytes: a summary with its most alerts, each detail at its
+/// longest, is about 12 KiB.
+const MAX_HEARTBEAT_BYTES: usize = 32 << 10;
 
 /// Makes room in a full station list: forgets the station heard from longest ago that no viewer
 /// of this hub watches. False when every station is watched.
@@ -1008,6 +1046,8 @@ fn forget_longest_silent(stations: &mut HashMap<String, Entry>) -> bool {
 #[derive(Deserialize)]
 struct StationQuery {
     station: Option<String>,
+    /// `/ws?dashboard`: the dashboard page's connection, not a station's viewer.
+    dashboard: Option<String>,
     /// An archived recording of the station, to replay instead of its live stream.
     archive: Option<String>,
 }
@@ -1194,6 +1234,9 @@ async fn ws(
             return access::json_error(StatusCode::FORBIDDEN, "origin not allowed");
         }
     };
+    if q.dashboard.is_some() {
+        return dashboard_ws(lab, peer, origin, upgrade);
+    }
     let Some(station) = q.station else {
         return no_station();
     };
@@ -1257,6 +1300,64 @@ async fn ws(
     })
 }
 
+/// `/ws?dashboard`: a dashboard page, behind the same limits and token exchange as a viewer.
+fn dashboard_ws(
+    lab: Arc<Lab>,
+    peer: Option<SocketAddr>,
+    origin: Option<String>,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    let admission = lab.access.admit(peer.map(|p| p.ip()));
+    let limits = lab.limits;
+    limits.bound(upgrade).on_upgrade(move |socket| async move {
+        let admission = match admission {
+            Ok(admission) => admission,
+            Err(refusal) => {
+                lab.access
+                    .refuse_viewer(socket, refusal, limits, &lab.gate)
+                    .await;
+                Connection::new(&lab.access, peer, origin, None).finish(&ViewerEnd::Limit(refusal));
+                return;
+            }
+        };
+        let mut connection = Connection::new(&lab.access, peer, origin, Some(admission));
+        let who = peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string());
+        let (dashboard, shutdown) = (Arc::clone(&lab.dashboard), lab.shutdown.clone());
+        let end = lab
+            .access
+            .serve_after_auth(
+                socket,
+                limits,
+                &lab.shutdown,
+                &lab.gate,
+                &mut connection,
+                move |socket, role, rate| {
+                    super::dashboard::serve_page(
+                        socket, dashboard, role, rate, limits, shutdown, who,
+                    )
+                },
+            )
+            .await;
+        connection.finish(&end);
+    })
+}
+
+/// The dashboard's message to its pages, once a [`DASHBOARD_PERIOD`] while a page is open.
+async fn publish_dashboard(lab: Arc<Lab>) {
+    let mut ticks = tokio::time::interval(DASHBOARD_PERIOD);
+    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut shutdown = lab.shutdown.clone();
+    loop {
+        tokio::select! {
+            _ = shutdown.changed() => break,
+            _ = ticks.tick() => {}
+        }
+        if lab.dashboard.watched() {
+            lab.dashboard.publish(lab.dashboard_message());
+        }
+    }
+}
+
 /// Drops the decoded recordings no replay has used for their expiry, a few times per expiry.
 async fn expire_replays(lab: Arc<Lab>) {
     let every = (lab.replays.limits().idle_expiry / 4).max(Duration::from_millis(100));
@@ -1291,6 +1392,7 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
     let (shutdown_tx, shutdown_rx) = watch::channel(false);
     let (archive, follow_archive) =
         super::listing::ArchiveListing::start(client.clone(), options.archive_listing);
+    let dashboard = Arc::new(DashboardHub::new(client.clone()));
     let lab = Arc::new(Lab {
         client,
         stations: Mutex::new(HashMap::new()),
@@ -1302,9 +1404,11 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
         limits: options.viewer_limits,
         shutdown: shutdown_rx.clone(),
         gate: StreamCounters::default(),
+        dashboard,
     });
     let tasks = vec![
         tokio::spawn(follow_stations(Arc::clone(&lab), status)),
+        tokio::spawn(publish_dashboard(Arc::clone(&lab))),
         tokio::spawn(expire_replays(Arc::clone(&lab))),
         follow_archive,
     ];
@@ -1326,6 +1430,7 @@ pub async fn start(options: HubOptions) -> Result<RunningHub, HubError> {
     let routes = options
         .viewer
         .routes()
+        .merge(options.viewer.dashboard_routes())
         .merge(session_data)
         .route("/ws", get(ws))
         .with_state(Arc::clone(&lab))
@@ -1423,6 +1528,7 @@ mod tests {
                 since_unix_ms: 0,
                 viewers: 0,
                 unpublished_frames: 0,
+                summary: None,
             },
             seen,
             seen_unix_ms: 0,

@@ -41,9 +41,11 @@
 //! | `softhaptic.station.NAME.marks` | each instructor's `mark` message, as viewers get it |
 //! | `softhaptic.station.NAME.inclusions` | [`InclusionsState`] (JSON) each time it changes |
 //! | `softhaptic.station.NAME.session` | request → [`StationSession`]: hello, scene, and where the exercise, marks and inclusions stand |
+//! | `softhaptic.station.NAME.action` | request [`ActionCall`] → [`ActionResult`](softhaptic_proto::wire::ActionResult): an instructor's action from a hub's dashboard |
 //! | `softhaptic.station.NAME.mesh` | request `{"name", "offset"}` → a piece of a render mesh |
 
 pub mod archive;
+pub mod dashboard;
 pub mod hub;
 pub mod listing;
 pub mod permissions;
@@ -79,6 +81,7 @@ pub struct Subjects {
     pub exercise: String,
     pub marks: String,
     pub inclusions: String,
+    pub action: String,
 }
 
 impl Subjects {
@@ -93,6 +96,7 @@ impl Subjects {
             exercise: format!("{base}.exercise"),
             marks: format!("{base}.marks"),
             inclusions: format!("{base}.inclusions"),
+            action: format!("{base}.action"),
         }
     }
 }
@@ -129,6 +133,19 @@ pub struct StationStatus {
     pub viewers: u32,
     /// Frames not published since the start (NATS unreachable, or slower than 50 Hz).
     pub unpublished_frames: u64,
+    /// The trainee, exercise, force, device and alerts, for the hubs' dashboards; absent from
+    /// stations that predate them.
+    #[serde(default)]
+    pub summary: Option<softhaptic_proto::wire::StationSummary>,
+}
+
+/// An instructor's action on a station, as a hub asks the station to carry it out.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ActionCall {
+    pub action: softhaptic_proto::wire::StationAction,
+    /// Who asks, in words for the station's log and an acknowledgement (`instructor at
+    /// ADDRESS on a hub`); never a token.
+    pub by: String,
 }
 
 /// Whether a station's trainee is at work.

@@ -61,6 +61,7 @@ fn station(name: &str) -> Permissions {
     let subscribe = vec![
         subjects.session,
         subjects.mesh,
+        subjects.action,
         format!("{}.>", Party::Station(name).inbox_prefix()),
     ];
     Permissions { publish, subscribe }
@@ -68,9 +69,10 @@ fn station(name: &str) -> Permissions {
 
 fn hub() -> Permissions {
     let publish = [
-        // Requests to any station for its scene and its meshes.
+        // Requests to any station for its scene and its meshes, and instructors' actions.
         "softhaptic.station.*.session",
         "softhaptic.station.*.mesh",
+        "softhaptic.station.*.action",
         // JetStream, read only.
         "$JS.API.INFO",
         "$JS.API.STREAM.NAMES",

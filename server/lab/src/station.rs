@@ -17,11 +17,15 @@ use futures_util::StreamExt;
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 
+use softhaptic_proto::wire::{ActionResult, MarkRequest, StationAction};
+
 use super::{
-    InclusionsState, LabError, MESH_PIECE_BYTES, MeshRequest, NatsOptions, STATUS_PERIOD,
-    StationSession, StationState, StationStatus, Subjects, unix_ms,
+    ActionCall, InclusionsState, LabError, MESH_PIECE_BYTES, MeshRequest, NatsOptions,
+    STATUS_PERIOD, StationSession, StationState, StationStatus, Subjects, unix_ms,
 };
-use crate::stream::StreamHub;
+use crate::stream::{
+    ControlRefusal, REFUSED_EXERCISE_BUSY, REFUSED_EXERCISE_NONE, REFUSED_REARM_NONE, StreamHub,
+};
 
 /// A station's lab settings (`--nats`, `--station`, `--nats-credentials`).
 #[derive(Debug, Clone)]
@@ -276,6 +280,7 @@ async fn heartbeat(
             since_unix_ms: state.1,
             viewers: hub.counters.viewers.load(Ordering::Relaxed),
             unpublished_frames: published.unpublished_frames.load(Ordering::Relaxed),
+            summary: Some(hub.summary.summary()),
         };
         if client.connection_state() != async_nats::connection::State::Connected {
             continue;
@@ -298,11 +303,12 @@ async fn answer_requests(
     mut shutdown: watch::Receiver<bool>,
 ) {
     // Subscribed as soon as NATS is there (the client may still be connecting).
-    let (mut session, mut mesh) = loop {
+    let (mut session, mut mesh, mut action) = loop {
         let subscribed = async {
             Ok::<_, async_nats::SubscribeError>((
                 client.subscribe(subjects.session.clone()).await?,
                 client.subscribe(subjects.mesh.clone()).await?,
+                client.subscribe(subjects.action.clone()).await?,
             ))
         };
         tokio::select! {
@@ -330,10 +336,80 @@ async fn answer_requests(
                 }
                 None => break,
             },
+            m = action.next() => match m {
+                Some(m) => {
+                    let result = carry_out(&hub, &m.payload);
+                    (m, Bytes::from(serde_json::to_vec(&result).unwrap_or_default()))
+                }
+                None => break,
+            },
         };
         if let Some(to) = request.reply {
             let _ = client.publish(to, reply).await;
         }
+    }
+}
+
+/// The largest action request taken, bytes (a mark's note is at most 280 characters).
+const MAX_ACTION_BYTES: usize = 4096;
+
+/// Carries out an instructor's action sent by a hub (the hub checked the instructor's role; the
+/// NATS permissions let only hubs send it), logged with who asked.
+fn carry_out(hub: &StreamHub, payload: &[u8]) -> ActionResult {
+    let call = (payload.len() <= MAX_ACTION_BYTES)
+        .then(|| serde_json::from_slice::<ActionCall>(payload).ok())
+        .flatten();
+    let Some(ActionCall { action, by }) = call else {
+        return ActionResult {
+            station: String::new(),
+            action: "unknown".into(),
+            done: false,
+            reason: Some("the station could not read the request".into()),
+        };
+    };
+    let by: String = by.chars().take(200).collect();
+    let outcome: Result<(), String> = match &action {
+        StationAction::Acknowledge { alert } => hub
+            .summary
+            .acknowledge(*alert, &by)
+            .map_err(|r| r.reason().to_owned()),
+        StationAction::Exercise { control } => {
+            hub.exercise.control(*control).map_err(|r| match r {
+                ControlRefusal::NoExercises => REFUSED_EXERCISE_NONE.to_owned(),
+                ControlRefusal::Busy => REFUSED_EXERCISE_BUSY.to_owned(),
+            })
+        }
+        StationAction::Mark { note } => {
+            let request = MarkRequest {
+                note: note.clone(),
+                point_m: None,
+            };
+            match request.problem() {
+                Some(problem) => Err(problem.to_owned()),
+                None => hub.add_mark(request).map(|_| ()).map_err(|e| e.to_string()),
+            }
+        }
+        StationAction::RearmDevice => {
+            if hub.rearm_device() {
+                Ok(())
+            } else {
+                Err(REFUSED_REARM_NONE.to_owned())
+            }
+        }
+    };
+    match &outcome {
+        Ok(()) => {
+            tracing::info!(by = %by, action = ?action, "an instructor's action from a lab hub, carried out")
+        }
+        Err(reason) => {
+            tracing::info!(by = %by, action = ?action, "an instructor's action from a lab hub, not carried out: {reason}")
+        }
+    }
+    ActionResult {
+        station: String::new(),
+        action: action.name().to_owned(),
+        done: outcome.is_ok(),
+        reason: outcome.err(),
     }
 }
 

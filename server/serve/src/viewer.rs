@@ -35,6 +35,7 @@ use crate::files::{self, FileKind};
 #[derive(RustEmbed)]
 #[folder = "../../web/"]
 #[include = "index.html"]
+#[include = "dashboard.html"]
 #[include = "src/*.js"]
 #[include = "src/*.css"]
 #[include = "node_modules/three/build/three.module.js"]
@@ -170,6 +171,18 @@ impl Viewer {
         }
     }
 
+    /// The route of a lab hub's dashboard page, `/dashboard` (`web/dashboard.html`; its modules
+    /// are the viewer's `/src/*`). It needs no token: the page asks for one as the viewer does.
+    pub fn dashboard_routes<S: Clone + Send + Sync + 'static>(&self) -> Router<S> {
+        match &self.dir {
+            None => Router::new().route("/dashboard", get(embedded_file)),
+            Some(dir) => Router::new().route_service(
+                "/dashboard",
+                get_service(ServeFile::new(dir.join("dashboard.html"))),
+            ),
+        }
+    }
+
     /// The routes of the viewer's files: `/`, `/src/*`, `/vendor/three/*`. They need no token.
     pub fn routes<S: Clone + Send + Sync + 'static>(&self) -> Router<S> {
         match &self.dir {
@@ -194,8 +207,10 @@ impl Viewer {
 
 /// The embedded file a URL path names (a path relative to `web/`), if any.
 fn embedded_path(url_path: &str) -> Option<String> {
-    if url_path == "/" {
-        return Some("index.html".to_owned());
+    match url_path {
+        "/" => return Some("index.html".to_owned()),
+        "/dashboard" => return Some("dashboard.html".to_owned()),
+        _ => {}
     }
     MOUNTS.iter().find_map(|(prefix, dir)| {
         url_path

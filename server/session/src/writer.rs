@@ -68,6 +68,7 @@ struct Channels {
     marks: u16,
     metrics: u16,
     exercise: u16,
+    alerts: u16,
 }
 
 /// Writes one session to one MCAP file. Not thread-safe by itself; see [`Recorder`].
@@ -136,6 +137,7 @@ impl SessionWriter {
             marks_id,
             metrics_id,
             exercise_id,
+            alerts_id,
         ] = ids;
         let mut w = SessionWriter {
             mcap,
@@ -150,6 +152,7 @@ impl SessionWriter {
                 marks: marks_id,
                 metrics: metrics_id,
                 exercise: exercise_id,
+                alerts: alerts_id,
             },
             buf: Vec::with_capacity(1024),
             sequences: [0; 16],
@@ -228,6 +231,12 @@ impl SessionWriter {
     /// first), at the latest device time.
     pub fn write_exercise(&mut self, json: &str) -> Result<(), SessionError> {
         self.write_raw(self.channels.exercise, self.last_time_ns, json.as_bytes())
+    }
+
+    /// Writes one alert (`wire::Alert` JSON) as it was raised or acknowledged, at the latest
+    /// device time.
+    pub fn write_alert(&mut self, json: &str) -> Result<(), SessionError> {
+        self.write_raw(self.channels.alerts, self.last_time_ns, json.as_bytes())
     }
 
     /// Writes one `metrics` wire message exactly as it was sent, at the latest device time.
@@ -338,8 +347,8 @@ impl SessionWriter {
 /// [`schema::ALL`], and returns their ids in that order.
 fn add_channels<W: Write + std::io::Seek>(
     mcap: &mut mcap::Writer<W>,
-) -> Result<[u16; 9], mcap::McapError> {
-    let mut ids = [0u16; 9];
+) -> Result<[u16; 10], mcap::McapError> {
+    let mut ids = [0u16; 10];
     for (slot, (topic, name, schema)) in ids.iter_mut().zip(schema::ALL) {
         let schema_id = mcap.add_schema(name, record::SCHEMA_ENCODING, schema.as_bytes())?;
         *slot = mcap.add_channel(
@@ -358,7 +367,7 @@ fn add_channels<W: Write + std::io::Seek>(
 /// memory, whose first chunk it is.
 fn start_copy(
     path: &Path,
-    ids: [u16; 9],
+    ids: [u16; 10],
     build: &[u8],
     scene: &[u8],
 ) -> Result<Vec<u8>, SessionError> {
@@ -457,6 +466,8 @@ enum StreamMessage {
     Mark { json: String },
     /// A `metrics` message.
     Metrics { json: String },
+    /// An alert, raised or acknowledged.
+    Alert { json: String },
 }
 
 /// The handle the server keeps to hand what it sends viewers to the recorder thread.
@@ -480,6 +491,11 @@ impl StreamTap {
     /// Queues one `mark` message for the file; never waits (a full queue drops it, counted).
     pub fn record_mark(&self, json: String) {
         self.send(StreamMessage::Mark { json }, true);
+    }
+
+    /// Queues one alert for the file; never waits (a full queue drops it, counted).
+    pub fn record_alert(&self, json: String) {
+        self.send(StreamMessage::Alert { json }, true);
     }
 
     /// Queues one 1 Hz `metrics` message for the file; never waits (a full queue drops it: the
@@ -657,6 +673,7 @@ fn run_recorder(
                 StreamMessage::LoopStats { json } => writer.write_loop_stats(&json)?,
                 StreamMessage::Mark { json } => writer.write_mark(&json)?,
                 StreamMessage::Metrics { json } => writer.write_metrics(&json)?,
+                StreamMessage::Alert { json } => writer.write_alert(&json)?,
             }
             idle = false;
         }

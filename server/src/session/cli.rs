@@ -364,6 +364,7 @@ impl LiveRecording {
             hub.frames.subscribe(),
             hub.stats.subscribe(),
             hub.marks.subscribe(),
+            hub.summary.alerts.subscribe(),
             self.recorder.stream_tap(),
         ));
     }
@@ -409,10 +410,12 @@ async fn record_stream(
     mut frames: broadcast::Receiver<Arc<EncodedFrame>>,
     mut stats: broadcast::Receiver<axum::extract::ws::Utf8Bytes>,
     mut marks: broadcast::Receiver<axum::extract::ws::Utf8Bytes>,
+    mut alerts: broadcast::Receiver<axum::extract::ws::Utf8Bytes>,
     tap: StreamTap,
 ) {
     let mut stats_open = true;
     let mut marks_open = true;
+    let mut alerts_open = true;
     loop {
         tokio::select! {
             frame = frames.recv() => match frame {
@@ -450,6 +453,13 @@ async fn record_stream(
                     tracing::warn!("{n} instructor marks were not recorded (the recorder fell behind)");
                 }
                 Err(broadcast::error::RecvError::Closed) => marks_open = false,
+            },
+            a = alerts.recv(), if alerts_open => match a {
+                Ok(text) => tap.record_alert(text.to_string()),
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    tracing::warn!("{n} alerts were not recorded (the recorder fell behind)");
+                }
+                Err(broadcast::error::RecvError::Closed) => alerts_open = false,
             },
         }
     }

@@ -36,11 +36,14 @@ pub enum Action {
     /// ended every viewer is sent it. A station without tokens sends it to no one before the
     /// end: there everyone is an instructor, the trainee's own screen too.
     SeeInclusions,
+    /// Act on a station from a lab hub's dashboard (`station_action`): acknowledge an alert,
+    /// start, repeat or stop its exercise, mark its session, re-arm its device.
+    ActOnStation,
 }
 
 impl Action {
     /// Every action, for tables and tests.
-    pub const ALL: [Action; 10] = [
+    pub const ALL: [Action; 11] = [
         Action::WatchLive,
         Action::WatchOpenReplay,
         Action::OpenReplay,
@@ -51,6 +54,7 @@ impl Action {
         Action::ListArchive,
         Action::DownloadArchive,
         Action::SeeInclusions,
+        Action::ActOnStation,
     ];
 
     /// What an observer is told when it tries this (one sentence, no secret, no internal state).
@@ -71,6 +75,7 @@ impl Action {
             Action::SeeInclusions => {
                 "only an instructor sees where the inclusions are before the attempt ends"
             }
+            Action::ActOnStation => "only an instructor acts on a station",
         }
     }
 }

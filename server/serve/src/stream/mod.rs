@@ -36,6 +36,7 @@
 mod exercise;
 mod frame;
 mod inclusions;
+pub mod summary;
 mod tasks;
 mod viewer;
 
@@ -53,6 +54,7 @@ use crate::access::Access;
 pub use exercise::{ControlRefusal, EXERCISE_BACKLOG, ExerciseFeed};
 pub use frame::EncodedFrame;
 pub use inclusions::InclusionsFeed;
+pub use summary::SummaryFeed;
 pub use tasks::{
     FrameInclusions, device_status, frame_task, metrics_message, send_final_metrics, stats_message,
     stats_task,
@@ -185,6 +187,9 @@ pub struct StreamHub {
     /// Where the scene's inclusions are, for the viewers who may see them
     /// ([`StreamHub::with_inclusions`]; empty without inclusions).
     pub inclusions: Arc<InclusionsFeed>,
+    /// What the session says of itself on a lab's dashboard, and its alerts
+    /// ([`summary::track`] keeps it on a live session).
+    pub summary: Arc<SummaryFeed>,
 }
 
 impl StreamHub {
@@ -227,6 +232,7 @@ impl StreamHub {
             rearm: None,
             exercise: Arc::new(ExerciseFeed::none()),
             inclusions: Arc::new(InclusionsFeed::none()),
+            summary: Arc::new(SummaryFeed::new(0.0)),
         })
     }
 
@@ -251,6 +257,13 @@ impl StreamHub {
         if let Some(feed) = feed {
             self.inclusions = feed;
         }
+        self
+    }
+
+    /// The hub of a live session whose scene's safe force is `safe_force_n` (its summary's
+    /// alerts compare the force with it).
+    pub fn with_safe_force(mut self, safe_force_n: f64) -> Self {
+        self.summary = Arc::new(SummaryFeed::new(safe_force_n));
         self
     }
 

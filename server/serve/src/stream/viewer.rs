@@ -213,6 +213,39 @@ impl Access {
         }
     }
 
+    /// Serves a connection that is not a viewer of a stream (a lab hub's dashboard page) behind
+    /// the same token exchange as a viewer: with tokens the `auth` comes first and its refusals
+    /// count in `counters`; then `serve` has the socket, the role and the connection's message
+    /// rate.
+    pub async fn serve_after_auth<F, Fut>(
+        &self,
+        mut socket: WebSocket,
+        limits: ViewerLimits,
+        shutdown: &watch::Receiver<bool>,
+        counters: &StreamCounters,
+        connection: &mut Connection,
+        serve: F,
+    ) -> ViewerEnd
+    where
+        F: FnOnce(WebSocket, Role, MessageRate) -> Fut,
+        Fut: Future<Output = ViewerEnd>,
+    {
+        let gate = Gate {
+            access: self,
+            limits,
+            shutdown,
+            counters,
+        };
+        let mut rate = MessageRate::new(&self.config.limits, Instant::now());
+        let client = connection.peer.map(|p| p.ip());
+        let role = match role_of(&mut socket, &gate, &mut rate, client).await {
+            Ok(role) => role,
+            Err(end) => return end,
+        };
+        connection.authenticated(role);
+        serve(socket, role, rate).await
+    }
+
     /// Closes a connection refused by a limit on connections before it has a stream, with 4429
     /// and the limit's reason, counted in `counters`.
     pub async fn refuse_viewer(

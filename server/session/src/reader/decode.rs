@@ -27,6 +27,7 @@ enum Kind {
     Marks,
     Metrics,
     Exercise,
+    Alerts,
     Unknown,
 }
 
@@ -46,7 +47,7 @@ impl Kind {
             Kind::Scene => super::walk::MAX_CHUNK_UNCOMPRESSED_BYTES,
             Kind::Build | Kind::Contact | Kind::LoopStats | Kind::Metrics => 64 << 10,
             Kind::Device | Kind::Stats => 4 << 10,
-            Kind::Marks => 8 << 10,
+            Kind::Marks | Kind::Alerts => 8 << 10,
             // A traced path of up to a thousand points, and the exercise file on an attempt's
             // first message.
             Kind::Exercise => 1 << 20,
@@ -124,6 +125,7 @@ impl Recording {
         let mut metrics = Vec::new();
         let mut exercises = Vec::new();
         let mut exercise_bytes = 0usize;
+        let mut alerts: Vec<softhaptic_proto::wire::Alert> = Vec::new();
         let mut ending = match &scanned.tail {
             Some(reason) => Ending::Truncated {
                 reason: reason.clone(),
@@ -247,6 +249,17 @@ impl Recording {
                 Kind::Stats => {
                     last_stats = Some(serde_json::from_slice(&message.data).map_err(bad)?);
                 }
+                Kind::Alerts => {
+                    let alert: softhaptic_proto::wire::Alert =
+                        serde_json::from_slice(&message.data).map_err(bad)?;
+                    // An acknowledgement is the alert written again: it replaces the raised one.
+                    match alerts.iter().position(|a| a.id == alert.id) {
+                        Some(i) => alerts[i] = alert,
+                        // A session keeps at most 1000 (the station's bound).
+                        None if alerts.len() < 1000 => alerts.push(alert),
+                        None => {}
+                    }
+                }
                 Kind::Marks => {
                     let json = String::from_utf8_lossy(&message.data);
                     match ServerMessage::decode(&json) {
@@ -337,6 +350,7 @@ impl Recording {
         marks.shrink_to_fit();
         metrics.shrink_to_fit();
         exercises.shrink_to_fit();
+        alerts.sort_by_key(|a| a.id);
         Ok(Recording {
             path: path_buf,
             file_len,
@@ -352,6 +366,7 @@ impl Recording {
             marks,
             metrics,
             exercises,
+            alerts,
         })
     }
 }
@@ -455,6 +470,7 @@ fn classify(path: &Path, channel: &mcap::Channel<'_>) -> Result<Kind, SessionErr
         topic::MARKS => (Kind::Marks, schema_name::MARKS),
         topic::METRICS => (Kind::Metrics, schema_name::METRICS),
         topic::EXERCISE => (Kind::Exercise, schema_name::EXERCISE),
+        topic::ALERTS => (Kind::Alerts, schema_name::ALERTS),
         _ => return Ok(Kind::Unknown),
     };
     let found_schema = channel

@@ -90,6 +90,9 @@ pub struct Recording {
     pub metrics: Vec<softhaptic_proto::wire::MetricsMessage>,
     /// A station's `exercise` messages, as recorded when each attempt started and ended.
     pub exercises: Vec<softhaptic_proto::wire::ExerciseMessage>,
+    /// The session's alerts, each as it last stood (raised, or acknowledged), in the order
+    /// raised; empty for recordings made before alerts existed.
+    pub alerts: Vec<softhaptic_proto::wire::Alert>,
 }
 
 /// A stretch of a recording that could not be read and was skipped.

@@ -24,11 +24,14 @@ pub struct Exported {
     pub marks: PathBuf,
     /// The results of the attempts at exercises, a JSON list (empty when none ran).
     pub attempts: PathBuf,
+    /// The session's alerts, each as it last stood, a JSON list (empty when none was raised).
+    pub alerts: PathBuf,
 }
 
 /// Writes `device.csv`, `contact.csv`, `metrics.json` (the trainee's metrics as the `metrics`
-/// message carries them), `marks.json` (the instructors' marks) and `attempts.json` (the results
-/// of the attempts at exercises) into `out_dir` (created).
+/// message carries them), `marks.json` (the instructors' marks), `attempts.json` (the results
+/// of the attempts at exercises) and `alerts.json` (the alerts raised for the instructors, and
+/// who acknowledged each) into `out_dir` (created).
 pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, SessionError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
@@ -40,6 +43,7 @@ pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, 
     let metrics_path = out_dir.join("metrics.json");
     let marks_path = out_dir.join("marks.json");
     let attempts_path = out_dir.join("attempts.json");
+    let alerts_path = out_dir.join("alerts.json");
     // Checked before anything is written: an earlier export (another session's, say) is kept
     // whole unless it is to be replaced.
     if !replace {
@@ -49,6 +53,7 @@ pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, 
             &metrics_path,
             &marks_path,
             &attempts_path,
+            &alerts_path,
         ] {
             if std::fs::symlink_metadata(path).is_ok() {
                 return Err(SessionError::ExportExists { path: path.clone() });
@@ -78,12 +83,14 @@ pub fn export(r: &Recording, out_dir: &Path, replace: bool) -> Result<Exported, 
     write_json(&marks_path, &r.marks)?;
     let attempts: Vec<_> = r.attempts().collect();
     write_json(&attempts_path, &attempts)?;
+    write_json(&alerts_path, &r.alerts)?;
     Ok(Exported {
         device: device_path,
         contact: contact_path,
         metrics: metrics_path,
         marks: marks_path,
         attempts: attempts_path,
+        alerts: alerts_path,
     })
 }
 

@@ -68,6 +68,8 @@ pub struct Info {
     pub attempts: Vec<softhaptic_proto::exercise::AttemptResult>,
     /// How the guidance went, in a session guided along an expert's recording.
     pub guidance: Option<crate::guide::GuidanceSummary>,
+    /// The alerts the session raised for its instructors, each as it last stood.
+    pub alerts: Vec<softhaptic_proto::wire::Alert>,
 }
 
 /// A run of consecutive ticks the device faulted on (zero force throughout).
@@ -216,6 +218,7 @@ impl Info {
             start_time_ns: r.device.first().map_or(0, |d| d.time_ns),
             attempts: r.attempts().cloned().collect(),
             guidance: crate::guide::summary(r),
+            alerts: r.alerts.clone(),
         }
         .with_recorded_metrics(r)
     }
@@ -381,6 +384,7 @@ impl fmt::Display for Info {
             )?,
         }
         self.fmt_marks(f)?;
+        self.fmt_alerts(f)?;
         self.fmt_attempts(f)?;
         self.fmt_guidance(f)?;
         let status = match (&self.ending, self.damaged_stretches) {
@@ -509,6 +513,55 @@ impl Info {
         }
         if self.attempts.len() > MARKS_LISTED {
             writeln!(f, "  … and {} more", self.attempts.len() - MARKS_LISTED)?;
+        }
+        Ok(())
+    }
+
+    /// The alerts line: how many, then each one's time, kind, detail and who acknowledged it
+    /// (at most [`MARKS_LISTED`]).
+    fn fmt_alerts(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.alerts.is_empty() {
+            return writeln!(f, "alerts:            none");
+        }
+        let open = self
+            .alerts
+            .iter()
+            .filter(|a| a.acknowledged.is_none())
+            .count();
+        writeln!(
+            f,
+            "alerts:            {} ({open} not acknowledged)",
+            self.alerts.len()
+        )?;
+        for alert in self.alerts.iter().take(MARKS_LISTED) {
+            let time_s = alert.time_ns.saturating_sub(self.start_time_ns) as f64 * 1e-9;
+            let detail: String = alert
+                .detail
+                .chars()
+                .map(|c| if c.is_control() { ' ' } else { c })
+                .collect();
+            let kind = serde_json::to_value(alert.kind)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_owned))
+                .unwrap_or_default();
+            let acknowledged = match &alert.acknowledged {
+                Some(a) => {
+                    let by: String =
+                        a.by.chars()
+                            .map(|c| if c.is_control() { ' ' } else { c })
+                            .collect();
+                    format!("acknowledged by {by}")
+                }
+                None => "not acknowledged".to_owned(),
+            };
+            writeln!(
+                f,
+                "  #{} at {time_s:.3} s, {kind}: {detail} ({acknowledged})",
+                alert.id
+            )?;
+        }
+        if self.alerts.len() > MARKS_LISTED {
+            writeln!(f, "  … and {} more", self.alerts.len() - MARKS_LISTED)?;
         }
         Ok(())
     }
