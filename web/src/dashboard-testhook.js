@@ -2,7 +2,7 @@
 // under automation (`navigator.webdriver`), by a dynamic import, so no other browser downloads it.
 
 /** Installs `window.__dashboard`: plain data about the page, read through `page.evaluate`. */
-export function installDashboardHook({ page, connection }) {
+export function installDashboardHook({ page, connection, act }) {
   window.__dashboard = {
     /** `hello.role`, null before it came. */
     role: () => page.role,
@@ -34,6 +34,11 @@ export function installDashboardHook({ page, connection }) {
       })),
     /** The force history the page keeps for `name` (null slots where no sample came). */
     history: (name) => page.histories.get(name)?.values() ?? null,
+    /**
+     * Sends a station action as the page's controls do, whether or not it offers them (an
+     * observer's, to see the hub refuse it).
+     */
+    act: (station, action) => act(station, action),
     /** Every action the page sent. */
     sent: () => page.sent.map((s) => ({ ...s })),
     /** The alert list's entries. */

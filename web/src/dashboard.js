@@ -125,7 +125,7 @@ function init() {
 
   if (navigator.webdriver) {
     import('./dashboard-testhook.js')
-      .then(({ installDashboardHook }) => installDashboardHook({ page, connection: () => connection }))
+      .then(({ installDashboardHook }) => installDashboardHook({ page, connection: () => connection, act }))
       .catch((e) => console.warn(`softhaptic: no test hook: ${e.message}`));
   }
   connection.start();
