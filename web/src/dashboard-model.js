@@ -98,13 +98,15 @@ export class ForceHistory {
 /**
  * The sparkline of `values` (from `ForceHistory.values`) in a `width`×`height` box with the safe
  * force `safeForceN` marked: `{points: [[x, y], …] (a missing sample drawn at zero force),
- * safeY, scaleN, above: [indices above the safe force]}`. The scale shows the safe force at two
- * thirds of the height at most, so it is always in view, and grows to fit a larger force.
+ * safeY (null when the safe force is off the scale), scaleN, above: [indices above the safe
+ * force]}`. The scale fits the largest force and keeps the safe force in view unless it lies
+ * more than three times above it: a press of 1 N under a safe force of 50 N still shows its
+ * shape. With no force at all, the safe force sits near the top.
  */
 export function sparkline(values, safeForceN, width, height) {
   let max = 0;
   for (const v of values) if (v !== null && v > max) max = v;
-  const scaleN = Math.max(safeForceN * 1.5, max * 1.05, 1e-9);
+  const scaleN = max > 0 ? Math.max(max * 1.1, Math.min(safeForceN * 1.15, max * 3)) : safeForceN * 1.15;
   const y = (f) => height - (f / scaleN) * height;
   const step = values.length > 1 ? width / (values.length - 1) : 0;
   const points = values.map((v, i) => [i * step, y(v ?? 0)]);
@@ -112,7 +114,7 @@ export function sparkline(values, safeForceN, width, height) {
   values.forEach((v, i) => {
     if (v !== null && v > safeForceN) above.push(i);
   });
-  return { points, safeY: y(safeForceN), scaleN, above };
+  return { points, safeY: safeForceN <= scaleN ? y(safeForceN) : null, scaleN, above };
 }
 
 /** The alerts of a summary not yet acknowledged (none without a summary). */

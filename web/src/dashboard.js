@@ -372,15 +372,16 @@ function drawTile(tile, s) {
   text(tile.activity, activity.words);
   tile.activity.className = `activity badge ${activity.level === 'muted' ? '' : activity.level}`;
   tile.contact.classList.toggle('on', summary?.in_contact === true);
-  text(tile.trainee, summary?.trainee ?? (summary === null ? s.scene : 'no trainee named'));
+  text(tile.trainee, summary?.trainee ?? (summary === null ? s.scene : 'no trainee'));
   text(tile.exercise, summary === null ? '' : exerciseLine(summary));
   tile.root.title = s.scene;
 
   const history = page.histories.get(s.name);
-  drawSpark(tile.spark, history?.values() ?? [], summary?.safe_force_n ?? null);
+  const safeDrawn = drawSpark(tile.spark, history?.values() ?? [], summary?.safe_force_n ?? null);
   const latest = summary?.force_n.at(-1);
   text(tile.forceNow, latest === undefined ? '' : `now ${newtons(latest)}`);
-  text(tile.safe, summary === null ? '' : `safe ${newtons(summary.safe_force_n)}`);
+  text(tile.safe, summary === null ? '' : `safe ${newtons(summary.safe_force_n)}${safeDrawn ? '' : ' ↑'}`);
+  tile.safe.title = safeDrawn ? 'the dashed line' : 'above the plot: the force stayed far below it';
   text(
     tile.metrics,
     summary === null
@@ -396,8 +397,7 @@ function drawTile(tile, s) {
     text(tile.device, `device ${health.words}`);
     tile.device.className = `device small ${health.level}`;
   }
-  const here = s.viewers === 1 ? '1 viewer' : `${s.viewers} viewers`;
-  text(tile.viewers, `${here} at the station, ${s.hub_viewers} on this hub`);
+  text(tile.viewers, `viewers: ${s.viewers} at the station, ${s.hub_viewers} here`);
 
   drawTileAlerts(tile, s);
   const allowed = tileActions(s, page.role);
@@ -453,7 +453,10 @@ function drawTileAlerts(tile, s) {
   tile.alerts.replaceChildren(...items);
 }
 
-/** Draws a sparkline: the force over the last 30 s, the safe force dashed, what lies above it red. */
+/**
+ * Draws a sparkline: the force over the last 30 s, the safe force dashed, what lies above it red.
+ * Returns whether the safe force's line is drawn (false: it lies above the plot).
+ */
 function drawSpark(canvas, values, safeForceN) {
   const ratio = Math.min(window.devicePixelRatio || 1, 2);
   const width = Math.max(1, Math.round(canvas.clientWidth * ratio));
@@ -462,17 +465,19 @@ function drawSpark(canvas, values, safeForceN) {
   if (canvas.height !== height) canvas.height = height;
   const ctx = canvas.getContext('2d');
   ctx.clearRect(0, 0, width, height);
-  if (safeForceN === null || values.length === 0) return;
+  if (safeForceN === null || values.length === 0) return true;
   const pad = ratio;
   const { points, safeY, above } = sparkline(values, safeForceN, width, height - 2 * pad);
-  ctx.lineWidth = ratio;
-  ctx.strokeStyle = '#f85149';
-  ctx.setLineDash([4 * ratio, 3 * ratio]);
-  ctx.beginPath();
-  ctx.moveTo(0, safeY + pad);
-  ctx.lineTo(width, safeY + pad);
-  ctx.stroke();
-  ctx.setLineDash([]);
+  if (safeY !== null) {
+    ctx.lineWidth = ratio;
+    ctx.strokeStyle = '#f85149';
+    ctx.setLineDash([4 * ratio, 3 * ratio]);
+    ctx.beginPath();
+    ctx.moveTo(0, safeY + pad);
+    ctx.lineTo(width, safeY + pad);
+    ctx.stroke();
+    ctx.setLineDash([]);
+  }
   ctx.strokeStyle = '#58a6ff';
   ctx.lineWidth = 1.5 * ratio;
   ctx.beginPath();
@@ -483,6 +488,7 @@ function drawSpark(canvas, values, safeForceN) {
     const w = Math.max(ratio, width / values.length);
     for (const i of above) ctx.fillRect(points[i][0] - w / 2, points[i][1] + pad, w, safeY - points[i][1]);
   }
+  return safeY !== null;
 }
 
 function drawAlertList(stations) {

@@ -9,7 +9,9 @@
 //   - `unplugged`: a SpaceMouse played from a report stream that is unplugged 2 s after it
 //     opens and never plugged back: the device is `disconnected`, a `device_fault` alert;
 //   - `exercises`: the calm scene running `exercises/press-hold.toml` (its copy naming the calm
-//     scene) for a trainee, the next exercise left to an instructor (`--exercise-pause wait`).
+//     scene, and another time limit when asked) for a trainee, the next exercise left to an
+//     instructor (`--exercise-pause wait`). The simulated hand presses harder than the task
+//     asks, so an attempt that reaches its time limit fails (an `exercise_failed` alert).
 import { readFileSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 
@@ -54,18 +56,27 @@ export function writeStationFiles(dir) {
     /^scene = .*$/m,
     'scene = "calm.toml"',
   );
-  writeFileSync(join(dir, 'press-hold.toml'), exercise);
+  /** The exercise's copy with its time limit, s (the shipped one's, 20 s, when not given). */
+  const exerciseFile = (timeLimitS) => {
+    if (timeLimitS === undefined) {
+      writeFileSync(join(dir, 'press-hold.toml'), exercise);
+      return join(dir, 'press-hold.toml');
+    }
+    const file = join(dir, `press-hold-${timeLimitS}s.toml`);
+    writeFileSync(file, exercise.replace(/^time_limit_s = .*$/m, `time_limit_s = ${timeLimitS}`));
+    return file;
+  };
   return {
     calm: ['--no-record', '--scene', calm],
     hard: ['--no-record', '--scene', join(dir, 'hard.toml')],
     unplugged: ['--no-record', '--scene', join(dir, 'unplugged.toml')],
-    exercises: (trainee) => [
+    exercises: (trainee, { timeLimitS } = {}) => [
       '--record-dir',
       join(dir, `recordings-${trainee}`),
       '--scene',
       calm,
       '--exercises',
-      join(dir, 'press-hold.toml'),
+      exerciseFile(timeLimitS),
       '--trainee',
       trainee,
       '--exercise-pause',

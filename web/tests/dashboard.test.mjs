@@ -198,23 +198,33 @@ test('the history forgets what is older than its window, and a silent station sc
   assert.equal(h.bySlot.size, 0);
 });
 
-test('the sparkline keeps the safe force in view and marks the samples above it', () => {
+test('the sparkline fits the force, keeps the safe force in view near it, and marks what lies above', () => {
   const s = sparkline([0, 1, null, 3], 2, 300, 30);
   assert.equal(s.points.length, 4);
   assert.deepEqual(
     s.points.map(([x]) => x),
     [0, 100, 200, 300],
   );
-  // Scale: the larger of 1.5 × safe (3 N) and 1.05 × the largest (3.15 N).
-  assert.ok(Math.abs(s.scaleN - 3.15) < 1e-12);
-  assert.ok(Math.abs(s.safeY - (30 - (2 / 3.15) * 30)) < 1e-9);
+  // Scale: the larger of 1.1 × the largest (3.3 N) and the safe force's 2.3 N.
+  assert.ok(Math.abs(s.scaleN - 3.3) < 1e-12);
+  assert.ok(Math.abs(s.safeY - (30 - (2 / 3.3) * 30)) < 1e-9);
   assert.equal(s.points[0][1], 30, 'zero force at the bottom');
   assert.equal(s.points[2][1], 30, 'a missing sample drawn at zero');
+  assert.equal(s.points[3][1], 30 - (3 / 3.3) * 30);
   assert.deepEqual(s.above, [3]);
-  // Below the safe force, the safe line sits at two thirds of the height.
-  const quiet = sparkline([0.1, 0.2], 2, 100, 30);
-  assert.ok(Math.abs(quiet.safeY - 10) < 1e-9);
+  // Below the safe force and within three times it: the safe line stays in view.
+  const quiet = sparkline([0.5, 1], 2, 100, 30);
+  assert.ok(Math.abs(quiet.scaleN - 2.3) < 1e-12);
+  assert.ok(quiet.safeY > 0 && quiet.safeY < 30);
   assert.deepEqual(quiet.above, []);
+  // A press of 1 N under a safe force of 50 N keeps its shape; the safe line is off the plot.
+  const far = sparkline([0, 1], 50, 100, 30);
+  assert.equal(far.scaleN, 3);
+  assert.equal(far.safeY, null);
+  assert.ok(far.points[1][1] < 25, 'the press fills the plot');
+  // No force at all: the safe force near the top.
+  const idle = sparkline([null, 0], 2, 100, 30);
+  assert.ok(Math.abs(idle.safeY - (30 - 30 / 1.15)) < 1e-9);
 });
 
 // ----- tiles -----
