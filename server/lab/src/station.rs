@@ -17,7 +17,7 @@ use futures_util::StreamExt;
 use tokio::sync::{broadcast, watch};
 use tokio::task::JoinHandle;
 
-use softhaptic_proto::wire::{ActionResult, MarkRequest, StationAction};
+use softhaptic_proto::wire::{ActionResult, DeviceStatus, MarkRequest, StationAction};
 
 use super::{
     ActionCall, InclusionsState, LabError, MESH_PIECE_BYTES, MeshRequest, NatsOptions,
@@ -350,6 +350,9 @@ async fn answer_requests(
     }
 }
 
+/// The answer to a dashboard's re-arm of a device that has not latched off.
+pub const REFUSED_REARM_NOT_LATCHED: &str = "the device's force output is not latched off";
+
 /// The largest action request taken, bytes (a mark's note is at most 280 characters).
 const MAX_ACTION_BYTES: usize = 4096;
 
@@ -389,13 +392,13 @@ fn carry_out(hub: &StreamHub, payload: &[u8]) -> ActionResult {
                 None => hub.add_mark(request).map(|_| ()).map_err(|e| e.to_string()),
             }
         }
-        StationAction::RearmDevice => {
-            if hub.rearm_device() {
-                Ok(())
-            } else {
-                Err(REFUSED_REARM_NONE.to_owned())
-            }
-        }
+        // From a dashboard, only a device that latched off: a re-arm is the instructor's
+        // decision to let force back after repeated trips, not something to send blind.
+        StationAction::RearmDevice => match hub.summary.device_state() {
+            DeviceStatus::ForceLatched if hub.rearm_device() => Ok(()),
+            _ if !hub.rearm_device_possible() => Err(REFUSED_REARM_NONE.to_owned()),
+            _ => Err(REFUSED_REARM_NOT_LATCHED.to_owned()),
+        },
     };
     match &outcome {
         Ok(()) => {

@@ -9,6 +9,13 @@
 //! `cargo build --release -p softhaptic-server --bin softhaptic && cargo run --release -p
 //! softhaptic-tests --bin lab-report -- [--stations 4] [--hubs 2] [--viewers 200] [--seconds 10]`
 //! (SOFTHAPTIC_BIN names another build; needs nats-server, which `make test` installs).
+//!
+//! `--dashboard-pages N` measures a hub's dashboard instead: `--stations` stations (two
+//! `softhaptic` processes, the rest their heartbeats published again under other names, each
+//! with two alerts in its summary: what a hub's dashboard reads of a station is its heartbeat
+//! alone), one hub, and N dashboard pages (`/ws?dashboard`) connected for `--seconds`; printed:
+//! the `dashboard` message's size, the bytes and messages each page received a second, and the
+//! hub's CPU with no page open and with N, measured one after the other.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -27,6 +34,7 @@ struct Options {
     hubs: usize,
     viewers: usize,
     seconds: f64,
+    dashboard_pages: usize,
 }
 
 /// The options, or `None` when the help was asked for (and printed).
@@ -36,6 +44,7 @@ fn parse() -> anyhow::Result<Option<Options>> {
         hubs: 2,
         viewers: 200,
         seconds: 10.0,
+        dashboard_pages: 0,
     };
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -45,9 +54,11 @@ fn parse() -> anyhow::Result<Option<Options>> {
             "--hubs" => o.hubs = value()?.parse()?,
             "--viewers" => o.viewers = value()?.parse()?,
             "--seconds" => o.seconds = value()?.parse()?,
+            "--dashboard-pages" => o.dashboard_pages = value()?.parse()?,
             "-h" | "--help" => {
                 println!(
-                    "lab-report [--stations N (4)] [--hubs N (2)] [--viewers N (200)] [--seconds S (10)]"
+                    "lab-report [--stations N (4)] [--hubs N (2)] [--viewers N (200)] [--seconds S (10)]\n\
+                     lab-report --dashboard-pages N [--stations N] [--seconds S]: a hub's dashboard with N pages"
                 );
                 return Ok(None);
             }
@@ -56,6 +67,9 @@ fn parse() -> anyhow::Result<Option<Options>> {
     }
     if o.stations == 0 || o.hubs == 0 || !(1.0..=600.0).contains(&o.seconds) || o.viewers > 10_000 {
         bail!("--stations and --hubs ≥ 1, --viewers ≤ 10000, --seconds in [1, 600]");
+    }
+    if o.dashboard_pages > 1000 || o.stations > 512 {
+        bail!("--dashboard-pages ≤ 1000, --stations ≤ 512 (a hub lists at most 512)");
     }
     Ok(Some(o))
 }
@@ -201,6 +215,9 @@ async fn main() -> anyhow::Result<()> {
     let Some(o) = parse()? else {
         return Ok(());
     };
+    if o.dashboard_pages > 0 {
+        return dashboard_report(&o).await;
+    }
     let nats = NatsServer::start("lab-report");
     let url = nats.url();
     let mut stations = Vec::new();
@@ -364,4 +381,182 @@ async fn reqwest_stations(addr: &str) -> Option<usize> {
             .filter(|s| s["state"] != "offline")
             .count(),
     )
+}
+
+/// What one dashboard page received.
+#[derive(Default)]
+struct PageSeen {
+    bytes: u64,
+    messages: u64,
+    last_message_bytes: usize,
+    tiles: usize,
+}
+
+/// One dashboard page on `hub` until `until`, counting from `from_t`.
+async fn dashboard_page(hub: String, from_t: Instant, until: Instant, seen: Arc<Mutex<PageSeen>>) {
+    let Ok((mut socket, _)) =
+        tokio_tungstenite::connect_async(format!("ws://{hub}/ws?dashboard")).await
+    else {
+        return;
+    };
+    while Instant::now() < until {
+        let next = tokio::time::timeout(Duration::from_millis(200), socket.next()).await;
+        let text = match next {
+            Ok(Some(Ok(Message::Text(t)))) => t,
+            Ok(Some(Ok(_))) | Err(_) => continue,
+            _ => break,
+        };
+        if Instant::now() < from_t || !text.as_str().starts_with(r#"{"type":"dashboard""#) {
+            continue;
+        }
+        let Ok(mut s) = seen.lock() else { break };
+        s.bytes += text.len() as u64;
+        s.messages += 1;
+        s.last_message_bytes = text.len();
+        if let Ok(ServerMessage::Dashboard(d)) = ServerMessage::decode(text.as_str()) {
+            s.tiles = d.stations.len();
+        }
+    }
+}
+
+/// `--dashboard-pages`: the dashboard's cost on one hub (module docs).
+async fn dashboard_report(o: &Options) -> anyhow::Result<()> {
+    let nats = NatsServer::start("lab-report-dashboard");
+    let url = nats.url();
+    let running = o.stations.min(2);
+    let mut stations = Vec::new();
+    for i in 0..running {
+        let name = format!("desk-{i}");
+        stations.push(spawn(&[
+            "--no-record",
+            "--no-realtime",
+            "--nats",
+            &url,
+            "--station",
+            &name,
+        ])?);
+    }
+    let hub = spawn(&["hub", "--nats", &url])?;
+    // The other stations: the running ones' heartbeats again, under other names, with two
+    // alerts each (one acknowledged), once a second.
+    let client = async_nats::connect(url.as_str())
+        .await
+        .context("the report's own NATS connection")?;
+    let mut heartbeats = client
+        .subscribe(softhaptic_server::lab::STATUS_SUBJECTS)
+        .await
+        .context("subscribing to the heartbeats")?;
+    let copies = o.stations - running;
+    let relay = tokio::spawn(async move {
+        while let Some(m) = heartbeats.next().await {
+            let Ok(mut status) = serde_json::from_slice::<serde_json::Value>(&m.payload) else {
+                continue;
+            };
+            let Some(from) = status["name"].as_str().map(str::to_owned) else {
+                continue;
+            };
+            // Copies are made from the first running station only, so each copy comes once a
+            // second as a real heartbeat does.
+            if from != "desk-0" {
+                continue;
+            }
+            if let Some(alerts) = status["summary"]["alerts"].as_array_mut() {
+                alerts.push(serde_json::json!({"id": 1, "kind": "above_safe_force", "time_ns": 4_250_000_000u64, "unix_ms": 1_796_000_000_000u64, "detail": "2.63 N, above the safe 2.00 N", "acknowledged": {"by": "instructor at 10.0.0.7:53122 on a hub", "unix_ms": 1_796_000_004_000u64}}));
+                alerts.push(serde_json::json!({"id": 2, "kind": "device_fault", "time_ns": 9_750_000_000u64, "unix_ms": 1_796_000_006_000u64, "detail": "device disconnected", "acknowledged": null}));
+            }
+            for i in 0..copies {
+                let name = format!("copy-{i}");
+                status["name"] = serde_json::Value::from(name.clone());
+                let Ok(json) = serde_json::to_vec(&status) else {
+                    continue;
+                };
+                let _ = client
+                    .publish(format!("softhaptic.stations.{name}"), json.into())
+                    .await;
+            }
+        }
+    });
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        let listed = reqwest_stations(&hub.addr).await.unwrap_or(0);
+        if listed >= o.stations {
+            break;
+        }
+        if Instant::now() > deadline {
+            bail!("the hub lists {listed} of {} stations", o.stations);
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    eprintln!(
+        "{} stations ({running} running), 1 hub, {} dashboard pages, {:.0} s without pages then {:.0} s with ...",
+        o.stations, o.dashboard_pages, o.seconds, o.seconds
+    );
+    let measure = Duration::from_secs_f64(o.seconds);
+    // The hub with no page open.
+    let cpu_0 = cpu_s(hub.child.id());
+    let t_0 = Instant::now();
+    tokio::time::sleep(measure).await;
+    let idle_cpu = (cpu_s(hub.child.id()) - cpu_0) / t_0.elapsed().as_secs_f64();
+    // With the pages.
+    let warmup = Duration::from_secs(3);
+    let from_t = Instant::now() + warmup;
+    let until = from_t + measure;
+    let mut pages = Vec::new();
+    let mut tasks = Vec::new();
+    for _ in 0..o.dashboard_pages {
+        let seen = Arc::new(Mutex::new(PageSeen::default()));
+        tasks.push(tokio::spawn(dashboard_page(
+            hub.addr.clone(),
+            from_t,
+            until,
+            Arc::clone(&seen),
+        )));
+        pages.push(seen);
+    }
+    tokio::time::sleep_until(from_t.into()).await;
+    let cpu_1 = cpu_s(hub.child.id());
+    let t_1 = Instant::now();
+    for t in tasks {
+        let _ = t.await;
+    }
+    let measured_s = t_1.elapsed().as_secs_f64();
+    let busy_cpu = (cpu_s(hub.child.id()) - cpu_1) / measured_s;
+    relay.abort();
+
+    let (mut rates, mut message_rates, mut size, mut tiles) = (Vec::new(), Vec::new(), 0, 0);
+    for page in &pages {
+        let Ok(p) = page.lock() else { continue };
+        rates.push(p.bytes as f64 / measured_s);
+        message_rates.push(p.messages as f64 / measured_s);
+        size = size.max(p.last_message_bytes);
+        tiles = tiles.max(p.tiles);
+    }
+    println!(
+        "dashboard on loopback: {} stations ({running} running, {copies} from their heartbeats, 2 alerts each), 1 hub, {} pages, {:.1} s measured",
+        o.stations, o.dashboard_pages, measured_s
+    );
+    println!(
+        "  dashboard message         {size} bytes, {tiles} tiles ({:.0} bytes a tile)",
+        size as f64 / tiles.max(1) as f64
+    );
+    println!(
+        "  per page                  median {:.1} kB/s, {:.2} messages/s (min {:.1} kB/s)",
+        percentile(rates.clone(), 0.5) / 1e3,
+        percentile(message_rates, 0.5),
+        percentile(rates.clone(), 0.0) / 1e3
+    );
+    println!(
+        "  all pages                 {:.1} kB/s",
+        rates.iter().sum::<f64>() / 1e3
+    );
+    println!(
+        "  hub CPU                   {:.2} % of a core with no page, {:.2} % with {} pages ({:.3} % a page)",
+        idle_cpu * 100.0,
+        busy_cpu * 100.0,
+        o.dashboard_pages,
+        (busy_cpu - idle_cpu) * 100.0 / o.dashboard_pages as f64
+    );
+    drop(hub);
+    drop(stations);
+    Ok(())
 }

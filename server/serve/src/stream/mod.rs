@@ -267,6 +267,11 @@ impl StreamHub {
         self
     }
 
+    /// Whether this stream has a device whose force output can be re-armed.
+    pub fn rearm_device_possible(&self) -> bool {
+        self.rearm.is_some()
+    }
+
     /// Re-arms the device's force output; false when this stream has no device to re-arm.
     pub fn rearm_device(&self) -> bool {
         match &self.rearm {

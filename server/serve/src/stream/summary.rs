@@ -8,8 +8,9 @@
 //! from every 1 kHz tick) and each `exercise` message. Alerts are raised on the edge of what
 //! they report:
 //!
-//! - **above the safe force**: a frame's force above the scene's safe force, or the metrics'
-//!   time above it growing (a spike between two frames);
+//! - **above the safe force**: a frame's force going above the scene's safe force (not again
+//!   while it stays above), or the metrics' time above it growing while no frame showed it (a
+//!   spike between two frames);
 //! - **device fault** and **needs calibration**: `stats.device` turning to a fault, or to a
 //!   state that waits for the operator to calibrate;
 //! - **exercise failed**: an attempt ending without meeting its pass marks.
@@ -24,6 +25,7 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use axum::extract::ws::Utf8Bytes;
 use softhaptic_proto::contact::ContactFlags;
+use softhaptic_proto::exercise::AttemptEnd;
 use softhaptic_proto::wire::{
     Acknowledgement, Alert, AlertKind, ContactFrame, DeviceStatus, DeviceSummary, ExerciseMessage,
     ExerciseState, ExerciseSummary, FORCE_SAMPLES_PER_S, MAX_ALERT_DETAIL_CHARS,
@@ -84,6 +86,12 @@ struct Tracker {
     device: DeviceStatus,
     /// Device time of the latest frame.
     time_ns: u64,
+    /// The latest frame's force was above the safe force: an alert is raised as the force goes
+    /// above, not again while it stays there (the instructor acknowledged that press).
+    above: bool,
+    /// A frame above the safe force came since the last `metrics` message (which then says
+    /// nothing new).
+    above_since_metrics: bool,
     alerts: Vec<Alert>,
 }
 
@@ -154,6 +162,11 @@ impl SummaryFeed {
             },
             alerts,
         }
+    }
+
+    /// The device's state on the last `stats`.
+    pub fn device_state(&self) -> DeviceStatus {
+        self.lock().device
     }
 
     /// Every alert of the session so far.
@@ -240,10 +253,13 @@ impl SummaryFeed {
                 t.current = Some((start, force as f32));
             }
         }
-        if t.safe_force_n > 0.0 && force > t.safe_force_n {
+        let above = t.safe_force_n > 0.0 && force > t.safe_force_n;
+        if above && !t.above {
             let detail = format!("{force:.2} N, above the safe {:.2} N", t.safe_force_n);
             self.raise(&mut t, AlertKind::AboveSafeForce, detail);
         }
+        t.above = above;
+        t.above_since_metrics |= above;
     }
 
     /// A `stats` message.
@@ -278,7 +294,9 @@ impl SummaryFeed {
     /// A `metrics` message.
     pub fn on_metrics(&self, m: &MetricsMessage) {
         let mut t = self.lock();
-        let grew = m.time_above_safe_s > t.time_above_safe_s;
+        // Time above the safe force that no frame showed: a spike between two frames.
+        let grew = m.time_above_safe_s > t.time_above_safe_s
+            && !std::mem::take(&mut t.above_since_metrics);
         t.safe_force_n = m.safe_force_n;
         t.peak_force_n = m.peak_force_n;
         t.time_above_safe_s = m.time_above_safe_s;
@@ -317,12 +335,13 @@ impl SummaryFeed {
             },
         });
         if m.state == ExerciseState::Ended && passed == Some(false) && !was_ended {
-            let detail = format!(
-                "{}: attempt {} failed ({:?})",
-                m.exercise.name,
-                m.attempt,
-                m.result.as_ref().map(|r| r.ended)
-            );
+            let how = match m.result.as_ref().map(|r| r.ended) {
+                Some(AttemptEnd::TimeLimit) => "the time limit ran out",
+                Some(AttemptEnd::Completed) => "completed without meeting the pass marks",
+                Some(AttemptEnd::Stopped) => "stopped",
+                None => "ended",
+            };
+            let detail = format!("{}: attempt {} failed ({how})", m.exercise.name, m.attempt);
             self.raise(&mut t, AlertKind::ExerciseFailed, detail);
         }
     }
@@ -484,6 +503,27 @@ mod tests {
         frame.time_ns += 20_000_000;
         feed.on_frame(&frame);
         assert_eq!(kinds(&feed), [(AlertKind::AboveSafeForce, false)]);
+        // Acknowledged, the press that goes on above is not raised again; the next one is.
+        feed.acknowledge(1, "instructor").unwrap();
+        for _ in 0..3 {
+            frame.time_ns += 20_000_000;
+            feed.on_frame(&frame);
+        }
+        assert_eq!(kinds(&feed), [(AlertKind::AboveSafeForce, true)]);
+        let below = frame.force_n * 0.1;
+        let above = frame.force_n;
+        for force in [below, above] {
+            frame.force_n = force;
+            frame.time_ns += 20_000_000;
+            feed.on_frame(&frame);
+        }
+        assert_eq!(
+            kinds(&feed),
+            [
+                (AlertKind::AboveSafeForce, true),
+                (AlertKind::AboveSafeForce, false)
+            ]
+        );
     }
 
     #[test]
@@ -498,6 +538,13 @@ mod tests {
         feed.on_exercise(&ended);
         feed.on_exercise(&ended);
         assert_eq!(kinds(&feed), [(AlertKind::ExerciseFailed, false)]);
+        let detail = &feed.all_alerts()[0].detail;
+        assert!(
+            detail.ends_with("failed (the time limit ran out)")
+                || detail.ends_with("failed (stopped)")
+                || detail.ends_with("failed (completed without meeting the pass marks)"),
+            "{detail}"
+        );
         let s = feed.summary();
         assert_eq!(s.trainee.as_deref(), Some("ana"));
         assert_eq!(s.exercise.unwrap().passed, Some(false));
