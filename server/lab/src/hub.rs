@@ -1241,6 +1241,72 @@ async fn ws(
         return no_station();
     };
     let archive = q.archive;
+    admitted(
+        lab,
+        peer,
+        origin,
+        upgrade,
+        move |lab, socket, mut connection| async move {
+            let limits = lab.limits;
+            // The viewer's use of a replay, given back when it ends.
+            let mut replay_use = None;
+            let used = &mut replay_use;
+            let (hub_lab, client) = (&lab, &client);
+            let (station, archive) = (station.as_str(), archive.as_deref());
+            let find = move |role| async move {
+                match hub_lab.viewer_stream(station, archive, role).await {
+                    // Made after the hub's feeds were closed: nobody would close it.
+                    Ok(_) if *hub_lab.shutdown.borrow() => {
+                        Err((axum::extract::ws::close_code::AWAY, "server shutting down"))
+                    }
+                    Ok((hub, archive_use)) => {
+                        *used = archive_use;
+                        Ok(hub)
+                    }
+                    Err((status, detail)) => {
+                        tracing::info!(%client, %status, "viewer refused: {detail}");
+                        let reason = public_reason(status);
+                        Err(match status {
+                            StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
+                            StatusCode::FORBIDDEN => (access::CLOSE_FORBIDDEN, reason),
+                            StatusCode::SERVICE_UNAVAILABLE
+                            | StatusCode::BAD_GATEWAY
+                            | StatusCode::TOO_MANY_REQUESTS => (CLOSE_TRY_LATER, reason),
+                            _ => (axum::extract::ws::close_code::ERROR, reason),
+                        })
+                    }
+                }
+            };
+            let end = lab
+                .access
+                .serve_viewer_found_after_auth(
+                    socket,
+                    limits,
+                    &lab.shutdown,
+                    &lab.gate,
+                    &mut connection,
+                    find,
+                )
+                .await;
+            drop(replay_use);
+            (connection, end)
+        },
+    )
+}
+
+/// Upgrades to a WebSocket behind the hub's limits on connections (refused with 4429 past
+/// them), then `serve`s it with its connection, finished (the audit line) with how it ended.
+fn admitted<F, Fut>(
+    lab: Arc<Lab>,
+    peer: Option<SocketAddr>,
+    origin: Option<String>,
+    upgrade: WebSocketUpgrade,
+    serve: F,
+) -> Response
+where
+    F: FnOnce(Arc<Lab>, axum::extract::ws::WebSocket, Connection) -> Fut + Send + 'static,
+    Fut: std::future::Future<Output = (Connection, ViewerEnd)> + Send,
+{
     let admission = lab.access.admit(peer.map(|p| p.ip()));
     let limits = lab.limits;
     limits.bound(upgrade).on_upgrade(move |socket| async move {
@@ -1254,48 +1320,8 @@ async fn ws(
                 return;
             }
         };
-        let mut connection = Connection::new(&lab.access, peer, origin, Some(admission));
-        // The viewer's use of a replay, given back when it ends.
-        let mut replay_use = None;
-        let used = &mut replay_use;
-        let (hub_lab, client) = (&lab, &client);
-        let (station, archive) = (station.as_str(), archive.as_deref());
-        let find = move |role| async move {
-            match hub_lab.viewer_stream(station, archive, role).await {
-                // Made after the hub's feeds were closed: nobody would close it.
-                Ok(_) if *hub_lab.shutdown.borrow() => {
-                    Err((axum::extract::ws::close_code::AWAY, "server shutting down"))
-                }
-                Ok((hub, archive_use)) => {
-                    *used = archive_use;
-                    Ok(hub)
-                }
-                Err((status, detail)) => {
-                    tracing::info!(%client, %status, "viewer refused: {detail}");
-                    let reason = public_reason(status);
-                    Err(match status {
-                        StatusCode::NOT_FOUND => (CLOSE_NOT_FOUND, reason),
-                        StatusCode::FORBIDDEN => (access::CLOSE_FORBIDDEN, reason),
-                        StatusCode::SERVICE_UNAVAILABLE
-                        | StatusCode::BAD_GATEWAY
-                        | StatusCode::TOO_MANY_REQUESTS => (CLOSE_TRY_LATER, reason),
-                        _ => (axum::extract::ws::close_code::ERROR, reason),
-                    })
-                }
-            }
-        };
-        let end = lab
-            .access
-            .serve_viewer_found_after_auth(
-                socket,
-                limits,
-                &lab.shutdown,
-                &lab.gate,
-                &mut connection,
-                find,
-            )
-            .await;
-        drop(replay_use);
+        let connection = Connection::new(&lab.access, peer, origin, Some(admission));
+        let (connection, end) = serve(lab, socket, connection).await;
         connection.finish(&end);
     })
 }
@@ -1307,39 +1333,33 @@ fn dashboard_ws(
     origin: Option<String>,
     upgrade: WebSocketUpgrade,
 ) -> Response {
-    let admission = lab.access.admit(peer.map(|p| p.ip()));
-    let limits = lab.limits;
-    limits.bound(upgrade).on_upgrade(move |socket| async move {
-        let admission = match admission {
-            Ok(admission) => admission,
-            Err(refusal) => {
-                lab.access
-                    .refuse_viewer(socket, refusal, limits, &lab.gate)
-                    .await;
-                Connection::new(&lab.access, peer, origin, None).finish(&ViewerEnd::Limit(refusal));
-                return;
-            }
-        };
-        let mut connection = Connection::new(&lab.access, peer, origin, Some(admission));
-        let who = peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string());
-        let (dashboard, shutdown) = (Arc::clone(&lab.dashboard), lab.shutdown.clone());
-        let end = lab
-            .access
-            .serve_after_auth(
-                socket,
-                limits,
-                &lab.shutdown,
-                &lab.gate,
-                &mut connection,
-                move |socket, role, rate| {
-                    super::dashboard::serve_page(
-                        socket, dashboard, role, rate, limits, shutdown, who,
-                    )
-                },
-            )
-            .await;
-        connection.finish(&end);
-    })
+    admitted(
+        lab,
+        peer,
+        origin,
+        upgrade,
+        move |lab, socket, mut connection| async move {
+            let limits = lab.limits;
+            let who = peer.map_or_else(|| "unknown".to_owned(), |p| p.to_string());
+            let (dashboard, shutdown) = (Arc::clone(&lab.dashboard), lab.shutdown.clone());
+            let end = lab
+                .access
+                .serve_after_auth(
+                    socket,
+                    limits,
+                    &lab.shutdown,
+                    &lab.gate,
+                    &mut connection,
+                    move |socket, role, rate| {
+                        super::dashboard::serve_page(
+                            socket, dashboard, role, rate, limits, shutdown, who,
+                        )
+                    },
+                )
+                .await;
+            (connection, end)
+        },
+    )
 }
 
 /// The dashboard's message to its pages, once a [`DASHBOARD_PERIOD`] while a page is open.
