@@ -13,6 +13,9 @@
 //!   `build.rs` into a `libHD.so` the OpenHaptics backend loads in place of the vendor's), its
 //!   path and a handle on its test controls; the test file checks the stand-in keeps the HD
 //!   API's rules.
+//! - [`dhd_standin`] and `tests/dhd_standin.rs`: the same for the Force Dimension SDK
+//!   (`standin/dhd_standin.c`, a `libdhd.so`), whose hand is the HD stand-in's
+//!   (`standin/standin_hand.h`); `tests/forcedimension_device.rs` drives the server through it.
 //! - [`fuzz`]: a mutation fuzzer of every parser that takes outside input (scene, OBJ,
 //!   calibration and limits JSON, recordings, wire messages), run offline by `fuzz-report` and
 //!   briefly by `tests/fuzz_seeded.rs`.
@@ -25,6 +28,7 @@ pub mod crafted;
 pub mod fuzz;
 pub mod lab_ca;
 pub mod nats;
+pub mod dhd_standin;
 pub mod standin;
 
 use std::net::{IpAddr, SocketAddr};

@@ -241,6 +241,9 @@ pub enum DeviceKind {
     Openhaptics,
     /// A 3Dconnexion SpaceMouse through hidapi: rate control, no force rendered.
     Spacemouse,
+    /// A Force Dimension device (omega, delta, sigma, Novint Falcon) through the SDK's libdhd,
+    /// loaded at run time.
+    Forcedimension,
 }
 
 impl DeviceKind {
@@ -250,13 +253,15 @@ impl DeviceKind {
             DeviceKind::Simulated => "simulated",
             DeviceKind::Openhaptics => "openhaptics",
             DeviceKind::Spacemouse => "spacemouse",
+            DeviceKind::Forcedimension => "forcedimension",
         }
     }
 }
 
 /// The device a run uses, as `--device` names it: `simulated`, `openhaptics`,
-/// `openhaptics:<configuration name>`, `spacemouse` or `spacemouse:<serial>`; it replaces the
-/// scene's `[device] kind` (and `name` or `serial`).
+/// `openhaptics:<configuration name>`, `spacemouse`, `spacemouse:<serial>`, `forcedimension` or
+/// `forcedimension:<index>`; it replaces the scene's `[device] kind` (and `name`, `serial` or
+/// `index`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DeviceChoice {
     pub kind: DeviceKind,
@@ -274,12 +279,21 @@ impl std::str::FromStr for DeviceChoice {
             "simulated" => DeviceKind::Simulated,
             "openhaptics" => DeviceKind::Openhaptics,
             "spacemouse" => DeviceKind::Spacemouse,
+            "forcedimension" => DeviceKind::Forcedimension,
             other => {
                 return Err(format!(
-                    "unknown device kind {other:?}: expected simulated, openhaptics, \"openhaptics:<configuration name>\", spacemouse or \"spacemouse:<serial>\""
+                    "unknown device kind {other:?}: expected simulated, openhaptics, \"openhaptics:<configuration name>\", spacemouse, \"spacemouse:<serial>\", forcedimension or \"forcedimension:<index>\""
                 ));
             }
         };
+        if kind == DeviceKind::Forcedimension
+            && let Some(index) = name.as_deref()
+            && parse_device_index(index).is_err()
+        {
+            return Err(format!(
+                "\"forcedimension:{index}\": the device index must be a whole number from 0 to {MAX_DEVICE_INDEX} (0 is the first device plugged in)"
+            ));
+        }
         if kind == DeviceKind::Simulated && name.is_some() {
             return Err("the simulated device has no configuration name".into());
         }
@@ -323,6 +337,10 @@ pub enum DeviceModel {
     PhantomDesktop,
     Touch,
     Omni,
+    Falcon,
+    Omega3,
+    Delta3,
+    Sigma7,
 }
 
 impl DeviceModel {
@@ -331,6 +349,10 @@ impl DeviceModel {
             DeviceModel::PhantomDesktop => DeviceLimits::PHANTOM_DESKTOP,
             DeviceModel::Touch => DeviceLimits::TOUCH,
             DeviceModel::Omni => DeviceLimits::OMNI,
+            DeviceModel::Falcon => DeviceLimits::FALCON,
+            DeviceModel::Omega3 => DeviceLimits::OMEGA3,
+            DeviceModel::Delta3 => DeviceLimits::DELTA3,
+            DeviceModel::Sigma7 => DeviceLimits::SIGMA7,
         }
     }
 }
@@ -349,9 +371,14 @@ pub struct DeviceSection {
     /// The OpenHaptics device configuration to open (`None`: the default device).
     #[serde(default)]
     pub name: Option<String>,
-    /// Where an OpenHaptics device sits in the world (identity, one to one, when absent).
+    /// Where a real device (OpenHaptics, Force Dimension) sits in the world (identity, one to
+    /// one, when absent).
     #[serde(default)]
     pub world_from_device: Option<WorldFromDeviceSection>,
+    /// The Force Dimension device to open, by its index among those plugged in (`None`: the
+    /// SDK's default device).
+    #[serde(default)]
+    pub index: Option<u8>,
     /// The SpaceMouse to open, by serial number (`None`: the first found).
     #[serde(default)]
     pub serial: Option<String>,
@@ -361,6 +388,17 @@ pub struct DeviceSection {
     /// How a SpaceMouse's puck drives the tool.
     #[serde(default)]
     pub rate: RateSection,
+}
+
+/// The largest Force Dimension device index taken (the SDK counts devices from 0).
+pub const MAX_DEVICE_INDEX: u8 = 15;
+
+/// A Force Dimension device index as `--device forcedimension:<index>` gives it.
+pub fn parse_device_index(text: &str) -> Result<u8, ()> {
+    match text.trim().parse::<u8>() {
+        Ok(i) if i <= MAX_DEVICE_INDEX => Ok(i),
+        _ => Err(()),
+    }
 }
 
 /// `[device.rate]`: the SpaceMouse's rate control (`softhaptic_device::spacemouse::rate`).
@@ -411,6 +449,7 @@ impl Default for DeviceSection {
             press_depth_m: default_press_depth_m(),
             name: None,
             world_from_device: None,
+            index: None,
             serial: None,
             report_script: None,
             rate: RateSection::default(),
