@@ -48,10 +48,7 @@ fn main() {
     );
     let dhd = out_dir.join("dhd-standin").join("libdhd.so");
     compile(&manifest.join(DHD_SOURCE), &dhd, &[]);
-    println!(
-        "cargo:rustc-env=SOFTHAPTIC_DHD_STANDIN={}",
-        dhd.display()
-    );
+    println!("cargo:rustc-env=SOFTHAPTIC_DHD_STANDIN={}", dhd.display());
 
     let standin = out_dir.join("standin").join("libHD.so");
     compile(&source, &standin, &[]);

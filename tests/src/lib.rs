@@ -15,7 +15,10 @@
 //!   API's rules.
 //! - [`dhd_standin`] and `tests/dhd_standin.rs`: the same for the Force Dimension SDK
 //!   (`standin/dhd_standin.c`, a `libdhd.so`), whose hand is the HD stand-in's
-//!   (`standin/standin_hand.h`); `tests/forcedimension_device.rs` drives the server through it.
+//!   (`standin/standin_hand.h`); `tests/forcedimension_device.rs` checks its rules and drives
+//!   the server through it.
+//! - [`device_checks`]: the assertions the real-device tests share (the ramp back after a fault,
+//!   the contact held when a hand pushes a 1 mm sphere through, the force sent for each reading).
 //! - [`fuzz`]: a mutation fuzzer of every parser that takes outside input (scene, OBJ,
 //!   calibration and limits JSON, recordings, wire messages), run offline by `fuzz-report` and
 //!   briefly by `tests/fuzz_seeded.rs`.
@@ -25,10 +28,11 @@
 //!   than their size), for `tests/recording_limits.rs` and `padded-recording`.
 
 pub mod crafted;
+pub mod device_checks;
+pub mod dhd_standin;
 pub mod fuzz;
 pub mod lab_ca;
 pub mod nats;
-pub mod dhd_standin;
 pub mod standin;
 
 use std::net::{IpAddr, SocketAddr};

@@ -61,9 +61,10 @@
 #define DEFAULT_TYPE DHD_DEVICE_OMEGA3
 #define DEFAULT_SERIAL 11042
 #define OMEGA3_MAX_FORCE_N 12.0
-/* The longest time one position read moves the hand through (s): a process stopped in a
- * debugger does not make the next read integrate for an hour. */
-#define MAX_ADVANCE_S 1.0
+/* The longest time one position read moves the hand through (s): the hand moves on while the
+ * application reads nothing (a reconnection), but a process stopped in a debugger does not make
+ * the next read integrate for an hour. */
+#define MAX_ADVANCE_S 60.0
 #define WATCHDOG_UNIT_S 125e-6
 
 typedef void (*StandinHand)(void *user, const double force_n[3], double position_m[3],

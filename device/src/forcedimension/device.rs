@@ -32,6 +32,7 @@ pub struct ForceDimensionDevice {
     /// The tool's world orientation (the device has no wrist to read).
     tool_in_world: DQuat,
     opened_ns: u64,
+    period_ns: u64,
     last_time_ns: Option<u64>,
     ticks: u64,
     health: LinkHealth,
@@ -50,6 +51,7 @@ impl ForceDimensionDevice {
         mapping: WorkspaceMapping,
         limits: DeviceLimits,
         tool_in_device: DQuat,
+        period_ns: u64,
     ) -> ForceDimensionDevice {
         // The type's peak where it is known, else the limit in use.
         let peak_n = description
@@ -62,6 +64,7 @@ impl ForceDimensionDevice {
             mapping,
             limits,
             opened_ns: rt::now_ns(),
+            period_ns: period_ns.max(1),
             last_time_ns: None,
             ticks: 0,
             health: LinkHealth::default(),
@@ -123,9 +126,13 @@ impl ForceDimensionDevice {
         }
     }
 
-    /// Device time: nanoseconds since the device opened, increasing from tick to tick.
+    /// Device time: whole loop periods since the device opened (a tick woken a little late,
+    /// by less than half a period, does not move it), increasing from tick to tick. The force
+    /// ramps and the heating model then see the loop's steps, not the host's wake-up jitter.
     fn device_time_ns(&mut self) -> u64 {
-        let now = rt::now_ns().saturating_sub(self.opened_ns);
+        let period = self.period_ns;
+        let since_open = rt::now_ns().saturating_sub(self.opened_ns);
+        let now = (since_open + period / 2) / period * period;
         let time_ns = self.last_time_ns.map_or(now, |last| now.max(last + 1));
         self.last_time_ns = Some(time_ns);
         time_ns

@@ -10,7 +10,7 @@
 //!
 //! # Setup
 //! Opening a device: `dhdOpenID(index)` (or `dhdOpen` for the default), its type, name and
-//! serial, then the watchdog ([`super::WATCHDOG_UNITS`]), gravity compensation on (the SDK
+//! serial, then the watchdog ([`super::WATCHDOG_UNITS`] by default), gravity compensation on (the SDK
 //! applies it only while forces are sent, which the loop does every tick), the brakes off and
 //! the force on. A step that fails closes the device again.
 //!
@@ -26,7 +26,7 @@ use std::time::Duration;
 
 use super::dhd::*;
 use super::ffi::{DhdLibrary, Failed};
-use super::{DeviceDescription, ForceDimensionError, WATCHDOG_UNITS, type_limits};
+use super::{DeviceDescription, ForceDimensionError, type_limits};
 use crate::backend::reconnect::{Backoff, RECONNECT_BACKOFF_MAX, sleep_unless};
 
 /// Who uses the device now (module docs).
@@ -46,6 +46,8 @@ pub(crate) struct Shared {
     pub lib: &'static DhdLibrary,
     index: Option<u8>,
     pub which: String,
+    /// The watchdog set at each open, in the SDK's units.
+    watchdog_units: u8,
     /// The SDK's id of the open device (-1: none).
     id: AtomicI32,
     owner: AtomicU8,
@@ -127,7 +129,7 @@ impl Shared {
             lib.check(unsafe { (api.enable_expert_mode)() })
                 .map_err(|e| self.error("dhdEnableExpertMode", e))?;
             // SAFETY: as above.
-            let watchdog = lib.check(unsafe { (api.set_watchdog)(WATCHDOG_UNITS, id) });
+            let watchdog = lib.check(unsafe { (api.set_watchdog)(self.watchdog_units, id) });
             // SAFETY: as above.
             let _ = unsafe { (api.disable_expert_mode)() };
             watchdog.map_err(|e| self.error("dhdSetWatchdog", e))?;
@@ -181,11 +183,13 @@ impl Link {
         lib: &'static DhdLibrary,
         index: Option<u8>,
         which: String,
+        watchdog_units: u8,
     ) -> Result<(Link, DeviceDescription), ForceDimensionError> {
         let shared = Arc::new(Shared {
             lib,
             index,
             which,
+            watchdog_units,
             id: AtomicI32::new(-1),
             owner: AtomicU8::new(Owner::Closed as u8),
             generation: AtomicU32::new(0),

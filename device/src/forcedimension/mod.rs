@@ -67,8 +67,43 @@ pub const WATCHDOG_S: f64 = WATCHDOG_UNITS as f64 * WATCHDOG_UNIT_S;
 pub const FORCE_MARGIN: f64 = 0.01;
 
 /// Ticks between two reads of the device's status (the force switch: a user may press the
-/// device's force button, or the firmware may cut the force).
-pub const STATUS_CHECK_TICKS: u64 = 100;
+/// device's force button, or the firmware may cut the force). Every 10 ms: for at most that long
+/// a force the loop computed, recorded and streamed was not given by motors switched off, and
+/// it costs one more USB exchange in ten ticks rather than in every one.
+pub const STATUS_CHECK_TICKS: u64 = 10;
+
+/// Force Dimension's USB vendor id, which its omega, delta, sigma and lambda devices report.
+pub const USB_VENDOR_FORCE_DIMENSION: u16 = 0x1451;
+
+/// The Novint Falcon's USB ids: the FTDI serial bridge it is built around (FTDI's vendor id
+/// 0x0403) with the product id Novint gave it, 0xcb48.
+pub const USB_VENDOR_FALCON: u16 = 0x0403;
+pub const USB_PRODUCT_FALCON: u16 = 0xcb48;
+
+/// Whether a USB device (vendor, product) is one this backend drives.
+pub fn is_haptic_usb_device(vendor: u16, product: u16) -> bool {
+    vendor == USB_VENDOR_FORCE_DIMENSION
+        || (vendor == USB_VENDOR_FALCON && product == USB_PRODUCT_FALCON)
+}
+
+/// The udev rule that lets the desk's user (`uaccess`) and the `plugdev` group a service runs
+/// in open these devices' USB nodes (the SDK opens them through libusb).
+pub const UDEV_RULE_PATH: &str = "/etc/udev/rules.d/70-softhaptic-forcedimension.rules";
+pub const UDEV_RULE: &str = concat!(
+    "SUBSYSTEM==\"usb\", ATTRS{idVendor}==\"1451\", MODE=\"0660\", GROUP=\"plugdev\", TAG+=\"uaccess\"\n",
+    "SUBSYSTEM==\"usb\", ATTRS{idVendor}==\"0403\", ATTRS{idProduct}==\"cb48\", MODE=\"0660\", GROUP=\"plugdev\", TAG+=\"uaccess\"\n",
+);
+
+/// How to install the rule, for messages.
+pub fn udev_hint() -> String {
+    format!(
+        "give your user access to the Force Dimension device with a udev rule: write\n{}to {UDEV_RULE_PATH}, then run `sudo udevadm control --reload && sudo udevadm trigger` and replug the device",
+        UDEV_RULE
+            .lines()
+            .map(|l| format!("    {l}\n"))
+            .collect::<String>()
+    )
+}
 
 /// What the device type tells of a device: its name and its limits (the SDK reports the type,
 /// not the numbers).
@@ -204,6 +239,10 @@ pub struct ForceDimensionConfig {
     pub tool_in_device: glam::DQuat,
     /// The scene's device preset; the tighter of it and the type's limits applies.
     pub preset: DeviceLimits,
+    /// The loop's period: the device's time counts whole periods (below).
+    pub period_ns: u64,
+    /// The SDK's watchdog, in its 125 µs units ([`WATCHDOG_UNITS`] by default; 1 to 255).
+    pub watchdog_units: u8,
 }
 
 impl ForceDimensionConfig {
@@ -215,6 +254,8 @@ impl ForceDimensionConfig {
             scale: 1.0,
             tool_in_device: glam::DQuat::IDENTITY,
             preset,
+            period_ns: 1_000_000,
+            watchdog_units: WATCHDOG_UNITS,
         }
     }
 
@@ -235,7 +276,12 @@ impl ForceDimensionDevice {
     ) -> Result<ForceDimensionDevice, ForceDimensionError> {
         let lib = DhdLibrary::load()?;
         let which = config.which();
-        let (link, description) = link::Link::open(lib, config.index, which.clone())?;
+        let (link, description) = link::Link::open(
+            lib,
+            config.index,
+            which.clone(),
+            config.watchdog_units.max(1),
+        )?;
         let known = description.type_limits.is_some();
         let workspace = description.workspace_m().unwrap_or_else(|| {
             let r = config.preset.workspace_radius_m;
@@ -277,6 +323,7 @@ impl ForceDimensionDevice {
             mapping,
             limits,
             config.tool_in_device,
+            config.period_ns,
         ))
     }
 }

@@ -88,9 +88,11 @@ pub fn forcedimension_config(scene: &Scene) -> ForceDimensionConfig {
             .and_then(|i| crate::file::parse_device_index(i).ok()),
         world_from_device: scene.world_from_device,
         scale: scene.device_scale,
-        // The tool upright in the world whatever the device's placement: these devices have no
-        // wrist to say otherwise.
-        tool_in_device: scene.world_from_device.orientation.inverse(),
+        // These devices have no wrist to say how the tool is held: it points into the object
+        // along the scene's press, as the simulated hand holds it, whatever the device's
+        // placement.
+        tool_in_device: scene.world_from_device.orientation.inverse()
+            * scene.hand_script().tool_orientation(),
         ..ForceDimensionConfig::new(scene.device_limits)
     }
 }

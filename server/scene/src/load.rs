@@ -176,8 +176,7 @@ impl Scene {
         if file.device.kind != DeviceKind::Openhaptics && file.device.name.is_some() {
             return Err(field(
                 "device.name",
-                "names an OpenHaptics device configuration: only for kind = \"openhaptics\""
-                    .into(),
+                "names an OpenHaptics device configuration: only for kind = \"openhaptics\"".into(),
             ));
         }
         if !matches!(
