@@ -8,7 +8,8 @@
 //! - `standin/dhd_standin.c` as `libdhd.so` (the Force Dimension SDK),
 //!   `$OUT_DIR/dhd-standin/libdhd.so` (`SOFTHAPTIC_DHD_STANDIN`).
 //!
-//! Both share the hand that holds the device (`standin/standin_hand.h`), and each one's codes
+//! Both share the hand that holds the device (`standin/standin_hand.h`) and the latency
+//! histogram (`standin/standin_latency.h`), and each one's codes
 //! come from a C header generated from the backend's own definition of them.
 //!
 //! The `cc` crate only finds the compiler and its target flags; the library is linked here,
@@ -19,6 +20,7 @@ use std::path::{Path, PathBuf};
 const SOURCE: &str = "standin/hd_standin.c";
 const DHD_SOURCE: &str = "standin/dhd_standin.c";
 const HAND: &str = "standin/standin_hand.h";
+const LATENCY: &str = "standin/standin_latency.h";
 
 /// The HD API's codes, defined once for the project: the stand-in's `hd_defines.h` is generated
 /// from this file, so the backend, the tests and the stand-in cannot disagree on a value.
@@ -28,7 +30,7 @@ const CODES: &str = "../device/src/openhaptics/hd.rs";
 const DHD_CODES: &str = "../device/src/forcedimension/dhd.rs";
 
 fn main() {
-    for path in [SOURCE, DHD_SOURCE, HAND, CODES, DHD_CODES] {
+    for path in [SOURCE, DHD_SOURCE, HAND, LATENCY, CODES, DHD_CODES] {
         println!("cargo:rerun-if-changed={path}");
     }
     let out_dir = PathBuf::from(std::env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));

@@ -11,10 +11,10 @@
 //! stand-in: one device, one hand. Its state is process-wide: tests that use it in one process
 //! must take turns and start with [`DhdStandIn::reset`].
 
-use std::ffi::{c_double, c_int};
+use std::ffi::{c_double, c_int, c_ulonglong};
 use std::path::Path;
 
-use crate::standin::{Hand, SetHand, install_hand, remove_hand};
+use crate::standin::{Hand, Latency, SetHand, install_hand, remove_hand};
 
 /// The stand-in, `libdhd.so` in the build's output directory.
 pub fn dhd_standin_path() -> &'static Path {
@@ -63,6 +63,8 @@ pub struct DhdStandIn {
     hand_state: unsafe extern "C" fn(*mut c_double, *mut c_double),
     state: unsafe extern "C" fn(*mut c_double),
     max_motor_force: unsafe extern "C" fn() -> c_double,
+    latency: unsafe extern "C" fn(*mut c_double, *mut c_double, *mut c_double, *mut c_ulonglong),
+    reset_stats: unsafe extern "C" fn(),
     set_hand: SetHand,
     /// The SDK's own error query, for the per-thread checks.
     error_get_last: unsafe extern "C" fn() -> c_int,
@@ -99,6 +101,8 @@ impl DhdStandIn {
             hand_state: control!(library, "dhdStandinHandState"),
             state: control!(library, "dhdStandinState"),
             max_motor_force: control!(library, "dhdStandinMaxMotorForce"),
+            latency: control!(library, "dhdStandinLatency"),
+            reset_stats: control!(library, "dhdStandinResetStats"),
             set_hand: control!(library, "dhdStandinSetHand"),
             error_get_last: control!(library, "dhdErrorGetLast"),
             set_force: control!(library, "dhdSetForce"),
@@ -201,6 +205,27 @@ impl DhdStandIn {
     pub fn max_motor_force_n(&self) -> f64 {
         // SAFETY: no arguments.
         unsafe { (self.max_motor_force)() }
+    }
+
+    /// From each position read to the force command after it on the same thread (the tick's
+    /// work between reading and commanding), since the last [`reset_stats`](Self::reset_stats);
+    /// `frames` counts the commands.
+    pub fn latency(&self) -> Latency {
+        let mut l = Latency {
+            p50_us: 0.0,
+            p99_us: 0.0,
+            max_us: 0.0,
+            frames: 0,
+        };
+        // SAFETY: the stand-in writes one value through each pointer.
+        unsafe { (self.latency)(&mut l.p50_us, &mut l.p99_us, &mut l.max_us, &mut l.frames) };
+        l
+    }
+
+    /// Starts the latency statistics afresh.
+    pub fn reset_stats(&self) {
+        // SAFETY: no arguments.
+        unsafe { (self.reset_stats)() };
     }
 
     /// Replaces the built-in hand: called at each position read with the force the motors give

@@ -23,8 +23,9 @@
  *     (DHD_ERROR_NO_DEVICE_FOUND); a connection opened before the unplug keeps failing after
  *     the cable is back, until it is closed and the device opened again.
  *
- * There is no thread here: the device's time is the wall clock (CLOCK_MONOTONIC), and the hand
- * (standin_hand.h, the model the HD stand-in's hand uses) moves through the time since it last
+ * The SDK's frame has x toward the user, y to the right and z up. There is no thread here: the
+ * device's time is the wall clock (CLOCK_MONOTONIC), and the hand (standin_hand.h, the model the
+ * HD stand-in's hand uses, pressing down: along −z here) moves through the time since it last
  * moved each time the position is read, under the force the motors gave over that time (the
  * command's, until the watchdog's expiry). A test may install its own hand instead, called at
  * each position read with the force the motors give (N) and the position (m) and velocity
@@ -53,6 +54,7 @@
 
 #include "dhd_defines.h"
 #include "standin_hand.h"
+#include "standin_latency.h"
 
 /* Only the functions marked API leave the library (it is compiled with -fvisibility=hidden). */
 #define API __attribute__((visibility("default")))
@@ -112,6 +114,8 @@ typedef struct {
     unsigned long long refused_opens;
     /* The largest force magnitude the motors gave, N. */
     double max_motor_force_n;
+    /* From each position read to the force command that follows it on the same thread. */
+    Latency latency;
     /* The last command other than zero: its magnitude, and the commands counted then. */
     double last_nonzero_n;
     unsigned long long last_nonzero_command;
@@ -124,6 +128,8 @@ static StandinHand g_hand_fn;
 static void *g_hand_user;
 /* The SDK's last error, per thread. */
 static _Thread_local int t_error;
+/* When this thread last read the position (s; 0: not since its last command). */
+static _Thread_local double t_read_s;
 
 static double now_s(void) {
     struct timespec t;
@@ -225,6 +231,38 @@ static void report(const char *event) {
     fclose(file);
 }
 
+/* The hand's model works in the HD frame (x right, y up, z toward the user); the SDK's frame is
+ * the same axes renamed (x toward the user, y right, z up). */
+static void to_sdk(const double hand[3], double sdk[3]) {
+    sdk[0] = hand[2];
+    sdk[1] = hand[0];
+    sdk[2] = hand[1];
+}
+
+static void to_hand(const double sdk[3], double hand[3]) {
+    hand[0] = sdk[1];
+    hand[1] = sdk[2];
+    hand[2] = sdk[0];
+}
+
+/* The press from SDK coordinates (point x, y, z in mm, depth, period) to the hand's frame. */
+static void press_to_hand(double press[5]) {
+    double point[3];
+    to_hand(press, point);
+    memcpy(press, point, sizeof(point));
+}
+
+/* Moves the built-in hand by `step_s` under `force_sdk_n`. `g_mu` held. */
+static void builtin_step_locked(double time_s, double step_s, const double force_sdk_n[3]) {
+    double force[3], position[3], velocity[3];
+    to_hand(force_sdk_n, force);
+    to_hand(g.position_m, position);
+    to_hand(g.velocity_m_s, velocity);
+    hand_step(&g.grip, g.press, time_s, step_s, force, position, velocity);
+    to_sdk(position, g.position_m);
+    to_sdk(velocity, g.velocity_m_s);
+}
+
 /* Moves the hand to now (module comment). */
 static void advance_hand(void) {
     pthread_mutex_lock(&g_hand_mu);
@@ -247,12 +285,9 @@ static void advance_hand(void) {
         double motor[3];
         motor_force_locked(start, motor);
         const double zero[3] = {0.0, 0.0, 0.0};
-        if (with_force > 0.0)
-            hand_step(&g.grip, g.press, g.hand_time_s, with_force, motor, g.position_m,
-                      g.velocity_m_s);
+        if (with_force > 0.0) builtin_step_locked(g.hand_time_s, with_force, motor);
         if (step - with_force > 0.0)
-            hand_step(&g.grip, g.press, g.hand_time_s + with_force, step - with_force, zero,
-                      g.position_m, g.velocity_m_s);
+            builtin_step_locked(g.hand_time_s + with_force, step - with_force, zero);
         g.hand_time_s += step;
     }
     motor_force_locked(t, force);
@@ -278,10 +313,12 @@ static void reset_locked(void) {
     g.brakes_on = 1;
     g.gravity_on = 1;
     read_press("DHD_STANDIN_PRESS", "dhd_standin", g.press);
+    press_to_hand(g.press);
     g.grip = DEFAULT_GRIP;
-    double target_mm[3], target_mm_s[3];
+    double target_mm[3], target_mm_s[3], start_m[3];
     press_target(g.press, 0.0, target_mm, target_mm_s);
-    for (int i = 0; i < 3; i++) g.position_m[i] = target_mm[i] * 1e-3;
+    for (int i = 0; i < 3; i++) start_m[i] = target_mm[i] * 1e-3;
+    to_sdk(start_m, g.position_m);
     const char *type = getenv("DHD_STANDIN_TYPE");
     if (type != NULL && type[0] != '\0') {
         g.type = atoi(type);
@@ -409,6 +446,7 @@ API int dhdGetPosition(double *px, double *py, double *pz, char id) {
     pthread_mutex_unlock(&g_mu);
     if (!usable) return -1;
     advance_hand();
+    t_read_s = now_s();
     pthread_mutex_lock(&g_mu);
     *px = g.position_m[0];
     *py = g.position_m[1];
@@ -456,6 +494,8 @@ API int dhdSetForce(double fx, double fy, double fz, char id) {
             result = ok(DHD_MOTOR_SATURATED);
         }
         double t = now_s();
+        if (t_read_s > 0.0) latency_record(&g.latency, (t - t_read_s) * 1e6);
+        t_read_s = 0.0;
         watch_locked(t);
         memcpy(g.command_n, f, sizeof(f));
         g.command_s = t;
@@ -584,11 +624,13 @@ API void dhdStandinSetGrip(double stiffness_n_per_m, double damping_n_s_per_m, d
     pthread_mutex_unlock(&g_mu);
 }
 
-/* The built-in hand's press (x, y, z of the point, depth below it (mm), period (s)). */
+/* The built-in hand's press: x, y, z of the point (mm, the SDK's frame), depth below it along
+ * −z (mm), period (s). DHD_STANDIN_PRESS gives the same five numbers at load and reset. */
 API void dhdStandinSetPress(const double press[5]) {
     if (press == NULL || !(press[4] > 0.0)) return;
     pthread_mutex_lock(&g_mu);
     memcpy(g.press, press, sizeof(g.press));
+    press_to_hand(g.press);
     pthread_mutex_unlock(&g_mu);
 }
 
@@ -664,6 +706,21 @@ API double dhdStandinMaxMotorForce(void) {
     double n = g.max_motor_force_n;
     pthread_mutex_unlock(&g_mu);
     return n;
+}
+
+/* From each position read to the force command after it on the same thread, since the last
+ * reset: the median, the 99th percentile, the largest (µs) and the number of commands. */
+API void dhdStandinLatency(double *p50_us, double *p99_us, double *max_us,
+                           unsigned long long *commands) {
+    pthread_mutex_lock(&g_mu);
+    latency_summary(&g.latency, p50_us, p99_us, max_us, commands);
+    pthread_mutex_unlock(&g_mu);
+}
+
+API void dhdStandinResetStats(void) {
+    pthread_mutex_lock(&g_mu);
+    latency_reset(&g.latency);
+    pthread_mutex_unlock(&g_mu);
 }
 
 /* Replaces the built-in hand by `hand` (NULL: back to the built-in one, which carries on from

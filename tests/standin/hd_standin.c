@@ -108,6 +108,7 @@ static const double MAX_WORKSPACE_MM[6] = {-100.0, -80.0, -80.0, 100.0, 80.0, 80
 /* The built-in hand (standin_hand.h): the model of the simulated device. A test may set another
  * grip (hdStandinSetGrip) until the next reset. */
 #include "standin_hand.h"
+#include "standin_latency.h"
 
 #define DEFAULT_RATE_HZ 1000ul
 #define MAX_RATE_HZ 20000ul
@@ -115,8 +116,6 @@ static const double MAX_WORKSPACE_MM[6] = {-100.0, -80.0, -80.0, 100.0, 80.0, 80
 #define MAX_CALLBACKS 64
 /* Successful hdInitDevice calls whose times are kept (hdStandinInits). */
 #define MAX_INIT_TIMES 256
-/* Latency histogram: 1 µs bins up to 2 ms, then one overflow bin. */
-#define LATENCY_BINS 2000
 
 typedef void (*StandinHand)(void *user, const double force_n[3], double position_mm[3],
                             double velocity_mm_s[3]);
@@ -192,9 +191,7 @@ typedef struct {
     unsigned long long force_output_enables;
 
     /* Read-to-command latency of the frames since the last reset. */
-    uint64_t latency_hist[LATENCY_BINS + 1];
-    uint64_t latency_frames;
-    double latency_max_us;
+    Latency latency;
 
     /* Successful hdInitDevice calls since the last reset, and the CLOCK_MONOTONIC times of the
      * first MAX_INIT_TIMES of them. */
@@ -1080,12 +1077,6 @@ static int frame_failed(void) {
     return 1;
 }
 
-static void record_latency_locked(double us) {
-    int bin = us < 0.0 ? 0 : (us >= LATENCY_BINS ? LATENCY_BINS : (int)us);
-    g.latency_hist[bin] += 1;
-    g.latency_frames += 1;
-    if (us > g.latency_max_us) g.latency_max_us = us;
-}
 
 API void hdEndFrame(HHD hHD) {
     if (!frame_active() || hHD != t_frame.device) {
@@ -1121,7 +1112,7 @@ API void hdEndFrame(HHD hHD) {
         g.last_nonzero_frame = g.frames;
         g.last_nonzero_force_n = sent_n;
     }
-    record_latency_locked(seconds_between(&t_frame.latched, &now) * 1e6);
+    latency_record(&g.latency, seconds_between(&t_frame.latched, &now) * 1e6);
     pthread_mutex_unlock(&g_mu);
 }
 
@@ -1536,37 +1527,16 @@ API void hdStandinSetRotation(const double m[9]) {
     pthread_mutex_unlock(&g_mu);
 }
 
-/* The percentile's bin's upper edge, never above the largest latency seen. */
-static double percentile_locked(double p) {
-    if (g.latency_frames == 0) return 0.0;
-    uint64_t rank = (uint64_t)ceil(p * (double)g.latency_frames);
-    if (rank == 0) rank = 1;
-    uint64_t seen = 0;
-    for (int bin = 0; bin < LATENCY_BINS; bin++) {
-        seen += g.latency_hist[bin];
-        if (seen >= rank) {
-            double edge = (double)(bin + 1);
-            return edge < g.latency_max_us ? edge : g.latency_max_us;
-        }
-    }
-    return g.latency_max_us; /* in the overflow bin */
-}
-
 API void hdStandinLatency(double *p50_us, double *p99_us, double *max_us,
                           unsigned long long *frames) {
     pthread_mutex_lock(&g_mu);
-    if (p50_us != NULL) *p50_us = percentile_locked(0.50);
-    if (p99_us != NULL) *p99_us = percentile_locked(0.99);
-    if (max_us != NULL) *max_us = g.latency_max_us;
-    if (frames != NULL) *frames = g.latency_frames;
+    latency_summary(&g.latency, p50_us, p99_us, max_us, frames);
     pthread_mutex_unlock(&g_mu);
 }
 
 API void hdStandinResetStats(void) {
     pthread_mutex_lock(&g_mu);
-    memset(g.latency_hist, 0, sizeof(g.latency_hist));
-    g.latency_frames = 0;
-    g.latency_max_us = 0.0;
+    latency_reset(&g.latency);
     pthread_mutex_unlock(&g_mu);
 }
 

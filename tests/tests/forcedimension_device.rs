@@ -18,7 +18,7 @@
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
-use glam::DVec3;
+use glam::{DQuat, DVec3};
 use softhaptic_device::device::{DeviceError, DeviceLimits, HapticDevice};
 use softhaptic_device::forcedimension::{
     self as fd, ForceDimensionConfig, ForceDimensionDevice, WATCHDOG_S, WATCHDOG_UNITS,
@@ -50,7 +50,8 @@ async fn standin() -> (tokio::sync::MutexGuard<'static, ()>, DhdStandIn) {
 }
 
 /// The built-in scene driven through a Force Dimension device (`model` its preset), the
-/// device's origin on the liver's top, where the stand-in's hand presses along −y.
+/// device's origin on the liver's top, where the stand-in's hand presses along the SDK's −z, its
+/// z turned to the world's up (a quarter turn about x, as `scenes/forcedimension.toml`).
 fn liver_scene(model: DeviceLimits) -> Scene {
     let mut scene = Scene::builtin_default().unwrap();
     scene.choose_device(&DeviceChoice {
@@ -60,6 +61,7 @@ fn liver_scene(model: DeviceLimits) -> Scene {
     scene.device_limits = model;
     let (point, _) = scene.press_site_in_object;
     scene.world_from_device.position_m = scene.object_in_world.transform_point(point);
+    scene.world_from_device.orientation = DQuat::from_rotation_x(-std::f64::consts::FRAC_PI_2);
     scene
 }
 
@@ -104,7 +106,10 @@ async fn wait_pressing(s: &DhdStandIn, newtons: f64) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_press_through_the_stand_in_feels_like_a_press_through_the_simulator() {
     let (_guard, s) = standin().await;
-    let scene = liver_scene(DeviceLimits::OMEGA3);
+    let mut scene = liver_scene(DeviceLimits::OMEGA3);
+    // The device's axes on the world's, so that forces compare unrotated; the test's hand, not
+    // the stand-in's, presses.
+    scene.world_from_device.orientation = DQuat::IDENTITY;
     // The simulated device's hand, moved by the force the stand-in's motors give, stepped once
     // per position read: the same hand, script and loop as a press through the simulator.
     let script = scene.hand_script();
