@@ -19,6 +19,8 @@
 //!   the server through it.
 //! - [`device_checks`]: the assertions the real-device tests share (the ramp back after a fault,
 //!   the contact held when a hand pushes a 1 mm sphere through, the force sent for each reading).
+//! - [`standin_cli`]: the `softhaptic` program run against a stand-in until the hand presses,
+//!   then signalled, with what the stand-in reported.
 //! - [`fuzz`]: a mutation fuzzer of every parser that takes outside input (scene, OBJ,
 //!   calibration and limits JSON, recordings, wire messages), run offline by `fuzz-report` and
 //!   briefly by `tests/fuzz_seeded.rs`.
@@ -34,6 +36,7 @@ pub mod fuzz;
 pub mod lab_ca;
 pub mod nats;
 pub mod standin;
+pub mod standin_cli;
 
 use std::net::{IpAddr, SocketAddr};
 use std::time::Duration;

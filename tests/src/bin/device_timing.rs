@@ -86,9 +86,7 @@ fn main() -> anyhow::Result<()> {
     let kind = match option("--device").as_deref() {
         None | Some("openhaptics") => DeviceKind::Openhaptics,
         Some("forcedimension") => DeviceKind::Forcedimension,
-        Some(other) => anyhow::bail!(
-            "--device {other:?}: expected openhaptics or forcedimension"
-        ),
+        Some(other) => anyhow::bail!("--device {other:?}: expected openhaptics or forcedimension"),
     };
     let (env, path) = match kind {
         DeviceKind::Forcedimension => (forcedimension::LIBRARY_ENV, dhd_standin_path()),
