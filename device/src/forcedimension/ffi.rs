@@ -4,7 +4,7 @@
 //! the directories the SDK is commonly installed into; loaded once per process, never unloaded.
 //!
 //! Every SDK call takes the device's id last (a C `char`); the SDK keeps the last error of each
-//! thread apart, so an error is read ([`DhdLibrary::last_error`]) on the thread whose call
+//! thread apart, so an error is read (`DhdLibrary::last_error`) on the thread whose call
 //! failed, right after it.
 
 use std::ffi::{c_char, c_double, c_int, c_uchar, c_uint, c_ushort};

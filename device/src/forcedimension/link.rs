@@ -3,7 +3,7 @@
 //!
 //! # One user of the device at a time
 //! The device is used by one thread at a time, and who it is is one atomic word
-//! ([`Shared::owner`]): [`Owner::Loop`] while the loop renders (its tick, on the loop's thread
+//! (`Shared::owner`): [`Owner::Loop`] while the loop renders (its tick, on the loop's thread
 //! or its standby, never both at once), [`Owner::Recovery`] once the loop has given it up as
 //! lost. Only the loop moves it from `Loop` to `Recovery`, and only the reconnection thread back,
 //! so neither ever waits for the other, and the loop's side is one load per tick.
