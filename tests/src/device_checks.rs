@@ -18,6 +18,49 @@ use softhaptic_server::session::check::{CheckOverrides, check};
 use softhaptic_server::session::reader::Recording;
 
 use crate::Viewer;
+use softhaptic_device::device::HapticDevice;
+use softhaptic_device::sim::SimulatedPhantom;
+
+/// A stand-in's hand that is the simulated device's: stepped once per call, fed the force the
+/// stand-in's motors gave (from the second call on), its tip reported relative to `origin_m`
+/// in the stand-in's units (`units_per_m`: 1e3 for the HD stand-in's millimetres, 1 for the
+/// SDK stand-in's metres). `each(force_n, position)` sees every step. Never a panic inside
+/// (it cannot unwind into the stand-in) but for a simulated device that fails, which it does not.
+pub fn simulated_hand(
+    mut hand: SimulatedPhantom,
+    origin_m: DVec3,
+    units_per_m: f64,
+    mut each: impl FnMut([f64; 3], [f64; 3]) + Send + 'static,
+) -> impl FnMut([f64; 3], &mut [f64; 3], &mut [f64; 3]) + Send + 'static {
+    let mut first = true;
+    move |force_n, position, velocity| {
+        if !std::mem::replace(&mut first, false) {
+            hand.command_force(DVec3::from_array(force_n)).unwrap();
+        }
+        let sample = hand.read().unwrap();
+        *position = ((sample.tip_in_world.position_m - origin_m) * units_per_m).to_array();
+        *velocity = (sample.tip_velocity_m_s * units_per_m).to_array();
+        each(force_n, *position);
+    }
+}
+
+/// Reads contact frames until one is flagged `pushed_through` (and in contact): a viewer is
+/// told the contact is held, by the flag's name.
+pub async fn wait_for_pushed_through_frame(viewer: &mut Viewer, label: &str) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "{label}: no contact frame flagged pushed_through"
+        );
+        if let Some(Ok(ServerMessage::Contact(c))) = viewer.next(Duration::from_secs(5)).await
+            && c.flags.contains(ContactFlags::PUSHED_THROUGH)
+        {
+            assert!(c.in_contact, "{label}: {c:?}");
+            return;
+        }
+    }
+}
 
 pub fn force(d: &DeviceRecord) -> f64 {
     DVec3::from_array(d.force_n).length()

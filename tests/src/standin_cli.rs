@@ -143,3 +143,32 @@ pub fn number(line: &HashMap<String, String>, key: &str) -> f64 {
         .parse()
         .unwrap_or_else(|e| panic!("{key}={}: {e}", line[key]))
 }
+
+/// `softhaptic info` on the run's recording (without the stand-in's library in its
+/// environment) says it is complete and names the device by `device_word`.
+pub fn assert_recording_complete(
+    run: &StandinRun,
+    library_env: &str,
+    device_word: &str,
+    signal: &str,
+) {
+    let info = Command::new(softhaptic_binary())
+        .arg("info")
+        .arg(&run.recording)
+        .env_remove("RUST_BACKTRACE")
+        .env_remove(library_env)
+        .output()
+        .expect("softhaptic info runs");
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        info.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&info.stderr)
+    );
+    for expected in ["status:            complete", device_word] {
+        assert!(
+            text.contains(expected),
+            "SIG{signal}: {expected:?} missing from:\n{text}"
+        );
+    }
+}

@@ -9,12 +9,11 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
-use std::process::Command;
-
 use softhaptic_device::forcedimension::LIBRARY_ENV;
 use softhaptic_tests::dhd_standin::dhd_standin_path;
-use softhaptic_tests::softhaptic_binary;
-use softhaptic_tests::standin_cli::{StandinProgram, number, run_until_pressing_then};
+use softhaptic_tests::standin_cli::{
+    StandinProgram, assert_recording_complete, number, run_until_pressing_then,
+};
 
 fn program() -> StandinProgram {
     StandinProgram {
@@ -80,25 +79,7 @@ fn sigterm_and_sigint_send_zero_force_put_the_brakes_on_and_close_the_device() {
             "SIG{signal}: {close:?}"
         );
         // The recording was closed: `softhaptic info` says so.
-        let info = Command::new(softhaptic_binary())
-            .arg("info")
-            .arg(&run.recording)
-            .env_remove("RUST_BACKTRACE")
-            .env_remove(LIBRARY_ENV)
-            .output()
-            .expect("softhaptic info runs");
-        let text = String::from_utf8_lossy(&info.stdout);
-        assert!(
-            info.status.success(),
-            "{text}{}",
-            String::from_utf8_lossy(&info.stderr)
-        );
-        for expected in ["status:            complete", "Force Dimension"] {
-            assert!(
-                text.contains(expected),
-                "SIG{signal}: {expected:?} missing from:\n{text}"
-            );
-        }
+        assert_recording_complete(&run, LIBRARY_ENV, "Force Dimension", signal);
         let _ = std::fs::remove_dir_all(&run.dir);
     }
 }

@@ -16,7 +16,7 @@
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use glam::{DQuat, DVec3};
 use softhaptic_device::device::{DeviceError, DeviceLimits, HapticDevice};
@@ -24,8 +24,7 @@ use softhaptic_device::forcedimension::{
     self as fd, ForceDimensionConfig, ForceDimensionDevice, WATCHDOG_S, WATCHDOG_UNITS,
 };
 use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
-use softhaptic_proto::ContactFlags;
-use softhaptic_proto::wire::{DeviceStatus, ServerMessage};
+use softhaptic_proto::wire::DeviceStatus;
 use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
 use softhaptic_server::session::reader::Recording;
@@ -117,25 +116,23 @@ async fn a_press_through_the_stand_in_feels_like_a_press_through_the_simulator()
         limits: DeviceLimits::OMEGA3,
         ..SimParams::default()
     };
-    let mut hand = SimulatedPhantom::with_params(script, params);
+    let hand = SimulatedPhantom::with_params(script, params);
     let origin = scene.world_from_device.position_m;
     let steps: Arc<Mutex<Vec<ServoStep>>> = Arc::new(Mutex::new(Vec::with_capacity(20_000)));
     let log = Arc::clone(&steps);
-    let mut first = true;
-    s.set_hand(move |force_n, position_m, velocity_m_s| {
-        if !std::mem::replace(&mut first, false) {
-            hand.command_force(DVec3::from_array(force_n)).unwrap();
-        }
-        let sample = hand.read().unwrap();
-        *position_m = (sample.tip_in_world.position_m - origin).to_array();
-        *velocity_m_s = sample.tip_velocity_m_s.to_array();
-        log.lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .push(ServoStep {
-                force_sent_before_n: force_n,
-                position_mm: (DVec3::from_array(*position_m) * 1e3).to_array(),
-            });
-    });
+    s.set_hand(simulated_hand(
+        hand,
+        origin,
+        1.0,
+        move |force_n, position_m| {
+            log.lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .push(ServoStep {
+                    force_sent_before_n: force_n,
+                    position_mm: (DVec3::from_array(position_m) * 1e3).to_array(),
+                });
+        },
+    ));
     // The comparison is of forces, not of this machine's scheduling: a loop thread held off
     // its CPU for 10 ms on a loaded test machine must not let the watchdog zero a force here
     // (the watchdog has its own test), so it is set to its longest, 32 ms.
@@ -210,39 +207,20 @@ async fn a_hand_stronger_than_the_device_pushes_a_1_mm_sphere_in_and_the_contact
             hand_stiffness_n_per_m: STRONG_GRIP_N_PER_M,
             ..SimParams::default()
         };
-        let mut hand = SimulatedPhantom::with_params(script, params);
+        let hand = SimulatedPhantom::with_params(script, params);
         let origin = scene.world_from_device.position_m;
         let reads = Arc::new(Mutex::new(0u64));
         let counted = Arc::clone(&reads);
-        let mut first = true;
-        s.set_hand(move |force_n, position_m, velocity_m_s| {
-            if !std::mem::replace(&mut first, false) {
-                hand.command_force(DVec3::from_array(force_n)).unwrap();
-            }
-            let sample = hand.read().unwrap();
-            *position_m = (sample.tip_in_world.position_m - origin).to_array();
-            *velocity_m_s = sample.tip_velocity_m_s.to_array();
+        s.set_hand(simulated_hand(hand, origin, 1.0, move |_, _| {
             *counted.lock().unwrap_or_else(PoisonError::into_inner) += 1;
-        });
+        }));
         let live = start(
             scene.clone(),
             &format!("forcedimension-pop-through-{collision}"),
         )
         .await;
         let mut viewer = Viewer::connect(live.server.local_addr()).await;
-        let deadline = Instant::now() + Duration::from_secs(60);
-        loop {
-            assert!(
-                Instant::now() < deadline,
-                "{collision}: no contact frame flagged pushed_through"
-            );
-            if let Some(Ok(ServerMessage::Contact(c))) = viewer.next(Duration::from_secs(5)).await
-                && c.flags.contains(ContactFlags::PUSHED_THROUGH)
-            {
-                assert!(c.in_contact, "{collision}: {c:?}");
-                break;
-            }
-        }
+        wait_for_pushed_through_frame(&mut viewer, collision).await;
         let pass = (script.duration_s() * 1e3).ceil() as u64 + 300;
         wait_until("the pass of the hand", || {
             *reads.lock().unwrap_or_else(PoisonError::into_inner) >= pass

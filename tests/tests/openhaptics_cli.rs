@@ -13,7 +13,9 @@ use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use softhaptic_tests::standin::standin_path;
-use softhaptic_tests::standin_cli::{StandinProgram, StandinRun, number, run_until_pressing_then};
+use softhaptic_tests::standin_cli::{
+    StandinProgram, StandinRun, assert_recording_complete, number, run_until_pressing_then,
+};
 use softhaptic_tests::{repo_scenes, scratch_dir, softhaptic_binary};
 
 const LIBRARY_ENV: &str = "SOFTHAPTIC_HD_LIBRARY";
@@ -92,25 +94,7 @@ fn sigterm_and_sigint_send_zero_force_then_stop_the_scheduler_and_close_the_devi
             "SIG{signal}: {unload:?}"
         );
         // The recording was closed: `softhaptic info` says so.
-        let info = Command::new(softhaptic_binary())
-            .arg("info")
-            .arg(&run.recording)
-            .env_remove("RUST_BACKTRACE")
-            .env_remove(LIBRARY_ENV)
-            .output()
-            .expect("softhaptic info runs");
-        let text = String::from_utf8_lossy(&info.stdout);
-        assert!(
-            info.status.success(),
-            "{text}{}",
-            String::from_utf8_lossy(&info.stderr)
-        );
-        for expected in ["status:            complete", "OpenHaptics"] {
-            assert!(
-                text.contains(expected),
-                "SIG{signal}: {expected:?} missing from:\n{text}"
-            );
-        }
+        assert_recording_complete(&run, LIBRARY_ENV, "OpenHaptics", signal);
         let _ = std::fs::remove_dir_all(&run.dir);
     }
 }

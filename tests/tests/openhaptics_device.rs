@@ -184,29 +184,26 @@ async fn a_press_through_the_stand_in_feels_like_a_press_through_the_simulator()
         limits: DeviceLimits::PHANTOM_DESKTOP,
         ..SimParams::default()
     };
-    let mut hand = SimulatedPhantom::with_params(script, params);
+    let hand = SimulatedPhantom::with_params(script, params);
     s.set_rotation(Some(stylus_rotation(script.tool_orientation())));
-    let mut first = true;
-    let to_device = |v: DVec3| -> [f64; 3] { (v * 1e3).to_array() };
     let origin = scene.world_from_device.position_m;
     let servo_steps: Arc<Mutex<Vec<ServoStep>>> = Arc::new(Mutex::new(Vec::with_capacity(20_000)));
     let steps = Arc::clone(&servo_steps);
-    s.set_hand(move |force_n, position_mm, velocity_mm_s| {
-        if !std::mem::replace(&mut first, false) {
-            hand.command_force(DVec3::from_array(force_n)).unwrap();
-        }
-        let sample = hand.read().unwrap();
-        *position_mm = to_device(sample.tip_in_world.position_m - origin);
-        *velocity_mm_s = to_device(sample.tip_velocity_m_s);
-        // Never a panic here (it cannot unwind into the stand-in): a poisoned log is still a log.
-        steps
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .push(ServoStep {
-                force_sent_before_n: force_n,
-                position_mm: *position_mm,
-            });
-    });
+    s.set_hand(simulated_hand(
+        hand,
+        origin,
+        1e3,
+        move |force_n, position_mm| {
+            // Never a panic here (it cannot unwind into the stand-in): a poisoned log is still a log.
+            steps
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .push(ServoStep {
+                    force_sent_before_n: force_n,
+                    position_mm,
+                });
+        },
+    ));
     // The comparison is of forces, not of this machine's scheduling: a servo thread preempted
     // for a whole period on a loaded test machine must not turn a tick into an overrun here
     // (the overrun has its own test).
@@ -319,18 +316,10 @@ async fn a_hand_stronger_than_the_device_pushes_a_1_mm_sphere_in_and_the_contact
             hand_stiffness_n_per_m: STRONG_GRIP_N_PER_M,
             ..SimParams::default()
         };
-        let mut hand = SimulatedPhantom::with_params(script, params);
+        let hand = SimulatedPhantom::with_params(script, params);
         s.set_rotation(Some(stylus_rotation(script.tool_orientation())));
         let origin = scene.world_from_device.position_m;
-        let mut first = true;
-        s.set_hand(move |force_n, position_mm, velocity_mm_s| {
-            if !std::mem::replace(&mut first, false) {
-                hand.command_force(DVec3::from_array(force_n)).unwrap();
-            }
-            let sample = hand.read().unwrap();
-            *position_mm = ((sample.tip_in_world.position_m - origin) * 1e3).to_array();
-            *velocity_mm_s = (sample.tip_velocity_m_s * 1e3).to_array();
-        });
+        s.set_hand(simulated_hand(hand, origin, 1e3, |_, _| {}));
         // The hand's script runs on servo ticks from the scheduler's start, which comes after.
         let start_tick = s.ticks();
         let live = start(
@@ -339,20 +328,7 @@ async fn a_hand_stronger_than_the_device_pushes_a_1_mm_sphere_in_and_the_contact
         )
         .await;
         let mut viewer = Viewer::connect(live.server.local_addr()).await;
-        // On the wire: a viewer is told the contact is held, by the flag's name.
-        let deadline = Instant::now() + Duration::from_secs(60);
-        loop {
-            assert!(
-                Instant::now() < deadline,
-                "{collision}: no contact frame flagged pushed_through"
-            );
-            if let Some(Ok(ServerMessage::Contact(c))) = viewer.next(Duration::from_secs(5)).await
-                && c.flags.contains(ContactFlags::PUSHED_THROUGH)
-            {
-                assert!(c.in_contact, "{collision}: {c:?}");
-                break;
-            }
-        }
+        wait_for_pushed_through_frame(&mut viewer, collision).await;
         // The whole pass, then 300 ticks out of contact.
         let pass_ticks = (script.duration_s() * 1e3).ceil() as u64 + 300;
         let target = start_tick + pass_ticks;

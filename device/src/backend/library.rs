@@ -107,6 +107,22 @@ pub fn load_once<T: Sync + 'static, E>(
     Err(failed(LoadFailure::NotFound { tried }))
 }
 
+/// Looks up the function `$name` (a string literal) in `$library` (a `&'static
+/// libloading::Library`) as the type of the place it is stored in; a library without it gives
+/// `Err($missing($name))` from the enclosing function. For the backends' function tables: each
+/// field's type is the C signature the vendor's header gives the function.
+macro_rules! bind_symbol {
+    ($library:expr, $name:literal, $missing:expr) => {{
+        // SAFETY: the field this is stored in is declared with the signature the vendor's
+        // header gives `$name`, and the library is never unloaded (module docs).
+        match unsafe { $library.get(concat!($name, "\0").as_bytes()) } {
+            Ok(symbol) => *symbol,
+            Err(_) => return Err($missing($name)),
+        }
+    }};
+}
+pub(crate) use bind_symbol;
+
 /// A C string a library returned, copied out (`None` for null).
 ///
 /// # Safety

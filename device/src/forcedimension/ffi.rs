@@ -13,7 +13,7 @@ use std::sync::Mutex;
 
 use super::ForceDimensionError;
 use super::dhd::{DHD_MAX_STATUS, error_name};
-use crate::backend::library::{LibrarySpec, LoadFailure, c_text, load_once};
+use crate::backend::library::{LibrarySpec, LoadFailure, bind_symbol, c_text, load_once};
 
 /// Environment variable naming the SDK library to load instead of searching for it.
 pub const LIBRARY_ENV: &str = "SOFTHAPTIC_DHD_LIBRARY";
@@ -108,20 +108,14 @@ impl DhdLibrary {
         library: &'static libloading::Library,
         path: PathBuf,
     ) -> Result<DhdLibrary, ForceDimensionError> {
+        let missing = |symbol| ForceDimensionError::MissingSymbol {
+            path: path.clone(),
+            symbol,
+        };
         macro_rules! symbol {
-            ($name:literal) => {{
-                // SAFETY: the symbol is declared with the signature the SDK's header gives it,
-                // and the library is never unloaded.
-                match unsafe { library.get(concat!($name, "\0").as_bytes()) } {
-                    Ok(symbol) => *symbol,
-                    Err(_) => {
-                        return Err(ForceDimensionError::MissingSymbol {
-                            path,
-                            symbol: $name,
-                        });
-                    }
-                }
-            }};
+            ($name:literal) => {
+                bind_symbol!(library, $name, missing)
+            };
         }
         let api = Api {
             get_device_count: symbol!("dhdGetDeviceCount"),

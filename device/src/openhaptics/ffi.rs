@@ -15,7 +15,7 @@ use std::sync::Mutex;
 
 use super::OpenHapticsError;
 use super::hd::*;
-use crate::backend::library::{LibrarySpec, LoadFailure, load_once};
+use crate::backend::library::{LibrarySpec, LoadFailure, bind_symbol, load_once};
 
 /// Environment variable naming the HD library to load instead of searching for it.
 pub const LIBRARY_ENV: &str = "SOFTHAPTIC_HD_LIBRARY";
@@ -158,20 +158,14 @@ impl HdLibrary {
         library: &'static libloading::Library,
         path: PathBuf,
     ) -> Result<HdLibrary, OpenHapticsError> {
+        let missing = |symbol| OpenHapticsError::MissingSymbol {
+            path: path.clone(),
+            symbol,
+        };
         macro_rules! symbol {
-            ($name:literal) => {{
-                // SAFETY: the symbol is declared with the signature OpenHaptics' headers give
-                // it, and the library is never unloaded.
-                match unsafe { library.get(concat!($name, "\0").as_bytes()) } {
-                    Ok(symbol) => *symbol,
-                    Err(_) => {
-                        return Err(OpenHapticsError::MissingSymbol {
-                            path,
-                            symbol: $name,
-                        });
-                    }
-                }
-            }};
+            ($name:literal) => {
+                bind_symbol!(library, $name, missing)
+            };
         }
         let api = Api {
             init_device: symbol!("hdInitDevice"),
