@@ -21,6 +21,30 @@ use crate::Viewer;
 use softhaptic_device::device::HapticDevice;
 use softhaptic_device::sim::SimulatedPhantom;
 
+/// Starts a recorded server on a real device's backend (`device`, opened for `scene`), and
+/// checks that viewers are told its vendor (`vendor`, in the device's name).
+pub async fn start_on_device(
+    scene: Scene,
+    device: Box<dyn HapticDevice>,
+    vendor: &str,
+    name: &str,
+) -> crate::RecordedServer {
+    let mut options = crate::test_options();
+    options.device = Some(device);
+    let live = crate::start_recorded(scene, &crate::scratch_dir(name), options).await;
+    let device_name = &live.server.scene_message().device.name;
+    assert!(device_name.contains(vendor), "{device_name}");
+    live
+}
+
+/// Stops the server and returns its loop's final statistics and the recording.
+pub async fn finish(
+    live: crate::RecordedServer,
+) -> (softhaptic_device::stats::LoopStats, Recording) {
+    let (stats, _, path, _) = live.finish().await;
+    (stats, Recording::open(&path).unwrap())
+}
+
 /// A stand-in's hand that is the simulated device's: stepped once per call, fed the force the
 /// stand-in's motors gave (from the second call on), its tip reported relative to `origin_m`
 /// in the stand-in's units (`units_per_m`: 1e3 for the HD stand-in's millimetres, 1 for the

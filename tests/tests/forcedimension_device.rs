@@ -27,12 +27,9 @@ use softhaptic_device::sim::{HandScript, SimParams, SimulatedPhantom};
 use softhaptic_proto::wire::DeviceStatus;
 use softhaptic_server::devices;
 use softhaptic_server::scene::{DeviceChoice, DeviceKind, Scene};
-use softhaptic_server::session::reader::Recording;
 use softhaptic_tests::device_checks::*;
 use softhaptic_tests::dhd_standin::{DhdStandIn, dhd, dhd_standin_path};
-use softhaptic_tests::{
-    RecordedServer, Viewer, scratch_dir, start_recorded, test_options, wait_until,
-};
+use softhaptic_tests::{RecordedServer, Viewer, wait_until};
 
 /// One test at a time owns the stand-in.
 static STANDIN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
@@ -72,17 +69,7 @@ async fn start(mut scene: Scene, name: &str) -> RecordedServer {
 
 /// Starts a recorded server on `device`, opened for `scene`.
 async fn start_on(scene: Scene, device: Box<dyn HapticDevice>, name: &str) -> RecordedServer {
-    let mut options = test_options();
-    options.device = Some(device);
-    let live = start_recorded(scene, &scratch_dir(name), options).await;
-    let device_name = &live.server.scene_message().device.name;
-    assert!(device_name.contains("Force Dimension"), "{device_name}");
-    live
-}
-
-async fn finish(live: RecordedServer) -> (softhaptic_device::stats::LoopStats, Recording) {
-    let (stats, _, path, _) = live.finish().await;
-    (stats, Recording::open(&path).unwrap())
+    start_on_device(scene, device, "Force Dimension", name).await
 }
 
 /// Waits for `n` more force commands (the loop's ticks, as the device sees them).

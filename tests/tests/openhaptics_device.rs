@@ -99,19 +99,7 @@ async fn start_with(
     let opened = OpenHapticsDevice::open(&config).unwrap();
     scene.device_limits = opened.limits();
     scene.device_label = Some(format!("{} (OpenHaptics)", opened.description().model));
-    let device: Box<dyn HapticDevice> = Box::new(opened);
-    let mut options = test_options();
-    options.device = Some(device);
-    let live = start_recorded(scene, &scratch_dir(name), options).await;
-    let device_name = &live.server.scene_message().device.name;
-    assert!(device_name.contains("OpenHaptics"), "{device_name}");
-    live
-}
-
-/// Stops the server and returns its loop's final statistics and the recording.
-async fn finish(live: RecordedServer) -> (softhaptic_device::stats::LoopStats, Recording) {
-    let (stats, _, path, _) = live.finish().await;
-    (stats, Recording::open(&path).unwrap())
+    start_on_device(scene, Box::new(opened), "OpenHaptics", name).await
 }
 
 /// The stand-in's counters of what the backend did to it (controls the backend never calls).
