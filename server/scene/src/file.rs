@@ -521,6 +521,51 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_force_dimension_device_is_chosen_by_kind_index_and_preset() {
+        let c: DeviceChoice = "forcedimension".parse().unwrap();
+        assert_eq!((c.kind, c.name), (DeviceKind::Forcedimension, None));
+        let c: DeviceChoice = "forcedimension:1".parse().unwrap();
+        assert_eq!(c.name.as_deref(), Some("1"));
+        for bad in ["forcedimension:x", "forcedimension:16", "forcedimension:-1"] {
+            let e = bad.parse::<DeviceChoice>().unwrap_err();
+            assert!(e.contains("whole number from 0 to 15"), "{bad}: {e}");
+        }
+        let e = "joystick".parse::<DeviceChoice>().unwrap_err();
+        assert!(e.contains("forcedimension"), "{e}");
+
+        let base = include_str!("../../../scenes/forcedimension.toml");
+        let load = |text: &str| Scene::from_toml(text, Path::new("<test>"), None);
+        let s = load(base).unwrap();
+        assert_eq!(s.device_kind, DeviceKind::Forcedimension);
+        assert_eq!(s.device_limits, DeviceLimits::OMEGA3);
+        assert_eq!(s.device_name, None);
+        let with = |from: &str, to: &str| base.replacen(from, to, 1);
+        let s = load(&with("# index = 0", "index = 2")).unwrap();
+        assert_eq!(s.device_name.as_deref(), Some("2"));
+        let s = load(&with("model = \"omega3\"", "model = \"falcon\"")).unwrap();
+        assert_eq!(s.device_limits, DeviceLimits::FALCON);
+        let e = load(&with("# index = 0", "index = 16"))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("device.index") && e.contains("16"), "{e}");
+        let placed = base
+            .lines()
+            .find(|l| l.starts_with("world_from_device"))
+            .unwrap();
+        let simulated = base.replacen(placed, "", 1).replacen(
+            "kind = \"forcedimension\"",
+            "kind = \"simulated\"\nindex = 0",
+            1,
+        );
+        let e = load(&simulated).err().unwrap().to_string();
+        assert!(
+            e.contains("device.index") && e.contains("forcedimension"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn the_scene_chooses_the_drawn_profile_and_fem_needs_the_tables_surface() {
         // The default scene names no profile: its FEM table carries the surface, so fem.
         let text = include_str!("../../../scenes/default.toml");
