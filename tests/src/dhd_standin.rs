@@ -69,6 +69,12 @@ pub struct DhdStandIn {
     /// The SDK's own error query, for the per-thread checks.
     error_get_last: unsafe extern "C" fn() -> c_int,
     set_force: unsafe extern "C" fn(c_double, c_double, c_double, std::ffi::c_char) -> c_int,
+    open: unsafe extern "C" fn() -> c_int,
+    close: unsafe extern "C" fn(std::ffi::c_char) -> c_int,
+    enable_expert_mode: unsafe extern "C" fn() -> c_int,
+    disable_expert_mode: unsafe extern "C" fn() -> c_int,
+    set_watchdog: unsafe extern "C" fn(u8, std::ffi::c_char) -> c_int,
+    enable_force: unsafe extern "C" fn(u8, std::ffi::c_char) -> c_int,
 }
 
 macro_rules! control {
@@ -106,6 +112,12 @@ impl DhdStandIn {
             set_hand: control!(library, "dhdStandinSetHand"),
             error_get_last: control!(library, "dhdErrorGetLast"),
             set_force: control!(library, "dhdSetForce"),
+            open: control!(library, "dhdOpen"),
+            close: control!(library, "dhdClose"),
+            enable_expert_mode: control!(library, "dhdEnableExpertMode"),
+            disable_expert_mode: control!(library, "dhdDisableExpertMode"),
+            set_watchdog: control!(library, "dhdSetWatchdog"),
+            enable_force: control!(library, "dhdEnableForce"),
         })
     }
 
@@ -253,5 +265,41 @@ impl DhdStandIn {
     pub fn set_force_here(&self, force_n: [f64; 3], id: i8) -> i32 {
         // SAFETY: plain values.
         unsafe { (self.set_force)(force_n[0], force_n[1], force_n[2], id as std::ffi::c_char) }
+    }
+
+    /// `dhdOpen` from the calling thread: the id, or −1.
+    pub fn open_here(&self) -> i32 {
+        // SAFETY: no arguments.
+        unsafe { (self.open)() }
+    }
+
+    /// `dhdClose` from the calling thread.
+    pub fn close_here(&self, id: i8) -> i32 {
+        // SAFETY: a plain value.
+        unsafe { (self.close)(id as std::ffi::c_char) }
+    }
+
+    /// `dhdEnableExpertMode` (`on`) or `dhdDisableExpertMode`.
+    pub fn expert_mode_here(&self, on: bool) -> i32 {
+        // SAFETY: no arguments.
+        unsafe {
+            if on {
+                (self.enable_expert_mode)()
+            } else {
+                (self.disable_expert_mode)()
+            }
+        }
+    }
+
+    /// `dhdSetWatchdog` from the calling thread.
+    pub fn set_watchdog_here(&self, units: u8, id: i8) -> i32 {
+        // SAFETY: plain values.
+        unsafe { (self.set_watchdog)(units, id as std::ffi::c_char) }
+    }
+
+    /// `dhdEnableForce` from the calling thread.
+    pub fn enable_force_here(&self, on: bool, id: i8) -> i32 {
+        // SAFETY: plain values.
+        unsafe { (self.enable_force)(u8::from(on), id as std::ffi::c_char) }
     }
 }

@@ -468,3 +468,59 @@ async fn the_tighter_of_the_type_and_the_preset_applies() {
         "{error}"
     );
 }
+
+/// The stand-in keeps the SDK's rules the backend must follow: forces off and brakes on at
+/// open, one application at a time, the watchdog an expert function, a force beyond the peak
+/// scaled and answered `DHD_MOTOR_SATURATED`, an unplugged connection failing until reopened.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_stand_in_keeps_the_sdks_rules() {
+    let (_guard, s) = standin().await;
+    let id = s.open_here();
+    assert_eq!(id, 0);
+    let state = s.state();
+    assert!(
+        state.open && !state.force_on && state.brakes_on,
+        "{state:?}"
+    );
+    // A force before the force is on reaches no motor.
+    assert_eq!(s.set_force_here([0.0, 1.0, 0.0], -1), dhd::DHD_NO_ERROR);
+    assert_eq!(s.motor_force_n(), [0.0; 3]);
+    // A second open is refused.
+    assert_eq!(s.open_here(), -1);
+    assert_eq!(s.last_error_here(), dhd::DHD_ERROR_DEVICE_IN_USE);
+    // The watchdog only in expert mode.
+    assert_eq!(s.set_watchdog_here(8, -1), -1);
+    assert_eq!(s.last_error_here(), dhd::DHD_ERROR_EXPERT_MODE_DISABLED);
+    assert_eq!(s.expert_mode_here(true), 0);
+    assert_eq!(s.set_watchdog_here(8, -1), 0);
+    assert_eq!(s.expert_mode_here(false), 0);
+    // Forces on (the brakes released): a force within the peak is given as is, one beyond it
+    // scaled to the omega.3's 12 N and answered DHD_MOTOR_SATURATED, which is no error.
+    assert_eq!(s.enable_force_here(true, -1), 0);
+    assert!(!s.state().brakes_on);
+    assert_eq!(s.set_force_here([0.0, 1.5, 0.0], -1), dhd::DHD_NO_ERROR);
+    assert_eq!(s.motor_force_n(), [0.0, 1.5, 0.0]);
+    assert_eq!(
+        s.set_force_here([0.0, 0.0, 24.0], -1),
+        dhd::DHD_MOTOR_SATURATED
+    );
+    assert_eq!(s.motor_force_n(), [0.0, 0.0, 12.0]);
+    assert_eq!(s.last_error_here(), dhd::DHD_NO_ERROR);
+    // Unplugged: every call fails; replugged, the old connection still fails until reopened.
+    s.unplug();
+    assert_eq!(s.set_force_here([0.0; 3], -1), -1);
+    assert_eq!(s.last_error_here(), dhd::DHD_ERROR_COM);
+    assert_eq!(s.motor_force_n(), [0.0; 3]);
+    s.replug();
+    assert_eq!(s.set_force_here([0.0; 3], -1), -1);
+    assert_eq!(s.last_error_here(), dhd::DHD_ERROR_COM);
+    assert_eq!(
+        s.open_here(),
+        -1,
+        "still open: the lost connection must be closed first"
+    );
+    assert_eq!(s.close_here(0), 0);
+    assert_eq!(s.open_here(), 0);
+    assert_eq!(s.set_force_here([0.0; 3], -1), dhd::DHD_NO_ERROR);
+    assert_eq!(s.close_here(0), 0);
+}
