@@ -76,6 +76,63 @@ impl DeviceLimits {
     };
 }
 
+/// Continuous force of a Force Dimension preset as a fraction of its peak: the SDK reports no
+/// continuous rating, so the PHANTOM Desktop's ratio (1.75 N of 7.9 N) rounded down is taken, which
+/// errs on the cool side.
+pub const FORCE_DIMENSION_CONTINUOUS_FRACTION: f64 = 0.2;
+
+impl DeviceLimits {
+    /// Novint Falcon: 8 N, 3000 N/m, 20 N·s/m and a 0.04 m workspace radius as CHAI3D's
+    /// Force Dimension driver gives it.
+    pub const FALCON: DeviceLimits = DeviceLimits {
+        name: "Novint Falcon",
+        peak_force_n: 8.0,
+        continuous_force_n: 8.0 * FORCE_DIMENSION_CONTINUOUS_FRACTION,
+        thermal_time_constant_s: MOTOR_TIME_CONSTANT_S,
+        max_stiffness_n_per_m: 3000.0,
+        damping_n_s_per_m: 20.0,
+        workspace_radius_m: 0.04,
+    };
+
+    /// omega.3: 12 N and 5000 N/m as CHAI3D gives it; the Falcon's damping (the smallest of the
+    /// family's, so the safe side) and a 0.075 m radius (the datasheet's 160 mm sphere, less a
+    /// margin).
+    pub const OMEGA3: DeviceLimits = DeviceLimits {
+        name: "omega.3",
+        peak_force_n: 12.0,
+        continuous_force_n: 12.0 * FORCE_DIMENSION_CONTINUOUS_FRACTION,
+        thermal_time_constant_s: MOTOR_TIME_CONSTANT_S,
+        max_stiffness_n_per_m: 5000.0,
+        damping_n_s_per_m: 20.0,
+        workspace_radius_m: 0.075,
+    };
+
+    /// delta.3: 20 N as CHAI3D gives it; the omega.3's stiffness and the Falcon's damping (not
+    /// published for it: the family's most cautious values) and a 0.15 m radius (its 400 mm
+    /// workspace, less a margin).
+    pub const DELTA3: DeviceLimits = DeviceLimits {
+        name: "delta.3",
+        peak_force_n: 20.0,
+        continuous_force_n: 20.0 * FORCE_DIMENSION_CONTINUOUS_FRACTION,
+        thermal_time_constant_s: MOTOR_TIME_CONSTANT_S,
+        max_stiffness_n_per_m: 5000.0,
+        damping_n_s_per_m: 20.0,
+        workspace_radius_m: 0.15,
+    };
+
+    /// sigma.7 (translation): 12 N as CHAI3D's driver limits it; stiffness, damping and radius
+    /// as the omega.3's, whose parallel base it shares.
+    pub const SIGMA7: DeviceLimits = DeviceLimits {
+        name: "sigma.7",
+        peak_force_n: 12.0,
+        continuous_force_n: 12.0 * FORCE_DIMENSION_CONTINUOUS_FRACTION,
+        thermal_time_constant_s: MOTOR_TIME_CONSTANT_S,
+        max_stiffness_n_per_m: 5000.0,
+        damping_n_s_per_m: 20.0,
+        workspace_radius_m: 0.075,
+    };
+}
+
 /// One reading of the device, already mapped into the world frame by the backend.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DeviceSample {

@@ -20,6 +20,13 @@
 //! - [`liver`]: the procedural liver-like organ, as a coarse haptic mesh and a fine render surface.
 //! - [`device`]: the [`HapticDevice`](device::HapticDevice) trait, device limits, samples, errors.
 //! - [`sim`]: a simulated PHANTOM Desktop moved by a scripted hand (mass–spring–damper).
+//! - [`backend`]: what every vendor's backend shares: finding and loading its library, the
+//!   mapping from its frame and units to the world and the limits it runs with, the
+//!   reconnection policy.
+//! - [`forcedimension`]: a Force Dimension device (omega, delta, sigma, Novint Falcon) through
+//!   the `libdhd` SDK, loaded at run time; the loop's own thread clocks it, the SDK's watchdog
+//!   stops the motors when forces stop coming, faults give zero force and a reconnection off the
+//!   loop.
 //! - [`openhaptics`]: a PHANTOM / Touch through OpenHaptics' HD API, loaded at run time; its
 //!   servo scheduler clocks the loop, faults give zero force and a reconnection off the servo
 //!   path.
@@ -55,6 +62,7 @@
 //! - [`replay`]: [`ReplayDevice`](replay::ReplayDevice), a recorded session played back as a
 //!   device, and the exact conversions between device samples and session-log records.
 
+pub mod backend;
 pub mod cells;
 pub mod collision;
 pub mod curvature;
@@ -62,6 +70,7 @@ pub mod deviation;
 pub mod device;
 pub mod exercise;
 pub mod force;
+pub mod forcedimension;
 pub mod guide;
 pub mod haptic_loop;
 pub mod inclusion;

@@ -29,7 +29,7 @@ enum Command {
     Run(Box<RunArgs>),
     /// List the haptic devices this machine can drive: the OpenHaptics library (found or not,
     /// and why), each device it can open with its model, serial, limits and calibration state,
-    /// the SpaceMice found (with the udev rule when /dev/hidraw* is not readable), and the
+    /// the Force Dimension SDK and each device it sees (type, serial, limits), the SpaceMice found (with the udev rule when /dev/hidraw* is not readable), and the
     /// simulated device. Exits 0 with a listing on a machine with no hardware.
     Devices {
         /// Also try this OpenHaptics device configuration (repeatable); the default device is
@@ -118,10 +118,12 @@ struct RunArgs {
     scene: Option<PathBuf>,
     /// The haptic device, replacing the scene's `[device] kind`: `simulated`, `openhaptics`
     /// (OpenHaptics' default device), `openhaptics:<configuration name>`, `spacemouse` (the
-    /// first 3Dconnexion SpaceMouse found; input only, the force is shown but not felt) or
-    /// `spacemouse:<serial>`. OpenHaptics' libHD.so is loaded at start; SOFTHAPTIC_HD_LIBRARY
-    /// names it when it is not on the system's library path. `softhaptic devices` shows what
-    /// this machine has.
+    /// first 3Dconnexion SpaceMouse found; input only, the force is shown but not felt),
+    /// `spacemouse:<serial>`, `forcedimension` (the Force Dimension SDK's default device: omega,
+    /// delta, sigma, Novint Falcon) or `forcedimension:<index>`. OpenHaptics' libHD.so and Force
+    /// Dimension's libdhd.so are loaded at start; SOFTHAPTIC_HD_LIBRARY and
+    /// SOFTHAPTIC_DHD_LIBRARY name them when they are not on the system's library path.
+    /// `softhaptic devices` shows what this machine has.
     #[arg(long, value_name = "DEVICE")]
     device: Option<DeviceChoice>,
     /// Address to serve the viewer and the WebSocket stream on; port 0 picks a free port.

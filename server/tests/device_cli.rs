@@ -27,6 +27,7 @@ fn softhaptic(args: &[&str], library: Option<&Path>) -> Output {
         .args(args)
         .env_remove("RUST_BACKTRACE")
         .env_remove(LIBRARY_ENV)
+        .env_remove("SOFTHAPTIC_DHD_LIBRARY")
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
     if let Some(path) = library {
@@ -184,6 +185,8 @@ fn the_device_listing_exits_0_on_a_machine_without_hardware() {
     for expected in [
         "OpenHaptics (PHANTOM, Touch): not available",
         "/nonexistent/OpenHaptics/libHD.so",
+        "Force Dimension (omega, delta, sigma, Falcon): not available",
+        "SOFTHAPTIC_DHD_LIBRARY: not set",
         "simulated: always available",
     ] {
         assert!(

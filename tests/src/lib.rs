@@ -13,6 +13,14 @@
 //!   `build.rs` into a `libHD.so` the OpenHaptics backend loads in place of the vendor's), its
 //!   path and a handle on its test controls; the test file checks the stand-in keeps the HD
 //!   API's rules.
+//! - [`dhd_standin`] and `tests/dhd_standin.rs`: the same for the Force Dimension SDK
+//!   (`standin/dhd_standin.c`, a `libdhd.so`), whose hand is the HD stand-in's
+//!   (`standin/standin_hand.h`); `tests/forcedimension_device.rs` checks its rules and drives
+//!   the server through it.
+//! - [`device_checks`]: the assertions the real-device tests share (the ramp back after a fault,
+//!   the contact held when a hand pushes a 1 mm sphere through, the force sent for each reading).
+//! - [`standin_cli`]: the `softhaptic` program run against a stand-in until the hand presses,
+//!   then signalled, with what the stand-in reported.
 //! - [`fuzz`]: a mutation fuzzer of every parser that takes outside input (scene, OBJ,
 //!   calibration and limits JSON, recordings, wire messages), run offline by `fuzz-report` and
 //!   briefly by `tests/fuzz_seeded.rs`.
@@ -22,10 +30,13 @@
 //!   than their size), for `tests/recording_limits.rs` and `padded-recording`.
 
 pub mod crafted;
+pub mod device_checks;
+pub mod dhd_standin;
 pub mod fuzz;
 pub mod lab_ca;
 pub mod nats;
 pub mod standin;
+pub mod standin_cli;
 
 use std::net::{IpAddr, SocketAddr};
 use std::time::Duration;

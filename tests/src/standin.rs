@@ -83,7 +83,7 @@ pub type Hand = Box<dyn FnMut([f64; 3], &mut [f64; 3], &mut [f64; 3]) + Send>;
 /// The installed hand. Process-wide because the stand-in's hand is: one loaded library, one hand.
 static HAND: Mutex<Option<Hand>> = Mutex::new(None);
 
-type HandCallback =
+pub(crate) type HandCallback =
     unsafe extern "C" fn(*mut c_void, *const c_double, *mut c_double, *mut c_double);
 
 /// The stand-in's end of [`StandIn::set_hand`]. A panic in the test's hand aborts the process
@@ -99,6 +99,7 @@ unsafe extern "C" fn hand_trampoline(
     }
     // SAFETY: the stand-in passes three readable doubles of force and three writable doubles
     // each of position and velocity, distinct arrays that live for the call (`advance_hand` in
+    // dhd_standin.c as in
     // hd_standin.c); they were checked non-null above.
     let (force, position, velocity) = unsafe {
         (
@@ -111,6 +112,28 @@ unsafe extern "C" fn hand_trampoline(
     if let Some(hand) = hand.as_mut() {
         hand(force, position, velocity);
     }
+}
+
+/// A stand-in's control that installs a hand (`hdStandinSetHand`, `dhdStandinSetHand`: the
+/// same C signature in both stand-ins).
+pub(crate) type SetHand = unsafe extern "C" fn(Option<HandCallback>, *mut c_void);
+
+/// Installs `hand` as the stand-in's hand through its control `set`. One hand per process,
+/// whichever stand-in calls it: a test binary drives one stand-in.
+pub(crate) fn install_hand(set: SetHand, hand: Hand) {
+    // Stored before the stand-in is told, so the trampoline never finds the slot empty; a tick
+    // already inside the trampoline holds the lock and finishes with the previous hand.
+    *HAND.lock().unwrap_or_else(PoisonError::into_inner) = Some(hand);
+    // SAFETY: the trampoline has the stand-ins' hand signature and ignores its user pointer.
+    unsafe { set(Some(hand_trampoline), std::ptr::null_mut()) };
+}
+
+/// Back to the stand-in's built-in hand (which carries on from where the test's hand left it).
+pub(crate) fn remove_hand(set: SetHand) {
+    // SAFETY: NULL restores the built-in hand; once this returns the trampoline is not running
+    // and will not be called again.
+    unsafe { set(None, std::ptr::null_mut()) };
+    HAND.lock().unwrap_or_else(PoisonError::into_inner).take();
 }
 
 /// A handle on the stand-in's test controls (the `hdStandin*` functions, which the backend never
@@ -142,7 +165,7 @@ pub struct StandIn {
     scheduled_callbacks: unsafe extern "C" fn() -> c_int,
     latency: unsafe extern "C" fn(*mut c_double, *mut c_double, *mut c_double, *mut c_ulonglong),
     reset_stats: unsafe extern "C" fn(),
-    set_hand: unsafe extern "C" fn(Option<HandCallback>, *mut c_void),
+    set_hand: SetHand,
     set_buttons: unsafe extern "C" fn(c_int),
     set_rotation: unsafe extern "C" fn(*const c_double),
 }
@@ -437,19 +460,12 @@ impl StandIn {
     where
         F: FnMut([f64; 3], &mut [f64; 3], &mut [f64; 3]) + Send + 'static,
     {
-        // Stored before the stand-in is told, so the trampoline never finds the slot empty; a
-        // tick already inside the trampoline holds the lock and finishes with the previous hand.
-        *HAND.lock().unwrap_or_else(PoisonError::into_inner) = Some(Box::new(hand));
-        // SAFETY: the trampoline has the stand-in's hand signature and ignores its user pointer.
-        unsafe { (self.set_hand)(Some(hand_trampoline), std::ptr::null_mut()) };
+        install_hand(self.set_hand, Box::new(hand));
     }
 
     /// Back to the built-in hand (which carries on from where the test's hand left it).
     pub fn builtin_hand(&self) {
-        // SAFETY: NULL restores the built-in hand; once this returns the trampoline is not
-        // running and will not be called again.
-        unsafe { (self.set_hand)(None, std::ptr::null_mut()) };
-        HAND.lock().unwrap_or_else(PoisonError::into_inner).take();
+        remove_hand(self.set_hand);
     }
 
     /// The stylus buttons, a bitmask (`HD_DEVICE_BUTTON_1` = 1, `_2` = 2, ...).

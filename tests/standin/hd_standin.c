@@ -105,22 +105,10 @@ static const double MAX_WORKSPACE_MM[6] = {-100.0, -80.0, -80.0, 100.0, 80.0, 80
  * backend that skips calibration sees a tool visibly out of place. */
 #define UNCALIBRATED_OFFSET_X_MM 37.0
 
-/* The built-in hand: the simulated PHANTOM's model (device/src/sim.rs, SimParams::default), a
- * point mass (45 g tip + 100 g hand) held by a grip spring-damper toward a scripted target. A test
- * may set another grip (hdStandinSetGrip) until the next reset. */
-#define HAND_MASS_KG 0.145
-#define HAND_STIFFNESS_N_PER_M 300.0
-#define HAND_DAMPING_N_S_PER_M 2.0
-#define DEVICE_DAMPING_N_S_PER_M 0.05
-#define HAND_SUBSTEPS 10
-/* The longest substep: a late tick is integrated in as many more substeps as it is longer, so
- * the hand moves through it as it would in real time, however stiff and light the grip. */
-#define HAND_MAX_SUBSTEP_S 1e-4
-/* The target starts this far above the press point. */
-#define PRESS_APPROACH_MM 20.0
-
-/* Declared here: M_PI is not ISO C. */
-#define PI 3.14159265358979323846
+/* The built-in hand (standin_hand.h): the model of the simulated device. A test may set another
+ * grip (hdStandinSetGrip) until the next reset. */
+#include "standin_hand.h"
+#include "standin_latency.h"
 
 #define DEFAULT_RATE_HZ 1000ul
 #define MAX_RATE_HZ 20000ul
@@ -128,8 +116,6 @@ static const double MAX_WORKSPACE_MM[6] = {-100.0, -80.0, -80.0, 100.0, 80.0, 80
 #define MAX_CALLBACKS 64
 /* Successful hdInitDevice calls whose times are kept (hdStandinInits). */
 #define MAX_INIT_TIMES 256
-/* Latency histogram: 1 µs bins up to 2 ms, then one overflow bin. */
-#define LATENCY_BINS 2000
 
 typedef void (*StandinHand)(void *user, const double force_n[3], double position_mm[3],
                             double velocity_mm_s[3]);
@@ -170,9 +156,7 @@ typedef struct {
     double press[5];
     /* The built-in hand's grip (hdStandinSetGrip): its stiffness and damping toward the target,
      * and the mass moving with the tip (the device's and the hand's). */
-    double grip_stiffness_n_per_m;
-    double grip_damping_n_s_per_m;
-    double hand_mass_kg;
+    Grip grip;
 
     /* The force the motors were sent at the last hdEndFrame (N): what the hand feels. */
     double motor_force_n[3];
@@ -207,9 +191,7 @@ typedef struct {
     unsigned long long force_output_enables;
 
     /* Read-to-command latency of the frames since the last reset. */
-    uint64_t latency_hist[LATENCY_BINS + 1];
-    uint64_t latency_frames;
-    double latency_max_us;
+    Latency latency;
 
     /* Successful hdInitDevice calls since the last reset, and the CLOCK_MONOTONIC times of the
      * first MAX_INIT_TIMES of them. */
@@ -414,52 +396,6 @@ static double clamp_to_int(double v) {
     return v;
 }
 
-/* The built-in hand's target and its velocity (mm, mm/s) at script time `t` (s): a press along
- * −y from PRESS_APPROACH_MM above the point to `depth` below it and back, with a cosine profile,
- * so neither the target nor its velocity ever jumps (also at the wrap of the period). */
-static void press_target(const double press[5], double t, double target_mm[3],
-                         double target_mm_s[3]) {
-    double travel = PRESS_APPROACH_MM + press[3];
-    double period = press[4];
-    double offset = 0.0;
-    double rate = 0.0;
-    if (period > 0.0) {
-        double phase = fmod(t, period) / period;
-        offset = travel * (0.5 - 0.5 * cos(2.0 * PI * phase));
-        rate = travel * PI / period * sin(2.0 * PI * phase);
-    }
-    target_mm[0] = press[0];
-    target_mm[1] = press[1] + PRESS_APPROACH_MM - offset;
-    target_mm[2] = press[2];
-    target_mm_s[0] = 0.0;
-    target_mm_s[1] = -rate;
-    target_mm_s[2] = 0.0;
-}
-
-/* Reads HD_STANDIN_PRESS ("x_mm,y_mm,z_mm,depth_mm,period_s"); a malformed value is said once on
- * stderr and the default used, rather than quietly pressing somewhere else. */
-static void read_press(double press[5]) {
-    const double defaults[5] = {0.0, 0.0, 0.0, 8.0, 3.0};
-    memcpy(press, defaults, sizeof(defaults));
-    const char *text = getenv("HD_STANDIN_PRESS");
-    if (text == NULL || text[0] == '\0') return;
-    double v[5];
-    char tail;
-    int n = sscanf(text, " %lf , %lf , %lf , %lf , %lf %c", &v[0], &v[1], &v[2], &v[3], &v[4],
-                   &tail);
-    int ok = n == 5;
-    for (int i = 0; ok && i < 5; i++) ok = isfinite(v[i]);
-    ok = ok && v[3] >= 0.0 && v[4] > 0.0;
-    if (!ok) {
-        fprintf(stderr,
-                "hd_standin: HD_STANDIN_PRESS=\"%s\" is not \"x_mm,y_mm,z_mm,depth_mm,period_s\" "
-                "with depth >= 0 and period > 0; using the default 0,0,0,8,3\n",
-                text);
-        return;
-    }
-    memcpy(press, v, sizeof(v));
-}
-
 /* Reads HD_STANDIN_MAX_FORCE_N, the nominal maximum force the device reports and enforces (N),
  * for a test that runs the server as a program and cannot call hdStandinSetNominalMaxForce; a
  * value that is not a positive number is said on stderr and the PHANTOM Desktop's used. */
@@ -500,10 +436,8 @@ static void reset_state_locked(void) {
     g.nominal_max_force_n = read_max_force();
     g.calibration = HD_CALIBRATION_OK;
     g.rotation[0] = g.rotation[4] = g.rotation[8] = 1.0;
-    read_press(g.press);
-    g.grip_stiffness_n_per_m = HAND_STIFFNESS_N_PER_M;
-    g.grip_damping_n_s_per_m = HAND_DAMPING_N_S_PER_M;
-    g.hand_mass_kg = HAND_MASS_KG;
+    read_press("HD_STANDIN_PRESS", "hd_standin", g.press);
+    g.grip = DEFAULT_GRIP;
     double target_mm[3], target_mm_s[3];
     press_target(g.press, 0.0, target_mm, target_mm_s);
     for (int i = 0; i < 3; i++) g.position_m[i] = target_mm[i] * 1e-3;
@@ -721,25 +655,9 @@ API HDboolean hdIsEnabled(HDenum cap) {
  * The hand and the servo tick.
  */
 
-/* One servo period of the built-in hand, semi-implicit Euler with HAND_SUBSTEPS substeps (more
- * for a late tick, none longer than HAND_MAX_SUBSTEP_S) and the force held across them
- * (zero-order hold, as sim.rs). Called with `g_mu` held. */
+/* One servo period of the built-in hand (standin_hand.h). Called with `g_mu` held. */
 static void builtin_hand_step_locked(double period_s, const double force_n[3]) {
-    int substeps = HAND_SUBSTEPS;
-    double needed = ceil(period_s / HAND_MAX_SUBSTEP_S - 1e-9);
-    if (needed > substeps) substeps = needed < 1e6 ? (int)needed : 1000000;
-    double h = period_s / substeps;
-    for (int step = 0; step < substeps; step++) {
-        double target_mm[3], target_mm_s[3];
-        press_target(g.press, g.hand_time_s + step * h, target_mm, target_mm_s);
-        for (int i = 0; i < 3; i++) {
-            double grip = g.grip_stiffness_n_per_m * (target_mm[i] * 1e-3 - g.position_m[i]) +
-                          g.grip_damping_n_s_per_m * (target_mm_s[i] * 1e-3 - g.velocity_m_s[i]);
-            double friction = -DEVICE_DAMPING_N_S_PER_M * g.velocity_m_s[i];
-            g.velocity_m_s[i] += (grip + friction + force_n[i]) * (h / g.hand_mass_kg);
-            g.position_m[i] += g.velocity_m_s[i] * h;
-        }
-    }
+    hand_step(&g.grip, g.press, g.hand_time_s, period_s, force_n, g.position_m, g.velocity_m_s);
 }
 
 /* Moves the hand by one servo period under the force sent at the last hdEndFrame. */
@@ -1159,12 +1077,6 @@ static int frame_failed(void) {
     return 1;
 }
 
-static void record_latency_locked(double us) {
-    int bin = us < 0.0 ? 0 : (us >= LATENCY_BINS ? LATENCY_BINS : (int)us);
-    g.latency_hist[bin] += 1;
-    g.latency_frames += 1;
-    if (us > g.latency_max_us) g.latency_max_us = us;
-}
 
 API void hdEndFrame(HHD hHD) {
     if (!frame_active() || hHD != t_frame.device) {
@@ -1200,7 +1112,7 @@ API void hdEndFrame(HHD hHD) {
         g.last_nonzero_frame = g.frames;
         g.last_nonzero_force_n = sent_n;
     }
-    record_latency_locked(seconds_between(&t_frame.latched, &now) * 1e6);
+    latency_record(&g.latency, seconds_between(&t_frame.latched, &now) * 1e6);
     pthread_mutex_unlock(&g_mu);
 }
 
@@ -1513,14 +1425,8 @@ API void hdStandinLateTicks(int ticks, double tick_s) {
  * and HAND_MASS_KG; a pinch grip is stiffer, less damped and lighter. A value that is not finite,
  * a negative stiffness or damping, or a mass that is not positive changes nothing. */
 API void hdStandinSetGrip(double stiffness_n_per_m, double damping_n_s_per_m, double mass_kg) {
-    if (!isfinite(stiffness_n_per_m) || !isfinite(damping_n_s_per_m) || !isfinite(mass_kg) ||
-        stiffness_n_per_m < 0.0 || damping_n_s_per_m < 0.0 || !(mass_kg > 0.0)) {
-        return;
-    }
     pthread_mutex_lock(&g_mu);
-    g.grip_stiffness_n_per_m = stiffness_n_per_m;
-    g.grip_damping_n_s_per_m = damping_n_s_per_m;
-    g.hand_mass_kg = mass_kg;
+    set_grip(&g.grip, stiffness_n_per_m, damping_n_s_per_m, mass_kg);
     pthread_mutex_unlock(&g_mu);
 }
 
@@ -1621,37 +1527,16 @@ API void hdStandinSetRotation(const double m[9]) {
     pthread_mutex_unlock(&g_mu);
 }
 
-/* The percentile's bin's upper edge, never above the largest latency seen. */
-static double percentile_locked(double p) {
-    if (g.latency_frames == 0) return 0.0;
-    uint64_t rank = (uint64_t)ceil(p * (double)g.latency_frames);
-    if (rank == 0) rank = 1;
-    uint64_t seen = 0;
-    for (int bin = 0; bin < LATENCY_BINS; bin++) {
-        seen += g.latency_hist[bin];
-        if (seen >= rank) {
-            double edge = (double)(bin + 1);
-            return edge < g.latency_max_us ? edge : g.latency_max_us;
-        }
-    }
-    return g.latency_max_us; /* in the overflow bin */
-}
-
 API void hdStandinLatency(double *p50_us, double *p99_us, double *max_us,
                           unsigned long long *frames) {
     pthread_mutex_lock(&g_mu);
-    if (p50_us != NULL) *p50_us = percentile_locked(0.50);
-    if (p99_us != NULL) *p99_us = percentile_locked(0.99);
-    if (max_us != NULL) *max_us = g.latency_max_us;
-    if (frames != NULL) *frames = g.latency_frames;
+    latency_summary(&g.latency, p50_us, p99_us, max_us, frames);
     pthread_mutex_unlock(&g_mu);
 }
 
 API void hdStandinResetStats(void) {
     pthread_mutex_lock(&g_mu);
-    memset(g.latency_hist, 0, sizeof(g.latency_hist));
-    g.latency_frames = 0;
-    g.latency_max_us = 0.0;
+    latency_reset(&g.latency);
     pthread_mutex_unlock(&g_mu);
 }
 

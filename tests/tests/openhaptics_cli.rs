@@ -9,132 +9,35 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
-use std::collections::HashMap;
-use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
 use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use softhaptic_server::session::reader::Recording;
 use softhaptic_tests::standin::standin_path;
+use softhaptic_tests::standin_cli::{
+    StandinProgram, StandinRun, assert_recording_complete, number, run_until_pressing_then,
+};
 use softhaptic_tests::{repo_scenes, scratch_dir, softhaptic_binary};
 
 const LIBRARY_ENV: &str = "SOFTHAPTIC_HD_LIBRARY";
 
-/// What one run of the server against the stand-in left behind.
-struct StandinRun {
-    status: ExitStatus,
-    /// The server's log (stderr, `RUST_LOG=info`).
-    log: String,
-    /// The stand-in's `HD_STANDIN_REPORT` lines, each as its `key=value` fields.
-    report: Vec<HashMap<String, String>>,
-    recording: PathBuf,
-    /// The run's scratch directory (log, report, recordings), removed by a test that passes.
-    dir: PathBuf,
-}
-
-/// Runs `softhaptic --scene scenes/phantom.toml` with the stand-in as its OpenHaptics library
-/// (and `env` for the stand-in), waits until it serves viewers and has recorded the hand
-/// pressing the liver with more than 1 N, then sends it `signal` and waits for it to exit.
-fn run_standin_until_pressing_then(name: &str, signal: &str, env: &[(&str, &str)]) -> StandinRun {
-    let dir = scratch_dir(name);
-    let report_path = dir.join("standin-report.txt");
-    let log_path = dir.join("server.log");
-    let mut command = Command::new(softhaptic_binary());
-    command
-        .arg("--scene")
-        .arg(repo_scenes().join("phantom.toml"))
-        .args(["--addr", "127.0.0.1:0"])
-        .arg("--record-dir")
-        .arg(dir.join("sessions"))
-        .env_remove("RUST_BACKTRACE")
-        .env(LIBRARY_ENV, standin_path())
-        .env("HD_STANDIN_REPORT", &report_path)
+/// The program run against the HD stand-in: `scenes/phantom.toml`, its report and its hand.
+fn program() -> StandinProgram {
+    StandinProgram {
+        scene: "phantom.toml",
+        library_env: LIBRARY_ENV,
+        library: standin_path(),
+        report_env: "HD_STANDIN_REPORT",
         // The stand-in's hand presses the liver along the device's −y through its origin (the
         // surface): its target goes from 5 to 25 mm below the surface and back, so the tool is
         // pressed in at every moment a signal may come, and a zero force at the stop is the
         // server's.
-        .env("HD_STANDIN_PRESS", "0,-25,0,0,3")
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::piped())
-        .stderr(std::fs::File::create(&log_path).unwrap());
-    for (key, value) in env {
-        command.env(key, value);
-    }
-    let mut child = command.spawn().expect("softhaptic runs");
-    let log = || std::fs::read_to_string(&log_path).unwrap_or_default();
-    let mut recording = None;
-    for line in BufReader::new(child.stdout.take().unwrap()).lines() {
-        let line = line.unwrap();
-        if let Some(p) = line.strip_prefix("recording: ") {
-            recording = Some(PathBuf::from(p));
-        }
-        if line.starts_with("viewer: ") {
-            break;
-        }
-    }
-    let Some(recording) = recording else {
-        let _ = child.kill();
-        panic!("the server did not start recording:\n{}", log());
-    };
-    // Serving and ticking: the recording holds ticks of the hand pressing in.
-    let give_up = Instant::now() + Duration::from_secs(60);
-    loop {
-        let pressing = Recording::open(&recording).is_ok_and(|r| {
-            r.device.iter().any(|d| {
-                let [x, y, z] = d.force_n;
-                (x * x + y * y + z * z).sqrt() > 1.0
-            })
-        });
-        if pressing {
-            break;
-        }
-        if Instant::now() > give_up {
-            let _ = child.kill();
-            panic!("no press above 1 N recorded within 60 s:\n{}", log());
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    let sent = Command::new("kill")
-        .args([format!("-{signal}"), child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(sent.success());
-    let give_up = Instant::now() + Duration::from_secs(60);
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        if Instant::now() > give_up {
-            let _ = child.kill();
-            panic!("SIG{signal} did not stop the server:\n{}", log());
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let report = std::fs::read_to_string(&report_path)
-        .unwrap_or_default()
-        .lines()
-        .map(|line| {
-            line.split_whitespace()
-                .filter_map(|field| field.split_once('='))
-                .map(|(k, v)| (k.to_owned(), v.to_owned()))
-                .collect()
-        })
-        .collect();
-    StandinRun {
-        status,
-        log: log(),
-        report,
-        recording,
-        dir,
+        press: ("HD_STANDIN_PRESS", "0,-25,0,0,3"),
     }
 }
 
-/// A report field as a number.
-fn number(line: &HashMap<String, String>, key: &str) -> f64 {
-    line[key]
-        .parse()
-        .unwrap_or_else(|e| panic!("{key}={}: {e}", line[key]))
+/// [`run_until_pressing_then`] against the HD stand-in.
+fn run_standin_until_pressing_then(name: &str, signal: &str, env: &[(&str, &str)]) -> StandinRun {
+    run_until_pressing_then(&program(), name, signal, env)
 }
 
 #[test]
@@ -191,25 +94,7 @@ fn sigterm_and_sigint_send_zero_force_then_stop_the_scheduler_and_close_the_devi
             "SIG{signal}: {unload:?}"
         );
         // The recording was closed: `softhaptic info` says so.
-        let info = Command::new(softhaptic_binary())
-            .arg("info")
-            .arg(&run.recording)
-            .env_remove("RUST_BACKTRACE")
-            .env_remove(LIBRARY_ENV)
-            .output()
-            .expect("softhaptic info runs");
-        let text = String::from_utf8_lossy(&info.stdout);
-        assert!(
-            info.status.success(),
-            "{text}{}",
-            String::from_utf8_lossy(&info.stderr)
-        );
-        for expected in ["status:            complete", "OpenHaptics"] {
-            assert!(
-                text.contains(expected),
-                "SIG{signal}: {expected:?} missing from:\n{text}"
-            );
-        }
+        assert_recording_complete(&run, LIBRARY_ENV, "OpenHaptics", signal);
         let _ = std::fs::remove_dir_all(&run.dir);
     }
 }

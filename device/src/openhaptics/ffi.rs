@@ -2,17 +2,12 @@
 //! that holds them, loaded once per process and never unloaded.
 //!
 //! # Loading
-//! The library is opened with `dlopen` when a scene asks for the device, never linked: the
-//! project builds, runs and tests where OpenHaptics is absent. [`HdLibrary::load`] tries the path
-//! in [`LIBRARY_ENV`] when it is set (and nothing else), otherwise `libHD.so` through the
-//! system's library search and then the directories OpenHaptics' packages install into. Each
-//! symbol the backend uses is looked up once, at load; a library without one of them is refused
-//! with the symbol's name.
-//!
-//! The vendor's library starts driver threads of its own when it is loaded, so unloading it while
-//! they run is unsafe and loading it again starts another set: each library (by the path it was
-//! found at) is loaded at most once per process and never unloaded ([`HdLibrary::load`] hands
-//! out `&'static` references).
+//! [`HdLibrary::load`] finds and loads the library by the rules every vendor's backend shares
+//! ([`crate::backend::library`]): the path in [`LIBRARY_ENV`] when it is set (and nothing else),
+//! otherwise `libHD.so` through the system's library search and then the directories
+//! OpenHaptics' packages install into; loaded once per process, never unloaded. Each symbol the
+//! backend uses is looked up once, at load; a library without one of them is refused with the
+//! symbol's name.
 
 use std::ffi::{CStr, c_char, c_double, c_int, c_uint, c_ulong, c_ushort, c_void};
 use std::path::{Path, PathBuf};
@@ -20,6 +15,7 @@ use std::sync::Mutex;
 
 use super::OpenHapticsError;
 use super::hd::*;
+use crate::backend::library::{LibrarySpec, LoadFailure, bind_symbol, load_once};
 
 /// Environment variable naming the HD library to load instead of searching for it.
 pub const LIBRARY_ENV: &str = "SOFTHAPTIC_HD_LIBRARY";
@@ -92,14 +88,16 @@ pub struct HdLibrary {
 /// The libraries loaded so far, by the candidate path they were found at.
 static LOADED: Mutex<Vec<&'static HdLibrary>> = Mutex::new(Vec::new());
 
+/// Where the HD library is looked for.
+pub const LIBRARY: LibrarySpec = LibrarySpec {
+    file: LIBRARY_FILE,
+    env: LIBRARY_ENV,
+    dirs: &LIBRARY_DIRS,
+};
+
 /// Where [`HdLibrary::load`] looks, in order: the override alone when it is set.
 pub fn library_candidates() -> Vec<PathBuf> {
-    match std::env::var_os(LIBRARY_ENV) {
-        Some(path) if !path.is_empty() => vec![PathBuf::from(path)],
-        _ => std::iter::once(PathBuf::from(LIBRARY_FILE))
-            .chain(LIBRARY_DIRS.iter().map(|d| Path::new(d).join(LIBRARY_FILE)))
-            .collect(),
-    }
+    LIBRARY.candidates()
 }
 
 /// The classes of HD errors a frame (or a control call) left on the error stack.
@@ -144,70 +142,30 @@ impl HdLibrary {
     /// The library from the override variable's path, or found by searching (module docs);
     /// loaded once per process.
     pub fn load() -> Result<&'static HdLibrary, OpenHapticsError> {
-        let overridden = std::env::var_os(LIBRARY_ENV).is_some_and(|p| !p.is_empty());
-        // Held across the load, so two threads never load one library twice.
-        let mut loaded = LOADED.lock().unwrap_or_else(|p| p.into_inner());
-        let mut tried = Vec::new();
-        for candidate in library_candidates() {
-            if let Some(lib) = loaded.iter().find(|l| l.path == candidate) {
-                return Ok(lib);
-            }
-            // A bare file name goes through the dynamic loader's own search; a path is used as is
-            // and, when absent, skipped with a short reason rather than dlopen's longer one.
-            let bare = candidate.components().count() == 1;
-            if !overridden && !bare && !candidate.exists() {
-                tried.push(format!("{}: no such file", candidate.display()));
-                continue;
-            }
-            // SAFETY: loading a shared library runs its initialisers. The candidates are the
-            // vendor's library (or the path the user named for it), whose initialisers only set
-            // up its own state.
-            match unsafe { libloading::Library::new(&candidate) } {
-                Ok(library) => {
-                    // Never unloaded, even when refused: the vendor's library may have started
-                    // driver threads already.
-                    let library: &'static libloading::Library = Box::leak(Box::new(library));
-                    let lib: &'static HdLibrary =
-                        Box::leak(Box::new(Self::from_library(library, candidate)?));
-                    loaded.push(lib);
-                    return Ok(lib);
-                }
-                Err(e) if overridden => {
-                    return Err(OpenHapticsError::Load {
-                        path: candidate,
-                        reason: e.to_string(),
-                    });
-                }
-                Err(e) if bare => tried.push(format!(
-                    "the system library path (LD_LIBRARY_PATH, /etc/ld.so.conf): {e}"
-                )),
-                Err(e) => tried.push(format!("{}: {e}", candidate.display())),
-            }
-        }
-        if !overridden {
-            tried.push(format!("{LIBRARY_ENV}: not set"));
-        }
-        Err(OpenHapticsError::NotFound { tried })
+        load_once(
+            &LIBRARY,
+            &LOADED,
+            |lib| &lib.path,
+            Self::from_library,
+            |failure| match failure {
+                LoadFailure::NotFound { tried } => OpenHapticsError::NotFound { tried },
+                LoadFailure::Load { path, reason } => OpenHapticsError::Load { path, reason },
+            },
+        )
     }
 
     fn from_library(
         library: &'static libloading::Library,
         path: PathBuf,
     ) -> Result<HdLibrary, OpenHapticsError> {
+        let missing = |symbol| OpenHapticsError::MissingSymbol {
+            path: path.clone(),
+            symbol,
+        };
         macro_rules! symbol {
-            ($name:literal) => {{
-                // SAFETY: the symbol is declared with the signature OpenHaptics' headers give
-                // it, and the library is never unloaded.
-                match unsafe { library.get(concat!($name, "\0").as_bytes()) } {
-                    Ok(symbol) => *symbol,
-                    Err(_) => {
-                        return Err(OpenHapticsError::MissingSymbol {
-                            path,
-                            symbol: $name,
-                        });
-                    }
-                }
-            }};
+            ($name:literal) => {
+                bind_symbol!(library, $name, missing)
+            };
         }
         let api = Api {
             init_device: symbol!("hdInitDevice"),

@@ -46,7 +46,6 @@ pub mod servo;
 use std::ffi::CString;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::Duration;
 
 use softhaptic_proto::Pose;
 
@@ -57,22 +56,15 @@ pub use ffi::{
     HdLibrary, INSTALL_HINT, LIBRARY_DIRS, LIBRARY_ENV, LIBRARY_FILE, library_candidates,
 };
 pub use hd::error_name;
-pub use mapping::{Calibration, DeviceDescription, WorkspaceMapping, tighter_limits};
+pub use mapping::{
+    Calibration, DeviceDescription, ReportedLimits, WorkspaceMapping, tighter_limits,
+};
 pub use servo::{HdServoClock, OpenHapticsDevice};
 
-/// Ticks in a row the device may stay unreachable before it is reconnected (a shorter
-/// communication error is ridden out with zero force).
-pub const RECONNECT_AFTER_FAILED_TICKS: u32 = 250;
-
-/// First and longest wait between two reconnection attempts.
-pub const RECONNECT_BACKOFF_MIN: Duration = Duration::from_millis(100);
-pub const RECONNECT_BACKOFF_MAX: Duration = Duration::from_secs(2);
-
-/// Good ticks in a row after which a reconnected device counts as working again: the next loss
-/// is reconnected at once and its backoff starts again from [`RECONNECT_BACKOFF_MIN`]. A device
-/// lost again before that (it opens, but does not work) is reconnected only after a wait that
-/// keeps growing from one reconnection to the next.
-pub const RECONNECTED_AFTER_GOOD_TICKS: u32 = 1_000;
+pub use crate::backend::reconnect::{
+    RECONNECT_AFTER_FAILED_TICKS, RECONNECT_BACKOFF_MAX, RECONNECT_BACKOFF_MIN,
+    RECONNECTED_AFTER_GOOD_TICKS,
+};
 
 /// Why the OpenHaptics device could not be opened.
 #[derive(Debug, thiserror::Error)]
@@ -208,10 +200,11 @@ impl OpenHapticsDevice {
         let mapping = WorkspaceMapping {
             world_from_device: config.world_from_device,
             scale: config.scale,
-            usable_workspace_mm: description.usable_workspace_mm,
-            max_workspace_mm: description.max_workspace_mm,
+            metres_per_unit: 1e-3,
+            usable_workspace: description.usable_workspace_mm,
+            max_workspace: description.max_workspace_mm,
         };
-        let limits = tighter_limits(&config.preset, &description, &mapping);
+        let limits = tighter_limits(&config.preset, &description.reported_limits(), &mapping);
         tracing::info!(
             device = %display_name,
             model = %description.model,

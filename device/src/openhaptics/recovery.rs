@@ -7,17 +7,19 @@
 //! disables the old handle, initialises the device again until it answers, and restarts the
 //! scheduler.
 //!
-//! The backoff outlives one reconnection: a device that opens but is lost again before
-//! [`RECONNECTED_AFTER_GOOD_TICKS`](super::RECONNECTED_AFTER_GOOD_TICKS) good ticks (`Inner::working`) is reopened only after the
-//! next, doubled, wait, so a device that keeps failing is not stopped and restarted every few
-//! milliseconds. Only a working connection starts the next loss over at the shortest wait.
+//! The waits between attempts follow the policy every backend shares
+//! ([`crate::backend::reconnect`]): a device that opens but is lost again before
+//! [`RECONNECTED_AFTER_GOOD_TICKS`](super::RECONNECTED_AFTER_GOOD_TICKS) good ticks
+//! (`Inner::working`) is reopened only after the next, doubled, wait, so a device that keeps
+//! failing is not stopped and restarted every few milliseconds.
 
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
+use super::RECONNECT_BACKOFF_MAX;
 use super::hd::error_name;
 use super::servo::{Inner, start_failure_text};
-use super::{RECONNECT_BACKOFF_MAX, RECONNECT_BACKOFF_MIN};
+use crate::backend::reconnect::{Backoff, sleep_unless};
 use crate::rt;
 
 /// A running scheduler whose callback has not been called for this long is taken to have
@@ -26,9 +28,7 @@ pub const CALLBACK_SILENCE_RECONNECT: Duration = Duration::from_millis(500);
 
 /// The body of the reconnection thread (module docs).
 pub(crate) fn reconnect_when_asked(inner: &Inner) {
-    let mut backoff = RECONNECT_BACKOFF_MIN;
-    // The last loss ended in a reconnection that has not yet worked for a run of good ticks.
-    let mut reconnected_unproven = false;
+    let mut backoff = Backoff::default();
     while !inner.shutting_down.load(Ordering::Acquire) {
         std::thread::park_timeout(Duration::from_millis(5));
         let silent_ns = rt::now_ns().saturating_sub(inner.last_callback_ns.load(Ordering::Acquire));
@@ -42,10 +42,7 @@ pub(crate) fn reconnect_when_asked(inner: &Inner) {
         if !inner.reconnect_wanted.load(Ordering::Acquire) && !silent {
             continue;
         }
-        if inner.working.swap(false, Ordering::AcqRel) {
-            backoff = RECONNECT_BACKOFF_MIN;
-            reconnected_unproven = false;
-        }
+        let reconnected_unproven = backoff.lost(inner.working.swap(false, Ordering::AcqRel));
         let code = inner.last_error.load(Ordering::Relaxed);
         if silent {
             tracing::warn!(
@@ -59,7 +56,7 @@ pub(crate) fn reconnect_when_asked(inner: &Inner) {
                 device = %inner.display_name,
                 error = %inner.lib.error_text(code),
                 code = error_name(code),
-                wait_ms = backoff.as_millis() as u64,
+                wait_ms = backoff.next_wait().as_millis() as u64,
                 "haptic device lost again right after reconnecting: force is off; reconnecting \
                  after a longer wait"
             );
@@ -87,15 +84,10 @@ pub(crate) fn reconnect_when_asked(inner: &Inner) {
         inner.disable_device();
         let mut attempts = 0u32;
         loop {
-            if attempts > 0 || reconnected_unproven {
-                // Sleep in slices, so that a stop does not wait for a long backoff.
-                let wake = std::time::Instant::now() + backoff;
-                while std::time::Instant::now() < wake
-                    && !inner.shutting_down.load(Ordering::Acquire)
-                {
-                    std::thread::park_timeout(Duration::from_millis(10));
-                }
-                backoff = (backoff * 2).min(RECONNECT_BACKOFF_MAX);
+            if let Some(wait) = backoff.before_attempt(attempts)
+                && !sleep_unless(wait, &inner.shutting_down)
+            {
+                return;
             }
             if inner.shutting_down.load(Ordering::Acquire) {
                 return;
@@ -113,7 +105,7 @@ pub(crate) fn reconnect_when_asked(inner: &Inner) {
                                 attempts,
                                 "haptic device reconnected: force ramps in again"
                             );
-                            reconnected_unproven = true;
+                            backoff.reconnected();
                             break;
                         }
                         Err(failure) => {

@@ -19,7 +19,7 @@
 //!
 //! # Faults by what they mean
 //! - a lost device (`HD_COMM_ERROR`, ...): zero force, reconnected off the servo path
-//!   ([`super::recovery`]) after [`RECONNECT_AFTER_FAILED_TICKS`] ticks;
+//!   ([`super::recovery`]) after [`RECONNECT_AFTER_FAILED_TICKS`](crate::backend::reconnect::RECONNECT_AFTER_FAILED_TICKS) ticks;
 //! - warm motors (`HD_WARM_MOTORS`): a warning, the force goes on, limited by the world to the
 //!   device's continuous force while the sample carries [`ContactFlags::MOTORS_WARM`] (held
 //!   [`WARM_HOLD_TICKS`] after the last warning, so the limit does not flicker);
@@ -49,10 +49,11 @@ use std::time::{Duration, Instant};
 use glam::{DMat3, DQuat, DVec3};
 use softhaptic_proto::{ContactFlags, Pose};
 
+use super::OpenHapticsError;
 use super::ffi::{ErrorsSeen, HdCallbackCode, HdEnum, HdError, HdLibrary, HdSchedulerHandle, Hhd};
 use super::hd::*;
 use super::mapping::{DeviceDescription, WorkspaceMapping};
-use super::{OpenHapticsError, RECONNECT_AFTER_FAILED_TICKS, RECONNECTED_AFTER_GOOD_TICKS};
+use crate::backend::reconnect::LinkHealth;
 use crate::device::{
     DeviceError, DeviceLimits, DeviceSample, HapticDevice, RearmHandle, ServoClock, ServoStartError,
 };
@@ -123,7 +124,7 @@ pub(crate) struct Inner {
     pub reconnect_wanted: AtomicBool,
     /// +1 per successful reconnection: the device checks its calibration again.
     pub generation: AtomicU32,
-    /// Set by the servo side after [`RECONNECTED_AFTER_GOOD_TICKS`] good ticks of a connection
+    /// Set by the servo side after [`RECONNECTED_AFTER_GOOD_TICKS`](crate::backend::reconnect::RECONNECTED_AFTER_GOOD_TICKS) good ticks of a connection
     /// (and at open); taken by the reconnection thread, whose backoff restarts only then.
     pub working: AtomicBool,
     /// The clock is stopping: the reconnection thread gives up.
@@ -484,10 +485,8 @@ pub struct OpenHapticsDevice {
     encoder_reset: bool,
     /// The stylus' buttons at the last calibration check (a press is a new button).
     calibration_buttons: i32,
-    /// Ticks in a row the device was unreachable (since the last reconnection at most).
-    failed_ticks: u32,
-    /// Good ticks in a row since the last reconnection, up to [`RECONNECTED_AFTER_GOOD_TICKS`].
-    good_ticks: u32,
+    /// Good and unreachable ticks in a row (since the last reconnection at most).
+    health: LinkHealth,
     /// The driver's cut-out switched force output off: enabled again this tick unless latched.
     force_output_off: bool,
     /// Force output latched off after too many trips; an instructor's re-arm clears it.
@@ -540,8 +539,7 @@ impl OpenHapticsDevice {
             generation_seen: 0,
             update_style,
             calibration_buttons: 0,
-            failed_ticks: 0,
-            good_ticks: 0,
+            health: LinkHealth::default(),
             force_output_off: false,
             latched: false,
             rearm_times_ns: [0; MAX_AUTO_REARMS],
@@ -578,9 +576,7 @@ impl OpenHapticsDevice {
 
     /// Books an unreachable tick; asks for a reconnection when there have been enough in a row.
     fn unreachable_tick(&mut self) {
-        self.failed_ticks = self.failed_ticks.saturating_add(1);
-        self.good_ticks = 0;
-        if self.failed_ticks >= RECONNECT_AFTER_FAILED_TICKS {
+        if self.health.unreachable_tick() {
             // The reconnection thread polls the flag every few milliseconds: the servo path
             // signals nothing else (no lock, no system call).
             self.inner.reconnect_wanted.store(true, Ordering::Release);
@@ -647,15 +643,14 @@ impl OpenHapticsDevice {
 
     /// A new connection (the reconnection thread reopened the device): its calibration is
     /// checked again, and its failures are counted from zero, so that it gets
-    /// [`RECONNECT_AFTER_FAILED_TICKS`] ticks before it is reconnected again.
+    /// [`RECONNECT_AFTER_FAILED_TICKS`](crate::backend::reconnect::RECONNECT_AFTER_FAILED_TICKS) ticks before it is reconnected again.
     fn follow_generation(&mut self) {
         let generation = self.inner.generation.load(Ordering::Acquire);
         if generation != self.generation_seen {
             self.generation_seen = generation;
             self.calibrated = false;
             self.checked_at_tick = None;
-            self.failed_ticks = 0;
-            self.good_ticks = 0;
+            self.health.restart();
             // A new connection's output starts off: enabled by the start.
             self.force_output_off = false;
         }
@@ -663,12 +658,8 @@ impl OpenHapticsDevice {
 
     /// A good tick: after a run of them the connection counts as working again.
     fn good_tick(&mut self) {
-        self.failed_ticks = 0;
-        if self.good_ticks < RECONNECTED_AFTER_GOOD_TICKS {
-            self.good_ticks += 1;
-            if self.good_ticks == RECONNECTED_AFTER_GOOD_TICKS {
-                self.inner.working.store(true, Ordering::Release);
-            }
+        if self.health.good_tick() {
+            self.inner.working.store(true, Ordering::Release);
         }
     }
 

@@ -28,7 +28,7 @@ pub const STOCK_PREEMPTION_NAMES: [&str; 3] = [
 ];
 
 /// Every item of the report on the `stock` fixture, in the order they are printed.
-pub const STOCK_VERDICTS: [StockVerdict; 10] = [
+pub const STOCK_VERDICTS: [StockVerdict; 11] = [
     StockVerdict {
         id: "preemption",
         verdict: "warn",
@@ -81,5 +81,10 @@ pub const STOCK_VERDICTS: [StockVerdict; 10] = [
         id: "hidraw",
         verdict: "info",
         depends_on: Some("whether a HID device is plugged in, and who may open it"),
+    },
+    StockVerdict {
+        id: "forcedimension_usb",
+        verdict: "info",
+        depends_on: Some("whether a Force Dimension device or Falcon is plugged in"),
     },
 ];

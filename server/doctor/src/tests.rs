@@ -626,6 +626,44 @@ fn the_devices_and_hid_access_give_the_install_steps_and_the_udev_rule() {
 }
 
 #[test]
+fn a_force_dimension_device_is_found_by_its_usb_ids_and_its_node_checked() {
+    let f = Fixture::empty();
+    assert_eq!(forcedimension_usb_check(&f.tree()).verdict, Verdict::Info);
+    // A mouse, an omega.3 and a Falcon on the bus, as sysfs lists them.
+    for (dir, vendor, product, bus, dev) in [
+        ("1-1", "046d", "c077", "1", "2"),
+        ("1-2", "1451", "0402", "1", "5"),
+        ("3-1.4", "0403", "cb48", "3", "17"),
+    ] {
+        let base = format!("/sys/bus/usb/devices/{dir}");
+        f.file(&format!("{base}/idVendor"), &format!("{vendor}\n"))
+            .file(&format!("{base}/idProduct"), &format!("{product}\n"))
+            .file(&format!("{base}/busnum"), &format!("{bus}\n"))
+            .file(&format!("{base}/devnum"), &format!("{dev}\n"));
+    }
+    // Their nodes cannot be opened (absent here): the rule that lets this user.
+    let c = forcedimension_usb_check(&f.tree());
+    assert_eq!(c.verdict, Verdict::Warn, "{c:?}");
+    assert!(
+        c.found
+            .contains("Force Dimension device [1451:0402] at /dev/bus/usb/001/005")
+            && c.found
+                .contains("Novint Falcon [0403:cb48] at /dev/bus/usb/003/017")
+            && !c.found.contains("046d"),
+        "{}",
+        c.found
+    );
+    let fix = c.fix.unwrap();
+    assert!(
+        fix.contains("idVendor}==\"1451\"") && fix.contains("idProduct}==\"cb48\""),
+        "{fix}"
+    );
+    f.file("/dev/bus/usb/001/005", "")
+        .file("/dev/bus/usb/003/017", "");
+    assert_eq!(forcedimension_usb_check(&f.tree()).verdict, Verdict::Good);
+}
+
+#[test]
 fn missing_or_damaged_files_are_unknown_never_a_panic() {
     let empty = Fixture::empty();
     for plan in [
@@ -634,7 +672,7 @@ fn missing_or_damaged_files_are_unknown_never_a_panic() {
         plan(CpuChoice::Last),
     ] {
         let checks = inspect_fixture(&empty, plan);
-        assert_eq!(checks.len(), 10);
+        assert_eq!(checks.len(), 11);
         for c in &checks {
             assert!(!c.found.is_empty(), "{c:?}");
             assert_ne!(
@@ -669,7 +707,7 @@ fn missing_or_damaged_files_are_unknown_never_a_panic() {
     }
     junk.file("/etc/passwd", "\u{fffd}:x:notanumber\n");
     let checks = inspect_fixture(&junk, plan(CpuChoice::Last));
-    assert_eq!(checks.len(), 10);
+    assert_eq!(checks.len(), 11);
     let report = Report::new(checks, None);
     assert!((0..=2).contains(&report.exit_code));
     let text = render(&report, &junk.tree());

@@ -1,7 +1,8 @@
 //! The scene's haptic device: opening it, and `softhaptic devices`.
 //!
 //! [`open`] builds the device a scene names (the simulated PHANTOM moved by its scripted hand,
-//! a PHANTOM / Touch through OpenHaptics, or a SpaceMouse through hidapi) and writes back into the scene what the device
+//! a PHANTOM / Touch through OpenHaptics, an omega, delta, sigma or Falcon through Force
+//! Dimension's SDK, or a SpaceMouse through hidapi) and writes back into the scene what the device
 //! really is: its limits (the tighter of the device's and the preset's; for a SpaceMouse, the
 //! preset's with a workspace that reaches the scene's box) and its label for the viewers, before
 //! the recording and the `scene` message are made from the scene. A device that
@@ -9,12 +10,16 @@
 //! for, where, and how to install it), before anything listens or records.
 //!
 //! [`listing`] is what `softhaptic devices` prints: the OpenHaptics library and each device it
-//! can open (model, serial, limits, calibration), the SpaceMice hidapi finds (and the udev rule
-//! when hidraw is not readable), and the simulated device.
+//! can open (model, serial, limits, calibration), the Force Dimension SDK and each device it
+//! sees (type, serial, the limits its type implies), the SpaceMice hidapi finds (and the udev
+//! rule when hidraw is not readable), and the simulated device.
 
 use std::fmt::Write as _;
 
 use softhaptic_device::device::HapticDevice;
+use softhaptic_device::forcedimension::{
+    self as fd, ForceDimensionConfig, ForceDimensionDevice, ForceDimensionError,
+};
 use softhaptic_device::openhaptics::{
     self, Calibration, DeviceDescription, Discovery, OpenHapticsConfig, OpenHapticsDevice,
     OpenHapticsError,
@@ -30,6 +35,8 @@ use softhaptic_device::spacemouse::{
 pub enum DeviceOpenError {
     #[error(transparent)]
     OpenHaptics(#[from] OpenHapticsError),
+    #[error(transparent)]
+    ForceDimension(#[from] ForceDimensionError),
     /// The SpaceMouse backend's reason, then what to do about it. Its text already holds every
     /// cause, so it names no `source`: a report that prints an error and then its causes would
     /// print the reason twice.
@@ -71,6 +78,25 @@ pub fn openhaptics_config(scene: &Scene) -> OpenHapticsConfig {
     }
 }
 
+/// The Force Dimension configuration a scene describes (its device name is the index, checked
+/// when the scene or `--device` was read).
+pub fn forcedimension_config(scene: &Scene) -> ForceDimensionConfig {
+    ForceDimensionConfig {
+        index: scene
+            .device_name
+            .as_deref()
+            .and_then(|i| crate::file::parse_device_index(i).ok()),
+        world_from_device: scene.world_from_device,
+        scale: scene.device_scale,
+        // These devices have no wrist to say how the tool is held: it points into the object
+        // along the scene's press, as the simulated hand holds it, whatever the device's
+        // placement.
+        tool_in_device: scene.world_from_device.orientation.inverse()
+            * scene.hand_script().tool_orientation(),
+        ..ForceDimensionConfig::new(scene.device_limits)
+    }
+}
+
 /// Opens the scene's device and records in the scene the limits it runs with and its label.
 pub fn open(scene: &mut Scene) -> Result<Box<dyn HapticDevice>, DeviceOpenError> {
     match scene.device_kind {
@@ -97,6 +123,15 @@ pub fn open(scene: &mut Scene) -> Result<Box<dyn HapticDevice>, DeviceOpenError>
                 },
                 d.display_name(),
                 if d.serial.is_empty() { "?" } else { &d.serial },
+            ));
+            Ok(Box::new(device))
+        }
+        DeviceKind::Forcedimension => {
+            let device = ForceDimensionDevice::open(&forcedimension_config(scene))?;
+            scene.device_limits = device.limits();
+            scene.device_label = Some(format!(
+                "{} (Force Dimension)",
+                device.description().label()
             ));
             Ok(Box::new(device))
         }
@@ -164,10 +199,11 @@ pub fn listing(names: &[String]) -> String {
             }
         }
     }
+    forcedimension_listing(&mut out, &fd::discover());
     spacemouse_listing(&mut out, &hid::list());
     let _ = writeln!(
         out,
-        "simulated: always available (scene [device] kind = \"simulated\"; presets phantom_desktop, touch, omni)"
+        "simulated: always available (scene [device] kind = \"simulated\"; presets phantom_desktop, touch, omni, falcon, omega3, delta3, sigma7)"
     );
     out
 }
@@ -205,6 +241,81 @@ fn describe(out: &mut String, d: &DeviceDescription, calibration: Calibration) {
         }
     };
     let _ = writeln!(out, "    calibration: {state} (styles: {styles})");
+}
+
+/// The Force Dimension part of `softhaptic devices`.
+pub fn forcedimension_listing(out: &mut String, discovery: &fd::Discovery) {
+    match discovery {
+        fd::Discovery::NoLibrary(e) => {
+            let _ = writeln!(
+                out,
+                "Force Dimension (omega, delta, sigma, Falcon): not available"
+            );
+            let _ = writeln!(out, "  {e}");
+        }
+        fd::Discovery::Library {
+            path,
+            count,
+            devices,
+        } => {
+            let _ = writeln!(
+                out,
+                "Force Dimension (omega, delta, sigma, Falcon): library {}",
+                path.display()
+            );
+            match count {
+                Ok(0) => {
+                    let _ = writeln!(out, "  no device found");
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    let _ = writeln!(out, "  the SDK could not count its devices: {e}");
+                }
+            }
+            for (index, opened) in devices {
+                match opened {
+                    Ok(d) => {
+                        let _ = writeln!(out, "  index {index}: {}", d.label());
+                        match d.type_limits {
+                            Some(l) => {
+                                let _ = writeln!(
+                                    out,
+                                    "    limits: {:.1} N peak, {:.1} N continuous, {:.0} N/m stiffness, {:.1} N·s/m damping, workspace radius {:.3} m (scene preset {})",
+                                    l.peak_force_n,
+                                    l.continuous_force_n,
+                                    l.max_stiffness_n_per_m,
+                                    l.damping_n_s_per_m,
+                                    l.workspace_radius_m,
+                                    preset_name(d.type_id),
+                                );
+                            }
+                            None => {
+                                let _ = writeln!(
+                                    out,
+                                    "    limits: not known for this type: the scene's preset alone applies"
+                                );
+                            }
+                        }
+                    }
+                    Err(e) => {
+                        let _ = writeln!(out, "  index {index}: cannot be opened: {e}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The scene preset (`[device] model`) of a Force Dimension type.
+fn preset_name(type_id: i32) -> &'static str {
+    use softhaptic_device::forcedimension::dhd::*;
+    match type_id {
+        DHD_DEVICE_FALCON => "falcon",
+        DHD_DEVICE_OMEGA3 => "omega3",
+        DHD_DEVICE_DELTA3 => "delta3",
+        DHD_DEVICE_SIGMA331 => "sigma7",
+        _ => "?",
+    }
 }
 
 /// The SpaceMouse part of `softhaptic devices`.

@@ -241,6 +241,9 @@ pub enum DeviceKind {
     Openhaptics,
     /// A 3Dconnexion SpaceMouse through hidapi: rate control, no force rendered.
     Spacemouse,
+    /// A Force Dimension device (omega, delta, sigma, Novint Falcon) through the SDK's libdhd,
+    /// loaded at run time.
+    Forcedimension,
 }
 
 impl DeviceKind {
@@ -250,13 +253,15 @@ impl DeviceKind {
             DeviceKind::Simulated => "simulated",
             DeviceKind::Openhaptics => "openhaptics",
             DeviceKind::Spacemouse => "spacemouse",
+            DeviceKind::Forcedimension => "forcedimension",
         }
     }
 }
 
 /// The device a run uses, as `--device` names it: `simulated`, `openhaptics`,
-/// `openhaptics:<configuration name>`, `spacemouse` or `spacemouse:<serial>`; it replaces the
-/// scene's `[device] kind` (and `name` or `serial`).
+/// `openhaptics:<configuration name>`, `spacemouse`, `spacemouse:<serial>`, `forcedimension` or
+/// `forcedimension:<index>`; it replaces the scene's `[device] kind` (and `name`, `serial` or
+/// `index`).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DeviceChoice {
     pub kind: DeviceKind,
@@ -274,12 +279,21 @@ impl std::str::FromStr for DeviceChoice {
             "simulated" => DeviceKind::Simulated,
             "openhaptics" => DeviceKind::Openhaptics,
             "spacemouse" => DeviceKind::Spacemouse,
+            "forcedimension" => DeviceKind::Forcedimension,
             other => {
                 return Err(format!(
-                    "unknown device kind {other:?}: expected simulated, openhaptics, \"openhaptics:<configuration name>\", spacemouse or \"spacemouse:<serial>\""
+                    "unknown device kind {other:?}: expected simulated, openhaptics, \"openhaptics:<configuration name>\", spacemouse, \"spacemouse:<serial>\", forcedimension or \"forcedimension:<index>\""
                 ));
             }
         };
+        if kind == DeviceKind::Forcedimension
+            && let Some(index) = name.as_deref()
+            && parse_device_index(index).is_err()
+        {
+            return Err(format!(
+                "\"forcedimension:{index}\": the device index must be a whole number from 0 to {MAX_DEVICE_INDEX} (0 is the first device plugged in)"
+            ));
+        }
         if kind == DeviceKind::Simulated && name.is_some() {
             return Err("the simulated device has no configuration name".into());
         }
@@ -323,6 +337,10 @@ pub enum DeviceModel {
     PhantomDesktop,
     Touch,
     Omni,
+    Falcon,
+    Omega3,
+    Delta3,
+    Sigma7,
 }
 
 impl DeviceModel {
@@ -331,6 +349,10 @@ impl DeviceModel {
             DeviceModel::PhantomDesktop => DeviceLimits::PHANTOM_DESKTOP,
             DeviceModel::Touch => DeviceLimits::TOUCH,
             DeviceModel::Omni => DeviceLimits::OMNI,
+            DeviceModel::Falcon => DeviceLimits::FALCON,
+            DeviceModel::Omega3 => DeviceLimits::OMEGA3,
+            DeviceModel::Delta3 => DeviceLimits::DELTA3,
+            DeviceModel::Sigma7 => DeviceLimits::SIGMA7,
         }
     }
 }
@@ -349,9 +371,14 @@ pub struct DeviceSection {
     /// The OpenHaptics device configuration to open (`None`: the default device).
     #[serde(default)]
     pub name: Option<String>,
-    /// Where an OpenHaptics device sits in the world (identity, one to one, when absent).
+    /// Where a real device (OpenHaptics, Force Dimension) sits in the world (identity, one to
+    /// one, when absent).
     #[serde(default)]
     pub world_from_device: Option<WorldFromDeviceSection>,
+    /// The Force Dimension device to open, by its index among those plugged in (`None`: the
+    /// SDK's default device).
+    #[serde(default)]
+    pub index: Option<u8>,
     /// The SpaceMouse to open, by serial number (`None`: the first found).
     #[serde(default)]
     pub serial: Option<String>,
@@ -361,6 +388,17 @@ pub struct DeviceSection {
     /// How a SpaceMouse's puck drives the tool.
     #[serde(default)]
     pub rate: RateSection,
+}
+
+/// The largest Force Dimension device index taken (the SDK counts devices from 0).
+pub const MAX_DEVICE_INDEX: u8 = 15;
+
+/// A Force Dimension device index as `--device forcedimension:<index>` gives it.
+pub fn parse_device_index(text: &str) -> Result<u8, ()> {
+    match text.trim().parse::<u8>() {
+        Ok(i) if i <= MAX_DEVICE_INDEX => Ok(i),
+        _ => Err(()),
+    }
 }
 
 /// `[device.rate]`: the SpaceMouse's rate control (`softhaptic_device::spacemouse::rate`).
@@ -411,6 +449,7 @@ impl Default for DeviceSection {
             press_depth_m: default_press_depth_m(),
             name: None,
             world_from_device: None,
+            index: None,
             serial: None,
             report_script: None,
             rate: RateSection::default(),
@@ -480,6 +519,51 @@ impl SceneFile {
 mod tests {
     use super::super::Scene;
     use super::*;
+
+    #[test]
+    fn a_force_dimension_device_is_chosen_by_kind_index_and_preset() {
+        let c: DeviceChoice = "forcedimension".parse().unwrap();
+        assert_eq!((c.kind, c.name), (DeviceKind::Forcedimension, None));
+        let c: DeviceChoice = "forcedimension:1".parse().unwrap();
+        assert_eq!(c.name.as_deref(), Some("1"));
+        for bad in ["forcedimension:x", "forcedimension:16", "forcedimension:-1"] {
+            let e = bad.parse::<DeviceChoice>().unwrap_err();
+            assert!(e.contains("whole number from 0 to 15"), "{bad}: {e}");
+        }
+        let e = "joystick".parse::<DeviceChoice>().unwrap_err();
+        assert!(e.contains("forcedimension"), "{e}");
+
+        let base = include_str!("../../../scenes/forcedimension.toml");
+        let load = |text: &str| Scene::from_toml(text, Path::new("<test>"), None);
+        let s = load(base).unwrap();
+        assert_eq!(s.device_kind, DeviceKind::Forcedimension);
+        assert_eq!(s.device_limits, DeviceLimits::OMEGA3);
+        assert_eq!(s.device_name, None);
+        let with = |from: &str, to: &str| base.replacen(from, to, 1);
+        let s = load(&with("# index = 0", "index = 2")).unwrap();
+        assert_eq!(s.device_name.as_deref(), Some("2"));
+        let s = load(&with("model = \"omega3\"", "model = \"falcon\"")).unwrap();
+        assert_eq!(s.device_limits, DeviceLimits::FALCON);
+        let e = load(&with("# index = 0", "index = 16"))
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("device.index") && e.contains("16"), "{e}");
+        let placed = base
+            .lines()
+            .find(|l| l.starts_with("world_from_device"))
+            .unwrap();
+        let simulated = base.replacen(placed, "", 1).replacen(
+            "kind = \"forcedimension\"",
+            "kind = \"simulated\"\nindex = 0",
+            1,
+        );
+        let e = load(&simulated).err().unwrap().to_string();
+        assert!(
+            e.contains("device.index") && e.contains("forcedimension"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn the_scene_chooses_the_drawn_profile_and_fem_needs_the_tables_surface() {

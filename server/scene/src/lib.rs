@@ -37,14 +37,19 @@
 //!
 //! [device]
 //! kind = "simulated"               # or "openhaptics": a PHANTOM / Touch through OpenHaptics,
-//!                                  # or "spacemouse": a 3Dconnexion puck (input only, no force)
-//! model = "phantom_desktop"        # phantom_desktop | touch | omni: the preset of limits (a real
-//!                                  # device's own nominal limits apply where tighter)
+//!                                  # or "spacemouse": a 3Dconnexion puck (input only, no force),
+//!                                  # or "forcedimension": an omega, delta, sigma or Falcon
+//!                                  # through Force Dimension's SDK
+//! model = "phantom_desktop"        # phantom_desktop | touch | omni | falcon | omega3 | delta3 |
+//!                                  # sigma7: the preset of limits (a real device's own limits
+//!                                  # apply where tighter)
 //! press_depth_m = 0.008            # how deep the simulated hand aims
 //! name = "Default Device"          # openhaptics: the device configuration's name
 //! world_from_device = { position_m = [0.0, 0.0, 0.0], orientation = [0.0, 0.0, 0.0, 1.0], scale = 1.0 }
-//!                                  # openhaptics: where the device's origin and axes are in the
-//!                                  # world, and world metres per metre of stylus motion
+//!                                  # openhaptics, forcedimension: where the device's origin and
+//!                                  # axes are in the world, and world metres per metre of motion
+//! index = 0                        # forcedimension: which device, among those plugged in
+//!                                  # (default: the SDK's default device)
 //! serial = "..."                   # spacemouse: the one to open (default: the first found)
 //! report_script = "puck.hid"       # spacemouse: play a recorded report stream instead of a
 //!                                  # device (relative to this file)
@@ -280,8 +285,8 @@ pub struct Scene {
     /// device's own (`crate::devices::open`), and in a replay check the limits the recording
     /// ran with.
     pub device_limits: DeviceLimits,
-    /// The OpenHaptics device configuration name, or the SpaceMouse's serial (`None`: the
-    /// default device, the first SpaceMouse found).
+    /// The OpenHaptics device configuration name, the SpaceMouse's serial, or the Force
+    /// Dimension device's index (`None`: the default device, the first SpaceMouse found).
     pub device_name: Option<String>,
     /// Where a real device sits in the world.
     pub world_from_device: Pose,

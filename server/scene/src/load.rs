@@ -173,18 +173,36 @@ impl Scene {
                 format!("must be finite and in [0, 0.05] m, got {press_depth_m}"),
             ));
         }
-        if file.device.kind != DeviceKind::Openhaptics {
-            if file.device.name.is_some() {
+        if file.device.kind != DeviceKind::Openhaptics && file.device.name.is_some() {
+            return Err(field(
+                "device.name",
+                "names an OpenHaptics device configuration: only for kind = \"openhaptics\"".into(),
+            ));
+        }
+        if !matches!(
+            file.device.kind,
+            DeviceKind::Openhaptics | DeviceKind::Forcedimension
+        ) && file.device.world_from_device.is_some()
+        {
+            return Err(field(
+                "device.world_from_device",
+                "places a real device in the world: only for kind = \"openhaptics\" or \"forcedimension\"".into(),
+            ));
+        }
+        if let Some(index) = file.device.index {
+            if file.device.kind != DeviceKind::Forcedimension {
                 return Err(field(
-                    "device.name",
-                    "names an OpenHaptics device configuration: only for kind = \"openhaptics\""
-                        .into(),
+                    "device.index",
+                    "picks a Force Dimension device: only for kind = \"forcedimension\"".into(),
                 ));
             }
-            if file.device.world_from_device.is_some() {
+            if index > crate::file::MAX_DEVICE_INDEX {
                 return Err(field(
-                    "device.world_from_device",
-                    "places a real device in the world: only for kind = \"openhaptics\"".into(),
+                    "device.index",
+                    format!(
+                        "must be from 0 to {} (0 is the first device plugged in), got {index}",
+                        crate::file::MAX_DEVICE_INDEX
+                    ),
                 ));
             }
         }
@@ -388,7 +406,12 @@ impl Scene {
             tool,
             device_kind: file.device.kind,
             device_limits: file.device.model.limits(),
-            device_name: file.device.name.clone().or(file.device.serial.clone()),
+            device_name: file
+                .device
+                .name
+                .clone()
+                .or(file.device.serial.clone())
+                .or(file.device.index.map(|i| i.to_string())),
             world_from_device: Pose {
                 position_m: device_position_m,
                 orientation: device_orientation,

@@ -1,5 +1,6 @@
-//! The haptic devices: what OpenHaptics found (its devices, or why none), and whether this user
-//! may open the SpaceMouse's hidraw nodes, with the udev rule that lets it.
+//! The haptic devices: what OpenHaptics found (its devices, or why none), whether this user may
+//! open the SpaceMouse's hidraw nodes, and the USB nodes of a Force Dimension device or Novint
+//! Falcon, each with the udev rule that lets it.
 
 use std::path::PathBuf;
 
@@ -174,6 +175,93 @@ pub fn hidraw_check(tree: &Tree, spacemice: &hid::Listing) -> Check {
             readable.len(),
             nodes.len()
         ),
+        why,
+        None,
+    )
+}
+
+/// The USB nodes of the Force Dimension devices and Novint Falcons plugged in (found in sysfs by
+/// their vendor and product ids): whether this user may open each, which the SDK needs.
+pub fn forcedimension_usb_check(tree: &Tree) -> Check {
+    use softhaptic_device::forcedimension as fd;
+    let title = "Force Dimension USB access";
+    let why = "the Force Dimension SDK opens the device's USB node (/dev/bus/usb/...), which by \
+               default only root may write";
+    let hex = |rel: String| {
+        tree.read_line(&rel)
+            .and_then(|t| u16::from_str_radix(t.trim(), 16).ok())
+    };
+    let number = |rel: String| {
+        tree.read_line(&rel)
+            .and_then(|t| t.trim().parse::<u32>().ok())
+    };
+    let mut found = Vec::new();
+    for entry in tree.entries("/sys/bus/usb/devices") {
+        let dir = format!("/sys/bus/usb/devices/{entry}");
+        let (Some(vendor), Some(product)) = (
+            hex(format!("{dir}/idVendor")),
+            hex(format!("{dir}/idProduct")),
+        ) else {
+            continue;
+        };
+        if !fd::is_haptic_usb_device(vendor, product) {
+            continue;
+        }
+        let node = match (
+            number(format!("{dir}/busnum")),
+            number(format!("{dir}/devnum")),
+        ) {
+            (Some(bus), Some(dev)) => format!("/dev/bus/usb/{bus:03}/{dev:03}"),
+            _ => continue,
+        };
+        let opens = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(tree.path(&node))
+            .is_ok();
+        let name = if vendor == fd::USB_VENDOR_FORCE_DIMENSION {
+            "Force Dimension device"
+        } else {
+            "Novint Falcon"
+        };
+        found.push((
+            format!("{name} [{vendor:04x}:{product:04x}] at {node}"),
+            opens,
+        ));
+    }
+    let udev = fd::udev_hint().replace('\n', " ");
+    let udev = udev.split_whitespace().collect::<Vec<_>>().join(" ");
+    if found.is_empty() {
+        return Check::new(
+            "forcedimension_usb",
+            title,
+            Verdict::Info,
+            "no Force Dimension device or Novint Falcon on USB".into(),
+            why,
+            None,
+        );
+    }
+    let refused: Vec<&str> = found
+        .iter()
+        .filter(|(_, opens)| !opens)
+        .map(|(d, _)| d.as_str())
+        .collect();
+    if !refused.is_empty() {
+        return Check::new(
+            "forcedimension_usb",
+            title,
+            Verdict::Warn,
+            format!("not writable by this user: {}", refused.join("; ")),
+            why,
+            Some(udev),
+        );
+    }
+    let all: Vec<&str> = found.iter().map(|(d, _)| d.as_str()).collect();
+    Check::new(
+        "forcedimension_usb",
+        title,
+        Verdict::Good,
+        format!("writable by this user: {}", all.join("; ")),
         why,
         None,
     )

@@ -13,7 +13,8 @@
 //! - `limits.rs`: real-time scheduling, memory locking and swap: the limits and capabilities.
 //! - `cpus.rs`: CPU isolation and the loop's CPU, and the frequency governor.
 //! - `interrupts.rs`: the interrupts delivered to the loop's CPU.
-//! - `devices.rs`: the haptic device and the SpaceMouse's hidraw nodes.
+//! - `devices.rs`: the haptic device, the SpaceMouse's hidraw nodes and the USB nodes of a Force
+//!   Dimension device.
 
 mod cpus;
 mod devices;
@@ -28,7 +29,9 @@ use std::path::{Path, PathBuf};
 use crate::{Check, LoopPlan};
 
 pub use cpus::{CpuLayout, cpu_isolation_check, governor_check};
-pub use devices::{DeviceFacts, OpenHapticsFacts, haptic_device_check, hidraw_check};
+pub use devices::{
+    DeviceFacts, OpenHapticsFacts, forcedimension_usb_check, haptic_device_check, hidraw_check,
+};
 pub use formats::{
     Limit, format_cpu_list, kernel_param, parse_cpu_list, parse_limit, status_field,
 };
@@ -124,5 +127,6 @@ pub fn inspect(tree: &Tree, plan: &LoopPlan, devices: &DeviceFacts) -> Vec<Check
         governor_check(tree, &layout),
         haptic_device_check(devices),
         hidraw_check(tree, &devices.spacemice),
+        forcedimension_usb_check(tree),
     ]
 }
