@@ -150,6 +150,7 @@ static int ok(int value) {
 static const char *type_name(int type) {
     switch (type) {
     case DHD_DEVICE_OMEGA3: return "omega.3";
+    case DHD_DEVICE_OMEGA331: return "omega.7";
     case DHD_DEVICE_FALCON: return "Falcon";
     case DHD_DEVICE_DELTA3: return "delta.3";
     case DHD_DEVICE_SIGMA331: return "sigma.7";

@@ -445,6 +445,14 @@ async fn the_device_listing_shows_the_stand_in_with_its_type_serial_and_limits()
     let listing = devices::listing(&[]);
     assert!(listing.contains("Falcon (type 60, serial ?)"), "{listing}");
     assert!(listing.contains("8.0 N peak"), "{listing}");
+    // An omega.7 drives the omega.3's base: its limits and preset.
+    s.set_type(dhd::DHD_DEVICE_OMEGA331);
+    let listing = devices::listing(&[]);
+    assert!(listing.contains("omega.7 (type 35, serial"), "{listing}");
+    assert!(
+        listing.contains("12.0 N peak") && listing.contains("(scene preset omega3)"),
+        "{listing}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

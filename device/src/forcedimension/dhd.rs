@@ -1,8 +1,8 @@
 //! The Force Dimension SDK's codes (`dhdc.h`), defined once for the whole project: the backend
 //! uses them, the tests compare with them, and the test build generates the C header of the
 //! SDK stand-in from this very file (`tests/build.rs`), so a wrong value cannot agree with
-//! itself in three places. The values are those of the SDK's public header (3.x); a first run
-//! on a real device checks them (docs/devices.md).
+//! itself in three places. The values are those of the SDK's public header `dhdc.h` (checked
+//! against release 3.7's); a first run on a real device checks them again (docs/devices.md).
 //!
 //! Every line that defines a code reads `pub const NAME: TYPE = VALUE;` on its own, with a
 //! non-negative value: the header generator reads exactly that form.
@@ -17,12 +17,21 @@ pub const DHD_TIMEGUARD: i32 = 1;
 /// The force asked for was beyond what the motors give: it was scaled down to fit.
 pub const DHD_MOTOR_SATURATED: i32 = 2;
 
-// Device types (dhdGetSystemType).
+// Device types (dhdGetSystemType). The omega.6 and omega.7 are `OMEGA33` and `OMEGA331`, the
+// sigma.7 `SIGMA331`; `_LEFT` is the left-handed build of the same mechanism.
 pub const DHD_DEVICE_NONE: i32 = 0;
 pub const DHD_DEVICE_OMEGA3: i32 = 33;
+pub const DHD_DEVICE_OMEGA33: i32 = 34;
+pub const DHD_DEVICE_OMEGA331: i32 = 35;
+pub const DHD_DEVICE_OMEGA33_LEFT: i32 = 36;
+pub const DHD_DEVICE_OMEGA331_LEFT: i32 = 37;
 pub const DHD_DEVICE_FALCON: i32 = 60;
 pub const DHD_DEVICE_DELTA3: i32 = 63;
+pub const DHD_DEVICE_DELTA6: i32 = 64;
 pub const DHD_DEVICE_SIGMA331: i32 = 104;
+pub const DHD_DEVICE_SIGMA331_LEFT: i32 = 105;
+pub const DHD_DEVICE_SIGMA33P: i32 = 106;
+pub const DHD_DEVICE_SIGMA33P_LEFT: i32 = 107;
 
 // Errors (dhdErrorGetLast), per calling thread.
 pub const DHD_NO_ERROR: i32 = 0;

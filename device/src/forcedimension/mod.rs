@@ -114,16 +114,34 @@ pub struct DeviceType {
     pub limits: DeviceLimits,
 }
 
-/// The limits of a device type the project knows (`None` for another: the scene's preset alone
-/// applies, with a warning).
-pub fn type_limits(type_id: i32) -> Option<DeviceLimits> {
+/// The scene preset (`[device] model`) and limits of a device type the project knows, `None` for
+/// another (the scene's preset alone applies, with a warning).
+///
+/// The force loop drives the translation only, so a device takes its base's limits: the omega.6
+/// and omega.7 are an omega.3 base with a wrist (and a gripper), the delta.6 a delta.3 base with
+/// a wrist, the sigma types one base with different wrists, and a left-handed build mirrors its
+/// right-handed twin.
+pub fn type_preset(type_id: i32) -> Option<(&'static str, DeviceLimits)> {
+    use dhd::*;
     Some(match type_id {
-        dhd::DHD_DEVICE_FALCON => DeviceLimits::FALCON,
-        dhd::DHD_DEVICE_OMEGA3 => DeviceLimits::OMEGA3,
-        dhd::DHD_DEVICE_DELTA3 => DeviceLimits::DELTA3,
-        dhd::DHD_DEVICE_SIGMA331 => DeviceLimits::SIGMA7,
+        DHD_DEVICE_FALCON => ("falcon", DeviceLimits::FALCON),
+        DHD_DEVICE_OMEGA3
+        | DHD_DEVICE_OMEGA33
+        | DHD_DEVICE_OMEGA331
+        | DHD_DEVICE_OMEGA33_LEFT
+        | DHD_DEVICE_OMEGA331_LEFT => ("omega3", DeviceLimits::OMEGA3),
+        DHD_DEVICE_DELTA3 | DHD_DEVICE_DELTA6 => ("delta3", DeviceLimits::DELTA3),
+        DHD_DEVICE_SIGMA331
+        | DHD_DEVICE_SIGMA331_LEFT
+        | DHD_DEVICE_SIGMA33P
+        | DHD_DEVICE_SIGMA33P_LEFT => ("sigma7", DeviceLimits::SIGMA7),
         _ => return None,
     })
+}
+
+/// The limits of a device type the project knows ([`type_preset`]).
+pub fn type_limits(type_id: i32) -> Option<DeviceLimits> {
+    type_preset(type_id).map(|(_, limits)| limits)
 }
 
 /// What the device says (and its type implies) about itself when it opens.
@@ -340,6 +358,13 @@ mod tests {
         assert_eq!(type_limits(63).unwrap().peak_force_n, 20.0);
         assert_eq!(type_limits(104).unwrap().name, "sigma.7");
         assert_eq!(type_limits(7), None);
+        // The omega.7 (left-handed too) and the delta.6 drive their base's translation.
+        assert_eq!(type_preset(35).unwrap().0, "omega3");
+        assert_eq!(type_preset(37).unwrap().1, DeviceLimits::OMEGA3);
+        assert_eq!(type_preset(64).unwrap().1.peak_force_n, 20.0);
+        assert_eq!(type_preset(105).unwrap().0, "sigma7");
+        // A retired type (the 6DOF) is not guessed at.
+        assert_eq!(type_preset(61), None);
         // The watchdog: 10 ms in the SDK's 125 µs units.
         assert!((WATCHDOG_S - 0.010).abs() < 1e-12);
     }

@@ -286,7 +286,8 @@ pub fn forcedimension_listing(out: &mut String, discovery: &fd::Discovery) {
                                     l.max_stiffness_n_per_m,
                                     l.damping_n_s_per_m,
                                     l.workspace_radius_m,
-                                    preset_name(d.type_id),
+                                    softhaptic_device::forcedimension::type_preset(d.type_id)
+                                        .map_or("?", |(name, _)| name),
                                 );
                             }
                             None => {
@@ -303,18 +304,6 @@ pub fn forcedimension_listing(out: &mut String, discovery: &fd::Discovery) {
                 }
             }
         }
-    }
-}
-
-/// The scene preset (`[device] model`) of a Force Dimension type.
-fn preset_name(type_id: i32) -> &'static str {
-    use softhaptic_device::forcedimension::dhd::*;
-    match type_id {
-        DHD_DEVICE_FALCON => "falcon",
-        DHD_DEVICE_OMEGA3 => "omega3",
-        DHD_DEVICE_DELTA3 => "delta3",
-        DHD_DEVICE_SIGMA331 => "sigma7",
-        _ => "?",
     }
 }
 
