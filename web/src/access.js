@@ -109,16 +109,32 @@ export function tokenFromInput(text) {
  * What to tell the holder of a link printed for `linkRole` whom the server greeted as `granted`
  * (`hello.role`): null when they agree or the link named no role. Granted less, the holder learns
  * why the controls are missing; granted more, that the link does more than it was given for
- * (the lab's token file may name the roles the wrong way round).
+ * (the lab's token file may name the roles the wrong way round). `powers` says what an
+ * instructor's link does on the page at hand.
  */
-export function roleNotice(linkRole, granted) {
+export function roleNotice(linkRole, granted, powers = VIEWER_POWERS) {
   const link = roleOrNull(linkRole);
   const role = roleOrNull(granted);
   if (link === null || role === null || link === role) return null;
   if (role === 'observer') {
-    return 'This is an observer link: the server gives it read-only access, though it was given as the instructor’s. To control the replay, paste the instructor’s link.';
+    return `This is an observer link: the server gives it read-only access, though it was given as the instructor’s. To ${powers}, paste the instructor’s link.`;
   }
-  return 'This is an instructor link: the server lets it control the replay, though it was given as an observer’s. Tell whoever gave it to you.';
+  return `This is an instructor link: the server lets it ${powers}, though it was given as an observer’s. Tell whoever gave it to you.`;
+}
+
+/** What an instructor's link does in the viewer, in the words of `roleNotice`. */
+export const VIEWER_POWERS = 'control the replay';
+
+/**
+ * A storage of the browser (`get` returns it, e.g. `() => window.sessionStorage`), or null where
+ * the browser gives none: reading it throws when storage is disabled.
+ */
+export function storageOrNull(get) {
+  try {
+    return get() ?? null;
+  } catch {
+    return null;
+  }
 }
 
 /** Where this tab keeps its token (sessionStorage). */
@@ -132,11 +148,13 @@ export const GREETED_STORAGE_KEY = 'softhaptic.greeted';
  * The viewer's token: in memory (`token`, null when there is none; `role`, the role its link was
  * printed for, null when unknown; `wasGreeted`, whether the server has greeted this tab with it)
  * and in `storage` (sessionStorage; null when the browser gives none). A storage that throws
- * (disabled, full) only costs the reload its token.
+ * (disabled, full) only costs the reload its token. `powers` names what an instructor's link
+ * does on this page (`roleNotice`).
  */
 export class TokenKeeper {
-  constructor({ storage = null } = {}) {
+  constructor({ storage = null, powers = VIEWER_POWERS } = {}) {
     this.storage = storage;
+    this.powers = powers;
     this.token = null;
     this.role = null;
     this.wasGreeted = false;
@@ -195,7 +213,7 @@ export class TokenKeeper {
       this.wasGreeted = true;
       this.#write(GREETED_STORAGE_KEY, '1');
     }
-    return roleNotice(this.role, granted);
+    return roleNotice(this.role, granted, this.powers);
   }
 
   /**

@@ -244,6 +244,43 @@ export function arrange(stations, { sort = 'alerts', show = 'all', text = '' } =
   return stations.filter((s) => keep(s) && matches(s)).sort(SORTS[sort] ?? SORTS.alerts);
 }
 
+/** How the page starts: alerts first, every station, no filter, full tiles. */
+export const DEFAULT_VIEW = Object.freeze({ sort: 'alerts', show: 'all', text: '', compact: false });
+
+/** Where the browser keeps the view an instructor chose (localStorage: it outlives the tab). */
+export const VIEW_STORAGE_KEY = 'softhaptic.dashboard.view';
+
+/** The longest filter text kept: a filter is a few words. */
+const MAX_FILTER_CHARS = 200;
+
+/**
+ * The view kept by `viewToStored`, read back: each choice that is not one the page offers (an
+ * older page's, an edited value) falls back to `DEFAULT_VIEW`'s, and text that is not JSON gives
+ * the default view.
+ */
+export function viewFromStored(text) {
+  let kept;
+  try {
+    kept = typeof text === 'string' ? JSON.parse(text) : null;
+  } catch {
+    kept = null;
+  }
+  if (kept === null || typeof kept !== 'object') return { ...DEFAULT_VIEW };
+  const own = (table, key) => typeof key === 'string' && Object.hasOwn(table, key);
+  return {
+    sort: own(SORTS, kept.sort) ? kept.sort : DEFAULT_VIEW.sort,
+    show: own(SHOWS, kept.show) ? kept.show : DEFAULT_VIEW.show,
+    text: typeof kept.text === 'string' ? kept.text.slice(0, MAX_FILTER_CHARS) : DEFAULT_VIEW.text,
+    compact: typeof kept.compact === 'boolean' ? kept.compact : DEFAULT_VIEW.compact,
+  };
+}
+
+/** The text `viewFromStored` reads back. */
+export function viewToStored(view) {
+  const { sort, show, text, compact } = view;
+  return JSON.stringify({ sort, show, text: text.slice(0, MAX_FILTER_CHARS), compact });
+}
+
 /**
  * Every alert of every station, the latest first: `{station, alert}`. A summary carries every
  * alert not acknowledged and the latest acknowledged ones, so the list is what the stations

@@ -12,7 +12,7 @@
 // one. `hello.role` decides whether the controls show: an observer sees every tile and alert but
 // no control, and the hub refuses an observer's action anyway.
 
-import { AccessPrompt, TokenKeeper } from './access.js';
+import { AccessPrompt, TokenKeeper, storageOrNull } from './access.js';
 import { ViewerConnection } from './connection.js';
 import {
   activityOf,
@@ -22,6 +22,7 @@ import {
   canAct,
   clockTime,
   dashboardSocketUrl,
+  DEFAULT_VIEW,
   deviceHealth,
   exerciseLine,
   ForceHistory,
@@ -32,6 +33,9 @@ import {
   sparkline,
   stationViewUrl,
   tileActions,
+  VIEW_STORAGE_KEY,
+  viewFromStored,
+  viewToStored,
 } from './dashboard-model.js';
 import { encodeStationAction } from './protocol.js';
 
@@ -61,23 +65,18 @@ const page = {
   lastActionStation: null,
   /** Every action sent, for the test hook: `{station, action}`. */
   sent: [],
-  view: { sort: 'alerts', show: 'all', text: '', compact: false },
+  view: { ...DEFAULT_VIEW },
 };
 
 let connection = null;
 let keeper = null;
 let prompt = null;
 
-function sessionStorageOrNull() {
-  try {
-    return window.sessionStorage ?? null;
-  } catch {
-    return null;
-  }
-}
+/** What the dashboard lets an instructor's link do, in the words of the role notice. */
+const DASHBOARD_POWERS = 'act on the stations';
 
 function init() {
-  keeper = new TokenKeeper({ storage: sessionStorageOrNull() });
+  keeper = new TokenKeeper({ storage: storageOrNull(() => window.sessionStorage), powers: DASHBOARD_POWERS });
   keeper.adopt(window.location, window.history);
   prompt = new AccessPrompt({
     panel: $('token-prompt'),
@@ -98,20 +97,20 @@ function init() {
     onStateChange: onConnectionState,
   });
 
+  restoreView();
   for (const id of ['sort', 'show']) {
     $(id).addEventListener('change', () => {
       page.view[id] = $(id).value;
-      render();
+      viewChanged();
     });
   }
   $('filter').addEventListener('input', () => {
     page.view.text = $('filter').value;
-    render();
+    viewChanged();
   });
   $('compact').addEventListener('change', () => {
     page.view.compact = $('compact').checked;
-    $('tiles').classList.toggle('compact', page.view.compact);
-    render();
+    viewChanged();
   });
   $('tiles').addEventListener('click', onTileClick);
   $('tiles').addEventListener('submit', onMarkSubmit);
@@ -129,6 +128,34 @@ function init() {
       .catch((e) => console.warn(`softhaptic: no test hook: ${e.message}`));
   }
   connection.start();
+}
+
+// ----- the view: order, filter, size -----
+
+/** This browser's localStorage, or null where it gives none. */
+function viewStorage() {
+  return storageOrNull(() => window.localStorage);
+}
+
+/** The view this browser chose last time, shown in the controls; the default without one. */
+function restoreView() {
+  page.view = viewFromStored(viewStorage()?.getItem(VIEW_STORAGE_KEY) ?? null);
+  $('sort').value = page.view.sort;
+  $('show').value = page.view.show;
+  $('filter').value = page.view.text;
+  $('compact').checked = page.view.compact;
+  $('tiles').classList.toggle('compact', page.view.compact);
+}
+
+/** A control changed the view: drawn, and kept for the next visit (a full storage costs only that). */
+function viewChanged() {
+  $('tiles').classList.toggle('compact', page.view.compact);
+  try {
+    viewStorage()?.setItem(VIEW_STORAGE_KEY, viewToStored(page.view));
+  } catch {
+    // Kept for this visit only.
+  }
+  render();
 }
 
 // ----- access -----

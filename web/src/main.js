@@ -14,7 +14,7 @@
 // in the panel. When the server wants a token the viewer has not got, or refuses the one it
 // has (WebSocket close 4401, HTTP 401), the viewer stops and asks for the link in a prompt.
 
-import { AccessPrompt, TokenKeeper } from './access.js';
+import { AccessPrompt, TokenKeeper, storageOrNull } from './access.js';
 import { buffer, dom, frameTimes, rendered, state, timings, view } from './context.js';
 import { surfaceFamilyFromJson, toolFromJson } from './deformation.js';
 import { ExercisePanel } from './exercise.js';
@@ -157,7 +157,7 @@ function init() {
       .catch((e) => console.warn(`softhaptic: no test hook: ${e.message}`));
   }
 
-  keeper = new TokenKeeper({ storage: sessionStorageOrNull() });
+  keeper = new TokenKeeper({ storage: storageOrNull(() => window.sessionStorage) });
   keeper.adopt(window.location, window.history);
   prompt = new AccessPrompt({
     panel: dom['token-prompt'],
@@ -254,15 +254,6 @@ function onWindowResize() {
 }
 
 // ----- access: the token, the prompt, the role -----
-
-/** This tab's sessionStorage, or null where the browser gives none (it may throw on access). */
-function sessionStorageOrNull() {
-  try {
-    return window.sessionStorage ?? null;
-  } catch {
-    return null;
-  }
-}
 
 /**
  * A token from the prompt or a new link (with the role the link names, when it does): kept,

@@ -16,6 +16,7 @@ import {
   isToken,
   promptDetail,
   roleNotice,
+  storageOrNull,
   tokenFromFragment,
   tokenFromInput,
 } from '../src/access.js';
@@ -342,6 +343,11 @@ test('a link granted another role than it names says so; agreeing or unhinted on
     /^This is an observer link: .*read-only.*paste the instructor’s link/,
   );
   assert.match(roleNotice('observer', 'instructor'), /^This is an instructor link: .*control the replay/);
+  // Another page says what its instructor's link does there, and so does its keeper.
+  assert.match(roleNotice('instructor', 'observer', 'act on the stations'), /To act on the stations, paste/);
+  const keeper = new TokenKeeper({ powers: 'act on the stations' });
+  keeper.set(TOKEN, 'observer');
+  assert.match(keeper.greeted('instructor'), /lets it act on the stations, though/);
   for (const [hint, granted] of [
     ['instructor', 'instructor'],
     ['observer', 'observer'],
@@ -439,4 +445,22 @@ test('the prompt says expired, not valid, or wrong role precisely, naming the li
   el.button.fire('click');
   assert.deepEqual(tokens, [OTHER]);
   assert.deepEqual(roles, ['instructor']);
+});
+
+test('a browser storage that throws when reached is no storage', () => {
+  const storage = new FakeStorage();
+  assert.equal(
+    storageOrNull(() => storage),
+    storage,
+  );
+  assert.equal(
+    storageOrNull(() => undefined),
+    null,
+  );
+  assert.equal(
+    storageOrNull(() => {
+      throw new Error('SecurityError: storage is disabled');
+    }),
+    null,
+  );
 });

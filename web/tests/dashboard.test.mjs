@@ -15,6 +15,7 @@ import {
   canAct,
   clockTime,
   dashboardSocketUrl,
+  DEFAULT_VIEW,
   deviceHealth,
   exerciseLine,
   ForceHistory,
@@ -25,6 +26,8 @@ import {
   sparkline,
   stationViewUrl,
   tileActions,
+  viewFromStored,
+  viewToStored,
 } from '../src/dashboard-model.js';
 import { decodeMessage, encodeStationAction, ProtocolError } from '../src/protocol.js';
 
@@ -380,4 +383,23 @@ test('the page’s addresses and the answers it shows', () => {
     resultLine({ type: 'refused', request: 'station_action', reason: 'observers cannot act' }),
     'refused: observers cannot act',
   );
+});
+
+test('the chosen view is kept and read back; what the page does not offer falls back to the default', () => {
+  const chosen = { sort: 'peak', show: 'device', text: 'desk 2', compact: true };
+  assert.deepEqual(viewFromStored(viewToStored(chosen)), chosen);
+  // Nothing kept yet, or text that is not a view.
+  assert.deepEqual(viewFromStored(null), DEFAULT_VIEW);
+  assert.deepEqual(viewFromStored('{not json'), DEFAULT_VIEW);
+  assert.deepEqual(viewFromStored('"peak"'), DEFAULT_VIEW);
+  // One bad choice loses only itself: a sort no page offers, a prototype's key, a wrong type.
+  assert.deepEqual(viewFromStored(JSON.stringify({ ...chosen, sort: 'weight' })), { ...chosen, sort: 'alerts' });
+  assert.deepEqual(viewFromStored(JSON.stringify({ ...chosen, show: 'toString' })), { ...chosen, show: 'all' });
+  assert.deepEqual(viewFromStored(JSON.stringify({ ...chosen, compact: 'yes', text: 7 })), {
+    ...chosen,
+    compact: false,
+    text: '',
+  });
+  // A filter is a few words: a pasted page is cut, not kept whole.
+  assert.equal(viewFromStored(JSON.stringify({ text: 'x'.repeat(10000) })).text.length, 200);
 });

@@ -14,7 +14,8 @@
 // it), a repeat restarts the station's exercise (attempt 2), and a re-arm of the simulated device
 // (which has no force output to re-arm) is answered with the station's refusal; the observer's page shows every tile and alert
 // but no control, and an action sent from it anyway is refused and changes nothing; Chromium
-// reports no CSP violation and the pages no error.
+// reports no CSP violation and the pages no error; the sort, filter and size an instructor chose
+// are the page's again after a reload.
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { mkdtempSync, rmSync } from 'node:fs';
@@ -267,6 +268,35 @@ test('an instructor’s mark reaches the station, a repeat restarts its exercise
   const calm = await tileOf(p, 'desk-calm');
   assert.match(calm.result, /^re-arm: .*no haptic device/, 'the station refuses: nothing to re-arm');
   assert.equal(calm.rearmShown, false, 'the button shows only for a latched device');
+});
+
+test('the order, filter and size an instructor chose survive a reload', async () => {
+  const p = teacher.page;
+  await p.selectOption('#sort', 'peak');
+  await p.selectOption('#show', 'device');
+  await p.fill('#filter', 'desk');
+  await p.check('#compact');
+  await waitFor(p, 'only the unplugged station shown', () => {
+    const shown = window.__dashboard.tiles();
+    return shown.length === 1 && shown[0].name === 'desk-unplugged';
+  });
+  await p.reload();
+  await waitFor(p, 'the instructor greeted again', () => window.__dashboard?.role() === 'instructor');
+  const controls = await p.evaluate(() => ({
+    sort: document.getElementById('sort').value,
+    show: document.getElementById('show').value,
+    filter: document.getElementById('filter').value,
+    compact: document.getElementById('compact').checked,
+    tilesCompact: document.getElementById('tiles').classList.contains('compact'),
+  }));
+  assert.deepEqual(controls, { sort: 'peak', show: 'device', filter: 'desk', compact: true, tilesCompact: true });
+  await waitFor(p, 'the same single tile after the reload', () => {
+    const shown = window.__dashboard.tiles();
+    return shown.length === 1 && shown[0].name === 'desk-unplugged';
+  });
+  // Back to every station for what follows.
+  await p.selectOption('#show', 'all');
+  await waitFor(p, 'every tile again', (n) => window.__dashboard.tiles().length === n, NAMES.length);
 });
 
 test('no CSP violation and no page error', async () => {
