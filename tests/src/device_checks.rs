@@ -94,6 +94,20 @@ pub fn flags(d: &DeviceRecord) -> ContactFlags {
     ContactFlags::from_bits_retain(d.flags)
 }
 
+/// The ticks of the first run with a device error, in the recording's `device` channel (a
+/// recording without one fails the test).
+pub fn first_fault_run(device: &[DeviceRecord]) -> std::ops::Range<usize> {
+    let first = device
+        .iter()
+        .position(|d| d.device_error.is_some())
+        .expect("a tick with a device error");
+    let run = device[first..]
+        .iter()
+        .take_while(|d| d.device_error.is_some())
+        .count();
+    first..first + run
+}
+
 /// The recording replays to its recorded forces bit for bit.
 pub fn assert_replays(r: &Recording) {
     let report = check(r, CheckOverrides::default()).unwrap();

@@ -323,6 +323,22 @@ impl Viewer {
             .await
             .expect("send succeeds");
     }
+
+    /// The raw text of the next message of `kind` (its `type`), skipping the others (frames,
+    /// stats); fails the test after 30 s without one.
+    pub async fn next_of(&mut self, kind: &str) -> String {
+        let prefix = format!(r#"{{"type":"{kind}""#);
+        let deadline = std::time::Instant::now() + Duration::from_secs(30);
+        loop {
+            assert!(std::time::Instant::now() < deadline, "no {kind} message");
+            let next = tokio::time::timeout(Duration::from_secs(10), self.socket.next()).await;
+            if let Ok(Some(Ok(Message::Text(t)))) = next
+                && t.starts_with(&prefix)
+            {
+                return t.to_string();
+            }
+        }
+    }
 }
 
 /// A plain HTTP/1.1 GET over a real TCP connection: status code and body.

@@ -53,28 +53,13 @@ tolerance_m = 0.003
 min_coverage = 0.9
 "#;
 
-/// The next message of `kind` (raw text), skipping the others.
-async fn next_of(viewer: &mut Viewer, kind: &str) -> String {
-    let prefix = format!(r#"{{"type":"{kind}""#);
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        assert!(Instant::now() < deadline, "no {kind} message");
-        let next = tokio::time::timeout(Duration::from_secs(10), viewer.socket.next()).await;
-        if let Ok(Some(Ok(Message::Text(t)))) = next
-            && t.starts_with(&prefix)
-        {
-            return t.to_string();
-        }
-    }
-}
-
 /// The next `exercise` message for which `until` holds (earlier ones are skipped).
 async fn next_exercise(
     viewer: &mut Viewer,
     until: impl Fn(&ExerciseMessage) -> bool,
 ) -> ExerciseMessage {
     loop {
-        let text = next_of(viewer, "exercise").await;
+        let text = viewer.next_of("exercise").await;
         let ServerMessage::Exercise(m) = ServerMessage::decode(&text).unwrap() else {
             unreachable!()
         };
@@ -147,7 +132,7 @@ async fn a_station_runs_its_exercises_for_a_trainee_and_records_every_attempt() 
 
     // An observer may not move the exercises on; an instructor repeats the trace, then stops it.
     observer.send_text(&control("next")).await;
-    let refused = next_of(&mut observer, "refused").await;
+    let refused = observer.next_of("refused").await;
     assert!(refused.contains(REFUSED_EXERCISE_OBSERVER), "{refused}");
     instructor.send_text(&control("repeat")).await;
     let repeat = next_exercise(&mut observer, |m| m.attempt == 2).await;
@@ -261,14 +246,14 @@ async fn a_station_runs_its_exercises_for_a_trainee_and_records_every_attempt() 
         .await
         .unwrap();
     let mut watcher = Viewer::connect(replay.local_addr()).await;
-    next_of(&mut watcher, "replay").await;
+    watcher.next_of("replay").await;
     watcher
         .send_text(r#"{"type":"replay_control","action":"play","speed":4.0}"#)
         .await;
     let replayed = next_exercise(&mut watcher, |m| m.state == ExerciseState::Ended).await;
     assert_eq!(replayed.result.as_ref(), Some(&result));
     watcher.send_text(&control("next")).await;
-    let refused = next_of(&mut watcher, "refused").await;
+    let refused = watcher.next_of("refused").await;
     assert!(refused.contains(REFUSED_EXERCISE_NONE), "{refused}");
     replay.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);

@@ -291,14 +291,8 @@ async fn an_unplugged_device_is_reconnected_and_the_force_ramps_in_again() {
     wait_commands(&s, 300).await;
     let (_, recording) = finish(live).await;
     let device = &recording.device;
-    let first = device
-        .iter()
-        .position(|d| d.device_error.is_some())
-        .unwrap();
-    let outage = device[first..]
-        .iter()
-        .take_while(|d| d.device_error.is_some())
-        .count();
+    let faulted = first_fault_run(device);
+    let (first, outage) = (faulted.start, faulted.len());
     assert!(
         outage >= softhaptic_device::backend::reconnect::RECONNECT_AFTER_FAILED_TICKS as usize,
         "{outage} faulted ticks"
@@ -375,10 +369,8 @@ async fn the_force_button_is_a_fault_then_the_force_ramps_in() {
     wait_commands(&s, 3_000).await;
     let (_, recording) = finish(live).await;
     let device = &recording.device;
-    let first = device
-        .iter()
-        .position(|d| d.device_error.is_some())
-        .expect("the tick that found the force off");
+    // The tick that found the force off.
+    let first = first_fault_run(device).start;
     assert_eq!(
         device[first].device_error,
         Some(softhaptic_proto::record::DeviceErrorRecord::ForceDisabled)

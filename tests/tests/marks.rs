@@ -5,9 +5,8 @@
 
 #![allow(clippy::unwrap_used)] // test code: a panic is how a failure is reported
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use futures_util::StreamExt;
 use softhaptic_proto::wire::ReplayStatus;
 use softhaptic_proto::wire::{MarkMessage, ServerMessage};
 use softhaptic_server::scene::Scene;
@@ -18,25 +17,9 @@ use softhaptic_server::stream::{
     MAX_MARKS, REFUSED_MARK_HUB, REFUSED_MARK_OBSERVER, REFUSED_MARK_REPLAY, REFUSED_MARKS_FULL,
 };
 use softhaptic_tests::{Viewer, scratch_dir, start_recorded, test_options};
-use tokio_tungstenite::tungstenite::Message;
 
 const I: &str = softhaptic_tests::INSTRUCTOR_TOKEN;
 const O: &str = softhaptic_tests::OBSERVER_TOKEN;
-
-/// The next message of `kind` (raw text), skipping frames and stats.
-async fn next_of(viewer: &mut Viewer, kind: &str) -> String {
-    let prefix = format!(r#"{{"type":"{kind}""#);
-    let deadline = Instant::now() + Duration::from_secs(30);
-    loop {
-        assert!(Instant::now() < deadline, "no {kind} message");
-        let next = tokio::time::timeout(Duration::from_secs(10), viewer.socket.next()).await;
-        if let Ok(Some(Ok(Message::Text(t)))) = next
-            && t.starts_with(&prefix)
-        {
-            return t.to_string();
-        }
-    }
-}
 
 async fn viewer(addr: std::net::SocketAddr, token: &str) -> Viewer {
     let mut v = Viewer::connect(addr).await;
@@ -63,33 +46,33 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
     let mut instructor = viewer(server.local_addr(), I).await;
     let mut observer = viewer(server.local_addr(), O).await;
     // Both see frames first (the session runs), then the instructor marks it.
-    next_of(&mut observer, "contact").await;
-    next_of(&mut instructor, "contact").await;
+    observer.next_of("contact").await;
+    instructor.next_of("contact").await;
     instructor
         .send_text(r#"{"type":"add_mark","note":"  too fast on the approach ","point_m":[0.01,0.02,0.03]}"#)
         .await;
-    let seen = mark_of(&next_of(&mut observer, "mark").await);
+    let seen = mark_of(&observer.next_of("mark").await);
     assert_eq!(seen.id, 1);
     assert_eq!(seen.note, "too fast on the approach");
     assert_eq!(seen.point_m, Some([0.01, 0.02, 0.03]));
     assert!(seen.time_ns > 0);
-    assert_eq!(mark_of(&next_of(&mut instructor, "mark").await), seen);
+    assert_eq!(mark_of(&instructor.next_of("mark").await), seen);
 
     // An observer may not mark; nor may anyone with an empty note.
     observer
         .send_text(r#"{"type":"add_mark","note":"me too"}"#)
         .await;
-    let refused = next_of(&mut observer, "refused").await;
+    let refused = observer.next_of("refused").await;
     assert!(refused.contains(REFUSED_MARK_OBSERVER), "{refused}");
     instructor
         .send_text(r#"{"type":"add_mark","note":"   "}"#)
         .await;
-    let refused = next_of(&mut instructor, "refused").await;
+    let refused = instructor.next_of("refused").await;
     assert!(refused.contains("needs a note"), "{refused}");
 
     // A viewer that comes later gets the mark as it connects.
     let mut late = viewer(server.local_addr(), O).await;
-    assert_eq!(mark_of(&next_of(&mut late, "mark").await), seen);
+    assert_eq!(mark_of(&late.next_of("mark").await), seen);
 
     let (_, _, path, _) = live.finish().await;
     let r = Recording::open(&path).unwrap();
@@ -116,16 +99,15 @@ async fn a_mark_reaches_every_viewer_is_recorded_and_replayed() {
         .await
         .unwrap();
     let mut watcher = Viewer::connect(replay.local_addr()).await;
-    assert_eq!(mark_of(&next_of(&mut watcher, "mark").await), seen);
-    let status: ReplayStatus =
-        serde_json::from_str(&next_of(&mut watcher, "replay").await).unwrap();
+    assert_eq!(mark_of(&watcher.next_of("mark").await), seen);
+    let status: ReplayStatus = serde_json::from_str(&watcher.next_of("replay").await).unwrap();
     assert_eq!(status.marks.len(), 1);
     assert_eq!(status.marks[0].note, seen.note);
     assert!(status.marks[0].time_s >= 0.0 && status.marks[0].time_s <= status.duration_s + 1.0);
     watcher
         .send_text(r#"{"type":"add_mark","note":"later"}"#)
         .await;
-    let refused = next_of(&mut watcher, "refused").await;
+    let refused = watcher.next_of("refused").await;
     assert!(refused.contains(REFUSED_MARK_REPLAY), "{refused}");
     replay.shutdown().await;
     let _ = std::fs::remove_dir_all(&dir);
@@ -163,14 +145,14 @@ async fn a_lab_hub_says_it_takes_no_marks_and_refuses_an_instructors() {
     .unwrap();
     assert!(matches!(own, ServerMessage::Hello(h) if h.accepts_marks));
 
-    next_of(&mut relayed, "contact").await;
+    relayed.next_of("contact").await;
     relayed
         .send_text(r#"{"type":"add_mark","note":"through the hub"}"#)
         .await;
-    let refused = next_of(&mut relayed, "refused").await;
+    let refused = relayed.next_of("refused").await;
     assert!(refused.contains(REFUSED_MARK_HUB), "{refused}");
     // The connection stays open, and no mark was made anywhere.
-    next_of(&mut relayed, "contact").await;
+    relayed.next_of("contact").await;
     assert!(station.hub().made_marks().is_empty());
     hub.shutdown().await;
     station.shutdown().await;
@@ -184,13 +166,13 @@ async fn a_mark_past_the_sessions_cap_is_refused_and_not_kept() {
     options.access.limits.message_burst = 1e6;
     let server = softhaptic_tests::start_default(options).await;
     let mut instructor = Viewer::connect(server.local_addr()).await;
-    next_of(&mut instructor, "contact").await;
+    instructor.next_of("contact").await;
     for n in 1..=MAX_MARKS + 1 {
         instructor
             .send_text(&format!(r#"{{"type":"add_mark","note":"mark {n}"}}"#))
             .await;
     }
-    let refused = next_of(&mut instructor, "refused").await;
+    let refused = instructor.next_of("refused").await;
     assert!(refused.contains(REFUSED_MARKS_FULL), "{refused}");
     let kept = server.hub().made_marks();
     assert_eq!(kept.len(), MAX_MARKS);

@@ -336,14 +336,8 @@ async fn a_communication_error_mid_press_is_zero_force_on_its_ticks_then_a_ramp(
     wait_ticks(&s, 400).await;
     let (stats, recording) = finish(live).await;
     let device = &recording.device;
-    let first = device
-        .iter()
-        .position(|d| d.device_error.is_some())
-        .unwrap();
-    let run = device[first..]
-        .iter()
-        .take_while(|d| d.device_error.is_some())
-        .count();
+    let faulted = first_fault_run(device);
+    let (first, run) = (faulted.start, faulted.len());
     assert_eq!(run, 40, "one faulted tick per injected servo tick");
     for d in &device[first..first + run] {
         assert_eq!(d.device_error, Some(DeviceErrorRecord::Disconnected));
@@ -449,14 +443,8 @@ async fn an_unplugged_device_is_reconnected_and_the_force_ramps_in_again() {
         stats.watchdog_ticks
     );
     let device = &recording.device;
-    let first = device
-        .iter()
-        .position(|d| d.device_error.is_some())
-        .unwrap();
-    let outage = device[first..]
-        .iter()
-        .take_while(|d| d.device_error.is_some())
-        .count();
+    let faulted = first_fault_run(device);
+    let (first, outage) = (faulted.start, faulted.len());
     assert!(
         outage as u64
             >= openhaptics::RECONNECT_AFTER_FAILED_TICKS as u64 + stats.watchdog_ticks / 2,
@@ -640,10 +628,7 @@ async fn a_device_that_opens_but_keeps_failing_is_reconnected_a_few_times_with_g
     assert!(stats.watchdog_ticks > 0, "the waits were ticked through");
     // The force comes back through the ramp once the device works again.
     let device = &recording.device;
-    let first = device
-        .iter()
-        .position(|d| d.device_error.is_some())
-        .unwrap();
+    let first = first_fault_run(device).start;
     let before = force(&device[first - 1]);
     let last_fault = device.len()
         - 1

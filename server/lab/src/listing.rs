@@ -161,14 +161,11 @@ fn log_nth(n: u64) -> bool {
 }
 
 impl ArchiveListing {
-    /// Starts following the archive through `client`; the task runs until aborted.
-    pub fn start(
-        client: async_nats::Client,
-        limits: ListingLimits,
-    ) -> (Arc<ArchiveListing>, JoinHandle<()>) {
-        let listing = Arc::new(ArchiveListing {
+    /// A listing of no station yet, in `availability`.
+    fn empty(limits: ListingLimits, availability: Availability) -> ArchiveListing {
+        ArchiveListing {
             state: Mutex::new(State {
-                availability: Availability::Building,
+                availability,
                 stations: BTreeMap::new(),
                 total: 0,
                 omitted_stations: 0,
@@ -180,7 +177,15 @@ impl ArchiveListing {
             consumers: AtomicU64::new(0),
             bucket_listings: AtomicU64::new(0),
             limits,
-        });
+        }
+    }
+
+    /// Starts following the archive through `client`; the task runs until aborted.
+    pub fn start(
+        client: async_nats::Client,
+        limits: ListingLimits,
+    ) -> (Arc<ArchiveListing>, JoinHandle<()>) {
+        let listing = Arc::new(ArchiveListing::empty(limits, Availability::Building));
         let task = tokio::spawn(Arc::clone(&listing).follow_archive(client));
         (listing, task)
     }
@@ -716,21 +721,7 @@ mod tests {
     use super::*;
 
     fn listing(limits: ListingLimits) -> ArchiveListing {
-        ArchiveListing {
-            state: Mutex::new(State {
-                availability: Availability::Following,
-                stations: BTreeMap::new(),
-                total: 0,
-                omitted_stations: 0,
-                generation: 0,
-                answers: HashMap::new(),
-                next_epoch: 0,
-            }),
-            changed: watch::channel(0).0,
-            consumers: AtomicU64::new(0),
-            bucket_listings: AtomicU64::new(0),
-            limits,
-        }
+        ArchiveListing::empty(limits, Availability::Following)
     }
 
     /// A station's bucket being read (reading `epoch`), with nothing listed yet.

@@ -191,16 +191,11 @@ impl Access {
         F: FnOnce(Role) -> Fut,
         Fut: Future<Output = Result<Arc<StreamHub>, (u16, &'static str)>>,
     {
-        let gate = Gate {
-            access: self,
-            limits,
-            shutdown,
-            counters,
-        };
-        let mut rate = MessageRate::new(&self.config.limits, Instant::now());
-        let client = connection.peer.map(|p| p.ip());
-        let role = match role_of(&mut socket, &gate, &mut rate, client).await {
-            Ok(role) => role,
+        let (role, rate) = match self
+            .role_and_rate(&mut socket, limits, shutdown, counters, connection)
+            .await
+        {
+            Ok(found) => found,
             Err(end) => return end,
         };
         match find(role).await {
@@ -230,6 +225,27 @@ impl Access {
         F: FnOnce(WebSocket, Role, MessageRate) -> Fut,
         Fut: Future<Output = ViewerEnd>,
     {
+        let (role, rate) = match self
+            .role_and_rate(&mut socket, limits, shutdown, counters, connection)
+            .await
+        {
+            Ok(found) => found,
+            Err(end) => return end,
+        };
+        connection.authenticated(role);
+        serve(socket, role, rate).await
+    }
+
+    /// The role of a connection that has no stream yet (after the `auth` exchange when there are
+    /// tokens) and its message rate, which the exchange has already drawn on.
+    async fn role_and_rate(
+        &self,
+        socket: &mut WebSocket,
+        limits: ViewerLimits,
+        shutdown: &watch::Receiver<bool>,
+        counters: &StreamCounters,
+        connection: &Connection,
+    ) -> Result<(Role, MessageRate), ViewerEnd> {
         let gate = Gate {
             access: self,
             limits,
@@ -238,12 +254,8 @@ impl Access {
         };
         let mut rate = MessageRate::new(&self.config.limits, Instant::now());
         let client = connection.peer.map(|p| p.ip());
-        let role = match role_of(&mut socket, &gate, &mut rate, client).await {
-            Ok(role) => role,
-            Err(end) => return end,
-        };
-        connection.authenticated(role);
-        serve(socket, role, rate).await
+        let role = role_of(socket, &gate, &mut rate, client).await?;
+        Ok((role, rate))
     }
 
     /// Closes a connection refused by a limit on connections before it has a stream, with 4429

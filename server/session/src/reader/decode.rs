@@ -166,13 +166,15 @@ impl Recording {
                     limit,
                 });
             }
-            let bad = |e: serde_json::Error| SessionError::BadMessage {
+            // This message refused, for `reason`, naming the file, channel and place.
+            let refuse = |reason: String| SessionError::BadMessage {
                 path: path_buf.clone(),
                 topic: channel.topic.clone(),
                 sequence: message.sequence,
                 log_time_ns: message.log_time,
-                reason: e.to_string(),
+                reason,
             };
+            let bad = |e: serde_json::Error| refuse(e.to_string());
             match kind {
                 Kind::Build => {
                     let b: BuildRecord = serde_json::from_slice(&message.data).map_err(bad)?;
@@ -190,37 +192,19 @@ impl Recording {
                 }
                 Kind::Contact => {
                     let json = std::str::from_utf8(&message.data)
-                        .map_err(|e| SessionError::BadMessage {
-                            path: path_buf.clone(),
-                            topic: channel.topic.clone(),
-                            sequence: message.sequence,
-                            log_time_ns: message.log_time,
-                            reason: e.to_string(),
-                        })?
+                        .map_err(|e| refuse(e.to_string()))?
                         .to_owned();
                     // The frame must be a contact message of the wire protocol.
                     match ServerMessage::decode(&json) {
                         Ok(ServerMessage::Contact(_)) => {}
                         Ok(other) => {
-                            return Err(SessionError::BadMessage {
-                                path: path_buf.clone(),
-                                topic: channel.topic.clone(),
-                                sequence: message.sequence,
-                                log_time_ns: message.log_time,
-                                reason: format!(
-                                    "a {} message on the contact channel",
-                                    other.type_name()
-                                ),
-                            });
+                            return Err(refuse(format!(
+                                "a {} message on the contact channel",
+                                other.type_name()
+                            )));
                         }
                         Err(e) => {
-                            return Err(SessionError::BadMessage {
-                                path: path_buf.clone(),
-                                topic: channel.topic.clone(),
-                                sequence: message.sequence,
-                                log_time_ns: message.log_time,
-                                reason: e.to_string(),
-                            });
+                            return Err(refuse(e.to_string()));
                         }
                     }
                     contacts.push(RecordedMessage {
@@ -236,13 +220,7 @@ impl Recording {
                             json: compact_json(json),
                         }),
                         _ => {
-                            return Err(SessionError::BadMessage {
-                                path: path_buf.clone(),
-                                topic: channel.topic.clone(),
-                                sequence: message.sequence,
-                                log_time_ns: message.log_time,
-                                reason: "not a stats message of the wire protocol".into(),
-                            });
+                            return Err(refuse("not a stats message of the wire protocol".into()));
                         }
                     }
                 }
@@ -265,13 +243,7 @@ impl Recording {
                     match ServerMessage::decode(&json) {
                         Ok(ServerMessage::Mark(m)) => marks.push(m),
                         _ => {
-                            return Err(SessionError::BadMessage {
-                                path: path_buf.clone(),
-                                topic: channel.topic.clone(),
-                                sequence: message.sequence,
-                                log_time_ns: message.log_time,
-                                reason: "not a mark message of the wire protocol".into(),
-                            });
+                            return Err(refuse("not a mark message of the wire protocol".into()));
                         }
                     }
                 }
@@ -293,13 +265,9 @@ impl Recording {
                     match ServerMessage::decode(&json) {
                         Ok(ServerMessage::Exercise(m)) => exercises.push(*m),
                         _ => {
-                            return Err(SessionError::BadMessage {
-                                path: path_buf.clone(),
-                                topic: channel.topic.clone(),
-                                sequence: message.sequence,
-                                log_time_ns: message.log_time,
-                                reason: "not an exercise message of the wire protocol".into(),
-                            });
+                            return Err(refuse(
+                                "not an exercise message of the wire protocol".into(),
+                            ));
                         }
                     }
                 }
