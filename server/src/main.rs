@@ -436,10 +436,13 @@ fn hub(args: HubArgs) -> anyhow::Result<()> {
         })
         .await?;
         let mut access = access;
-        access.print_links(
+        access.print_page_links(
             &hub.viewer_url(),
             hub.local_addr(),
-            ["hub viewer", "hub observer"],
+            &[
+                ("", ["hub viewer", "hub observer"]),
+                ("dashboard", ["hub dashboard", "hub observer dashboard"]),
+            ],
         );
         let signal = stop.recv().await;
         tracing::info!(signal, "shutting down");

@@ -89,7 +89,7 @@ export function writeStationFiles(dir) {
  * Starts a lab in `dir`: a nats-server, one station per `[name, args]` of `stations` (every
  * station `--no-realtime`, as the browser tests run them), and a hub with tokens. Resolves with
  * `{stations: Map name → server, hub, dashboardUrl, observerDashboardUrl, stop}`; the URLs are the
- * hub's printed links pointed at `/dashboard`, the token still in their fragment.
+ * dashboard links the hub printed, each role's token in their fragment.
  */
 export async function startDashboardLab(dir, stations) {
   const nats = await startNats(dir);
@@ -114,12 +114,24 @@ export async function startDashboardLab(dir, stations) {
     await lab.stop();
     throw e;
   }
-  const dashboard = (link) => {
-    const url = new URL(link);
-    url.pathname = '/dashboard';
-    return url.href;
-  };
-  lab.dashboardUrl = dashboard(lab.hub.url);
-  lab.observerDashboardUrl = dashboard(lab.hub.observerUrl);
+  try {
+    lab.dashboardUrl = await printedLink(lab.hub, 'hub dashboard');
+    lab.observerDashboardUrl = await printedLink(lab.hub, 'hub observer dashboard');
+  } catch (e) {
+    await lab.stop();
+    throw e;
+  }
   return lab;
+}
+
+/** The link a `server` printed after `label: ` (within 10 s of its viewer's links). */
+async function printedLink(server, label) {
+  const line = new RegExp(`^${label}: (https?://\\S+)$`, 'm');
+  const deadline = Date.now() + 10000;
+  for (;;) {
+    const m = line.exec(server.output());
+    if (m) return m[1];
+    if (Date.now() > deadline) throw new Error(`the hub printed no "${label}:" link:\n${server.output()}`);
+    await new Promise((resolve) => setTimeout(resolve, 50));
+  }
 }

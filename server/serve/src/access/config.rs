@@ -2,6 +2,7 @@
 //! ([`AccessConfig`]): the tokens, the accepted origins and host names, the connection limits,
 //! and the refusal to serve beyond loopback without tokens.
 
+use std::fmt::Write as _;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -213,22 +214,40 @@ impl AccessConfig {
     /// journal (a service), a file or nowhere, which would keep the tokens for whoever reads those, the
     /// links go to `links.txt` (mode 0600) in [`AccessConfig::links_dir`], which the log names.
     pub fn print_links(&mut self, url: &str, addr: SocketAddr, labels: [&str; 2]) {
+        self.print_page_links(url, addr, &[("", labels)]);
+    }
+
+    /// [`AccessConfig::print_links`] for several pages of one server: each `(path, labels)`
+    /// is a page at `path` below the server's base (`""` for the viewer), all in one file when
+    /// the links go to a file.
+    pub fn print_page_links(&mut self, url: &str, addr: SocketAddr, pages: &[(&str, [&str; 2])]) {
         self.secure_transport = url.starts_with("https:");
         let base = self.public_base(url, addr);
-        let Some((instructor, observer)) = self.links(&base) else {
-            crate::logging::print_line(format_args!("{}: {base}", labels[0]));
-            return;
-        };
-        if stdout_is_read_now() {
-            crate::logging::print_line(format_args!("{}: {instructor}", labels[0]));
-            crate::logging::print_line(format_args!("{}: {observer}", labels[1]));
+        // Written in place, in room enough never to move (a moved buffer is not zeroed).
+        let mut lines = zeroize::Zeroizing::new(String::with_capacity(4096));
+        for (path, labels) in pages {
+            let page = format!("{base}{path}");
+            match self.links(&page) {
+                Some((instructor, observer)) => {
+                    let _ = writeln!(lines, "{}: {instructor}", labels[0]);
+                    let _ = writeln!(lines, "{}: {observer}", labels[1]);
+                }
+                None => {
+                    // No token in it: printed wherever standard output goes.
+                    crate::logging::print_line(format_args!("{}: {page}", labels[0]));
+                }
+            }
+        }
+        if lines.is_empty() {
             return;
         }
-        let text = zeroize::Zeroizing::new(format!(
-            "{}: {instructor}\n{}: {observer}\n",
-            labels[0], labels[1]
-        ));
-        match write_links_file(self.links_dir.as_deref(), &text) {
+        if stdout_is_read_now() {
+            for line in lines.lines() {
+                crate::logging::print_line(format_args!("{line}"));
+            }
+            return;
+        }
+        match write_links_file(self.links_dir.as_deref(), &lines) {
             Ok(path) => tracing::warn!(
                 file = %path.display(),
                 "standard output is not a terminal or a pipe (a journal or a file would keep the \
