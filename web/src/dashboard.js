@@ -368,6 +368,7 @@ function newTile(name) {
     device: q('.device'),
     viewers: q('.viewers'),
     alerts: q('.tile-alerts'),
+    tools: q('.tools'),
     actions: q('.actions'),
     buttons: Object.fromEntries([...root.querySelectorAll('button[data-act]')].map((b) => [b.dataset.act, b])),
     markForm: q('.mark-form'),
@@ -397,6 +398,8 @@ function drawTile(tile, s) {
   tile.root.classList.toggle('offline', s.state === 'offline');
   const activity = activityOf(s);
   text(tile.activity, activity.words);
+  // A compact tile may cut the words short.
+  tile.activity.title = activity.words;
   tile.activity.className = `activity badge ${activity.level === 'muted' ? '' : activity.level}`;
   tile.contact.classList.toggle('on', summary?.in_contact === true);
   text(tile.trainee, summary?.trainee ?? (summary === null ? s.scene : 'no trainee'));
@@ -429,6 +432,8 @@ function drawTile(tile, s) {
   drawTileAlerts(tile, s);
   const allowed = tileActions(s, page.role);
   tile.actions.hidden = !canAct(page.role);
+  // An observer has nothing to open over a compact tile (no button, and no answer to one).
+  tile.tools.hidden = !canAct(page.role);
   for (const [act, button] of Object.entries(tile.buttons)) {
     const on = allowed[act];
     if (act === 'rearm') button.hidden = !on;

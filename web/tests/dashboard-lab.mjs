@@ -12,8 +12,13 @@
 //     scene, and another time limit when asked) for a trainee, the next exercise left to an
 //     instructor (`--exercise-pause wait`). The simulated hand presses harder than the task
 //     asks, so an attempt that reaches its time limit fails (an `exercise_failed` alert).
+// For a room of fifty without fifty 1 kHz loops on the machine, `copyHeartbeats` publishes one
+// real station's heartbeat again under other names: a hub's dashboard reads nothing else of a
+// station.
 import { readFileSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
+
+import { connect } from 'nats';
 
 import { startNats } from './e2e-fixtures.mjs';
 import { REPO, startServer } from './server.mjs';
@@ -88,12 +93,12 @@ export function writeStationFiles(dir) {
 /**
  * Starts a lab in `dir`: a nats-server, one station per `[name, args]` of `stations` (every
  * station `--no-realtime`, as the browser tests run them), and a hub with tokens. Resolves with
- * `{stations: Map name → server, hub, dashboardUrl, observerDashboardUrl, stop}`; the URLs are the
+ * `{stations: Map name → server, hub, natsUrl, dashboardUrl, observerDashboardUrl, stop}`; the URLs are the
  * dashboard links the hub printed, each role's token in their fragment.
  */
 export async function startDashboardLab(dir, stations) {
   const nats = await startNats(dir);
-  const lab = { stations: new Map(), hub: null };
+  const lab = { stations: new Map(), hub: null, natsUrl: nats.url };
   lab.stop = async () => {
     await lab.hub?.stop();
     for (const s of lab.stations.values()) await s.stop();
@@ -134,4 +139,29 @@ async function printedLink(server, label) {
     if (Date.now() > deadline) throw new Error(`the hub printed no "${label}:" link:\n${server.output()}`);
     await new Promise((resolve) => setTimeout(resolve, 50));
   }
+}
+
+/**
+ * Publishes each heartbeat of station `from` again as the heartbeat of each of `names`, through
+ * the lab's nats-server at `natsUrl`, until `stop()`: to a hub, as many more stations saying
+ * what `from` says, once a second.
+ */
+export async function copyHeartbeats(natsUrl, from, names) {
+  const nc = await connect({ servers: natsUrl });
+  const sub = nc.subscribe(`softhaptic.stations.${from}`);
+  const copying = (async () => {
+    for await (const m of sub) {
+      const status = JSON.parse(new TextDecoder().decode(m.data));
+      for (const name of names) {
+        status.name = name;
+        nc.publish(`softhaptic.stations.${name}`, new TextEncoder().encode(JSON.stringify(status)));
+      }
+    }
+  })();
+  return {
+    stop: async () => {
+      await nc.drain();
+      await copying;
+    },
+  };
 }

@@ -15,7 +15,9 @@
 // (which has no force output to re-arm) is answered with the station's refusal; the observer's page shows every tile and alert
 // but no control, and an action sent from it anyway is refused and changes nothing; Chromium
 // reports no CSP violation and the pages no error; the sort, filter and size an instructor chose
-// are the page's again after a reload.
+// are the page's again after a reload; fifty compact tiles (forty-six of them another station's
+// heartbeat published again under other names) fit a 1280 × 800 screen without scrolling, and a
+// compact tile's buttons open on hover and work.
 import { after, before, test } from 'node:test';
 import assert from 'node:assert/strict';
 import { mkdtempSync, rmSync } from 'node:fs';
@@ -23,7 +25,7 @@ import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 
 import { launchBrowser } from './browser.mjs';
-import { startDashboardLab, writeStationFiles } from './dashboard-lab.mjs';
+import { copyHeartbeats, startDashboardLab, writeStationFiles } from './dashboard-lab.mjs';
 import { watchCsp } from './e2e-checks.mjs';
 import { logTail, waitOnPage } from './e2e-fixtures.mjs';
 
@@ -294,9 +296,54 @@ test('the order, filter and size an instructor chose survive a reload', async ()
     const shown = window.__dashboard.tiles();
     return shown.length === 1 && shown[0].name === 'desk-unplugged';
   });
-  // Back to every station for what follows.
+  // Back to the page's defaults for what follows.
+  await p.selectOption('#sort', 'alerts');
   await p.selectOption('#show', 'all');
+  await p.fill('#filter', '');
+  await p.uncheck('#compact');
   await waitFor(p, 'every tile again', (n) => window.__dashboard.tiles().length === n, NAMES.length);
+});
+
+test('fifty compact tiles fit a 1280 × 800 screen, and a tile’s buttons open over it', async () => {
+  // Forty-six more stations: desk-calm's heartbeat published again under other names.
+  const copies = Array.from({ length: 46 }, (_, i) => `desk-c${String(i + 1).padStart(2, '0')}`);
+  const copying = await copyHeartbeats(lab.natsUrl, 'desk-calm', copies);
+  try {
+    for (const opened of [teacher, watcher]) {
+      const p = opened.page;
+      await p.check('#compact');
+      await waitFor(p, 'fifty tiles', () => window.__dashboard.tiles().length === 50);
+      const fit = await p.evaluate(() => {
+        const outside = [...document.querySelectorAll('#tiles .tile')]
+          .filter((t) => {
+            const r = t.getBoundingClientRect();
+            return r.top < 0 || r.left < 0 || r.bottom > window.innerHeight || r.right > window.innerWidth;
+          })
+          .map((t) => t.dataset.station);
+        return { outside, scrolls: document.scrollingElement.scrollHeight > window.innerHeight };
+      });
+      assert.deepEqual(fit, { outside: [], scrolls: false }, 'every tile in view, nothing to scroll');
+    }
+    // The buttons are out of the way until the pointer is on the tile, then usable.
+    const p = teacher.page;
+    const tile = p.locator('#tiles .tile[data-station="desk-calm"]');
+    assert.equal(await tile.locator('.tools').isVisible(), false);
+    await tile.hover();
+    assert.equal(await tile.locator('.tools').isVisible(), true);
+    await tile.locator('button[data-act="mark"]').click();
+    await tile.locator('.mark-form input').fill('checked from the compact tile');
+    await tile.locator('.mark-form input').press('Enter');
+    await waitFor(p, 'the mark answered', () =>
+      window.__dashboard.tiles().some((t) => t.name === 'desk-calm' && t.result === 'mark: done'),
+    );
+    // An observer's tile opens nothing.
+    const watched = watcher.page.locator('#tiles .tile[data-station="desk-calm"]');
+    await watched.hover();
+    assert.equal(await watched.locator('.tools').isVisible(), false);
+  } finally {
+    await copying.stop();
+    for (const opened of [teacher, watcher]) await opened.page.uncheck('#compact');
+  }
 });
 
 test('no CSP violation and no page error', async () => {
