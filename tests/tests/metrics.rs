@@ -144,13 +144,22 @@ async fn live_recorded_exported_and_replayed_metrics_are_the_same() {
 }
 
 /// The next `metrics` message; panics when none comes within 30 s (the other messages, a
-/// paused replay's status among them, go on coming).
-async fn next_metrics(viewer: &mut Viewer) -> softhaptic_proto::wire::MetricsMessage {
+/// paused replay's status among them, go on coming), saying what came instead.
+async fn next_metrics(viewer: &mut Viewer, after: &str) -> softhaptic_proto::wire::MetricsMessage {
     let deadline = Instant::now() + Duration::from_secs(30);
+    let mut seen: Vec<String> = Vec::new();
     loop {
-        assert!(Instant::now() < deadline, "no metrics message");
-        if let Some(Ok(ServerMessage::Metrics(m))) = viewer.next(Duration::from_secs(10)).await {
-            return m;
+        assert!(
+            Instant::now() < deadline,
+            "no metrics message after {after}; came instead: {seen:?}"
+        );
+        match viewer.next(Duration::from_secs(10)).await {
+            Some(Ok(ServerMessage::Metrics(m))) => return m,
+            Some(Ok(other)) => seen.push(other.type_name().to_owned()),
+            Some(Err(e)) => seen.push(format!("undecodable: {e}")),
+            None => {
+                panic!("the connection closed waiting for metrics after {after}; came: {seen:?}")
+            }
         }
     }
 }
@@ -292,7 +301,7 @@ async fn a_seek_sends_the_metrics_of_the_new_position() {
     };
     for time_s in [2.5, 0.2, 1.5] {
         watcher.send_text(&seek(time_s)).await;
-        let got = next_metrics(&mut watcher).await;
+        let got = next_metrics(&mut watcher, &format!("a seek to {time_s} s")).await;
         let t = start_ns + (time_s * 1e9) as u64;
         match timeline.iter().rev().find(|(at, _)| *at <= t) {
             Some((_, expected)) => assert_eq!(&got, expected, "at {time_s} s"),
