@@ -45,6 +45,9 @@ pub struct DhdState {
     pub watchdog_trips: u64,
     /// Opens refused because the device was open already.
     pub refused_opens: u64,
+    /// The velocity estimator's mode (`dhd::DHD_VELOCITY_*`) and window, ms.
+    pub velocity_mode: i32,
+    pub velocity_window_ms: i32,
 }
 
 /// A handle on the stand-in's test controls (the `dhdStandin*` functions, which the backend
@@ -74,6 +77,7 @@ pub struct DhdStandIn {
     enable_expert_mode: unsafe extern "C" fn() -> c_int,
     disable_expert_mode: unsafe extern "C" fn() -> c_int,
     set_watchdog: unsafe extern "C" fn(u8, std::ffi::c_char) -> c_int,
+    config_velocity: unsafe extern "C" fn(c_int, c_int, std::ffi::c_char) -> c_int,
     enable_force: unsafe extern "C" fn(u8, std::ffi::c_char) -> c_int,
 }
 
@@ -117,6 +121,7 @@ impl DhdStandIn {
             enable_expert_mode: control!(library, "dhdEnableExpertMode"),
             disable_expert_mode: control!(library, "dhdDisableExpertMode"),
             set_watchdog: control!(library, "dhdSetWatchdog"),
+            config_velocity: control!(library, "dhdConfigLinearVelocity"),
             enable_force: control!(library, "dhdEnableForce"),
         })
     }
@@ -194,8 +199,8 @@ impl DhdStandIn {
     }
 
     pub fn state(&self) -> DhdState {
-        let mut v = [0.0; 12];
-        // SAFETY: twelve writable doubles.
+        let mut v = [0.0; 14];
+        // SAFETY: fourteen writable doubles.
         unsafe { (self.state)(v.as_mut_ptr()) };
         DhdState {
             open: v[0] != 0.0,
@@ -210,6 +215,8 @@ impl DhdStandIn {
             saturations: v[9] as u64,
             watchdog_trips: v[10] as u64,
             refused_opens: v[11] as u64,
+            velocity_mode: v[12] as i32,
+            velocity_window_ms: v[13] as i32,
         }
     }
 
@@ -295,6 +302,12 @@ impl DhdStandIn {
     pub fn set_watchdog_here(&self, units: u8, id: i8) -> i32 {
         // SAFETY: plain values.
         unsafe { (self.set_watchdog)(units, id as std::ffi::c_char) }
+    }
+
+    /// `dhdConfigLinearVelocity` from the calling thread.
+    pub fn config_velocity_here(&self, ms: i32, mode: i32, id: i8) -> i32 {
+        // SAFETY: plain values.
+        unsafe { (self.config_velocity)(ms, mode, id as std::ffi::c_char) }
     }
 
     /// `dhdEnableForce` from the calling thread.

@@ -17,6 +17,10 @@
  *   - forces are off and the brakes on when a device opens, until the application turns them
  *     on; a force beyond the device's maximum is scaled down to it and answered
  *     DHD_MOTOR_SATURATED, which is not an error; so is DHD_TIMEGUARD;
+ *   - the velocity estimator is the SDK's 20 ms window from each open until the application
+ *     configures another (dhdConfigLinearVelocity; a mode the SDK lacks, or a window of no
+ *     time, is refused DHD_ERROR_INVALID_PARAM). What the estimator does is not modelled: the
+ *     velocity read is the hand's own, so a test compares forces with the simulator's exactly;
  *   - one application at a time: opening a device already open fails (DHD_ERROR_DEVICE_IN_USE),
  *     so a backend that reconnects without closing the lost connection is caught;
  *   - an unplugged device fails every call (DHD_ERROR_COM) and cannot be opened
@@ -87,6 +91,9 @@ typedef struct {
     int gravity_on;
     int expert_mode;
     int watchdog_units;
+    /* The velocity estimator's configuration (dhdConfigLinearVelocity): mode and window, ms. */
+    int velocity_mode;
+    int velocity_window_ms;
     int buttons;
     /* The force last commanded (after saturation), N, and when (s, CLOCK_MONOTONIC). */
     double command_n[3];
@@ -313,6 +320,8 @@ static void reset_locked(void) {
     g.max_force_n = type_max_force(DEFAULT_TYPE);
     g.brakes_on = 1;
     g.gravity_on = 1;
+    g.velocity_mode = DHD_VELOCITY_WINDOWING;
+    g.velocity_window_ms = DHD_VELOCITY_WINDOW;
     read_press("DHD_STANDIN_PRESS", "dhd_standin", g.press);
     press_to_hand(g.press);
     g.grip = DEFAULT_GRIP;
@@ -361,6 +370,9 @@ API int dhdOpenID(char index) {
         g.brakes_on = 1;
         g.gravity_on = 1;
         g.watchdog_units = 0;
+        /* The SDK's default estimator, until the application configures another. */
+        g.velocity_mode = DHD_VELOCITY_WINDOWING;
+        g.velocity_window_ms = DHD_VELOCITY_WINDOW;
         g.have_command = 0;
         g.watchdog_expired = 0;
         g.opens++;
@@ -464,6 +476,22 @@ API int dhdGetLinearVelocity(double *vx, double *vy, double *vz, char id) {
         *vx = g.velocity_m_s[0];
         *vy = g.velocity_m_s[1];
         *vz = g.velocity_m_s[2];
+        result = ok(0);
+    }
+    pthread_mutex_unlock(&g_mu);
+    return result;
+}
+
+API int dhdConfigLinearVelocity(int ms, int mode, char id) {
+    pthread_mutex_lock(&g_mu);
+    int result = -1;
+    if (mode != DHD_VELOCITY_WINDOWING && mode != DHD_VELOCITY_INSTANT) {
+        result = fail(DHD_ERROR_INVALID_PARAM);
+    } else if (mode == DHD_VELOCITY_WINDOWING && ms <= 0) {
+        result = fail(DHD_ERROR_INVALID_PARAM);
+    } else if (usable_locked(id)) {
+        g.velocity_mode = mode;
+        g.velocity_window_ms = ms;
         result = ok(0);
     }
     pthread_mutex_unlock(&g_mu);
@@ -690,13 +718,13 @@ API void dhdStandinHandState(double position_m[3], double velocity_m_s[3]) {
  * the watchdog's units; then the counters since the reset: opens, closes, force commands,
  * saturated commands, watchdog expiries, opens refused because the device was in use. Into
  * `out`, 12 values. */
-API void dhdStandinState(double out[12]) {
+API void dhdStandinState(double out[14]) {
     pthread_mutex_lock(&g_mu);
     watch_locked(now_s());
-    double v[12] = {g.open,        g.force_on,    g.brakes_on, g.gravity_on,
+    double v[14] = {g.open,        g.force_on,    g.brakes_on, g.gravity_on,
                     g.expert_mode, g.watchdog_units, (double)g.opens, (double)g.closes,
                     (double)g.commands, (double)g.saturations, (double)g.watchdog_trips,
-                    (double)g.refused_opens};
+                    (double)g.refused_opens, g.velocity_mode, g.velocity_window_ms};
     pthread_mutex_unlock(&g_mu);
     memcpy(out, v, sizeof(v));
 }

@@ -286,6 +286,11 @@ async fn an_unplugged_device_is_reconnected_and_the_force_ramps_in_again() {
     assert!(
         state.force_on && !state.brakes_on && state.watchdog_units == u32::from(WATCHDOG_UNITS)
     );
+    // The velocity's window configured again on the new connection.
+    assert_eq!(
+        (state.velocity_mode, state.velocity_window_ms),
+        (dhd::DHD_VELOCITY_WINDOWING, fd::VELOCITY_WINDOW_MS)
+    );
     // The hand presses again, and on.
     wait_pressing(&s, 1.0).await;
     wait_commands(&s, 300).await;
@@ -494,6 +499,25 @@ async fn the_stand_in_keeps_the_sdks_rules() {
     assert_eq!(s.expert_mode_here(true), 0);
     assert_eq!(s.set_watchdog_here(8, -1), 0);
     assert_eq!(s.expert_mode_here(false), 0);
+    // The velocity estimator: the SDK's 20 ms window at open, another on request, a mode the
+    // SDK does not have refused.
+    let state = s.state();
+    assert_eq!(
+        (state.velocity_mode, state.velocity_window_ms),
+        (dhd::DHD_VELOCITY_WINDOWING, dhd::DHD_VELOCITY_WINDOW)
+    );
+    assert_eq!(
+        s.config_velocity_here(5, dhd::DHD_VELOCITY_WINDOWING, -1),
+        0
+    );
+    assert_eq!(s.state().velocity_window_ms, 5);
+    assert_eq!(s.config_velocity_here(5, 1, -1), -1);
+    assert_eq!(s.last_error_here(), dhd::DHD_ERROR_INVALID_PARAM);
+    assert_eq!(
+        s.config_velocity_here(0, dhd::DHD_VELOCITY_WINDOWING, -1),
+        -1
+    );
+    assert_eq!(s.state().velocity_window_ms, 5);
     // Forces on (the brakes released): a force within the peak is given as is, one beyond it
     // scaled to the omega.3's 12 N and answered DHD_MOTOR_SATURATED, which is no error.
     assert_eq!(s.enable_force_here(true, -1), 0);

@@ -17,6 +17,13 @@ pub const DHD_TIMEGUARD: i32 = 1;
 /// The force asked for was beyond what the motors give: it was scaled down to fit.
 pub const DHD_MOTOR_SATURATED: i32 = 2;
 
+// Velocity estimator modes (dhdConfigLinearVelocity): the mean over a sliding window of the
+// given milliseconds, or the instantaneous difference of the last two readings.
+pub const DHD_VELOCITY_WINDOWING: i32 = 0;
+pub const DHD_VELOCITY_INSTANT: i32 = 2;
+/// The SDK's default window, ms, when none is configured.
+pub const DHD_VELOCITY_WINDOW: i32 = 20;
+
 // Device types (dhdGetSystemType). The omega.6 and omega.7 are `OMEGA33` and `OMEGA331`, the
 // sigma.7 `SIGMA331`; `_LEFT` is the left-handed build of the same mechanism.
 pub const DHD_DEVICE_NONE: i32 = 0;

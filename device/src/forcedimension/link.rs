@@ -26,7 +26,7 @@ use std::time::Duration;
 
 use super::dhd::*;
 use super::ffi::{DhdLibrary, Failed};
-use super::{DeviceDescription, ForceDimensionError, type_limits};
+use super::{DeviceDescription, ForceDimensionError, VELOCITY_WINDOW_MS, type_limits};
 use crate::backend::reconnect::{Backoff, RECONNECT_BACKOFF_MAX, sleep_unless};
 
 /// Who uses the device now (module docs).
@@ -133,6 +133,13 @@ impl Shared {
             // SAFETY: as above.
             let _ = unsafe { (api.disable_expert_mode)() };
             watchdog.map_err(|e| self.error("dhdSetWatchdog", e))?;
+            // The velocity the damping multiplies: a short window, not the SDK's default
+            // (`VELOCITY_WINDOW_MS`).
+            // SAFETY: as above.
+            lib.check(unsafe {
+                (api.config_linear_velocity)(VELOCITY_WINDOW_MS, DHD_VELOCITY_WINDOWING, id)
+            })
+            .map_err(|e| self.error("dhdConfigLinearVelocity", e))?;
             // SAFETY: as above.
             lib.check(unsafe { (api.set_gravity_compensation)(DHD_ON, id) })
                 .map_err(|e| self.error("dhdSetGravityCompensation", e))?;

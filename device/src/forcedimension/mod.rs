@@ -63,6 +63,13 @@ pub const WATCHDOG_UNITS: u8 = 80;
 /// The watchdog's duration, s.
 pub const WATCHDOG_S: f64 = WATCHDOG_UNITS as f64 * WATCHDOG_UNIT_S;
 
+/// The window of the SDK's velocity estimate, ms. The loop's damping multiplies this velocity,
+/// and a mean over a window lags by about half of it: the SDK's default of 20 ms would act
+/// 10 ms, ten servo periods, late, and a damper that late can feed energy into the hand it
+/// should take it from. 5 ms lags 2.5 ms and averages five readings against the encoders'
+/// quantisation.
+pub const VELOCITY_WINDOW_MS: i32 = 5;
+
 /// The commanded force stays this fraction below the type's peak force, in the device's axes.
 pub const FORCE_MARGIN: f64 = 0.01;
 
