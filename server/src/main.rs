@@ -44,9 +44,11 @@ enum Command {
     /// not read, 2 when the loop cannot run as configured or the doctor itself could not run.
     Doctor(softhaptic_server::doctor::DoctorArgs),
     /// A teaching lab's hub: lists the stations that publish to NATS (`--nats URL --station
-    /// NAME` on each device host) and relays any of them to browsers, with the same wire, roles,
-    /// tokens, Origin checks and TLS as a station. Run several behind a load balancer: a hub
-    /// keeps nothing NATS does not have.
+    /// NAME` on each device host), relays any of them to browsers with the same wire, roles,
+    /// tokens, Origin checks and TLS as a station, and serves the class's dashboard
+    /// (`/dashboard`: a tile per station, alerts, an instructor's actions). Prints the viewer's
+    /// and the dashboard's links at start. Run several behind a load balancer: a hub keeps
+    /// nothing NATS does not have.
     Hub(HubArgs),
     /// The shared test vectors of the viewer and the server (proto/vectors/*.json).
     Vectors {
