@@ -137,7 +137,8 @@ export const ALERT_WORDS = Object.freeze({
 
 /**
  * What the station is doing, for the tile's badge: `offline`, `no summary` (a station that sends
- * none), `exercise running`, `passed`, `failed`, `in contact` or `idle`; with `level` (`ok`,
+ * none), `exercise running`, `passed`, `failed`, `device fault` (a device down, outside an
+ * exercise's result), `in contact` or `idle`; with `level` (`ok`,
  * `active`, `bad`, `muted`) for its colour.
  */
 export function activityOf(station) {
@@ -149,6 +150,8 @@ export function activityOf(station) {
     if (s.exercise.passed === true) return { words: 'passed', level: 'ok' };
     if (s.exercise.passed === false) return { words: 'failed', level: 'bad' };
   }
+  // A trainee whose device is down is not idle: nothing they do reaches the object.
+  if (deviceHealth(s.device).level === 'bad') return { words: 'device fault', level: 'bad' };
   if (s.in_contact) return { words: 'in contact', level: 'active' };
   return { words: 'idle', level: 'muted' };
 }

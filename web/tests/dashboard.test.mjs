@@ -263,6 +263,19 @@ test('a tile says what its station is doing', () => {
     words((s, sum) => Object.assign(sum, { exercise: null, in_contact: false })),
     'idle',
   );
+  // A device down is said in place of idle or contact, not over an exercise's state; a device
+  // that needs calibration or runs warm is the device line's warning alone.
+  const down = (state) => (s, sum) => {
+    sum.exercise = null;
+    sum.device.state = state;
+  };
+  assert.deepEqual(activityOf(station('d', down('disconnected'))), { words: 'device fault', level: 'bad' });
+  assert.equal(words(down('force_latched')), 'device fault');
+  assert.equal(words(down('needs_calibration')), 'in contact');
+  assert.equal(
+    words((s, sum) => (sum.device.state = 'disconnected')),
+    'exercise running',
+  );
   assert.equal(
     words((s) => (s.state = 'offline')),
     'offline',
